@@ -1,0 +1,271 @@
+"""ICP baseline (the paper's "ICP" row): per-part rigid registration to a category template.
+
+Uses ground-truth segmentation at test time, as in the paper.
+
+Template: one training instance at rest, the medoid of the training instances' part extents;
+the ``npcs`` coordinates (rest-state object frame / bbox diagonal) of all its training views,
+pooled per part, thinned by farthest-point sampling and scaled by its bbox diagonal. It lives in
+the GT canonical frame, so no canonical-frame alignment is needed.
+
+Registration is hierarchical, with point-to-point ICP (``small_gicp``): (1) the whole observed
+object is registered to the whole template from a fixed set of rotation hypotheses (the 60
+rotations of the icosahedral group, centroids aligned; a short coarse run on a subsample, then
+the best few, at least 45 deg apart, refined); (2) for each of those, the observed points of each
+GT part are registered to that part's template, starting from the object-level pose and from
+local perturbations of it (+-45 deg about the three object axes, through the part centroid).
+Every pose is scored two-sidedly: observation -> template residual plus the residual of the
+template points visible to the camera (a coarse z-buffer) -> observation, both truncated. The
+object-level candidate whose parts fit best overall wins. Starting parts from the object level
+keeps thin, nearly symmetric parts (plates, doors) from flipping independently; the object as a
+whole can still flip front-to-back when the template and the instance differ in shape.
+
+Outputs: part poses (template frame -> camera); joints derived from the relative motion of the
+child part against its parent (axis and angle of the relative rotation, pivot from
+``(I - R) c = t``; translation direction for prismatic joints), with the sign chosen to agree with
+the template's rest-state joint axis (pooled from training ground truth), which also stands in
+when the relative motion is too small to define an axis; segmentation: every point takes the
+part of the nearest registered template point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import small_gicp
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from scapo.baselines.base import METHODS
+from scapo.data.dataset import ArticulationDataset
+from scapo.errors import DatasetError
+from scapo.eval.predictions import Predictions
+from scapo.geometry import as_transform, invert_transform, relative_motion_to_joint, transform_points
+from scapo.sim.render import farthest_point_indices
+
+
+@dataclass(frozen=True)
+class ICPConfig:
+    """Options of the ICP baseline."""
+
+    template_points: int = 2048
+    """Points per part template (farthest-point sample of the pooled training NPCS; fewer if fewer exist)."""
+    hypotheses: str = "I"
+    """Initial rotations: a scipy rotation group ("I": 60 icosahedral, "O": 24 octahedral)."""
+    max_iterations: int = 30
+    """ICP iterations per hypothesis."""
+    max_correspondence: float = 0.15
+    """Inlier distance for correspondences and the truncated score, in template bbox diagonals."""
+    refine_top: int = 3
+    """Object-level hypotheses refined and carried into part-level registration; the one whose
+    parts fit best (two-sided score summed over parts) wins."""
+    visibility_cell: float = 4.0
+    """Pixel size of the z-buffer grid used to find template points visible to the camera."""
+    min_joint_angle_deg: float = 1.0
+    """Below this relative rotation the template's rest axis is used instead of the motion's."""
+    seed: int = 0
+    progress: bool = False
+    """Show a progress bar while predicting."""
+
+
+class ICPBaseline:
+    """Per-part ICP against a category template (see module docstring)."""
+
+    name = "icp"
+    needs_alignment = False
+    supervision = {"pose": False, "segmentation": True, "joint": False}
+
+    def __init__(self, config: ICPConfig | None = None, **overrides):
+        import dataclasses
+
+        self.config = dataclasses.replace(config or ICPConfig(), **overrides)
+        self.templates: list[np.ndarray] = []
+        self._index: dict = {}
+
+    # ------------------------------------------------------------------ fit
+    def fit(self, train: ArticulationDataset) -> None:
+        """Build per-part templates and rest-state joint axes/pivots from the training split."""
+        if len(train) == 0:
+            raise DatasetError(f"{train.root}: the training split is empty; ICP builds its template from it")
+        a = train.arrays(["npcs", "part_label", "bbox_diag", "part_pose", "joint_axis", "joint_pivot", "joint_parts",
+                          "joint_type"])
+        inst = a["instance_id"]
+        # template instance: the medoid of the training instances' per-part NPCS extents
+        ids = np.unique(inst)
+        feats = []
+        for i in ids:
+            sel = inst == i
+            f = []
+            for p in range(train.num_parts):
+                q = a["npcs"][sel][a["part_label"][sel] == p]
+                f.append(np.percentile(q, 98, axis=0) - np.percentile(q, 2, axis=0) if len(q) else np.zeros(3))
+            feats.append(np.concatenate(f))
+        feats = np.array(feats)
+        medoid = ids[int(np.argmin(np.abs(feats[:, None] - feats[None]).sum(-1).sum(1)))]
+        sel = inst == medoid
+        self.template_instance = int(medoid)
+        self.scale = float(a["bbox_diag"][sel].mean())
+        rng = np.random.default_rng(self.config.seed)
+        self.templates = []
+        for p in range(train.num_parts):
+            pts = a["npcs"][sel][a["part_label"][sel] == p].astype(np.float64)
+            if len(pts) < 64:
+                raise DatasetError(f"{train.root}: part {p} of template instance {medoid} has only {len(pts)} "
+                                   "training points; render more views per instance")
+            idx = farthest_point_indices(pts.astype(np.float32), min(self.config.template_points, len(pts)), rng)
+            self.templates.append(pts[idx] * self.scale)
+        # rest-state joints in the object frame (pooled GT of training samples, median)
+        jp = a["joint_parts"][0]
+        self.joint_parts = jp
+        self.joint_type = a["joint_type"][0]
+        parent_inv = invert_transform(a["part_pose"][:, jp[:, 0]])
+        axis_obj = np.einsum("mjik,mjk->mji", parent_inv[..., :3, :3], a["joint_axis"])
+        pivot_obj = np.einsum("mjik,mjk->mji", parent_inv[..., :3, :3], a["joint_pivot"]) + parent_inv[..., :3, 3]
+        self.rest_axis = np.median(axis_obj, 0)
+        self.rest_axis /= np.linalg.norm(self.rest_axis, axis=-1, keepdims=True)
+        self.rest_pivot = np.median(pivot_obj / a["bbox_diag"][:, None, None], 0) * self.scale
+        self._object_template = np.concatenate(self.templates)
+        self._index = {}
+        for key, pts in [("object", self._object_template), *enumerate(self.templates)]:
+            cloud = small_gicp.PointCloud(pts)
+            self._index[key] = (cloud, small_gicp.KdTree(cloud), cKDTree(pts))
+        self._hyp = Rotation.create_group(self.config.hypotheses).as_matrix()
+        local = [np.eye(3)]
+        for ax in np.eye(3):
+            for deg in (-45, 45):
+                local.append(Rotation.from_rotvec(np.radians(deg) * ax).as_matrix())
+        self._local = np.stack(local)
+
+    # ------------------------------------------------------------------ predict
+    def _align(self, key, observed: np.ndarray, init_T_cam_tpl: np.ndarray, iters: int) -> tuple[np.ndarray, float]:
+        """Refine ``init_T_cam_tpl`` with ICP on template ``key``; returns (T_cam_tpl, score)."""
+        cloud, tree, kd = self._index[key]
+        max_corr = self.config.max_correspondence * self.scale
+        res = small_gicp.align(cloud, small_gicp.PointCloud(observed), tree,
+                               init_T_target_source=invert_transform(init_T_cam_tpl), registration_type="ICP",
+                               max_correspondence_distance=max_corr, max_iterations=iters)
+        T = np.asarray(res.T_target_source)
+        d, _ = kd.query(transform_points(T, observed))
+        return invert_transform(T), float(np.mean(np.minimum(d, max_corr) ** 2))
+
+    def _visible_score(self, key, T_cam_tpl: np.ndarray, observed: np.ndarray, K: np.ndarray) -> float:
+        """Truncated squared distance from the template points visible in the camera to the observation.
+
+        Visibility is a z-buffer on a grid of ``visibility_cell`` pixels. Together with the
+        observation-to-template residual this is a two-sided check that rejects poses under
+        which template surfaces face the camera where nothing was observed (e.g. flipped plates).
+        """
+        tpl = self._index[key][2].data
+        p = transform_points(T_cam_tpl, tpl)
+        p = p[p[:, 2] > 1e-3]
+        if len(p) == 0:
+            return np.inf
+        uv = (p @ K.T)[:, :2] / p[:, 2:3]
+        cell = np.floor(uv / self.config.visibility_cell).astype(np.int64)
+        key_id = (cell[:, 0] - cell[:, 0].min()) * 100003 + (cell[:, 1] - cell[:, 1].min())
+        order = np.lexsort((p[:, 2], key_id))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = key_id[order][1:] != key_id[order][:-1]
+        visible = p[order][first]
+        max_corr = self.config.max_correspondence * self.scale
+        d, _ = cKDTree(observed).query(visible)
+        return float(np.mean(np.minimum(d, max_corr) ** 2))
+
+    def object_candidates(self, observed: np.ndarray, K: np.ndarray) -> list[np.ndarray]:
+        """The ``refine_top`` best object-level poses (4, 4), whole template -> camera."""
+        obs = observed.astype(np.float64)
+        coarse = obs[:: max(1, len(obs) // 256)]
+        c_obs, c_tpl = obs.mean(0), self._object_template.mean(0)
+        scored = []
+        for R in self._hyp:
+            T, sc = self._align("object", coarse, as_transform(R, c_obs - R @ c_tpl), 8)
+            scored.append((sc + self._visible_score("object", T, coarse, K), T))
+        scored.sort(key=lambda x: x[0])
+        kept: list[np.ndarray] = []  # best-first, at least 45 deg apart (non-maximum suppression)
+        for _, T0 in scored:
+            if all(np.trace(T0[:3, :3] @ k[:3, :3].T) < 1 + 2 * np.cos(np.radians(45)) for k in kept):
+                kept.append(T0)
+            if len(kept) == self.config.refine_top:
+                break
+        return [self._align("object", obs, T0, self.config.max_iterations)[0] for T0 in kept]
+
+    def register_part(self, observed: np.ndarray, part: int, T_init: np.ndarray, K: np.ndarray
+                      ) -> tuple[np.ndarray, float]:
+        """(pose (4, 4), score) of template ``part`` in the camera, refined from ``T_init`` and local perturbations."""
+        obs = observed.astype(np.float64)
+        c = obs.mean(0)
+        best = None
+        for dR in self._local:
+            R0 = dR @ T_init[:3, :3]
+            start = as_transform(R0, dR @ (T_init[:3, 3] - c) + c)
+            T, sc = self._align(part, obs, start, self.config.max_iterations)
+            sc += self._visible_score(part, T, obs, K)
+            if best is None or sc < best[1]:
+                best = (T, sc)
+        return best
+
+    def predict(self, dataset: ArticulationDataset) -> Predictions:
+        a = dataset.arrays(["points", "part_label", "joint_type", "K"])
+        M, N = a["points"].shape[:2]
+        P, J = dataset.num_parts, dataset.num_joints
+        poses = np.tile(np.eye(4), (M, P, 1, 1))
+        labels = np.full((M, N), -1, dtype=np.int64)
+        axis = np.zeros((M, J, 3))
+        pivot = np.zeros((M, J, 3))
+        state = np.zeros((M, J))
+        it = range(M)
+        if self.config.progress:
+            from tqdm import tqdm
+
+            it = tqdm(it, desc=f"icp {dataset.split}", unit="cloud")
+        for m in it:
+            pts = a["points"][m].astype(np.float64)
+            gl = a["part_label"][m]
+            best = None
+            for T_obj in self.object_candidates(pts[gl >= 0], a["K"][m]):
+                fits = [self.register_part(pts[gl == p], p, T_obj, a["K"][m]) for p in range(P)]
+                total = sum(np.count_nonzero(gl == p) * f[1] for p, f in enumerate(fits))
+                if best is None or total < best[0]:
+                    best = (total, np.stack([f[0] for f in fits]))
+            poses[m] = best[1]
+            # segmentation induced by the registered template
+            dist = np.stack([self._index[p][2].query(transform_points(invert_transform(poses[m, p]), pts))[0]
+                             for p in range(P)], 1)
+            labels[m] = dist.argmin(1)
+            for j, (pa, ch) in enumerate(self.joint_parts):
+                axis[m, j], pivot[m, j], state[m, j] = self._joint(poses[m, pa], poses[m, ch], j)
+        return Predictions(
+            method=self.name, instance_id=a["instance_id"], view_id=a["view_id"],
+            split=np.full(M, dataset.split), part_label=labels, part_pose=poses,
+            joint_parts=np.tile(self.joint_parts, (M, 1, 1)), joint_type=np.tile(self.joint_type, (M, 1)),
+            joint_axis=axis, joint_pivot=pivot, joint_state=state, T_cam_obj=poses[:, 0].copy(),
+            needs_alignment=self.needs_alignment, supervision=dict(self.supervision),
+            info={"config": self.config.__dict__},
+        )
+
+    def _joint(self, T_parent: np.ndarray, T_child: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray, float]:
+        """Joint axis and pivot (camera frame) and state from the relative motion of two part poses."""
+        jt = int(self.joint_type[j])
+        M_rel = invert_transform(T_parent) @ T_child  # child motion in the (template) object frame
+        rest_axis, rest_pivot = self.rest_axis[j], self.rest_pivot[j]
+        try:
+            ax, pv, st = relative_motion_to_joint(M_rel, jt)
+            if jt == 0 and np.degrees(st) < self.config.min_joint_angle_deg:
+                raise ValueError("small motion")
+        except ValueError:
+            ax, pv = rest_axis, rest_pivot
+            st = 0.0 if jt == 1 else float(Rotation.from_matrix(M_rel[:3, :3]).as_rotvec() @ rest_axis)
+            if jt == 1:
+                st = float(M_rel[:3, 3] @ rest_axis)
+        if ax @ rest_axis < 0:
+            ax, st = -ax, -st
+        if jt == 1:
+            pv = rest_pivot
+        R, t = T_parent[:3, :3], T_parent[:3, 3]
+        return R @ ax, R @ pv + t, float(st)
+
+
+@METHODS.register("icp")
+def make_icp(**options) -> ICPBaseline:
+    """ICP baseline; options are :class:`ICPConfig` fields."""
+    return ICPBaseline(**options)

@@ -1,0 +1,277 @@
+"""The ``scapo`` console script: one entry point, one sub-command per job.
+
+Run ``scapo <command> --help`` for the options of each command. Heavy modules are imported
+inside the commands so that ``scapo --help`` is instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from scapo.errors import ScapoError
+
+
+def _ints(text: str) -> list[int]:
+    return [int(x) for x in text.split(",") if x.strip()]
+
+
+def _names(text: str) -> list[str]:
+    return [x.strip() for x in text.split(",") if x.strip()]
+
+
+# ------------------------------------------------------------------------------ commands
+def cmd_doctor(args) -> int:
+    from scapo.sim.doctor import diagnose
+
+    ok, lines = diagnose()
+    print("\n".join(lines))
+    print("OK: SAPIEN renders." if ok else "NOT OK: see above.")
+    return 0 if ok else 1
+
+
+def cmd_list(args) -> int:
+    from scapo.baselines import list_methods
+    from scapo.sim.assets import list_categories, load_template
+
+    print("categories:")
+    for c in list_categories():
+        t = load_template(c)
+        print(f"  {c:11s} parts={','.join(t.parts)}  joints={','.join(j.type for j in t.joints)}")
+    print("methods: " + ", ".join(list_methods()))
+    return 0
+
+
+def cmd_assets_build(args) -> int:
+    from scapo.sim.assets import build_category, parse_urdf
+
+    recs = build_category(args.category, args.instances, args.seed, args.cache, progress=not args.no_progress)
+    for r in recs:
+        spec = parse_urdf(r.urdf)
+        print(f"{r.category} #{r.instance_id}: {r.urdf}  bbox_diag={r.bbox_diag:.3f} m  parts={len(spec.part_names)} "
+              f"joints={len(spec.gt_joints)}")
+    return 0
+
+
+def cmd_assets_check(args) -> int:
+    from scapo.sim.assets import load_partnet_mobility, parse_urdf
+
+    path = Path(args.path)
+    spec = load_partnet_mobility(path) if path.is_dir() else parse_urdf(path)
+    print(f"{spec.urdf}: category={spec.category} parts={list(spec.part_names)} bbox_diag={spec.bbox_diag:.3f} m")
+    for j in spec.gt_joints:
+        kind = "revolute" if j.type == 0 else "prismatic"
+        print(f"  joint {j.name}: {kind} parts {j.parent_part}->{j.child_part} axis={j.axis_obj.round(3).tolist()} "
+              f"pivot={j.pivot_obj.round(3).tolist()} range={j.limit.round(3).tolist()}")
+    return 0
+
+
+def cmd_generate(args) -> int:
+    from scapo.data import generate, make_config
+
+    cfg = make_config(args.category, args.instances, args.views, args.seed, num_points=args.points,
+                      sensor=args.sensor, random_rotation=args.random_rotation, width=args.width,
+                      height=args.height, test_fraction=args.test_fraction, min_part_fraction=args.min_part_fraction,
+                      shard_size=args.shard_size)
+    rep = generate(cfg, args.out, workers=args.workers, progress=not args.no_progress, cache_dir=args.cache)
+    print(f"{rep.out}: {rep.samples} samples ({rep.rendered} rendered now, {rep.skipped_shards} shards already "
+          f"done); {sum(rep.rejections.values())} rejected views {dict(rep.rejections)}; "
+          f"{rep.samples_per_second:.1f} samples/s")
+    return 0
+
+
+def cmd_preview(args) -> int:
+    from scapo.sim.preview import save_preview
+    from scapo.viz import render_dataset_samples
+
+    samples, titles, names = render_dataset_samples(args.data, args.split, args.count, args.cache)
+    path = save_preview(samples, args.out, titles, names)
+    print(f"wrote {path}")
+    return 0
+
+
+def cmd_predict(args) -> int:
+    from scapo.baselines import run_method
+
+    opts = {}
+    for kv in args.option or []:
+        k, _, v = kv.partition("=")
+        opts[k] = _parse_value(v)
+    preds = run_method(args.method, args.data, args.out, **opts)
+    print(f"wrote {args.out}: {len(preds)} predictions of {args.method} "
+          f"({preds.info.get('ms_per_cloud_test', float('nan')):.1f} ms per test cloud)")
+    return 0
+
+
+def _parse_value(v: str):
+    for cast in (int, float):
+        try:
+            return cast(v)
+        except ValueError:
+            pass
+    return {"true": True, "false": False}.get(v.lower(), v)
+
+
+def cmd_evaluate(args) -> int:
+    from scapo.eval import evaluate
+    from scapo.eval.tables import write_table1
+    from scapo.provenance import provenance
+
+    res = evaluate(args.data, args.pred, protocol=args.protocol)
+    _print_summary([res])
+    if args.out:
+        prov = provenance(dataset_hash=res.info["dataset_hash"], dataset=str(args.data), predictions=str(args.pred),
+                          protocol=args.protocol)
+        paths = write_table1([res], args.out, prov, name=args.name)
+        res.per_sample.to_csv(Path(args.out) / f"{args.name}_{res.method}_{res.category}_per_sample.csv", index=False)
+        print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def _print_summary(results) -> None:
+    from scapo.eval.metrics import TABLE1_METRICS
+
+    keys = ["S", "D", "C", "R", "t", "state_deg", "state_cm"]
+    print(f"{'method':10s} {'category':11s} {'n':>4s} " + " ".join(f"{k:>9s}" for k in keys))
+    for r in results:
+        vals = []
+        for k in keys:
+            v = r.summary.get(k, float("nan"))
+            vals.append(f"{v:9.{TABLE1_METRICS[k].decimals}f}" if v == v else f"{'-':>9s}")
+        print(f"{r.method:10s} {r.category:11s} {r.summary['samples']:4d} " + " ".join(vals))
+
+
+def cmd_bench(args) -> int:
+    if args.what == "perf":
+        from scapo.perf import bench_generate, write_perf
+
+        rows = bench_generate(args.category, args.instances, args.views, tuple(args.workers), args.seed, args.cache)
+        for r in rows:
+            print(r)
+        if args.out:
+            paths = write_perf(rows, args.out, f"generate_{args.category}")
+            print("wrote " + ", ".join(str(p) for p in paths))
+        return 0
+    from scapo.bench import run_table1
+
+    run_table1(methods=args.methods, categories=args.categories, instances=args.instances, views=args.views,
+               seed=args.seed, work_dir=args.work, out_dir=args.out, workers=args.workers[0], cache_dir=args.cache)
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from scapo.demo import run_demo
+
+    run_demo(args.out, instances=args.instances, views=args.views, seed=args.seed, cache_dir=args.cache)
+    return 0
+
+
+# ------------------------------------------------------------------------------ parser
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="scapo", description="Articulated-object data generation, baselines and "
+                                "benchmark (SCAPO, CVPR 2026).")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    def common_cache(sp):
+        sp.add_argument("--cache", type=Path, default=None, help="asset cache folder (default ~/.cache/scapo/assets "
+                        "or $SCAPO_CACHE/assets)")
+
+    sp = sub.add_parser("doctor", help="report which Vulkan device SAPIEN renders on")
+    sp.set_defaults(func=cmd_doctor)
+    sp = sub.add_parser("list", help="list categories and methods")
+    sp.set_defaults(func=cmd_list)
+
+    sp = sub.add_parser("assets", help="build or check articulated assets")
+    asub = sp.add_subparsers(dest="assets_command", required=True)
+    b = asub.add_parser("build", help="build procedural instances (URDF + meshes) into the cache")
+    b.add_argument("--category", required=True)
+    b.add_argument("--instances", type=int, default=4)
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--no-progress", action="store_true")
+    common_cache(b)
+    b.set_defaults(func=cmd_assets_build)
+    c = asub.add_parser("check", help="parse and validate a URDF file or a PartNet-Mobility folder")
+    c.add_argument("path")
+    c.set_defaults(func=cmd_assets_check)
+
+    sp = sub.add_parser("generate", help="render a dataset of partial point clouds with ground truth")
+    sp.add_argument("--category", required=True)
+    sp.add_argument("--instances", type=int, required=True)
+    sp.add_argument("--views", type=int, required=True)
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--out", type=Path, required=True)
+    sp.add_argument("--workers", type=int, default=1, help="worker processes, one SAPIEN scene each")
+    sp.add_argument("--points", type=int, default=1024, help="points per sample (FPS)")
+    sp.add_argument("--sensor", default="clean", help="clean | realistic")
+    sp.add_argument("--random-rotation", action="store_true", help="uniform SO(3) object rotation")
+    sp.add_argument("--width", type=int, default=None)
+    sp.add_argument("--height", type=int, default=None)
+    sp.add_argument("--test-fraction", type=float, default=0.1)
+    sp.add_argument("--min-part-fraction", type=float, default=0.05)
+    sp.add_argument("--shard-size", type=int, default=64)
+    sp.add_argument("--no-progress", action="store_true")
+    common_cache(sp)
+    sp.set_defaults(func=cmd_generate)
+
+    sp = sub.add_parser("preview", help="PNG of dataset samples (re-rendered) with parts coloured and axes drawn")
+    sp.add_argument("--data", type=Path, required=True)
+    sp.add_argument("--split", default="test")
+    sp.add_argument("--count", type=int, default=4)
+    sp.add_argument("--out", type=Path, default=Path("preview.png"))
+    common_cache(sp)
+    sp.set_defaults(func=cmd_preview)
+
+    sp = sub.add_parser("predict", help="fit a method on the training split and predict")
+    sp.add_argument("--method", required=True)
+    sp.add_argument("--data", type=Path, required=True)
+    sp.add_argument("--out", type=Path, required=True)
+    sp.add_argument("--option", action="append", help="method option key=value (repeatable)")
+    sp.set_defaults(func=cmd_predict)
+
+    sp = sub.add_parser("evaluate", help="score a predictions file on a dataset's test split")
+    sp.add_argument("--data", type=Path, required=True)
+    sp.add_argument("--pred", type=Path, required=True)
+    sp.add_argument("--protocol", default="per-sample", help="per-sample | per-category part matching")
+    sp.add_argument("--out", type=Path, default=None, help="write Table 1 files here")
+    sp.add_argument("--name", default="table1")
+    sp.set_defaults(func=cmd_evaluate)
+
+    sp = sub.add_parser("bench", help="benchmarks: perf (throughput) or table1 (paper's Table 1)")
+    sp.add_argument("what", choices=["perf", "table1"])
+    sp.add_argument("--category", default="laptop", help="perf: category")
+    sp.add_argument("--categories", type=_names, default=["laptop", "safe", "eyeglasses", "oven", "washer"])
+    sp.add_argument("--methods", type=_names, default=["icp"])
+    sp.add_argument("--instances", type=int, default=20)
+    sp.add_argument("--views", type=int, default=30)
+    sp.add_argument("--workers", type=_ints, default=[1, 2])
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--work", type=Path, default=Path("bench_work"), help="table1: datasets and predictions")
+    sp.add_argument("--out", type=Path, default=None, help="write result files here (e.g. results/)")
+    common_cache(sp)
+    sp.set_defaults(func=cmd_bench)
+
+    sp = sub.add_parser("demo", help="build assets, render, run ICP, evaluate, write a table and a figure")
+    sp.add_argument("--out", type=Path, default=Path("demo_out"))
+    sp.add_argument("--instances", type=int, default=16)
+    sp.add_argument("--views", type=int, default=12)
+    sp.add_argument("--seed", type=int, default=0)
+    common_cache(sp)
+    sp.set_defaults(func=cmd_demo)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ScapoError as e:
+        print(f"scapo {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"scapo {args.command}: interrupted (finished shards are kept; rerun to resume)", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,97 @@
+"""Configuration of dataset generation (frozen; serialised into the dataset's ``config.json``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+
+from scapo.errors import ConfigError
+from scapo.sim.assets.templates import load_template
+from scapo.sim.render import CameraConfig, RenderConfig, ViewConfig
+from scapo.sim.sensor import SENSORS, SensorConfig
+
+#: Version of the on-disk dataset layout (bump on incompatible changes).
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """What ``scapo generate`` renders.
+
+    Instances ``0 .. instances-1`` of ``category`` are built with ``seed``; a fraction
+    ``test_fraction`` of them (at least one when there are two or more) forms the test split;
+    each instance is rendered from ``views`` sampled viewpoints and joint states.
+    """
+
+    category: str
+    """Procedural category name (see ``scapo.sim.assets.list_categories()``)."""
+    instances: int
+    """Number of object instances."""
+    views: int
+    """Samples (view + joint state) per instance."""
+    seed: int = 0
+    """Seed of the asset designs, the split and every sample."""
+    test_fraction: float = 0.1
+    """Fraction of instances in the test split (split by instance, never by view)."""
+    render: RenderConfig = field(default_factory=RenderConfig)
+    """Camera, point count, visibility threshold, shader, sensor model."""
+    view: ViewConfig | None = None
+    """Viewpoint ranges; None takes the category template's ranges."""
+    shard_size: int = 64
+    """Samples per shard file (the unit of atomic writes and of resuming)."""
+
+    def __post_init__(self):
+        from scapo.sim.assets.categories import CATEGORIES
+
+        CATEGORIES.get(self.category)  # raises UnknownNameError listing the known categories
+        if self.instances < 1 or self.views < 1:
+            raise ConfigError(f"instances and views must be >= 1, got {self.instances} and {self.views}")
+        if not 0.0 <= self.test_fraction < 1.0:
+            raise ConfigError(f"test_fraction must be in [0, 1), got {self.test_fraction}")
+        if self.shard_size < 1:
+            raise ConfigError(f"shard_size must be >= 1, got {self.shard_size}")
+
+    @property
+    def view_config(self) -> ViewConfig:
+        """The effective viewpoint ranges."""
+        return self.view or ViewConfig.from_template(load_template(self.category).view)
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["view"] = dataclasses.asdict(self.view_config)
+        d["format_version"] = FORMAT_VERSION
+        return d
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True, indent=1)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> GenerateConfig:
+        d = dict(d)
+        fv = d.pop("format_version", FORMAT_VERSION)
+        if fv != FORMAT_VERSION:
+            raise ConfigError(f"dataset format version {fv} is not supported (this scapo reads {FORMAT_VERSION})")
+        r = dict(d.pop("render"))
+        render = RenderConfig(camera=CameraConfig(**r.pop("camera")), sensor=SensorConfig(**r.pop("sensor")), **r)
+        v = d.pop("view")
+        view = ViewConfig(**{k: tuple(x) if isinstance(x, list) else x for k, x in v.items()}) if v else None
+        return cls(render=render, view=view, **d)
+
+
+def make_config(
+    category: str, instances: int, views: int, seed: int = 0, *, num_points: int = 1024,
+    sensor: str = "clean", random_rotation: bool = False, width: int | None = None, height: int | None = None,
+    test_fraction: float = 0.1, min_part_fraction: float = 0.05, shard_size: int = 64, shader: str = "trivial",
+) -> GenerateConfig:
+    """Convenience constructor used by the CLI (named sensor, optional SO(3) rotation, image size)."""
+    if sensor not in SENSORS:
+        raise ConfigError(f"unknown sensor {sensor!r}; known sensors: {', '.join(SENSORS)}")
+    cam = CameraConfig()
+    cam = dataclasses.replace(cam, width=width or cam.width, height=height or cam.height)
+    render = RenderConfig(camera=cam, num_points=num_points, min_part_fraction=min_part_fraction,
+                          shader=shader, sensor=SENSORS[sensor])
+    view = None
+    if random_rotation:
+        view = dataclasses.replace(ViewConfig.from_template(load_template(category).view), random_rotation=True)
+    return GenerateConfig(category, instances, views, seed, test_fraction, render, view, shard_size)

@@ -1,0 +1,141 @@
+"""Loading datasets written by ``scapo generate`` as a ``torch.utils.data.Dataset``."""
+
+from __future__ import annotations
+
+import json
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from torch.utils.data import Dataset
+
+from scapo.data.storage import ARRAY_FIELDS, read_shard
+from scapo.errors import DatasetError
+
+SPLITS = ("train", "test", "all")
+
+#: dtypes of the arrays handed out (storage may be narrower).
+OUTPUT_DTYPES = {
+    "points": np.float32, "part_label": np.int64, "npcs": np.float32, "part_pose": np.float64,
+    "joint_type": np.int64, "joint_parts": np.int64, "joint_axis": np.float64, "joint_pivot": np.float64,
+    "joint_state": np.float64, "joint_limit": np.float64, "T_cam_obj": np.float64, "K": np.float64,
+    "bbox_diag": np.float64,
+}
+
+
+class ArticulationDataset(Dataset):
+    """Samples of one split of a generated dataset.
+
+    Each item is a dict with exactly the SPEC section 5 fields: ``points (N,3) float32`` (m,
+    OpenCV camera frame), ``part_label (N,) int64`` (-1 = not object), ``npcs (N,3) float32``,
+    ``part_pose (P,4,4) float64``, ``joint_type (J,) int64``, ``joint_parts (J,2) int64``,
+    ``joint_axis (J,3)``, ``joint_pivot (J,3)`` (camera frame), ``joint_state (J,)``,
+    ``joint_limit (J,2)``, ``T_cam_obj (4,4)``, ``K (3,3)``, ``bbox_diag ()`` (float64), and the
+    metadata ``category`` (str), ``instance_id``, ``view_id``, ``seed`` (int).
+
+    Shards are read lazily and kept in an LRU cache of ``cache_shards`` shards; the first read
+    of a shard checks its sha256 against the card.
+
+    Raises:
+        DatasetError: the directory has no ``card.json`` (generation unfinished) or manifest.
+        CorruptShardError: on access to a damaged shard (the message names it).
+    """
+
+    def __init__(self, root: str | Path, split: str = "train", cache_shards: int = 64, verify: bool = True):
+        self.root = Path(root)
+        if split not in SPLITS:
+            raise DatasetError(f"unknown split {split!r}; known splits: {', '.join(SPLITS)}")
+        card_path = self.root / "card.json"
+        if not card_path.is_file():
+            hint = " (generation unfinished: rerun 'scapo generate' with the same arguments to resume)" \
+                if (self.root / "config.json").is_file() else ""
+            raise DatasetError(f"{self.root} is not a scapo dataset: no card.json{hint}")
+        self.card = json.loads(card_path.read_text())
+        try:
+            manifest = pd.read_parquet(self.root / "manifest.parquet")
+        except (OSError, ValueError) as e:
+            raise DatasetError(f"{self.root}/manifest.parquet cannot be read: {e}") from e
+        if split != "all":
+            manifest = manifest[manifest["split"] == split]
+        self.manifest = manifest.reset_index(drop=True)
+        self.split = split
+        self.verify = verify
+        self._cache: OrderedDict[str, dict] = OrderedDict()
+        self._cache_size = max(1, int(cache_shards))
+        self._shard = self.manifest["shard"].to_numpy()
+        self._row = self.manifest["row"].to_numpy()
+
+    # ------------------------------------------------------------------ info
+    @property
+    def category(self) -> str:
+        return self.card["category"]
+
+    @property
+    def part_names(self) -> list[str]:
+        return list(self.card["part_names"])
+
+    @property
+    def num_parts(self) -> int:
+        return len(self.card["part_names"])
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.card["joint_names"])
+
+    @property
+    def dataset_hash(self) -> str:
+        return self.card["dataset_hash"]
+
+    def __len__(self) -> int:
+        return len(self.manifest)
+
+    # ------------------------------------------------------------------ access
+    def _load_shard(self, name: str) -> dict:
+        if name in self._cache:
+            self._cache.move_to_end(name)
+            return self._cache[name]
+        expected = self.card["shards"].get(name, {}).get("sha256") if self.verify else None
+        arrays = read_shard(self.root / "shards" / f"{name}.npz", expected)
+        self._cache[name] = arrays
+        if len(self._cache) > self._cache_size:
+            self._cache.popitem(last=False)
+        return arrays
+
+    def __getitem__(self, i: int) -> dict:
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"index {i} out of range for {len(self)} samples")
+        i = int(i) % len(self)
+        arrays = self._load_shard(self._shard[i])
+        r = int(self._row[i])
+        item = {k: np.asarray(arrays[k][r]).astype(OUTPUT_DTYPES[k], copy=True) for k in ARRAY_FIELDS}
+        row = self.manifest.iloc[i]
+        item["category"] = str(row["category"])
+        item["instance_id"] = int(row["instance_id"])
+        item["view_id"] = int(row["view_id"])
+        item["seed"] = int(row["seed"])
+        return item
+
+    def arrays(self, names: list[str] | None = None) -> dict[str, np.ndarray]:
+        """All samples of the split stacked: name -> (len(self), ...) arrays (SPEC dtypes) plus
+        ``instance_id`` and ``view_id``. Faster than iterating items."""
+        names = list(ARRAY_FIELDS) if names is None else names
+        out = {k: [] for k in names}
+        for shard, rows in self.manifest.groupby("shard", sort=False)["row"]:
+            arrays = self._load_shard(shard)
+            rows = rows.to_numpy()
+            for k in names:
+                out[k].append(arrays[k][rows])
+        res = {k: np.concatenate(v).astype(OUTPUT_DTYPES[k]) if v else np.zeros((0,)) for k, v in out.items()}
+        res["instance_id"] = self.manifest["instance_id"].to_numpy()
+        res["view_id"] = self.manifest["view_id"].to_numpy()
+        return res
+
+    def keys(self) -> list[tuple[int, int]]:
+        """(instance_id, view_id) of every sample in order (the sample keys used by predictions)."""
+        return list(zip(self.manifest["instance_id"].astype(int), self.manifest["view_id"].astype(int)))
+
+
+def load(path: str | Path, split: str = "train", **kwargs) -> ArticulationDataset:
+    """Open ``split`` ("train", "test" or "all") of the dataset at ``path``; see :class:`ArticulationDataset`."""
+    return ArticulationDataset(path, split, **kwargs)

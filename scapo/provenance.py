@@ -1,0 +1,85 @@
+"""Provenance of results: git commit, machine, library versions (recorded with every table)."""
+
+from __future__ import annotations
+
+import os
+import platform
+import subprocess
+import time
+from functools import lru_cache
+from pathlib import Path
+
+
+@lru_cache(maxsize=1)
+def git_commit() -> str:
+    """``<sha>`` of the source checkout, ``<sha>-dirty`` with uncommitted changes, or "unknown"."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
+                             timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+        return f"{sha}-dirty" if dirty else sha
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+@lru_cache(maxsize=1)
+def cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def device_description(torch_device: str | None = None) -> str:
+    """Short description such as ``"cpu: 2 cores, Intel(R) ..."`` or ``"cuda: NVIDIA H100 ..."``."""
+    if torch_device and torch_device.startswith("cuda"):
+        import torch
+
+        return f"cuda: {torch.cuda.get_device_name(torch.device(torch_device))}"
+    return f"cpu: {os.cpu_count()} cores, {cpu_name()}"
+
+
+def render_device() -> str:
+    """The Vulkan device SAPIEN renders on (first line of its device summary), or the error."""
+    try:
+        import sapien
+
+        summary = sapien.render.get_device_summary()
+        for line in summary.splitlines():
+            if line.strip().startswith("GPU:") or line.strip().startswith("CPU:"):
+                return line.strip()
+        return summary.strip().splitlines()[0] if summary.strip() else "unknown"
+    except Exception as e:  # noqa: BLE001 - reported, not hidden
+        return f"none ({e})"
+
+
+def provenance(**extra) -> dict:
+    """Dict with commit, time, host, device, versions, plus ``extra`` (e.g. preset, dataset hash)."""
+    import numpy
+    import torch
+
+    try:
+        import sapien
+
+        sapien_version = sapien.__version__
+    except ImportError:
+        sapien_version = "not installed"
+    from scapo import __version__
+
+    return {
+        "commit": git_commit(),
+        "scapo_version": __version__,
+        "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "host": platform.node(),
+        "device": device_description(extra.pop("torch_device", None)),
+        "python": platform.python_version(),
+        "numpy": numpy.__version__,
+        "torch": torch.__version__,
+        "sapien": sapien_version,
+        **extra,
+    }

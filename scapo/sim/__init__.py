@@ -1,0 +1,2 @@
+"""Simulation: procedural articulated assets (:mod:`scapo.sim.assets`) and SAPIEN rendering
+(:mod:`scapo.sim.render`)."""

@@ -1,0 +1,209 @@
+"""Category templates: parameter ranges, styles, joint ranges and view ranges, kept as data.
+
+Each category has one TOML file in ``sim_assets/categories/<name>.toml`` (see that folder).
+The directory is found, in order, from the ``SCAPO_SIM_ASSETS`` environment variable or the
+``sim_assets/`` folder of the source checkout the package is imported from.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import tomllib
+
+from scapo.errors import ConfigError
+
+
+def sim_assets_dir() -> Path:
+    """Directory holding the category templates (``.../sim_assets``).
+
+    Raises:
+        ConfigError: if neither ``$SCAPO_SIM_ASSETS`` nor the checkout's ``sim_assets/`` exists.
+    """
+    env = os.environ.get("SCAPO_SIM_ASSETS")
+    candidates = [Path(env)] if env else []
+    candidates.append(Path(__file__).resolve().parents[3] / "sim_assets")
+    for c in candidates:
+        if (c / "categories").is_dir():
+            return c
+    raise ConfigError(
+        "cannot find the category templates (sim_assets/categories); install scapo from its source "
+        "checkout with 'pip install -e .' or set SCAPO_SIM_ASSETS to the sim_assets folder"
+    )
+
+
+@dataclass(frozen=True)
+class JointTemplate:
+    """Sampled state range of one joint, relative to the rest state.
+
+    Attributes:
+        name: joint name in the URDF. type: "revolute" or "prismatic".
+        parent, child: part names.
+        range: (lo, hi) in radians (revolute) or as given (prismatic, see ``range_scale``).
+        range_scale: for prismatic joints, the design parameter (e.g. "drawer_depth") the range
+            is a fraction of; empty when the range is in metres.
+    """
+
+    name: str
+    type: str
+    parent: str
+    child: str
+    range: tuple[float, float]
+    range_scale: str = ""
+
+
+@dataclass(frozen=True)
+class ViewTemplate:
+    """Viewpoint ranges (degrees; distance as a multiple of the rest-state bbox diagonal)."""
+
+    azimuth_deg: tuple[float, float] = (-70.0, 70.0)
+    elevation_deg: tuple[float, float] = (10.0, 60.0)
+    distance: tuple[float, float] = (1.4, 2.4)
+    roll_deg: tuple[float, float] = (-5.0, 5.0)
+
+
+@dataclass(frozen=True)
+class CategoryTemplate:
+    """Everything about a category that is data rather than code.
+
+    Attributes:
+        name: category name. parts: part names, base part first. description: one line.
+        params: name -> (lo, hi) uniform ranges. styles: name -> tuple of choices.
+        joints: joint templates in URDF order. view: default viewpoint ranges.
+        digest: sha256 of the TOML file (part of the asset cache key).
+    """
+
+    name: str
+    parts: tuple[str, ...]
+    description: str
+    params: dict[str, tuple[float, float]]
+    styles: dict[str, tuple[str, ...]]
+    joints: tuple[JointTemplate, ...]
+    view: ViewTemplate
+    digest: str = field(default="", compare=False)
+
+
+def _pair(value, where: str) -> tuple[float, float]:
+    if not (isinstance(value, list) and len(value) == 2 and all(isinstance(v, int | float) for v in value)):
+        raise ConfigError(f"{where}: expected a [lo, hi] pair of numbers, got {value!r}")
+    lo, hi = float(value[0]), float(value[1])
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise ConfigError(f"{where}: need finite lo <= hi, got {value!r}")
+    return lo, hi
+
+
+def parse_template(path: Path) -> CategoryTemplate:
+    """Parse and validate one category TOML file.
+
+    Raises:
+        ConfigError: naming the file and the field for missing or malformed entries.
+    """
+    raw_bytes = Path(path).read_bytes()
+    try:
+        raw = tomllib.loads(raw_bytes.decode())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{path}: not valid TOML ({e})") from e
+    try:
+        cat = raw["category"]
+        name, parts = cat["name"], tuple(cat["parts"])
+    except KeyError as e:
+        raise ConfigError(f"{path}: missing [category] field {e}") from None
+    params = {k: _pair(v, f"{path}: params.{k}") for k, v in raw.get("params", {}).items()}
+    styles = {}
+    for k, v in raw.get("styles", {}).items():
+        if not (isinstance(v, list) and v and all(isinstance(s, str) for s in v)):
+            raise ConfigError(f"{path}: styles.{k} must be a non-empty list of strings")
+        styles[k] = tuple(v)
+    joints = []
+    for jname, j in raw.get("joints", {}).items():
+        where = f"{path}: joints.{jname}"
+        jtype = j.get("type")
+        if jtype not in ("revolute", "prismatic"):
+            raise ConfigError(f"{where}.type must be 'revolute' or 'prismatic', got {jtype!r}")
+        for key in ("parent", "child"):
+            if j.get(key) not in parts:
+                raise ConfigError(f"{where}.{key} must be one of the parts {parts}, got {j.get(key)!r}")
+        if jtype == "revolute":
+            lo, hi = _pair(j.get("range_deg"), f"{where}.range_deg")
+            rng = (math.radians(lo), math.radians(hi))
+            scale = ""
+        else:
+            rng = _pair(j.get("range"), f"{where}.range")
+            scale = j.get("range_scale", "")
+        joints.append(JointTemplate(jname, jtype, j["parent"], j["child"], rng, scale))
+    v = raw.get("view", {})
+    view = ViewTemplate(
+        **{k: _pair(val, f"{path}: view.{k}") for k, val in v.items() if k in ViewTemplate.__dataclass_fields__}
+    )
+    unknown_view = set(v) - set(ViewTemplate.__dataclass_fields__)
+    if unknown_view:
+        raise ConfigError(f"{path}: unknown view fields {sorted(unknown_view)}")
+    return CategoryTemplate(
+        name=name,
+        parts=parts,
+        description=cat.get("description", ""),
+        params=params,
+        styles=styles,
+        joints=tuple(joints),
+        view=view,
+        digest=hashlib.sha256(raw_bytes).hexdigest(),
+    )
+
+
+@cache
+def load_template(category: str) -> CategoryTemplate:
+    """The template of ``category`` from ``sim_assets/categories/<category>.toml``.
+
+    Raises:
+        ConfigError: if the file is missing or malformed.
+    """
+    path = sim_assets_dir() / "categories" / f"{category}.toml"
+    if not path.is_file():
+        raise ConfigError(f"no template for category {category!r} at {path}")
+    tpl = parse_template(path)
+    if tpl.name != category:
+        raise ConfigError(f"{path}: [category].name is {tpl.name!r}, expected {category!r}")
+    return tpl
+
+
+class ParamSampler:
+    """Draws design parameters of one instance from a template with a numpy Generator.
+
+    Every draw is recorded in :attr:`values` (written to the instance's ``asset.json``).
+    Asking for a name that the template does not define raises :class:`ConfigError`.
+    """
+
+    def __init__(self, template: CategoryTemplate, rng: np.random.Generator):
+        self.template = template
+        self.rng = rng
+        self.values: dict[str, float | str] = {}
+
+    def u(self, name: str) -> float:
+        """Uniform draw of the continuous parameter ``name`` (rounded to 0.1 mm / 1e-4)."""
+        try:
+            lo, hi = self.template.params[name]
+        except KeyError:
+            raise ConfigError(f"category {self.template.name!r} defines no parameter {name!r}") from None
+        value = round(float(self.rng.uniform(lo, hi)), 4)
+        self.values[name] = value
+        return value
+
+    def choice(self, name: str) -> str:
+        """Uniform draw among the styles called ``name``."""
+        try:
+            options = self.template.styles[name]
+        except KeyError:
+            raise ConfigError(f"category {self.template.name!r} defines no style {name!r}") from None
+        value = options[int(self.rng.integers(len(options)))]
+        self.values[name] = value
+        return value
+
+    def unused(self) -> list[str]:
+        """Template parameters and styles that were never drawn (a generator bug if non-empty)."""
+        return sorted((set(self.template.params) | set(self.template.styles)) - set(self.values))

@@ -1,0 +1,559 @@
+"""SAPIEN rendering of articulated objects into partial point clouds with exact ground truth.
+
+One :class:`Renderer` owns one SAPIEN ``Scene`` and one camera and is reused for every sample of
+a worker process; objects are swapped in and out (a new Scene costs seconds on CPU). The object
+frame is SAPIEN's world frame: the root link is placed at ``spec.T_obj_root`` so that the
+object's canonical frame (SPEC section 3) coincides with the world, and the camera moves.
+
+:func:`render_sample` draws a joint state and a viewpoint, renders ``Position`` and
+``Segmentation``, converts positions from SAPIEN's OpenGL camera frame to OpenCV once
+(:data:`scapo.geometry.R_CV_GL`), labels points by part, resamples them by farthest-point
+sampling and assembles the ground truth with the field names of SPEC section 5.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from scapo.errors import AssetError, RejectedViewError, RenderError
+from scapo.geometry import invert_transform, look_at, normalize, sapien_camera_pose, transform_points
+from scapo.sim.assets.templates import ViewTemplate
+from scapo.sim.assets.urdf import ArticulationSpec
+from scapo.sim.sensor import SensorConfig, apply_sensor
+
+_VULKAN_HELP = (
+    "SAPIEN found no Vulkan rendering device. On CPU-only machines it needs Mesa >= 24.3 (lavapipe); "
+    "on Debian bookworm run 'bash scripts/setup.sh' (adds bookworm-backports and installs "
+    "mesa-vulkan-drivers libvulkan1 from it), elsewhere install Mesa >= 24.3 or a GPU Vulkan driver. "
+    "'scapo doctor' shows what is found."
+)
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Pinhole camera of the renderer."""
+
+    width: int = 256
+    """Image width (pixels)."""
+    height: int = 256
+    """Image height (pixels)."""
+    fovy_deg: float = 45.0
+    """Vertical field of view (degrees)."""
+    near: float = 0.01
+    """Near clipping plane (m)."""
+    far: float = 20.0
+    """Far clipping plane (m)."""
+
+
+@dataclass(frozen=True)
+class ViewConfig:
+    """Viewpoint distribution around the object (degrees; distance in units of the rest bbox diagonal).
+
+    Azimuth 0 puts the camera in front of the object (on its -x side); positive azimuth moves it
+    towards -y; elevation is the angle above the object's xy plane. ``random_rotation`` instead
+    draws the relative rotation uniformly from SO(3) (camera direction uniform on the sphere,
+    uniform roll) and ignores the angle ranges.
+    """
+
+    azimuth_deg: tuple[float, float] = (-70.0, 70.0)
+    elevation_deg: tuple[float, float] = (10.0, 60.0)
+    distance: tuple[float, float] = (1.4, 2.4)
+    roll_deg: tuple[float, float] = (-5.0, 5.0)
+    random_rotation: bool = False
+    target_jitter: float = 0.03
+    """Std of the look-at point around the bbox centre, in bbox diagonals."""
+
+    @classmethod
+    def from_template(cls, view: ViewTemplate, random_rotation: bool = False) -> ViewConfig:
+        return cls(view.azimuth_deg, view.elevation_deg, view.distance, view.roll_deg, random_rotation)
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """How one sample is rendered and resampled."""
+
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    num_points: int = 1024
+    """Points per sample after farthest-point sampling (N)."""
+    min_part_fraction: float = 0.05
+    """A view is rejected when any part keeps fewer than ceil(fraction * N) of the N points."""
+    max_attempts: int = 50
+    """Views tried per sample before giving up with an error."""
+    shader: str = "trivial"
+    """SAPIEN camera shader folder; "trivial" outputs exact float positions and segmentation only."""
+    fps_candidates: int = 8192
+    """FPS input bound: when at least 4x this many object pixels are visible, FPS runs on a regular
+    pixel sub-grid (every s-th row and column, s = floor(sqrt(pixels / fps_candidates))) that keeps
+    at least this many; 0 uses every pixel. Keep it well above num_points: with fewer than ~8x N
+    candidates FPS becomes biased towards sparsely sampled (oblique) surfaces."""
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+
+    def __post_init__(self):
+        if self.num_points < 16:
+            raise ValueError(f"num_points must be >= 16, got {self.num_points}")
+        if not 0.0 <= self.min_part_fraction < 1.0:
+            raise ValueError(f"min_part_fraction must be in [0, 1), got {self.min_part_fraction}")
+
+    @property
+    def min_part_points(self) -> int:
+        return int(math.ceil(self.min_part_fraction * self.num_points))
+
+
+@dataclass
+class Frame:
+    """One captured view, not yet turned into a sample.
+
+    Attributes:
+        spec: the object. state: (J,) joint state. T_world_cam: (4,4) camera pose (OpenCV).
+        part_motion: (P,4,4) rest -> current motion of each part (object frame), from SAPIEN.
+        position: (H,W,4) float32 SAPIEN ``Position`` picture (OpenGL camera frame).
+        seg: (H,W) uint32 entity ids (0 = nothing hit). lut: entity id -> part (-1 = not a part).
+        rng: the generator of this attempt (continues into FPS and sensor noise).
+        ground: whether a support plane was in the picture.
+    """
+
+    spec: ArticulationSpec
+    state: np.ndarray
+    T_world_cam: np.ndarray
+    part_motion: np.ndarray
+    rng: np.random.Generator
+    lut: np.ndarray
+    position: np.ndarray | None = None
+    seg: np.ndarray | None = None
+    ground: bool = False
+
+
+class Renderer:
+    """A SAPIEN scene with one camera, reused for many objects and views.
+
+    Rendering is split into :meth:`submit` (pose the object and camera, start the picture;
+    SAPIEN returns before the rasteriser finishes) and :meth:`fetch` (wait and copy the
+    pictures), so that CPU work on the previous frame can overlap with rendering.
+
+    Args:
+        camera: image size and intrinsics. shader: SAPIEN shader folder ("trivial" is exact and
+            fastest; "default" also computes lighting).
+
+    Raises:
+        RenderError: if SAPIEN finds no Vulkan device (the message says what to install).
+    """
+
+    def __init__(self, camera: CameraConfig | None = None, shader: str = "trivial"):
+        import sapien
+
+        self._sapien = sapien
+        self.camera_config = camera or CameraConfig()
+        try:
+            sapien.render.set_camera_shader_dir(shader)
+            self.scene = sapien.Scene()
+            c = self.camera_config
+            self.camera = self.scene.add_camera("scapo_camera", c.width, c.height, math.radians(c.fovy_deg),
+                                                c.near, c.far)
+        except RuntimeError as e:
+            if "device" in str(e).lower():
+                raise RenderError(f"{e}. {_VULKAN_HELP}") from e
+            raise RenderError(f"SAPIEN failed to set up the scene: {e}") from e
+        self.K = np.asarray(self.camera.get_intrinsic_matrix(), dtype=np.float64)
+        self.spec: ArticulationSpec | None = None
+        self._art = None
+        self._ground = None
+        self._pending: Frame | None = None
+        self.lut = np.full(1, -1, dtype=np.int64)
+
+    # ------------------------------------------------------------------ objects
+    def load(self, spec: ArticulationSpec) -> None:
+        """Put ``spec``'s object in the scene (removing the previous one); no-op if already loaded.
+
+        Raises:
+            AssetError: if SAPIEN cannot load the URDF or its joints differ from the spec.
+        """
+        if self.spec is spec:
+            return
+        self.unload()
+        loader = self.scene.create_urdf_loader()
+        loader.fix_root_link = True
+        try:
+            art = loader.load(str(spec.urdf))
+        except Exception as e:  # SAPIEN raises RuntimeError / filesystem errors with terse text
+            raise AssetError(f"SAPIEN could not load {spec.urdf}: {e}") from e
+        if art is None:
+            raise AssetError(f"SAPIEN could not load {spec.urdf} (no articulation returned)")
+        art.set_root_pose(self._sapien.Pose(spec.T_obj_root))
+        active = [j.name for j in art.get_active_joints()]
+        try:
+            self._qindex = np.array([active.index(j.name) for j in spec.gt_joints], dtype=np.int64)
+        except ValueError:
+            raise AssetError(f"{spec.urdf}: SAPIEN's movable joints {active} differ from the URDF's "
+                             f"{[j.name for j in spec.gt_joints]}") from None
+        self._rest_qpos = np.zeros(len(active))
+        for j, qi in zip(spec.gt_joints, self._qindex):
+            self._rest_qpos[qi] = j.rest_qpos
+        links = {ln.name: ln for ln in art.get_links()}
+        self._part_links = []
+        for p in range(spec.num_parts):
+            name = next(n for n, idx in spec.part_of_link.items() if idx == p)
+            self._part_links.append(links[name])
+        self._inv_rest = invert_transform(np.stack([spec.rest_link_poses[ln.name] for ln in self._part_links]))
+        ids = {ln.name: ln.entity.per_scene_id for ln in art.get_links()}
+        lut = np.full(max(ids.values()) + 1, -1, dtype=np.int64)
+        for name, sid in ids.items():
+            lut[sid] = spec.part_of_link.get(name, -1)
+        self.lut = lut
+        self._art, self.spec = art, spec
+
+    def unload(self) -> None:
+        """Remove the current object from the scene."""
+        if self._art is not None:
+            self.scene.remove_articulation(self._art)
+        self._art, self.spec = None, None
+
+    def set_state(self, state: np.ndarray) -> None:
+        """Set joint ``state (J,)`` (rad / m, from rest) of the loaded object."""
+        qpos = self._rest_qpos.copy()
+        qpos[self._qindex] += np.asarray(state, dtype=np.float64)
+        self._art.set_qpos(qpos.astype(np.float32))
+
+    def part_motion(self) -> np.ndarray:
+        """(P, 4, 4) float64 motion of each part from rest to the current state, in the object frame.
+
+        Read from SAPIEN's link poses (what is rendered): ``pose_now @ inv(pose_rest)`` of each
+        part's first link.
+        """
+        now = np.stack([ln.entity_pose.to_transformation_matrix() for ln in self._part_links]).astype(np.float64)
+        return now @ self._inv_rest
+
+    def set_ground(self, altitude: float | None) -> None:
+        """Show a support plane at ``altitude`` (m, object frame z) or hide it (None)."""
+        if altitude is None:
+            if self._ground is not None:
+                self._ground.set_pose(self._sapien.Pose([0, 0, -1e4]))
+            return
+        if self._ground is None:
+            b = self.scene.create_actor_builder()
+            b.add_box_visual(half_size=[20.0, 20.0, 0.005])
+            self._ground = b.build_kinematic(name="scapo_ground")
+        self._ground.set_pose(self._sapien.Pose([0.0, 0.0, altitude - 0.005]))
+
+    # ------------------------------------------------------------------ pictures
+    def submit(self, spec: ArticulationSpec, state: np.ndarray, T_world_cam: np.ndarray, rng: np.random.Generator,
+               ground: bool = False) -> Frame:
+        """Pose ``spec`` at ``state``, place the camera at ``T_world_cam`` (4x4, OpenCV convention)
+        and start rendering. Only one frame can be pending; :meth:`fetch` completes it."""
+        if self._pending is not None:
+            raise RenderError("submit() called while a frame is pending; fetch() it first")
+        self.load(spec)
+        state = np.asarray(state, dtype=np.float64)
+        self.set_state(state)
+        motion = self.part_motion()
+        self.set_ground(_support_altitude(spec, motion) if ground else None)
+        self.camera.set_entity_pose(self._sapien.Pose(sapien_camera_pose(T_world_cam)))
+        self.scene.update_render()
+        self.camera.take_picture()
+        T_world_cam = np.asarray(T_world_cam, dtype=np.float64)
+        self._pending = Frame(spec, state, T_world_cam, motion, rng, self.lut, ground=ground)
+        return self._pending
+
+    def fetch(self) -> Frame:
+        """Wait for the pending frame and copy its ``Position`` and ``Segmentation`` pictures."""
+        frame, self._pending = self._pending, None
+        if frame is None:
+            raise RenderError("fetch() without a submitted frame")
+        frame.position = self.camera.get_picture("Position")
+        frame.seg = self.camera.get_picture("Segmentation")[..., 1]  # uint32 entity ids (view, no copy)
+        return frame
+
+    def capture(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Render the loaded object (at its current state) from ``T_world_cam``.
+
+        Returns:
+            points_cam: (H, W, 3) float32 positions in the OpenCV camera frame (m);
+            part_map: (H, W) int64 part index per pixel, -1 where no object part is hit;
+            valid: (H, W) bool, pixels that hit any surface.
+        """
+        self.camera.set_entity_pose(self._sapien.Pose(sapien_camera_pose(T_world_cam)))
+        self.scene.update_render()
+        self.camera.take_picture()
+        pos = self.camera.get_picture("Position")
+        seg = self.camera.get_picture("Segmentation")[..., 1].astype(np.int64)
+        return gl_to_cv(pos), _part_map(seg, self.lut), seg > 0
+
+    def close(self) -> None:
+        self.unload()
+        self.scene = None
+
+
+def gl_to_cv(position: np.ndarray) -> np.ndarray:
+    """SAPIEN ``Position`` picture (..., 4) in the OpenGL camera frame -> (..., 3) float32 OpenCV frame."""
+    return position[..., :3] * np.array([1.0, -1.0, -1.0], dtype=np.float32)
+
+
+def _part_map(seg: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    """Part index per pixel from entity ids (ids outside the table map to -1)."""
+    return np.where(seg < len(lut), lut[np.minimum(seg, len(lut) - 1)], -1)
+
+
+# ---------------------------------------------------------------------- sampling
+def sample_state(spec: ArticulationSpec, rng: np.random.Generator, ranges: np.ndarray | None = None) -> np.ndarray:
+    """Joint states (J,) float64 drawn uniformly in ``ranges (J, 2)`` (default: the joint limits)."""
+    r = spec.joint_limit if ranges is None else np.asarray(ranges, dtype=np.float64)
+    return r[:, 0] + rng.random(len(r)) * (r[:, 1] - r[:, 0])
+
+
+def sample_camera_pose(view: ViewConfig, bbox_diag: float, rng: np.random.Generator) -> np.ndarray:
+    """Camera pose ``T_world_cam (4, 4)`` (OpenCV convention) looking at the object's bbox centre."""
+    if view.random_rotation:
+        d = normalize(rng.normal(size=3))
+        roll = rng.uniform(0.0, 2 * np.pi)
+    else:
+        az = math.radians(rng.uniform(*view.azimuth_deg))
+        el = math.radians(rng.uniform(*view.elevation_deg))
+        d = np.array([-math.cos(el) * math.cos(az), -math.cos(el) * math.sin(az), math.sin(el)])
+        roll = math.radians(rng.uniform(*view.roll_deg))
+    dist = rng.uniform(*view.distance) * bbox_diag
+    target = rng.normal(scale=view.target_jitter * bbox_diag, size=3)
+    up = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.999 else np.array([1.0, 0.0, 0.0])
+    T = look_at(target + dist * d, target, up)
+    c, s = math.cos(roll), math.sin(roll)
+    T[:3, :3] = T[:3, :3] @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return T
+
+
+def farthest_point_indices(points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices (n,) of a farthest-point sample of ``points (M, 3)`` (fpsample's QuickFPS).
+
+    Deterministic for equal inputs; the start point is drawn with ``rng``. Requires ``M >= n``.
+    """
+    import fpsample
+
+    m = len(points)
+    if m < n:
+        raise ValueError(f"farthest-point sampling needs at least {n} points, got {m}")
+    if m == n:
+        return np.arange(n)
+    h = 3 if m < 4096 else (5 if m < 32768 else 7)
+    idx = fpsample.bucket_fps_kdline_sampling(points, n, h=h, start_idx=int(rng.integers(m)))
+    return np.sort(np.asarray(idx, dtype=np.int64))
+
+
+def _support_altitude(spec: ArticulationSpec, part_pose_obj: np.ndarray) -> float:
+    """Lowest z (object frame) of the object at the given part poses (uses part-mesh hull vertices)."""
+    zmin = np.inf
+    for p in range(spec.num_parts):
+        v = _hull_vertices(spec, p)
+        zmin = min(zmin, float(transform_points(part_pose_obj[p], v)[:, 2].min()))
+    return zmin
+
+
+_HULLS: dict[tuple[str, int], np.ndarray] = {}
+
+
+def _hull_vertices(spec: ArticulationSpec, part: int) -> np.ndarray:
+    key = (str(spec.urdf), part)
+    if key not in _HULLS:
+        from scapo.sim.assets.urdf import load_part_mesh
+
+        _HULLS[key] = np.asarray(load_part_mesh(spec, part).convex_hull.vertices)
+    return _HULLS[key]
+
+
+def process_frame(frame: Frame, cfg: RenderConfig, K: np.ndarray, keep_images: bool = False) -> dict:
+    """Turn a captured frame into a sample dict with the SPEC section 5 fields.
+
+    Object pixels are back-projected (exact positions from the ``Position`` picture, converted
+    once from OpenGL to OpenCV), labelled by part, and resampled to N points by farthest-point
+    sampling. When at least 4x ``cfg.fps_candidates`` object pixels are visible, FPS runs on a
+    regular image-space sub-grid (every s-th row and column) holding at least that many.
+
+    Returned arrays: ``points (N,3) f32`` camera frame m; ``part_label (N,) int64`` (-1 not
+    object); ``npcs (N,3) f32`` rest object-frame coordinates / bbox_diag (0 for non-object
+    points); ``part_pose (P,4,4) f64`` object-at-rest -> camera-at-state; ``joint_type (J,)
+    int64``; ``joint_parts (J,2) int64``; ``joint_axis (J,3) f64`` and ``joint_pivot (J,3) f64``
+    camera frame; ``joint_state (J,) f64``; ``joint_limit (J,2) f64``; ``T_cam_obj (4,4) f64``;
+    ``K (3,3) f64``; ``bbox_diag () f64``. With ``keep_images`` also ``image_part_map (H,W)``
+    (-2 nothing hit, -1 not object, else part index) for previews.
+
+    Raises:
+        RejectedViewError: the camera sees fewer than N object pixels, or some part keeps fewer
+            than ``cfg.min_part_points`` of the N points; the reason says which.
+        RenderError: the picture contains NaN/inf positions.
+    """
+    spec, rng, N = frame.spec, frame.rng, cfg.num_points
+    seg, lut = frame.seg, frame.lut
+    if cfg.sensor.kind == "clean":
+        obj_mask = seg > 0  # no support plane with the clean sensor: every hit is the object
+        n_obj = int(np.count_nonzero(obj_mask))
+        if n_obj < N:
+            raise RejectedViewError(f"too few object pixels ({n_obj} < {N})")
+        stride = max(1, int(math.sqrt(n_obj / cfg.fps_candidates))) if cfg.fps_candidates else 1
+        sub_mask = obj_mask[::stride, ::stride]
+        points_all = gl_to_cv(frame.position[::stride, ::stride][sub_mask])
+        labels_all = _part_map(seg[::stride, ::stride][sub_mask], lut)
+    else:
+        part_map = _part_map(seg, lut)
+        obj_mask = part_map >= 0
+        img_points, keep = apply_sensor(gl_to_cv(frame.position), seg > 0, obj_mask, cfg.sensor, rng)
+        n_obj = int(np.count_nonzero(obj_mask & keep))
+        if n_obj < N:
+            raise RejectedViewError(f"too few object pixels ({n_obj} < {N})")
+        points_all, labels_all = img_points[keep], part_map[keep]
+    if not np.isfinite(points_all).all():
+        raise RenderError("SAPIEN returned non-finite positions")
+    idx = farthest_point_indices(points_all, N, rng)
+    points = points_all[idx]
+    part_label = labels_all[idx]
+    counts = np.bincount(part_label[part_label >= 0], minlength=spec.num_parts)
+    if counts.min() < cfg.min_part_points:
+        p = int(counts.argmin())
+        raise RejectedViewError(f"part {spec.part_names[p]!r} keeps {int(counts[p])} < {cfg.min_part_points} points")
+    sample = ground_truth(spec, frame.state, frame.T_world_cam, frame.part_motion, points, part_label, K)
+    if keep_images:
+        img = np.full(seg.shape, -2, dtype=np.int64)
+        img[seg > 0] = -1
+        pm = _part_map(seg, lut)
+        img[pm >= 0] = pm[pm >= 0]
+        sample["image_part_map"] = img
+    return sample
+
+
+def ground_truth(spec: ArticulationSpec, state: np.ndarray, T_world_cam: np.ndarray, part_motion: np.ndarray,
+                 points: np.ndarray, part_label: np.ndarray, K: np.ndarray) -> dict:
+    """Assemble the SPEC section 5 sample dict from the simulator state of one frame.
+
+    ``part_pose[p] = T_cam_world @ part_motion[p]`` (object at rest -> camera at state; the
+    object frame is the world frame); joint axes and pivots are the rest-state values of the
+    spec moved by the parent part's pose; ``npcs = inv(part_pose[label]) @ points / bbox_diag``.
+    """
+    T_cam_world = invert_transform(T_world_cam)
+    part_pose = T_cam_world @ part_motion
+    bbox_diag = spec.bbox_diag
+    points = np.asarray(points, dtype=np.float32)
+    npcs = np.zeros_like(points)
+    obj = part_label >= 0
+    inv_pose = invert_transform(part_pose)[part_label[obj]]
+    npcs[obj] = (np.einsum("nij,nj->ni", inv_pose[:, :3, :3], points[obj]) + inv_pose[:, :3, 3]) / bbox_diag
+    jp = spec.joint_parts
+    axes = np.array([j.axis_obj for j in spec.gt_joints]).reshape(-1, 3)
+    pivots = np.array([j.pivot_obj for j in spec.gt_joints]).reshape(-1, 3)
+    parent = part_pose[jp[:, 0]] if len(jp) else np.zeros((0, 4, 4))
+    return {
+        "points": points,
+        "part_label": part_label.astype(np.int64),
+        "npcs": npcs.astype(np.float32),
+        "part_pose": part_pose,
+        "joint_type": spec.joint_type,
+        "joint_parts": jp,
+        "joint_axis": np.einsum("jik,jk->ji", parent[:, :3, :3], axes),
+        "joint_pivot": np.einsum("jik,jk->ji", parent[:, :3, :3], pivots) + parent[:, :3, 3],
+        "joint_state": np.asarray(state, dtype=np.float64).copy(),
+        "joint_limit": spec.joint_limit,
+        "T_cam_obj": T_cam_world,
+        "K": np.asarray(K, dtype=np.float64).copy(),
+        "bbox_diag": np.float64(bbox_diag),
+    }
+
+
+def _submit_attempt(renderer: Renderer, spec: ArticulationSpec, cfg: RenderConfig, view: ViewConfig,
+                    rng: np.random.Generator, state=None, T_world_cam=None) -> Frame:
+    if state is None:
+        state = sample_state(spec, rng)
+    if T_world_cam is None:
+        T_world_cam = sample_camera_pose(view, spec.bbox_diag, rng)
+    ground = cfg.sensor.kind == "realistic" and not view.random_rotation
+    return renderer.submit(spec, state, T_world_cam, rng, ground=ground)
+
+
+def render_sample(
+    renderer: Renderer,
+    spec: ArticulationSpec,
+    cfg: RenderConfig,
+    view: ViewConfig,
+    rng: np.random.Generator,
+    state: np.ndarray | None = None,
+    T_world_cam: np.ndarray | None = None,
+    keep_images: bool = False,
+) -> dict:
+    """Render one view of ``spec`` (state and camera drawn with ``rng`` unless given).
+
+    Returns the sample dict of :func:`process_frame`; raises as it does.
+    """
+    _submit_attempt(renderer, spec, cfg, view, rng, state, T_world_cam)
+    return process_frame(renderer.fetch(), cfg, renderer.K, keep_images)
+
+
+def _reason_key(reason: str) -> str:
+    """Rejection reason without the numbers (for counting)."""
+    return reason.split(" (")[0].split(" keeps")[0]
+
+
+def render_many(
+    renderer: Renderer,
+    jobs: list[tuple[object, ArticulationSpec, tuple[int, ...]]],
+    cfg: RenderConfig,
+    view: ViewConfig,
+    keep_images: bool = False,
+):
+    """Render many samples with one frame in flight; yields ``(key, sample, reasons)`` in job order.
+
+    ``jobs`` are ``(key, spec, seed_key)``. Attempt ``a`` of a job uses
+    ``np.random.default_rng((*seed_key, a))``; a rejected view is retried with the next attempt,
+    so every sample depends only on its ``seed_key``. While the CPU back-projects, samples and
+    labels frame k, the rasteriser already renders frame k+1. Each sample gets ``attempts``.
+
+    Raises:
+        RenderError: a job exhausted ``cfg.max_attempts`` views (names the object).
+    """
+    queue = [(i, 0) for i in range(len(jobs))]
+    results: dict[int, tuple[dict, Counter]] = {}
+    reasons: dict[int, Counter] = {i: Counter() for i in range(len(jobs))}
+    next_out = 0
+    pending_job = None
+    while queue or pending_job is not None:
+        if pending_job is None:
+            i, a = queue.pop(0)
+            _, spec, key = jobs[i]
+            _submit_attempt(renderer, spec, cfg, view, np.random.default_rng((*key, a)))
+            pending_job = (i, a)
+        frame = renderer.fetch()
+        done, pending_job = pending_job, None
+        if queue:  # start the next picture before processing this one
+            i2, a2 = queue.pop(0)
+            _, spec2, key2 = jobs[i2]
+            _submit_attempt(renderer, spec2, cfg, view, np.random.default_rng((*key2, a2)))
+            pending_job = (i2, a2)
+        i, a = done
+        try:
+            sample = process_frame(frame, cfg, renderer.K, keep_images)
+        except RejectedViewError as e:
+            reasons[i][_reason_key(e.reason)] += 1
+            if a + 1 >= cfg.max_attempts:
+                if pending_job is not None:
+                    renderer.fetch()
+                raise RenderError(
+                    f"{Path(jobs[i][1].urdf)}: all {cfg.max_attempts} sampled views were rejected "
+                    f"({dict(reasons[i])}); widen the view ranges or lower min_part_fraction") from None
+            queue.insert(0, (i, a + 1))
+            continue
+        sample["attempts"] = a + 1
+        results[i] = (sample, reasons[i])
+        while next_out in results:
+            s, r = results.pop(next_out)
+            yield jobs[next_out][0], s, r
+            next_out += 1
+
+
+def render_with_retries(
+    renderer: Renderer, spec: ArticulationSpec, cfg: RenderConfig, view: ViewConfig, seed_key: tuple[int, ...],
+    keep_images: bool = False,
+) -> tuple[dict, Counter]:
+    """Render one sample, drawing a new state and view after each rejection (see :func:`render_many`).
+
+    Returns the sample (with ``attempts``) and a Counter of rejection reasons.
+    """
+    for _, sample, reasons in render_many(renderer, [(None, spec, seed_key)], cfg, view, keep_images):
+        return sample, reasons
+    raise AssertionError("unreachable")

@@ -1,0 +1,36 @@
+"""Shared fixtures: an isolated asset cache, one renderer per session, a small laptop dataset."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import pytest
+
+_CACHE = tempfile.mkdtemp(prefix="scapo-test-cache-")
+os.environ["SCAPO_CACHE"] = _CACHE
+
+
+@pytest.fixture(scope="session")
+def cache_dir() -> Path:
+    return Path(_CACHE) / "assets"
+
+
+@pytest.fixture(scope="session")
+def renderer():
+    from scapo.sim.render import Renderer
+
+    r = Renderer()
+    yield r
+    r.close()
+
+
+@pytest.fixture(scope="session")
+def laptop_data(tmp_path_factory) -> Path:
+    """8 laptop instances x 6 views (2 test instances)."""
+    from scapo.data import generate, make_config
+
+    out = tmp_path_factory.mktemp("data") / "laptop"
+    generate(make_config("laptop", 8, 6, seed=3, test_fraction=0.25, shard_size=16), out, progress=False)
+    return out

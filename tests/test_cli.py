@@ -1,0 +1,37 @@
+"""The console script: commands run, bad names give a clear error and exit code 2."""
+
+import subprocess
+import sys
+
+from scapo.cli.main import main
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "scapo.cli.main", *args], capture_output=True, text=True, timeout=600)
+
+
+def test_list_and_doctor(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    assert "laptop" in out and "icp" in out
+    assert main(["doctor"]) == 0
+    assert "render device" in capsys.readouterr().out
+
+
+def test_unknown_category_is_a_clear_error():
+    r = run("generate", "--category", "teapot", "--instances", "2", "--views", "2", "--out", "/tmp/never")
+    assert r.returncode == 2
+    assert "unknown category 'teapot'; known: basket, drawer, eyeglasses" in r.stderr
+
+
+def test_generate_predict_evaluate_round_trip(tmp_path, capsys):
+    d = tmp_path / "ds"
+    assert main(["generate", "--category", "oven", "--instances", "3", "--views", "3", "--out", str(d),
+                 "--no-progress"]) == 0
+    assert main(["predict", "--method", "icp", "--data", str(d), "--out", str(tmp_path / "p.npz")]) == 0
+    assert main(["evaluate", "--data", str(d), "--pred", str(tmp_path / "p.npz"), "--out", str(tmp_path / "t")]) == 0
+    out = capsys.readouterr().out
+    assert "icp" in out and (tmp_path / "t" / "table1.md").is_file()
+    assert main(["preview", "--data", str(d), "--count", "2", "--out", str(tmp_path / "p.png")]) == 0
+    assert (tmp_path / "p.png").stat().st_size > 10_000
+    assert main(["predict", "--method", "nope", "--data", str(d), "--out", str(tmp_path / "x.npz")]) == 2

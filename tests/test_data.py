@@ -1,0 +1,140 @@
+"""Datasets: field contract, split by instance, determinism, resume, corruption, config mismatch."""
+
+import json
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from scapo.data import generate, load, make_config, plan, split_instances
+from scapo.errors import ConfigError, CorruptShardError, DatasetError, UnknownNameError
+
+SPEC_FIELDS = {
+    "points": ((-1, 3), np.float32), "part_label": ((-1,), np.int64), "npcs": ((-1, 3), np.float32),
+    "part_pose": ((2, 4, 4), np.float64), "joint_type": ((1,), np.int64), "joint_parts": ((1, 2), np.int64),
+    "joint_axis": ((1, 3), np.float64), "joint_pivot": ((1, 3), np.float64), "joint_state": ((1,), np.float64),
+    "joint_limit": ((1, 2), np.float64), "T_cam_obj": ((4, 4), np.float64), "K": ((3, 3), np.float64),
+    "bbox_diag": ((), np.float64),
+}
+META = {"category": str, "instance_id": int, "view_id": int, "seed": int}
+
+
+def test_loaded_items_have_exactly_the_spec_fields(laptop_data):
+    ds = load(laptop_data, "train")
+    item = ds[0]
+    assert set(item) == set(SPEC_FIELDS) | set(META)
+    for k, (shape, dtype) in SPEC_FIELDS.items():
+        assert item[k].dtype == dtype, k
+        assert item[k].shape == tuple(1024 if s == -1 else s for s in shape), k
+    for k, t in META.items():
+        assert isinstance(item[k], t), k
+    assert item["category"] == "laptop" and item["seed"] == 3
+    batch = next(iter(torch.utils.data.DataLoader(ds, batch_size=4)))
+    assert batch["points"].shape == (4, 1024, 3) and batch["points"].dtype == torch.float32
+    assert len(ds[-1]["points"]) == 1024
+    with pytest.raises(IndexError):
+        ds[len(ds)]
+
+
+def test_split_is_by_instance(laptop_data):
+    tr, te = load(laptop_data, "train"), load(laptop_data, "test")
+    assert len(tr) == 6 * 6 and len(te) == 2 * 6
+    assert not set(tr.manifest["instance_id"]) & set(te.manifest["instance_id"])
+    assert len(load(laptop_data, "all")) == 48
+    card = json.loads((laptop_data / "card.json").read_text())
+    assert card["splits"]["test"]["instances"] == sorted(set(te.manifest["instance_id"]))
+    assert split_instances(10, 0.1, 0) == split_instances(10, 0.1, 0)
+    assert len(split_instances(10, 0.1, 0)[1]) == 1 and len(split_instances(2, 0.1, 0)[1]) == 1
+    with pytest.raises(DatasetError, match="unknown split"):
+        load(laptop_data, "val")
+
+
+def test_manifest_and_card(laptop_data):
+    m = pd.read_parquet(laptop_data / "manifest.parquet")
+    assert list(m["sample_id"]) == list(range(48))
+    assert {"split", "shard", "row", "category", "instance_id", "view_id", "seed", "attempts"} <= set(m.columns)
+    card = json.loads((laptop_data / "card.json").read_text())
+    assert card["category"] == "laptop" and card["part_names"] == ["base", "screen"]
+    assert len(card["shards"]) == len(plan(make_config("laptop", 8, 6, seed=3, test_fraction=0.25, shard_size=16)))
+    assert card["rejections"]["total"] == int((m["attempts"] - 1).sum())
+    assert len(card["dataset_hash"]) == 64
+
+
+def _arrays(path):
+    return load(path, "all").arrays()
+
+
+def test_identical_output_for_identical_config_any_worker_count(tmp_path):
+    cfg = make_config("scissors", 3, 4, seed=1, shard_size=5)
+    generate(cfg, tmp_path / "a", progress=False)
+    generate(cfg, tmp_path / "b", workers=2, progress=False)
+    a, b = _arrays(tmp_path / "a"), _arrays(tmp_path / "b")
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    ca = json.loads((tmp_path / "a" / "card.json").read_text())
+    cb = json.loads((tmp_path / "b" / "card.json").read_text())
+    assert ca == cb
+
+
+class Interrupt(Exception):
+    pass
+
+
+def test_interrupted_generate_resumes_without_loss_or_duplicates(tmp_path):
+    cfg = make_config("safe", 4, 5, seed=2, shard_size=3)
+    n_shards = len(plan(cfg))
+    done = []
+
+    def stop_after_two(name):
+        done.append(name)
+        if len(done) == 2:
+            raise Interrupt
+
+    with pytest.raises(Interrupt):
+        generate(cfg, tmp_path / "d", progress=False, on_shard_done=stop_after_two)
+    written = sorted(p.name for p in (tmp_path / "d" / "shards").glob("*.npz"))
+    assert len(written) == 2 and not (tmp_path / "d" / "card.json").exists()
+    with pytest.raises(DatasetError, match="generation unfinished"):
+        load(tmp_path / "d")
+    # a half-written temporary file from a killed process is never taken for a shard
+    (tmp_path / "d" / "shards" / ".train-00009.npz.tmp-123").write_bytes(b"partial")
+    rep = generate(cfg, tmp_path / "d", progress=False)
+    assert rep.skipped_shards == 2 and rep.rendered == cfg.instances * cfg.views - 2 * 3
+    assert not list((tmp_path / "d" / "shards").glob(".*tmp*"))
+    generate(cfg, tmp_path / "clean", progress=False)
+    a, b = _arrays(tmp_path / "d"), _arrays(tmp_path / "clean")
+    assert len(a["points"]) == cfg.instances * cfg.views and n_shards == len(list((tmp_path / "d" / "shards").glob("*.npz")))
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    # running again is a no-op
+    assert generate(cfg, tmp_path / "d", progress=False).rendered == 0
+
+
+def test_corrupted_shard_is_named_on_load(tmp_path, laptop_data):
+    d = tmp_path / "copy"
+    shutil.copytree(laptop_data, d)
+    shard = sorted((d / "shards").glob("train-*.npz"))[0]
+    data = bytearray(shard.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    shard.write_bytes(bytes(data))
+    ds = load(d, "train")
+    with pytest.raises(CorruptShardError, match=shard.name):
+        ds[0]
+    shard.write_bytes(b"not a zip file")
+    with pytest.raises(CorruptShardError, match=shard.name):
+        load(d, "train", verify=False)[0]
+
+
+def test_config_mismatch_and_bad_names(tmp_path, laptop_data):
+    d = tmp_path / "copy"
+    shutil.copytree(laptop_data, d)
+    with pytest.raises(ConfigError, match="different config"):
+        generate(make_config("laptop", 8, 7, seed=3, test_fraction=0.25, shard_size=16), d, progress=False)
+    with pytest.raises(UnknownNameError, match="known: basket"):
+        make_config("toaster", 2, 2)
+    with pytest.raises(ConfigError, match="unknown sensor"):
+        make_config("laptop", 2, 2, sensor="lidar")
+    with pytest.raises(DatasetError, match="not a scapo dataset"):
+        load(tmp_path / "nothing")

@@ -1,0 +1,93 @@
+"""Evaluator: perfect predictions score perfectly; slot permutations, frame offsets and bad files."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from scapo.data import load
+from scapo.errors import PredictionError
+from scapo.eval import Predictions, evaluate
+from scapo.geometry import as_transform
+
+
+def oracle(data, split, perm=None, offsets=None, needs_alignment=False, state_offset=0.0, flip_axis=False):
+    """Ground truth written as predictions; optionally with permuted slots and per-part frame offsets."""
+    ds = load(data, split)
+    a = ds.arrays()
+    P = ds.num_parts
+    perm = np.arange(P) if perm is None else np.asarray(perm)  # slot of GT part p is perm[p]
+    inv = np.argsort(perm)
+    poses = a["part_pose"].copy()
+    if offsets is not None:  # predicted canonical frame differs: P_pred = P_gt @ inv(O)
+        poses = poses @ np.linalg.inv(offsets)[None]
+    axis = -a["joint_axis"] if flip_axis else a["joint_axis"]
+    state = (-1 if flip_axis else 1) * (a["joint_state"] - state_offset)
+    return Predictions(
+        method="oracle", instance_id=a["instance_id"], view_id=a["view_id"], split=np.full(len(ds), split),
+        part_label=perm[a["part_label"]], part_pose=poses[:, inv], joint_parts=perm[a["joint_parts"]],
+        joint_type=a["joint_type"], joint_axis=axis, joint_pivot=a["joint_pivot"], joint_state=state,
+        T_cam_obj=a["T_cam_obj"], needs_alignment=needs_alignment, dataset_hash=ds.dataset_hash)
+
+
+def assert_perfect(summary):
+    assert summary["S"] == pytest.approx(100.0)
+    for k in ("R", "t", "D", "C", "state_deg"):
+        assert summary[k] == pytest.approx(0.0, abs=1e-4), k
+    assert summary["ap_part_5"] == 100.0 and summary["ap_joint_5"] == 100.0 and summary["seg_75"] == 100.0
+
+
+def test_ground_truth_scores_perfectly(laptop_data):
+    assert_perfect(evaluate(laptop_data, oracle(laptop_data, "test")).summary)
+
+
+def test_permuted_slots_are_matched(laptop_data):
+    res = evaluate(laptop_data, oracle(laptop_data, "test", perm=[1, 0]))
+    assert_perfect(res.summary)
+    res = evaluate(laptop_data, oracle(laptop_data, "test", perm=[1, 0]), protocol="per-category")
+    assert_perfect(res.summary)
+
+
+def test_canonical_frame_offsets_are_estimated_from_training_predictions(laptop_data):
+    offs = np.stack([as_transform(Rotation.from_euler("xyz", [30, -50, 100], degrees=True).as_matrix(), [0.1, 0, 0.2]),
+                     as_transform(Rotation.from_euler("xyz", [-10, 80, 5], degrees=True).as_matrix(), [0, 0.3, 0])])
+    kw = dict(perm=[1, 0], offsets=offs, needs_alignment=True, state_offset=0.4, flip_axis=True)
+    preds = Predictions.concatenate([oracle(laptop_data, "test", **kw), oracle(laptop_data, "train", **kw)])
+    res = evaluate(laptop_data, preds)
+    assert_perfect(res.summary)
+    assert res.alignment is not None
+    np.testing.assert_allclose(res.alignment.part_offset, offs, atol=1e-6)
+    # without alignment the same predictions are far off
+    preds.needs_alignment = False
+    assert evaluate(laptop_data, preds).summary["R"] > 20
+
+
+def test_errors_are_measured(laptop_data):
+    p = oracle(laptop_data, "test")
+    R = Rotation.from_rotvec([0, 0, np.radians(10)]).as_matrix()
+    p.part_pose[:, :, :3, :3] = R @ p.part_pose[:, :, :3, :3]
+    p.joint_axis = np.einsum("ij,mkj->mki", R, p.joint_axis)
+    res = evaluate(laptop_data, p)
+    assert res.summary["R"] == pytest.approx(10.0, abs=1e-6)
+    assert res.summary["D"] == pytest.approx(10.0, abs=1e-3) or res.summary["D"] < 10.0
+    assert res.summary["S"] == pytest.approx(100.0)
+
+
+def test_bad_predictions_are_refused(laptop_data, tmp_path):
+    p = oracle(laptop_data, "test")
+    with pytest.raises(PredictionError, match="miss 6 of 12 test samples"):
+        evaluate(laptop_data, p.select(np.arange(len(p)) < 6))
+    bad = oracle(laptop_data, "test")
+    bad.joint_axis[0, 0, 0] = np.nan
+    with pytest.raises(PredictionError, match="joint_axis.*NaN"):
+        bad.validate()
+    with pytest.raises(PredictionError, match="shape"):
+        Predictions(**{**p.__dict__, "part_pose": p.part_pose[:, :, :3]})
+    other = oracle(laptop_data, "test")
+    other.dataset_hash = "0" * 64
+    with pytest.raises(PredictionError, match="made on dataset"):
+        evaluate(laptop_data, other)
+    path = p.save(tmp_path / "p.npz")
+    assert_perfect(evaluate(laptop_data, path).summary)
+    (tmp_path / "junk.npz").write_bytes(b"junk")
+    with pytest.raises(PredictionError, match="cannot be read"):
+        Predictions.load(tmp_path / "junk.npz")

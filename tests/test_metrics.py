@@ -1,0 +1,122 @@
+"""Metric functions against hand cases and naive loop references (SPEC section 8)."""
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from scapo.eval.metrics import (
+    axis_error_deg,
+    iou_matrix,
+    joint_state_error,
+    line_distance,
+    match_parts,
+    precision_under,
+    relabel,
+    rotation_error_deg,
+    segmentation_iou,
+)
+
+
+# ----------------------------------------------------------------- naive references
+def naive_rotation_error(Rp, Rg):
+    U, _, Vt = np.linalg.svd(Rp)
+    D = np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))])
+    Rp = U @ D @ Vt
+    c = (np.trace(Rg @ Rp.T) - 1) / 2
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+def naive_line_distance(p1, d1, p2, d2):
+    # minimise |p1 + s d1 - p2 - u d2| over a fine grid + local refinement (brute force)
+    from scipy.optimize import minimize
+
+    f = lambda x: np.linalg.norm(p1 + x[0] * d1 - p2 - x[1] * d2)  # noqa: E731
+    return min(minimize(f, x0, method="Nelder-Mead", options={"xatol": 1e-10, "fatol": 1e-12}).fun
+               for x0 in ([0, 0], [5, -5], [-5, 5]))
+
+
+def naive_iou(pred, gt, p):
+    inter = sum(1 for a, b in zip(pred, gt) if a == p and b == p)
+    union = sum(1 for a, b in zip(pred, gt) if a == p or b == p)
+    return inter / union if union else float("nan")
+
+
+# ----------------------------------------------------------------- hand cases
+def test_rotation_error_hand_cases():
+    assert rotation_error_deg(np.eye(3), np.eye(3)) == pytest.approx(0.0, abs=1e-6)
+    R = Rotation.from_rotvec([0, 0, math.radians(37)]).as_matrix()
+    assert rotation_error_deg(R, np.eye(3)) == pytest.approx(37.0)
+    assert rotation_error_deg(np.eye(3), R) == pytest.approx(37.0)
+    R180 = Rotation.from_rotvec([math.pi, 0, 0]).as_matrix()
+    assert rotation_error_deg(R180, np.eye(3)) == pytest.approx(180.0)
+    # a scaled, noisy prediction is projected to SO(3) first
+    assert rotation_error_deg(2.0 * R, R) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_rotation_error_matches_naive_reference():
+    Rs = Rotation.random(20, random_state=0).as_matrix()
+    Rg = Rotation.random(20, random_state=1).as_matrix()
+    noisy = Rs + 0.05 * np.random.default_rng(0).normal(size=Rs.shape)
+    got = rotation_error_deg(noisy, Rg)
+    ref = [naive_rotation_error(a, b) for a, b in zip(noisy, Rg)]
+    np.testing.assert_allclose(got, ref, atol=1e-6)
+
+
+def test_axis_error_hand_cases():
+    assert axis_error_deg([0, 0, 1.0], [0, 0, 1.0]) == pytest.approx(0.0)
+    assert axis_error_deg([0, 0, -2.0], [0, 0, 1.0]) == pytest.approx(0.0)  # sign flip ignored
+    assert axis_error_deg([1.0, 0, 0], [0, 0, 1.0]) == pytest.approx(90.0)
+    assert axis_error_deg([1.0, 1.0, 0], [1.0, 0, 0]) == pytest.approx(45.0)
+
+
+def test_line_distance_hand_cases_and_reference():
+    # parallel lines: point-to-line distance
+    assert line_distance([0, 0, 0], [0, 0, 1], [0.3, 0.4, 5.0], [0, 0, -1]) == pytest.approx(0.5)
+    # identical line, different points and sign
+    assert line_distance([0, 0, 2], [0, 0, -1], [0, 0, -7], [0, 0, 1]) == pytest.approx(0.0, abs=1e-12)
+    # skew lines: x-axis and a y-parallel line at z = 2
+    assert line_distance([0, 0, 0], [1, 0, 0], [3, 0, 2], [0, 1, 0]) == pytest.approx(2.0)
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        p1, d1, p2, d2 = rng.normal(size=(4, 3))
+        d1 /= np.linalg.norm(d1)
+        d2 /= np.linalg.norm(d2)
+        assert line_distance(p1, d1, p2, d2) == pytest.approx(naive_line_distance(p1, d1, p2, d2), abs=1e-5)
+
+
+def test_segmentation_iou_matches_naive():
+    rng = np.random.default_rng(0)
+    gt = rng.integers(-1, 3, 200)
+    pred = rng.integers(-1, 3, 200)
+    got = segmentation_iou(pred, gt, 3)
+    np.testing.assert_allclose(got, [naive_iou(pred, gt, p) for p in range(3)])
+    np.testing.assert_allclose(segmentation_iou(gt, gt, 3), [1.0, 1.0, 1.0])
+    assert math.isnan(segmentation_iou(np.zeros(5, int), np.zeros(5, int), 2)[1])
+
+
+def test_iou_matrix_and_hungarian_matching_against_brute_force():
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        gt = rng.integers(0, 3, 300)
+        perm = rng.permutation(3)
+        pred = perm[gt].copy()
+        flip = rng.random(300) < 0.2
+        pred[flip] = rng.integers(0, 3, flip.sum())
+        M = iou_matrix(pred, gt, 3, 3)
+        for s, p in itertools.product(range(3), range(3)):
+            assert M[s, p] == pytest.approx(naive_iou(np.where(pred == s, 0, 1), np.where(gt == p, 0, 1), 0))
+        slots = match_parts(pred, gt, 3)
+        best = max(itertools.permutations(range(3)), key=lambda q: sum(M[q[p], p] for p in range(3)))
+        assert tuple(slots) == best
+        np.testing.assert_array_equal(slots, perm)
+        np.testing.assert_array_equal(relabel(perm[gt], slots), gt)
+
+
+def test_joint_state_error_units_and_precision():
+    err = joint_state_error([0.1, 0.05], [0.0, 0.0], [0, 1])
+    np.testing.assert_allclose(err, [math.degrees(0.1), 5.0])
+    assert precision_under([1, 6, 2], [1, 1, 20], 5, 10) == pytest.approx(1 / 3)
+    assert precision_under([np.nan], [0], 5, 5) == 0.0
