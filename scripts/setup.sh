@@ -33,7 +33,9 @@ install_vulkan() {
   fi
   if ! grep -rqs 'bookworm-backports' /etc/apt/sources.list /etc/apt/sources.list.d/; then
     local mirror
-    mirror="$(grep -rhs -m1 -oE 'https?://[^ ]+/debian/?' /etc/apt/sources.list.d/*.sources /etc/apt/sources.list 2>/dev/null | head -n1)"
+    # the mirror of the existing bookworm entry (deb822 "URIs:" lines, or one-line "deb" entries)
+    mirror="$( { grep -hs '^URIs:' /etc/apt/sources.list.d/*.sources | awk '{print $2}';
+                 grep -hs '^deb ' /etc/apt/sources.list | awk '{print $2}'; } | grep -m1 -E '/debian/?$' || true)"
     mirror="${mirror:-http://deb.debian.org/debian}"
     log "adding bookworm-backports ($mirror) to apt sources"
     printf 'Types: deb\nURIs: %s\nSuites: bookworm-backports\nComponents: main\nSigned-By: /usr/share/keyrings/debian-archive-keyring.gpg\n' \
@@ -57,7 +59,7 @@ install_python() {
     log "python environment up to date"
     return 0
   fi
-  if ! "$vpy" -c "import torch" 2>/dev/null; then
+  if ! "$vpy" -c "import torch" >/dev/null 2>&1; then
     log "installing torch==2.13.0 (CPU build)"
     "$vpy" -m pip install -q --disable-pip-version-check torch==2.13.0 2>&1 | grep -v '^WARNING: Location' || true
     "$vpy" -c "import torch" || { log "ERROR: torch install failed"; return 1; }
