@@ -52,3 +52,7 @@ class CorruptShardError(DatasetError):
 
 class PredictionError(ScapoError, ValueError):
     """A predictions file is malformed or does not match the dataset it is evaluated on."""
+
+
+class TrainingError(ScapoError):
+    """Training cannot continue (NaN/inf loss, incompatible checkpoint); the message names the cause."""

@@ -7,5 +7,6 @@ published method, and never passed off as the original code.
 
 from scapo.baselines import icp  # noqa: F401  (registers "icp")
 from scapo.baselines.base import METHODS, Method, list_methods, run_method
+from scapo.models import predict as _scapo_predict  # noqa: F401  (registers "scapo")
 
 __all__ = ["METHODS", "Method", "list_methods", "run_method"]

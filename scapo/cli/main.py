@@ -91,6 +91,14 @@ def cmd_preview(args) -> int:
     return 0
 
 
+def cmd_train(args) -> int:
+    from scapo.models.train import train
+
+    ck = train(args.data, args.out, args.preset, progress=not args.no_progress, device=args.device)
+    print(f"trained: {ck} (loss curves in {Path(args.out) / 'losses.png'})")
+    return 0
+
+
 def cmd_predict(args) -> int:
     from scapo.baselines import run_method
 
@@ -98,8 +106,18 @@ def cmd_predict(args) -> int:
     for kv in args.option or []:
         k, _, v = kv.partition("=")
         opts[k] = _parse_value(v)
-    preds = run_method(args.method, args.data, args.out, **opts)
-    print(f"wrote {args.out}: {len(preds)} predictions of {args.method} "
+    method = args.method
+    if args.run is not None:
+        if method not in (None, "scapo"):
+            raise ScapoError(f"--run is for the scapo method, not {method!r}")
+        method = "scapo"
+        opts["run"] = args.run
+        if args.device:
+            opts["device"] = args.device
+    if method is None:
+        raise ScapoError("give --method NAME (see 'scapo list') or --run RUN (a trained SCAPO run)")
+    preds = run_method(method, args.data, args.out, **opts)
+    print(f"wrote {args.out}: {len(preds)} predictions of {method} "
           f"({preds.info.get('ms_per_cloud_test', float('nan')):.1f} ms per test cloud)")
     return 0
 
@@ -144,13 +162,23 @@ def _print_summary(results) -> None:
 
 def cmd_bench(args) -> int:
     if args.what == "perf":
-        from scapo.perf import bench_generate, write_perf
+        from scapo.perf import write_perf
 
-        rows = bench_generate(args.category, args.instances, args.views, tuple(args.workers), args.seed, args.cache)
+        if args.target == "generate":
+            from scapo.perf import bench_generate
+
+            rows = bench_generate(args.category, args.instances, args.views, tuple(args.workers), args.seed,
+                                  args.cache)
+            name = f"generate_{args.category}"
+        else:
+            from scapo.perf import bench_model
+
+            rows = bench_model(args.preset, device=args.device)
+            name = f"model_{args.preset}"
         for r in rows:
             print(r)
         if args.out:
-            paths = write_perf(rows, args.out, f"generate_{args.category}")
+            paths = write_perf(rows, args.out, name)
             print("wrote " + ", ".join(str(p) for p in paths))
         return 0
     from scapo.bench import run_table1
@@ -222,8 +250,18 @@ def build_parser() -> argparse.ArgumentParser:
     common_cache(sp)
     sp.set_defaults(func=cmd_preview)
 
-    sp = sub.add_parser("predict", help="fit a method on the training split and predict")
-    sp.add_argument("--method", required=True)
+    sp = sub.add_parser("train", help="train SCAPO (both stages) on a dataset's training clouds (no labels)")
+    sp.add_argument("--data", type=Path, required=True)
+    sp.add_argument("--preset", default="cpu", help="paper | cpu | demo | test")
+    sp.add_argument("--out", type=Path, required=True, help="run folder (resumes from its checkpoint)")
+    sp.add_argument("--device", default=None, help="cpu | cuda (default: the preset's, auto)")
+    sp.add_argument("--no-progress", action="store_true")
+    sp.set_defaults(func=cmd_train)
+
+    sp = sub.add_parser("predict", help="fit a method on the training split (or load a SCAPO run) and predict")
+    sp.add_argument("--method", default=None, help="method name (see 'scapo list')")
+    sp.add_argument("--run", type=Path, default=None, help="trained SCAPO run folder (implies --method scapo)")
+    sp.add_argument("--device", default=None)
     sp.add_argument("--data", type=Path, required=True)
     sp.add_argument("--out", type=Path, required=True)
     sp.add_argument("--option", action="append", help="method option key=value (repeatable)")
@@ -239,6 +277,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("bench", help="benchmarks: perf (throughput) or table1 (paper's Table 1)")
     sp.add_argument("what", choices=["perf", "table1"])
+    sp.add_argument("--what", dest="target", choices=["generate", "model"], default="generate",
+                    help="perf: generation throughput, or SCAPO training/inference speed")
+    sp.add_argument("--preset", default="cpu", help="perf --what model: SCAPO preset")
+    sp.add_argument("--device", default=None, help="perf --what model: cpu | cuda")
     sp.add_argument("--category", default="laptop", help="perf: category")
     sp.add_argument("--categories", type=_names, default=["laptop", "safe", "eyeglasses", "oven", "washer"])
     sp.add_argument("--methods", type=_names, default=["icp"])

@@ -1,0 +1,16 @@
+"""The SCAPO model: vector-neuron layers, SE(3) auto-encoder, blend skinning, training and inference.
+
+``scapo.models.load(run_dir).predict(points)`` runs a trained model on ``(B, N, 3)`` float32
+camera-frame points (metres) on CPU or CUDA.
+"""
+
+from scapo.models.scapo_model import ModelConfig, SCAPOModel
+
+__all__ = ["ModelConfig", "SCAPOModel", "load"]
+
+
+def load(run, device: str | None = None):
+    """Load a trained run (folder written by ``scapo train``); returns a :class:`~scapo.models.predict.Predictor`."""
+    from scapo.models.predict import Predictor
+
+    return Predictor.load(run, device=device)

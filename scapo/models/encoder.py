@@ -1,0 +1,115 @@
+"""SE(3)-equivariant auto-encoder of SCAPO stage 1 (paper Sec. 3.1).
+
+The encoder first estimates the translation ``t_g`` with VNT layers (translation and rotation
+equivariant), then runs VN layers on the centred cloud to estimate the rotation ``R_g``
+(three equivariant vectors) and an SE(3)-invariant code ``Z_x`` (coordinates of the pooled
+features in the frame ``R_g``). The decoder maps ``Z_x`` to a canonical shape ``S_dec`` so that
+``X ~ S_dec R_g^T + t_g`` (points as rows; paper: ``X = S_obj R_g + 1 t_g^T`` with its ``R_g`` being
+our ``R_g^T``). Local geometry enters through k-nearest-neighbour edge features as in VN-DGCNN.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from scapo.models.vn import (
+    VNLinear,
+    VNLinearLeakyReLU,
+    VNMaxPool,
+    VNTLinear,
+    VNTLinearLeakyReLU,
+    gather_neighbours,
+    gram_schmidt,
+    knn_indices,
+)
+
+
+@dataclass(frozen=True)
+class EncoderConfig:
+    """Sizes of the SE(3) auto-encoder."""
+
+    k: int = 16
+    """Neighbours of the edge features."""
+    trans_channels: tuple[int, ...] = (16, 32)
+    """VNT channels of the translation branch."""
+    rot_channels: tuple[int, ...] = (32, 64, 96)
+    """VN channels of the rotation branch."""
+    code_dim: int = 256
+    """Size of the invariant code Z_x."""
+    decoder_hidden: tuple[int, int] = (512, 512)
+    """Decoder MLP widths; the last one is the feature map F_x fed to the shape-residual head."""
+    decoder_points: int = 512
+    """Points of the decoded canonical shape S_dec."""
+
+
+@dataclass
+class EncoderOutput:
+    """t (B, 3) translation; R_raw (B, 3, 3) equivariant columns (not orthonormal); R (B, 3, 3)
+    Gram-Schmidt rotation; code (B, D) invariant; inv (B, C, 3) invariant pooled coordinates."""
+
+    t: torch.Tensor
+    R_raw: torch.Tensor
+    R: torch.Tensor
+    code: torch.Tensor
+
+
+class SE3Encoder(nn.Module):
+    """``points (B, N, 3)`` -> :class:`EncoderOutput` (equivariant t, R; invariant code)."""
+
+    def __init__(self, cfg: EncoderConfig):
+        super().__init__()
+        self.cfg = cfg
+        c_t = cfg.trans_channels
+        self.t_edge = VNTLinearLeakyReLU(2, c_t[0])
+        self.t_layers = nn.ModuleList(VNTLinearLeakyReLU(a, b) for a, b in zip(c_t[:-1], c_t[1:]))
+        self.t_out = VNTLinear(c_t[-1], 1)
+        c_r = cfg.rot_channels
+        self.r_edge = VNLinearLeakyReLU(3, c_r[0])
+        self.r_layers = nn.ModuleList(VNLinearLeakyReLU(a, b) for a, b in zip(c_r[:-1], c_r[1:]))
+        self.pool = VNMaxPool(c_r[-1])
+        self.r_head = VNLinearLeakyReLU(2 * c_r[-1], c_r[-1], batchnorm=False)
+        self.r_out = VNLinear(c_r[-1], 3)
+        self.code = nn.Sequential(nn.Linear(2 * c_r[-1] * 3, cfg.code_dim), nn.LeakyReLU(0.2),
+                                  nn.Linear(cfg.code_dim, cfg.code_dim))
+
+    def forward(self, points: torch.Tensor) -> EncoderOutput:
+        B, N, _ = points.shape
+        idx = knn_indices(points, self.cfg.k)  # translation/rotation invariant, shared by both branches
+        x = points.transpose(1, 2).unsqueeze(1)  # (B, 1, 3, N)
+        nb = gather_neighbours(x, idx)  # (B, 1, 3, N, k)
+        f = self.t_edge(torch.cat([x.unsqueeze(-1).expand_as(nb), nb], dim=1)).mean(-1)
+        for layer in self.t_layers:
+            f = layer(f)
+        t = self.t_out(f.mean(-1, keepdim=True)).reshape(B, 3)
+        xc = x - t.reshape(B, 1, 3, 1)
+        nbc = nb - t.reshape(B, 1, 3, 1, 1)
+        xe = xc.unsqueeze(-1).expand_as(nbc)
+        edge = torch.cat([nbc - xe, xe, torch.cross(nbc, xe, dim=2)], dim=1)  # (B, 3, 3, N, k)
+        g = self.r_edge(edge).mean(-1)
+        for layer in self.r_layers:
+            g = layer(g)
+        pooled = torch.cat([self.pool(g), g.mean(-1)], dim=1)  # (B, 2C, 3)
+        v = self.r_out(self.r_head(pooled.unsqueeze(-1))).squeeze(-1)  # (B, 3, 3): three vectors (rows)
+        R_raw = v.transpose(1, 2)  # columns are the vectors
+        R = gram_schmidt(v[:, 0], v[:, 1])
+        inv = torch.einsum("bci,bij->bcj", pooled, R)  # coordinates in the frame R: invariant
+        return EncoderOutput(t, R_raw, R, self.code(inv.reshape(B, -1)))
+
+
+class ShapeDecoder(nn.Module):
+    """Invariant code ``(B, D)`` -> canonical shape ``S_dec (B, M, 3)`` and feature map ``F_x (B, H)``."""
+
+    def __init__(self, cfg: EncoderConfig):
+        super().__init__()
+        h1, h2 = cfg.decoder_hidden
+        self.hidden = nn.Sequential(nn.Linear(cfg.code_dim, h1), nn.LeakyReLU(0.2), nn.Linear(h1, h2),
+                                    nn.LeakyReLU(0.2))
+        self.out = nn.Linear(h2, cfg.decoder_points * 3)
+        self.m = cfg.decoder_points
+
+    def forward(self, code: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        feat = self.hidden(code)
+        return self.out(feat).reshape(-1, self.m, 3), feat

@@ -1,0 +1,76 @@
+"""Named, frozen training presets (one registry). Derive variants with ``dataclasses.replace``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from scapo.errors import ConfigError
+from scapo.losses import LossConfig
+from scapo.models.encoder import EncoderConfig
+from scapo.registry import Registry
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that defines a training run except the data."""
+
+    name: str
+    """Preset name (recorded in checkpoints and tables)."""
+    stage1_epochs: int
+    """Epochs of stage 1 (canonicalisation)."""
+    stage2_epochs: int
+    """Epochs of stage 2 (end-to-end with the deformation model)."""
+    batch_size: int = 16
+    train_points: int = 512
+    """Points per training cloud (a random subset of the stored N); inference uses all points."""
+    lr_stage1: float = 1e-3
+    lr_stage2: float = 1e-4
+    min_lr: float = 1e-6
+    """Cosine schedule floor."""
+    weight_decay: float = 1e-8
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
+    template_points: int = 512
+    gamma: float = 0.1
+    """Skinning temperature."""
+    losses: LossConfig = field(default_factory=LossConfig)
+    seed: int = 0
+    max_steps_per_epoch: int = 0
+    """Cap on iterations per epoch (0: one pass over the training split)."""
+    grad_clip: float = 10.0
+    """Global gradient-norm clip."""
+    device: str = "auto"
+    """"auto" (CUDA when available), "cpu" or "cuda"."""
+
+    def __post_init__(self):
+        if self.stage1_epochs < 0 or self.stage2_epochs < 0 or self.batch_size < 1 or self.train_points < 32:
+            raise ConfigError(f"preset {self.name!r}: invalid epochs, batch size or point count")
+
+
+PRESETS: Registry[TrainConfig] = Registry("preset")
+
+PRESETS.add("paper", TrainConfig(
+    name="paper", stage1_epochs=200, stage2_epochs=200, batch_size=32, train_points=1024,
+    encoder=EncoderConfig(k=16, rot_channels=(32, 64, 128), trans_channels=(16, 32), code_dim=256,
+                          decoder_points=1024),
+    template_points=1024,
+))
+PRESETS.add("cpu", TrainConfig(
+    name="cpu", stage1_epochs=12, stage2_epochs=12, batch_size=16, train_points=512, max_steps_per_epoch=45,
+    encoder=EncoderConfig(k=8, rot_channels=(24, 48, 96), trans_channels=(8, 16), code_dim=256, decoder_points=512),
+))
+PRESETS.add("demo", TrainConfig(
+    name="demo", stage1_epochs=4, stage2_epochs=4, batch_size=16, train_points=384, max_steps_per_epoch=20,
+    encoder=EncoderConfig(k=8, rot_channels=(16, 32, 64), trans_channels=(8, 16), code_dim=128, decoder_points=384,
+                          decoder_hidden=(256, 256)),
+    template_points=384,
+))
+PRESETS.add("test", TrainConfig(
+    name="test", stage1_epochs=1, stage2_epochs=1, batch_size=4, train_points=128, max_steps_per_epoch=2,
+    encoder=EncoderConfig(k=6, rot_channels=(8, 16), trans_channels=(4, 8), code_dim=32, decoder_points=128,
+                          decoder_hidden=(64, 64)),
+    template_points=128,
+))
+
+
+def list_presets() -> list[str]:
+    return PRESETS.names()

@@ -1,0 +1,241 @@
+"""The SCAPO network: SE(3) canonicalisation (stage 1) and joint-aware blend skinning (stage 2).
+
+Shapes: ``B`` batch, ``N`` input points, ``M`` template points, ``P`` parts (slot 0 is the base),
+``J`` joints. Inputs are camera-frame points in metres; the model works in normalised units
+``X = points / scale`` with ``scale = 2 * RMS distance of the points to their centroid`` (an
+SE(3)-invariant quantity, so equivariance is kept) and reports metric outputs.
+
+Stage 1 (Sec. 3.1): ``t_g, R_g, Z_x = Theta_E(X)``; ``S_dec, F_x = Theta_D(Z_x)``;
+``X ~ R_g S_dec + t_g`` with ``R_g`` the Gram-Schmidt rotation of the raw equivariant estimate.
+
+Stage 2 (Sec. 3.2-3.3):
+``S_obj = R_g^T (X - t_g)`` (aligned input); keypoints ``K`` and bone shapes from ``Theta_K(Z_x)``;
+template ``Y_X = Y_base + Theta_Delta(F_x)``; joints ``(c, d, a)_x = Theta_J(S_obj)`` and
+``(c, d, a)_y = Theta_J(Y_X)``; bone transforms ``T^p`` (canonical -> aligned); backward
+``S* = D^{o->c}(S_obj)``, forward ``S_obj^ = D^{c->o}(S*)``, ``X^ = R_g S_obj^ + t_g``; the same
+cycle on ``Y_X``; cross-space maps ``S_obj -> Y`` and ``Y_X -> X``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+from scapo.models.encoder import EncoderConfig, SE3Encoder, ShapeDecoder
+from scapo.models.skinning import (
+    blend,
+    bone_transforms,
+    cross_space_transforms,
+    invert,
+    skinning_weights,
+)
+from scapo.models.vn import gram_schmidt
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Architecture of the SCAPO network for one category's kinematic structure."""
+
+    num_parts: int
+    """P, part slots (slot 0 is the base)."""
+    joint_types: tuple[int, ...]
+    """Per joint: 0 revolute, 1 prismatic."""
+    joint_parts: tuple[tuple[int, int], ...]
+    """Per joint: (parent slot, child slot), parents listed first."""
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
+    template_points: int = 512
+    """M, points of the learnable template Y_base."""
+    gamma: float = 0.1
+    """Temperature of the skinning softmax."""
+    joint_widths: tuple[int, ...] = (64, 128, 256)
+    """PointNet widths of the joint head Theta_J."""
+    head_width: int = 256
+    """Hidden width of the keypoint and residual heads."""
+
+    def __post_init__(self):
+        if len(self.joint_types) != len(self.joint_parts):
+            raise ValueError("joint_types and joint_parts must have one entry per joint")
+        if len(self.joint_parts) != self.num_parts - 1:
+            raise ValueError("the kinematic structure must be a tree: num_parts - 1 joints")
+
+
+def _mlp(widths: list[int]) -> nn.Sequential:
+    layers = []
+    for a, b in zip(widths[:-2], widths[1:-1]):
+        layers += [nn.Linear(a, b), nn.LeakyReLU(0.2)]
+    layers.append(nn.Linear(widths[-2], widths[-1]))
+    return nn.Sequential(*layers)
+
+
+class KeypointHead(nn.Module):
+    """Theta_K: invariant code -> keypoints ``K (B, P, 3)``, bone orientations ``V (B, P, 3, 3)`` and
+    log scales ``(B, P, 3)``. Initialised with keypoints spread along x and isotropic bones."""
+
+    def __init__(self, code_dim: int, num_parts: int, width: int):
+        super().__init__()
+        self.P = num_parts
+        self.net = _mlp([code_dim, width, num_parts * (3 + 6 + 3)])
+        with torch.no_grad():
+            last = self.net[-1]
+            last.weight.mul_(0.01)
+            bias = torch.zeros(num_parts, 12)
+            bias[:, 0] = torch.linspace(-0.25, 0.25, num_parts)
+            bias[:, 3:9] = torch.tensor([1.0, 0, 0, 0, 1.0, 0])
+            bias[:, 9:] = torch.log(torch.tensor(0.3))
+            last.bias.copy_(bias.reshape(-1))
+
+    def forward(self, code: torch.Tensor):
+        o = self.net(code).reshape(-1, self.P, 12)
+        V = gram_schmidt(o[..., 3:6].reshape(-1, 3), o[..., 6:9].reshape(-1, 3)).reshape(-1, self.P, 3, 3)
+        return o[..., :3], V.transpose(-1, -2), o[..., 9:].clamp(-4.0, 1.0)
+
+
+class JointHead(nn.Module):
+    """Theta_J: a PointNet on an aligned shape ``(B, M, 3)`` -> per joint pivot ``c``, unit axis ``d``
+    and state ``a``: ``(B, J, 3), (B, J, 3), (B, J)``."""
+
+    def __init__(self, num_joints: int, widths: tuple[int, ...]):
+        super().__init__()
+        dims = [3, *widths]
+        layers = []
+        for a, b in zip(dims[:-1], dims[1:]):
+            layers += [nn.Conv1d(a, b, 1), nn.LeakyReLU(0.2)]
+        self.point_mlp = nn.Sequential(*layers)
+        self.out = _mlp([widths[-1], widths[-1] // 2, num_joints * 7])
+        self.J = num_joints
+        with torch.no_grad():
+            self.out[-1].weight.mul_(0.01)
+            bias = torch.zeros(num_joints, 7)
+            bias[:, 3:6] = torch.tensor([0.0, 1.0, 0.0])
+            self.out[-1].bias.copy_(bias.reshape(-1))
+
+    def forward(self, shape: torch.Tensor):
+        f = self.point_mlp(shape.transpose(1, 2)).max(dim=2).values
+        o = self.out(f).reshape(-1, self.J, 7)
+        d = o[..., 3:6]
+        return o[..., :3], d / (d.norm(dim=-1, keepdim=True) + 1e-8), o[..., 6]
+
+
+class SCAPOModel(nn.Module):
+    """The SCAPO network; see the module docstring for the data flow."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        e = cfg.encoder
+        self.encoder = SE3Encoder(e)
+        self.decoder = ShapeDecoder(e)
+        self.keypoints = KeypointHead(e.code_dim, cfg.num_parts, cfg.head_width)
+        self.joints = JointHead(len(cfg.joint_types), cfg.joint_widths)
+        self.residual = _mlp([e.decoder_hidden[-1], cfg.head_width, cfg.template_points * 3])
+        with torch.no_grad():
+            self.residual[-1].weight.mul_(0.01)
+            self.residual[-1].bias.zero_()
+        g = torch.Generator().manual_seed(0)
+        # an anisotropic blob: no rotational symmetry for the canonical frame to get stuck in
+        self.y_base = nn.Parameter(torch.randn(cfg.template_points, 3, generator=g) * torch.tensor([0.35, 0.2, 0.1]))
+
+    # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def normalize(points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``points (B, N, 3)`` m -> (normalised points, scale (B,)) with ``scale = 2 RMS radius``."""
+        c = points.mean(dim=1, keepdim=True)
+        scale = 2.0 * ((points - c) ** 2).sum(-1).mean(-1).sqrt().clamp_min(1e-6)
+        return points / scale[:, None, None], scale
+
+    def stage1(self, X: torch.Tensor) -> dict:
+        """Canonicalisation on normalised points ``X (B, N, 3)``."""
+        enc = self.encoder(X)
+        S_dec, F_x = self.decoder(enc.code)
+        X_rec = S_dec @ enc.R.transpose(1, 2) + enc.t[:, None]  # rigid: R in SO(3) (Gram-Schmidt of R_raw)
+        return {"enc": enc, "S_dec": S_dec, "F_x": F_x, "X_rec": X_rec}
+
+    def stage2(self, X: torch.Tensor, s1: dict) -> dict:
+        """Joint-aware deformation given the stage-1 outputs (see module docstring)."""
+        cfg = self.cfg
+        enc = s1["enc"]
+        R, t = enc.R, enc.t
+        S_obj = (X - t[:, None]) @ R  # R^T (x - t) for row vectors
+        K, V, log_s = self.keypoints(enc.code)
+        delta = self.residual(s1["F_x"]).reshape(-1, cfg.template_points, 3)
+        Y = self.y_base.unsqueeze(0) + delta
+        c_x, d_x, a_x = self.joints(S_obj)
+        c_y, d_y, a_y = self.joints(Y)
+        jt, jp, P = cfg.joint_types, cfg.joint_parts, cfg.num_parts
+        T_x = bone_transforms(jt, jp, d_x, c_x, a_x, P)  # canonical -> aligned input
+        T_y = bone_transforms(jt, jp, d_y, c_y, a_y, P)
+        w, W = skinning_weights(S_obj, K, V, log_s, cfg.gamma)
+        S_star = blend(S_obj, w, invert(T_x))  # backward D^{o->c}
+        K_star = torch.einsum("bpij,bpj->bpi", invert(T_x)[..., :3, :3], K) + invert(T_x)[..., :3, 3]
+        w_star, _ = skinning_weights(S_star, K_star, V, log_s, cfg.gamma)
+        S_hat = blend(S_star, w_star, T_x)  # forward D^{c->o}
+        X_hat = S_hat @ R.transpose(1, 2) + t[:, None]
+        # template cycle (keypoints carried into the template space by the cross-space maps)
+        T_xy = cross_space_transforms(jt, jp, P, c_x, d_x, a_x, c_y, d_y, a_y)
+        K_y = torch.einsum("bpij,bpj->bpi", T_xy[..., :3, :3], K) + T_xy[..., :3, 3]
+        w_y, _ = skinning_weights(Y, K_y, V, log_s, cfg.gamma)
+        Y_star = blend(Y, w_y, invert(T_y))
+        K_ystar = torch.einsum("bpij,bpj->bpi", invert(T_y)[..., :3, :3], K_y) + invert(T_y)[..., :3, 3]
+        w_ystar, _ = skinning_weights(Y_star, K_ystar, V, log_s, cfg.gamma)
+        Y_hat = blend(Y_star, w_ystar, T_y)
+        # cross-space alignment
+        S_x2y = blend(S_obj, w, T_xy)
+        S_y2x = blend(Y, w_y, invert(T_xy))
+        return {
+            "S_obj": S_obj, "K": K, "V": V, "log_scale": log_s, "w": w, "W": W,
+            "Y": Y, "delta": delta, "pivot_x": c_x, "axis_x": d_x, "state_x": a_x,
+            "pivot_y": c_y, "axis_y": d_y, "state_y": a_y, "T_x": T_x, "T_y": T_y, "T_xy": T_xy,
+            "S_star": S_star, "K_star": K_star, "w_star": w_star, "S_hat": S_hat, "X_hat": X_hat,
+            "K_y": K_y, "w_y": w_y, "Y_star": Y_star, "K_ystar": K_ystar, "w_ystar": w_ystar, "Y_hat": Y_hat,
+            "S_x2y": S_x2y, "S_y2x": S_y2x,
+        }
+
+    def forward(self, X: torch.Tensor, stage: int = 2) -> dict:
+        s1 = self.stage1(X)
+        if stage == 1:
+            return s1
+        return {**s1, **self.stage2(X, s1)}
+
+    # ------------------------------------------------------------------ inference
+    @torch.no_grad()
+    def predict(self, points: torch.Tensor) -> dict:
+        """Inference on camera-frame points ``(B, N, 3)`` float32, metres (SPEC section 6 outputs).
+
+        Returns float32 tensors on the input's device: ``T_cam_obj (B, 4, 4)``; ``part_label (B, N)``
+        int64 (argmax of the skinning weights) and ``weights (B, N, P)``; ``part_pose (B, P, 4, 4)``
+        (canonical rest -> camera, metres); ``joint_axis (B, J, 3)``, ``joint_pivot (B, J, 3)``
+        (camera frame, m), ``joint_state (B, J)`` (rad / m from the canonical rest state);
+        ``canonical_shape (B, N, 3)`` (``S*`` in metres) and ``template (B, M, 3)``.
+        """
+        was_training = self.training
+        self.eval()
+        try:
+            X, scale = self.normalize(points)
+            out = self.forward(X, stage=2)
+        finally:
+            self.train(was_training)
+        enc = out["enc"]
+        B = points.shape[0]
+        sc = scale[:, None, None]
+        G = torch.zeros(B, 4, 4, dtype=points.dtype, device=points.device)
+        G[:, :3, :3] = enc.R
+        G[:, :3, 3] = enc.t * scale[:, None]
+        G[:, 3, 3] = 1.0
+        T = out["T_x"].clone()
+        T[..., :3, 3] = T[..., :3, 3] * scale[:, None, None]
+        part_pose = G.unsqueeze(1) @ T
+        prismatic = torch.tensor(self.cfg.joint_types, device=points.device) == 1
+        state = torch.where(prismatic, out["state_x"] * scale[:, None], out["state_x"])
+        return {
+            "T_cam_obj": G,
+            "part_label": out["w"].argmax(-1),
+            "weights": out["w"],
+            "part_pose": part_pose,
+            "joint_axis": out["axis_x"] @ enc.R.transpose(1, 2),
+            "joint_pivot": (out["pivot_x"] @ enc.R.transpose(1, 2) + enc.t[:, None]) * sc,
+            "joint_state": state,
+            "canonical_shape": out["S_star"] * sc,
+            "template": out["Y"] * sc,
+        }

@@ -1,0 +1,163 @@
+"""Joint-aware blend skinning (paper Sec. 3.2): Gaussian bones, bone transforms, blended deformation.
+
+All functions are batched torch code in the model's normalised canonical units; rigid transforms
+are ``(..., 4, 4)`` acting on column vectors.
+
+- :func:`skinning_weights`: ``W_i^p = (s_i - O_p)^T Q_p (s_i - O_p)`` with ``Q_p = V_p^T Lambda_p V_p``
+  and ``w_i = softmax(-W_i / gamma)`` (the Mahalanobis skinning field).
+- :func:`joint_transform` / :func:`bone_transforms`: a revolute joint moves its child part by
+  ``ExpSO3([d]_x a)`` about the line through the pivot ``c`` (translate to the pivot, rotate,
+  translate back); a prismatic joint by ``d * a``. The base part (slot 0) stays fixed; parts are
+  chained along the kinematic tree.
+- :func:`blend`: ``T_i = sum_p w_i^p T^p`` applied to ``[s_i; 1]`` (Eq. 2-4).
+- :func:`cross_space_transforms`: ``T_X->Y`` per part (Sec. 3.2, cross-space alignment): the
+  input's joint frame is carried onto the template's (``R_r d_x = d_y``, ``c_x -> c_y``), then the
+  child rotates (or slides) by the state difference ``a_y - a_x`` about the template's joint.
+"""
+
+from __future__ import annotations
+
+import torch
+
+EPS = 1e-8
+
+
+def skew(v: torch.Tensor) -> torch.Tensor:
+    """Skew-symmetric matrices ``[v]_x (..., 3, 3)`` of vectors ``v (..., 3)``."""
+    z = torch.zeros_like(v[..., 0])
+    return torch.stack([
+        torch.stack([z, -v[..., 2], v[..., 1]], -1),
+        torch.stack([v[..., 2], z, -v[..., 0]], -1),
+        torch.stack([-v[..., 1], v[..., 0], z], -1),
+    ], -2)
+
+
+def exp_so3(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """``ExpSO3([d]_x a)`` by Rodrigues' formula: unit ``axis (..., 3)``, ``angle (...)`` rad -> ``(..., 3, 3)``."""
+    K = skew(axis)
+    s = torch.sin(angle)[..., None, None]
+    c = torch.cos(angle)[..., None, None]
+    eye = torch.eye(3, dtype=axis.dtype, device=axis.device).expand(K.shape)
+    return eye + s * K + (1 - c) * (K @ K)
+
+
+def make_transform(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """``(..., 3, 3)``, ``(..., 3)`` -> ``(..., 4, 4)``."""
+    T = torch.zeros(R.shape[:-2] + (4, 4), dtype=R.dtype, device=R.device)
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def invert(T: torch.Tensor) -> torch.Tensor:
+    """Inverse of rigid transforms ``(..., 4, 4)``."""
+    Rt = T[..., :3, :3].transpose(-1, -2)
+    return make_transform(Rt, -(Rt @ T[..., :3, 3:4]).squeeze(-1))
+
+
+def apply(T: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """``T (B, 4, 4)`` applied to ``points (B, N, 3)``."""
+    return points @ T[:, :3, :3].transpose(1, 2) + T[:, None, :3, 3]
+
+
+def joint_transform(joint_type: int, axis: torch.Tensor, pivot: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+    """Motion of a child part (paper Sec. 3.2): ``(B, 3), (B, 3), (B,)`` -> ``(B, 4, 4)``.
+
+    Revolute: ``R = ExpSO3([d]_x a)``, ``t = c - R c`` (rotate about the line through ``c``).
+    Prismatic: ``R = I``, ``t = d a``.
+    """
+    if joint_type == 0:
+        R = exp_so3(axis, state)
+        return make_transform(R, pivot - (R @ pivot.unsqueeze(-1)).squeeze(-1))
+    if joint_type == 1:
+        eye = torch.eye(3, dtype=axis.dtype, device=axis.device).expand(axis.shape[0], 3, 3)
+        return make_transform(eye, axis * state.unsqueeze(-1))
+    raise ValueError(f"joint_type must be 0 (revolute) or 1 (prismatic), got {joint_type}")
+
+
+def bone_transforms(joint_types, joint_parts, axis: torch.Tensor, pivot: torch.Tensor, state: torch.Tensor,
+                    num_parts: int) -> torch.Tensor:
+    """Per-part transforms ``T^p (B, P, 4, 4)`` from joints ``axis, pivot (B, J, 3)``, ``state (B, J)``.
+
+    The base part 0 is the identity; joint j moves its child part (``joint_parts[j] = (parent,
+    child)``) relative to its parent, composed along the tree (joints must list parents first).
+    """
+    B = axis.shape[0]
+    eye = torch.eye(4, dtype=axis.dtype, device=axis.device).expand(B, 4, 4)
+    T = [eye] + [None] * (num_parts - 1)
+    for j, ((pa, ch), jt) in enumerate(zip(joint_parts, joint_types)):
+        if T[pa] is None:
+            raise ValueError(f"joint {j}: parent part {pa} has no transform yet (list parents first)")
+        T[ch] = T[pa] @ joint_transform(int(jt), axis[:, j], pivot[:, j], state[:, j])
+    if any(t is None for t in T):
+        raise ValueError("every non-base part must be the child of one joint")
+    return torch.stack(T, dim=1)
+
+
+def skinning_weights(points: torch.Tensor, centers: torch.Tensor, orient: torch.Tensor, log_scale: torch.Tensor,
+                     gamma: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Gaussian-bone skinning field.
+
+    Args:
+        points: (B, N, 3). centers: (B, P, 3) bone centres ``O_p`` (the keypoints).
+        orient: (B, P, 3, 3) bone orientations ``V_p`` (rotation matrices).
+        log_scale: (B, P, 3) log standard deviations; ``Lambda_p = diag(exp(-2 log_scale))``.
+        gamma: softmax temperature.
+
+    Returns:
+        (weights (B, N, P) summing to 1 over P, Mahalanobis distances W (B, N, P)).
+    """
+    diff = points.unsqueeze(2) - centers.unsqueeze(1)  # (B, N, P, 3)
+    local = torch.einsum("bpij,bnpj->bnpi", orient, diff) * torch.exp(-log_scale).unsqueeze(1)
+    W = (local * local).sum(-1)
+    return torch.softmax(-W / gamma, dim=-1), W
+
+
+def blend(points: torch.Tensor, weights: torch.Tensor, T: torch.Tensor) -> torch.Tensor:
+    """Blended rigid deformation ``x_i' = (sum_p w_i^p T^p) [x_i; 1]`` (Eq. 2-4).
+
+    ``points (B, N, 3)``, ``weights (B, N, P)``, ``T (B, P, 4, 4)`` -> ``(B, N, 3)``.
+    """
+    moved = torch.einsum("bpij,bnj->bnpi", T[:, :, :3, :3], points) + T[:, None, :, :3, 3]  # (B, N, P, 3)
+    return (weights.unsqueeze(-1) * moved).sum(2)
+
+
+def rotation_between(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Smallest rotation ``R_r (B, 3, 3)`` with ``R_r a = b`` for unit vectors ``a, b (B, 3)``.
+
+    Rodrigues with axis ``a x b``; for (nearly) opposite vectors the limit is a 180-degree turn,
+    handled by falling back to any axis perpendicular to ``a``.
+    """
+    v = torch.cross(a, b, dim=-1)
+    c = (a * b).sum(-1).clamp(-1.0, 1.0)
+    s = v.norm(dim=-1)
+    angle = torch.atan2(s, c)
+    axis = v / (s.unsqueeze(-1) + EPS)
+    # opposite vectors: rotate by pi about an axis perpendicular to a
+    helper = torch.where((a[..., :1].abs() < 0.9), torch.tensor([1.0, 0.0, 0.0], dtype=a.dtype, device=a.device),
+                         torch.tensor([0.0, 1.0, 0.0], dtype=a.dtype, device=a.device))
+    perp = torch.cross(a, helper, dim=-1)
+    perp = perp / (perp.norm(dim=-1, keepdim=True) + EPS)
+    axis = torch.where((s < 1e-6).unsqueeze(-1) & (c < 0).unsqueeze(-1), perp, axis)
+    return exp_so3(axis, angle)
+
+
+def cross_space_transforms(joint_types, joint_parts, num_parts: int, pivot_x, axis_x, state_x, pivot_y, axis_y,
+                           state_y) -> torch.Tensor:
+    """``T^p_{X->Y} (B, P, 4, 4)`` mapping the aligned input space to the template space.
+
+    For the child of joint j: align the joint frames (``R_r d_x = d_y``; ``c_x -> c_y``), then move
+    by the state difference about / along the template's joint: revolute
+    ``ExpSO3([d_y]_x (a_y - a_x))`` about ``c_y``, prismatic ``d_y (a_y - a_x)``. The base part
+    stays in place. ``T_{Y->X}`` is the per-part inverse.
+    """
+    B = pivot_x.shape[0]
+    eye = torch.eye(4, dtype=pivot_x.dtype, device=pivot_x.device).expand(B, 4, 4)
+    T = [eye] + [None] * (num_parts - 1)
+    for j, ((_, ch), jt) in enumerate(zip(joint_parts, joint_types)):
+        R_r = rotation_between(axis_x[:, j], axis_y[:, j])
+        align = make_transform(R_r, pivot_y[:, j] - (R_r @ pivot_x[:, j].unsqueeze(-1)).squeeze(-1))
+        move = joint_transform(int(jt), axis_y[:, j], pivot_y[:, j], state_y[:, j] - state_x[:, j])
+        T[ch] = move @ align
+    return torch.stack(T, dim=1)

@@ -1,0 +1,293 @@
+"""``scapo train``: two-stage self-supervised training of SCAPO on unlabeled clouds, resumable.
+
+Only the ``points`` of the training split are used (no labels, poses or joints). A run folder
+holds ``run.json`` (preset, dataset, model structure), ``checkpoint.pt`` (written atomically after
+every epoch, with optimiser, schedule and RNG state so that a resumed run gives the same result),
+``log.csv`` (one row per iteration) and ``losses.png``.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import hashlib
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from scapo.data.dataset import load
+from scapo.errors import DatasetError, TrainingError
+from scapo.losses import LossConfig, stage1_terms, stage2_terms, weighted_total
+from scapo.models.encoder import EncoderConfig
+from scapo.models.presets import PRESETS, TrainConfig
+from scapo.models.scapo_model import ModelConfig, SCAPOModel
+
+
+class TrainingClouds(Dataset):
+    """The training split's point clouds only (no labels), each a random subset of ``points`` points."""
+
+    def __init__(self, data: str | Path, points: int):
+        ds = load(data, "train")
+        if len(ds) == 0:
+            raise DatasetError(f"{data}: the training split is empty")
+        self.clouds = torch.from_numpy(ds.arrays(["points"])["points"]).float()
+        self.points = min(points, self.clouds.shape[1])
+
+    def __len__(self) -> int:
+        return len(self.clouds)
+
+    def __getitem__(self, i: int) -> torch.Tensor:
+        idx = torch.randperm(self.clouds.shape[1])[: self.points]
+        return self.clouds[i, idx]
+
+
+def model_config(card: dict, preset: TrainConfig) -> ModelConfig:
+    """The network's structure for a dataset's category (parts and joints from its card)."""
+    return ModelConfig(num_parts=len(card["part_names"]), joint_types=tuple(card["joint_type"]),
+                       joint_parts=tuple(tuple(p) for p in card["joint_parts"]), encoder=preset.encoder,
+                       template_points=preset.template_points, gamma=preset.gamma)
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def _run_identity(preset: TrainConfig, card: dict) -> dict:
+    return {"preset": dataclasses.asdict(preset), "dataset_hash": card["dataset_hash"], "category": card["category"],
+            "part_names": card["part_names"], "joint_type": card["joint_type"], "joint_parts": card["joint_parts"]}
+
+
+def _hash(obj: dict) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def preset_from_dict(d: dict) -> TrainConfig:
+    d = dict(d)
+    d["encoder"] = EncoderConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d["encoder"].items()})
+    loss = dict(d["losses"])
+    loss["disabled"] = tuple(loss.get("disabled", ()))
+    d["losses"] = LossConfig(**loss)
+    return TrainConfig(**d)
+
+
+class Trainer:
+    """Trains SCAPO on ``data`` into the run folder ``run`` (resuming from its checkpoint).
+
+    Args:
+        data: dataset folder (its training split is used, points only).
+        run: run folder. preset: a :class:`TrainConfig` or a preset name.
+        progress: show a progress bar. device: overrides the preset's device.
+
+    Raises:
+        TrainingError: the run folder holds a checkpoint of another preset or dataset, a loss
+            becomes NaN/inf (named), or the checkpoint is unreadable.
+        UnknownNameError: unknown preset name.
+    """
+
+    def __init__(self, data: str | Path, run: str | Path, preset: TrainConfig | str = "cpu", progress: bool = True,
+                 device: str | None = None):
+        self.data = Path(data)
+        self.run = Path(run)
+        self.preset = PRESETS.get(preset) if isinstance(preset, str) else preset
+        self.progress = progress
+        train = load(self.data, "train")
+        self.card = train.card
+        self.identity = _run_identity(self.preset, self.card)
+        self.device = resolve_device(device or self.preset.device)
+        self.mcfg = model_config(self.card, self.preset)
+        torch.manual_seed(self.preset.seed)  # parameter initialisation is part of the run's identity
+        self.model = SCAPOModel(self.mcfg).to(self.device)
+
+    # ------------------------------------------------------------------ checkpoints
+    def _ckpt_path(self) -> Path:
+        return self.run / "checkpoint.pt"
+
+    def _save(self, state: dict) -> None:
+        tmp = self.run / f".checkpoint.pt.tmp-{os.getpid()}"
+        torch.save(state, tmp)
+        os.replace(tmp, self._ckpt_path())
+
+    def _load_checkpoint(self) -> dict | None:
+        path = self._ckpt_path()
+        if not path.is_file():
+            return None
+        try:
+            state = torch.load(path, map_location=self.device, weights_only=False)
+        except Exception as e:  # noqa: BLE001 - torch raises many kinds for a broken file
+            raise TrainingError(f"checkpoint {path} cannot be read ({e}); delete it to start over") from e
+        if state.get("identity_hash") != _hash(self.identity):
+            old = state.get("identity", {})
+            raise TrainingError(
+                f"{path} was trained with preset {old.get('preset', {}).get('name')!r} on the {old.get('category')!r} "
+                f"dataset {str(old.get('dataset_hash'))[:12]}..., not with preset {self.preset.name!r} on "
+                f"{self.card['category']!r} dataset {self.card['dataset_hash'][:12]}...; use another --out folder")
+        return state
+
+    # ------------------------------------------------------------------ training
+    def train(self) -> Path:
+        """Run (or resume) both stages; returns the checkpoint path."""
+        self.run.mkdir(parents=True, exist_ok=True)
+        (self.run / "run.json").write_text(json.dumps(self.identity, indent=1, default=str) + "\n")
+        pc = self.preset
+        torch.set_num_threads(max(1, os.cpu_count() or 1))
+        data = TrainingClouds(self.data, pc.train_points)
+        steps_per_epoch = len(data) // pc.batch_size if len(data) >= pc.batch_size else 1
+        if pc.max_steps_per_epoch:
+            steps_per_epoch = min(steps_per_epoch, pc.max_steps_per_epoch)
+        state = self._load_checkpoint()
+        start_stage, start_epoch = 1, 0
+        if state is not None:
+            self.model.load_state_dict(state["model"])
+            start_stage, start_epoch = state["stage"], state["epoch"]
+            if state.get("done"):
+                return self._ckpt_path()
+        total = steps_per_epoch * (pc.stage1_epochs + pc.stage2_epochs)
+        done_steps = steps_per_epoch * (start_epoch if start_stage == 1 else pc.stage1_epochs + start_epoch)
+        bar = None
+        if self.progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=total, initial=done_steps, desc=f"train {self.card['category']} ({pc.name})", unit="it",
+                       dynamic_ncols=True)
+        log_path = self.run / "log.csv"
+        t0 = time.perf_counter()
+        try:
+            for stage in (1, 2):
+                if stage < start_stage:
+                    continue
+                epochs = pc.stage1_epochs if stage == 1 else pc.stage2_epochs
+                if epochs == 0:
+                    continue
+                opt = torch.optim.Adam(self._params(stage), lr=pc.lr_stage1 if stage == 1 else pc.lr_stage2,
+                                       weight_decay=pc.weight_decay)
+                sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, epochs * steps_per_epoch),
+                                                                   eta_min=pc.min_lr)
+                first = start_epoch if stage == start_stage else 0
+                if state is not None and stage == start_stage and "optimizer" in state and first > 0:
+                    opt.load_state_dict(state["optimizer"])
+                    sched.load_state_dict(state["scheduler"])
+                if stage == 2 and first == 0 and pc.losses.template == 0:
+                    self._init_template(data)
+                for epoch in range(first, epochs):
+                    self._epoch(stage, epoch, data, opt, sched, steps_per_epoch, log_path, bar)
+                    done = stage == 2 and epoch == epochs - 1 or (stage == 1 and pc.stage2_epochs == 0
+                                                                 and epoch == epochs - 1)
+                    nxt = (stage, epoch + 1) if epoch + 1 < epochs else (stage + 1, 0)
+                    self._save({"model": self.model.state_dict(), "optimizer": opt.state_dict(),
+                                "scheduler": sched.state_dict(), "stage": nxt[0], "epoch": nxt[1], "done": done,
+                                "identity": self.identity, "identity_hash": _hash(self.identity),
+                                "model_config": dataclasses.asdict(self.mcfg)})
+                    plot_losses(log_path, self.run / "losses.png")
+        finally:
+            if bar is not None:
+                bar.close()
+        (self.run / "timing.json").write_text(json.dumps({"seconds": round(time.perf_counter() - t0, 1),
+                                                          "device": str(self.device)}) + "\n")
+        return self._ckpt_path()
+
+    def _params(self, stage: int):
+        if stage == 1:
+            return [*self.model.encoder.parameters(), *self.model.decoder.parameters(), self.model.y_base]
+        return list(self.model.parameters())
+
+    @torch.no_grad()
+    def _init_template(self, data: TrainingClouds) -> None:
+        """Without stage-1 template anchoring, Y_base starts stage 2 as decoded canonical shapes."""
+        g = torch.Generator().manual_seed(self.preset.seed)
+        idx = torch.randperm(len(data), generator=g)[: min(len(data), 64)]
+        X, _ = SCAPOModel.normalize(data.clouds[idx].to(self.device))
+        self.model.eval()
+        S = self.model.stage1(X)["S_dec"]  # (B, M_dec, 3)
+        self.model.train()
+        M = self.mcfg.template_points
+        pts = S.reshape(-1, 3)
+        sel = torch.randperm(len(pts), generator=g)[:M].to(pts.device)
+        self.model.y_base.copy_(pts[sel])
+
+    def _epoch(self, stage, epoch, data, opt, sched, steps, log_path, bar) -> None:
+        pc = self.preset
+        seed = pc.seed * 1_000_003 + stage * 10_007 + epoch
+        torch.manual_seed(seed)
+        np.random.seed(seed % (2 ** 32))  # noqa: NPY002 - any legacy-numpy randomness in a run is seeded too
+        loader = DataLoader(data, batch_size=pc.batch_size, shuffle=True, drop_last=len(data) >= pc.batch_size,
+                            generator=torch.Generator().manual_seed(seed))
+        self.model.train()
+        new_file = not log_path.is_file()
+        with open(log_path, "a", newline="") as f:
+            writer = None
+            for step, points in enumerate(loader):
+                if step >= steps:
+                    break
+                X, _ = SCAPOModel.normalize(points.to(self.device))
+                out = self.model(X, stage=stage)
+                terms = stage1_terms(self.model, X, out)
+                if stage == 2:
+                    terms.update(stage2_terms(self.model, X, out, pc.losses))
+                for name, value in terms.items():
+                    if not torch.isfinite(value):
+                        raise TrainingError(f"loss {name!r} became {float(value.detach())} at stage {stage}, "
+                                            f"epoch {epoch}, step {step}; training stopped (last good checkpoint kept)")
+                total = weighted_total(terms, pc.losses, stage)
+                opt.zero_grad(set_to_none=True)
+                total.backward()
+                if pc.grad_clip:
+                    torch.nn.utils.clip_grad_norm_(self.model.parameters(), pc.grad_clip)
+                opt.step()
+                sched.step()
+                row = {"stage": stage, "epoch": epoch, "step": step, "lr": sched.get_last_lr()[0],
+                       "total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
+                if writer is None:
+                    fields = ["stage", "epoch", "step", "lr", "total", "rec", "ortho", "aug_consist", "can_consist",
+                              "template", "cycle", "recon", "kp_seg", "seg", "shape_var", "dir_align", "joint_prox",
+                              "joint_boundary"]
+                    writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+                    if new_file:
+                        writer.writeheader()
+                writer.writerow(row)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(stage=stage, loss=f"{float(total):.4f}")
+
+
+def plot_losses(log_csv: Path, png: Path) -> None:
+    """Loss curves (log scale, one panel per stage) from ``log.csv``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import pandas as pd
+
+    df = pd.read_csv(log_csv)
+    if df.empty:
+        return
+    stages = sorted(df["stage"].unique())
+    fig, axes = plt.subplots(1, len(stages), figsize=(6 * len(stages), 4), squeeze=False)
+    for ax, st in zip(axes[0], stages):
+        d = df[df["stage"] == st].reset_index(drop=True)
+        for col in d.columns[4:]:
+            v = d[col]
+            if v.notna().any() and (v.abs() > 0).any():
+                ax.plot(v.abs().rolling(5, min_periods=1).mean(), label=col, lw=1)
+        ax.set_yscale("log")
+        ax.set_title(f"stage {st}")
+        ax.set_xlabel("iteration")
+        ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(png, dpi=90)
+    plt.close(fig)
+
+
+def train(data: str | Path, run: str | Path, preset: str | TrainConfig = "cpu", progress: bool = True,
+          device: str | None = None) -> Path:
+    """Train (or resume) SCAPO; see :class:`Trainer`."""
+    return Trainer(data, run, preset, progress, device).train()
+
+
+__all__ = ["Trainer", "TrainingClouds", "model_config", "plot_losses", "preset_from_dict", "train"]

@@ -1,0 +1,176 @@
+"""SCAPO losses and blend skinning against naive references and hand cases."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from scapo.geometry import joint_motion
+from scapo.losses.chamfer import chamfer_distance
+from scapo.losses.scapo_losses import (
+    boundary_direction,
+    cross_space_loss,
+    cycle_loss,
+    dir_align_loss,
+    entropy,
+    joint_boundary_loss,
+    joint_prox_loss,
+    kp_seg_loss,
+    orthonormality_loss,
+    seg_loss,
+    shape_var_loss,
+)
+from scapo.models.skinning import (
+    apply,
+    blend,
+    bone_transforms,
+    cross_space_transforms,
+    exp_so3,
+    invert,
+    joint_transform,
+    rotation_between,
+    skinning_weights,
+)
+
+D = torch.float64
+
+
+def naive_chamfer(a, b):
+    out = []
+    for x, y in zip(a, b):
+        d1 = np.mean([min(float(((p - q) ** 2).sum()) for q in y) for p in x])
+        d2 = np.mean([min(float(((p - q) ** 2).sum()) for p in x) for q in y])
+        out.append(d1 + d2)
+    return torch.tensor(out, dtype=D)
+
+
+def test_chamfer_matches_loop_reference_and_has_finite_gradients():
+    torch.manual_seed(0)
+    a, b = torch.randn(2, 30, 3, dtype=D), torch.randn(2, 20, 3, dtype=D)
+    torch.testing.assert_close(chamfer_distance(a, b), naive_chamfer(a, b))
+    x = torch.randn(1, 10, 3, dtype=D, requires_grad=True)
+    chamfer_distance(x, x.detach().clone()).sum().backward()  # coincident points: finite gradient
+    assert torch.isfinite(x.grad).all()
+    assert float(chamfer_distance(a, a).max()) == pytest.approx(0.0, abs=1e-12)
+    with pytest.raises(ValueError):
+        chamfer_distance(a[0], b)
+
+
+def test_exp_so3_matches_scipy_and_rotation_between():
+    axis = torch.nn.functional.normalize(torch.randn(5, 3, dtype=D), dim=-1)
+    angle = torch.rand(5, dtype=D) * 3
+    ref = Rotation.from_rotvec((axis * angle[:, None]).numpy()).as_matrix()
+    np.testing.assert_allclose(exp_so3(axis, angle).numpy(), ref, atol=1e-12)
+    a = torch.nn.functional.normalize(torch.randn(6, 3, dtype=D), dim=-1)
+    b = torch.cat([torch.nn.functional.normalize(torch.randn(4, 3, dtype=D), dim=-1), a[4:5], -a[5:6]])
+    R = rotation_between(a, b)
+    torch.testing.assert_close((R @ a.unsqueeze(-1)).squeeze(-1), b)
+    torch.testing.assert_close(R.transpose(1, 2) @ R, torch.eye(3, dtype=D).expand(6, 3, 3))
+
+
+def test_identity_joint_state_gives_identity_bone_transforms():
+    axis = torch.nn.functional.normalize(torch.randn(3, 2, 3, dtype=D), dim=-1)
+    pivot = torch.randn(3, 2, 3, dtype=D)
+    T = bone_transforms((0, 1), ((0, 1), (0, 2)), axis, pivot, torch.zeros(3, 2, dtype=D), 3)
+    torch.testing.assert_close(T, torch.eye(4, dtype=D).expand(3, 3, 4, 4))
+
+
+@pytest.mark.parametrize("jt", [0, 1])
+def test_joint_transform_matches_numpy_reference(jt):
+    axis = torch.nn.functional.normalize(torch.tensor([[0.3, 1.0, -0.2]], dtype=D), dim=-1)
+    pivot = torch.tensor([[0.1, -0.4, 0.7]], dtype=D)
+    state = torch.tensor([0.8], dtype=D)
+    ref = joint_motion(jt, axis[0].numpy(), pivot[0].numpy(), 0.8)
+    np.testing.assert_allclose(joint_transform(jt, axis, pivot, state)[0].numpy(), ref, atol=1e-12)
+
+
+def test_blended_transform_reproduces_a_known_revolute_motion_for_rigid_weights():
+    torch.manual_seed(1)
+    pts = torch.randn(1, 50, 3, dtype=D)
+    part = (pts[..., 0] > 0).long()  # child: x > 0
+    w = torch.nn.functional.one_hot(part, 2).to(D)
+    axis = torch.tensor([[[0.0, 0.0, 1.0]]], dtype=D)
+    pivot = torch.tensor([[[0.0, 0.5, 0.0]]], dtype=D)
+    T = bone_transforms((0,), ((0, 1),), axis, pivot, torch.tensor([[math.radians(40)]], dtype=D), 2)
+    moved = blend(pts, w, T)
+    M = torch.from_numpy(joint_motion(0, np.array([0, 0, 1.0]), np.array([0, 0.5, 0]), math.radians(40)))
+    expect = torch.where(part.unsqueeze(-1) == 1, apply(M[None], pts), pts)
+    torch.testing.assert_close(moved, expect)
+    back = blend(moved, w, invert(T))  # backward deformation inverts it for rigid weights
+    torch.testing.assert_close(back, pts)
+
+
+def test_skinning_weights_naive_reference():
+    torch.manual_seed(2)
+    pts, K = torch.randn(1, 7, 3, dtype=D), torch.randn(1, 2, 3, dtype=D)
+    V = torch.from_numpy(Rotation.random(2, random_state=0).as_matrix())[None]
+    ls = torch.randn(1, 2, 3, dtype=D) * 0.2
+    w, W = skinning_weights(pts, K, V, ls, gamma=0.5)
+    for i in range(7):
+        for p in range(2):
+            d = pts[0, i] - K[0, p]
+            Q = V[0, p].T @ torch.diag(torch.exp(-2 * ls[0, p])) @ V[0, p]
+            assert float(W[0, i, p]) == pytest.approx(float(d @ Q @ d))
+        e = torch.exp(-W[0, i] / 0.5)
+        torch.testing.assert_close(w[0, i], e / e.sum())
+
+
+def test_cross_space_transform_hand_cases():
+    d = torch.tensor([[[0.0, 1.0, 0.0]]], dtype=D)
+    c = torch.tensor([[[0.2, 0.0, 0.1]]], dtype=D)
+    a = torch.tensor([[0.3]], dtype=D)
+    T = cross_space_transforms((0,), ((0, 1),), 2, c, d, a, c, d, a)  # identical joints: identity
+    torch.testing.assert_close(T, torch.eye(4, dtype=D).expand(1, 2, 4, 4))
+    T = cross_space_transforms((0,), ((0, 1),), 2, c, d, a, c, d, a + 0.5)  # state difference: a rotation
+    ref = joint_motion(0, d[0, 0].numpy(), c[0, 0].numpy(), 0.5)
+    np.testing.assert_allclose(T[0, 1].numpy(), ref, atol=1e-12)
+    c2 = c + torch.tensor([0.0, 0.3, 0.4], dtype=D)
+    T = cross_space_transforms((0,), ((0, 1),), 2, c, d, a, c2, -d, a)  # frames aligned: pivot maps to pivot
+    p = apply(T[:, 1], c[:, 0:1])
+    dist = torch.linalg.norm(torch.cross(p[0, 0] - c2[0, 0], d[0, 0], dim=-1))
+    assert float(dist) < 1e-12
+
+
+def test_stage1_and_cycle_hand_cases():
+    R = torch.from_numpy(Rotation.random(3, random_state=1).as_matrix())
+    assert float(orthonormality_loss(R)) == pytest.approx(0.0, abs=1e-20)
+    assert float(orthonormality_loss(2 * R)) == pytest.approx(3 * 9.0)  # ||4I - I||^2 = 27
+    x = torch.randn(2, 10, 3, dtype=D)
+    assert float(cycle_loss(x, x)) == 0.0
+    assert float(cycle_loss(x, x + torch.tensor([0.1, -0.2, 0.0], dtype=D))) == pytest.approx(0.3)
+    assert float(cross_space_loss(x, x, x, x)) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_regulariser_hand_cases():
+    torch.manual_seed(3)
+    pts = torch.rand(1, 200, 3, dtype=D)
+    part = (pts[..., 0] > 0.5).long()
+    w = torch.nn.functional.one_hot(part, 2).to(D)
+    K = torch.stack([pts[0][part[0] == p].mean(0) for p in range(2)])[None]
+    assert float(kp_seg_loss(pts, w, K, 0.02)) == pytest.approx(0.0, abs=1e-20)
+    assert float(kp_seg_loss(pts, w, K + 0.1, 0.02)) == pytest.approx(0.03)
+    # keypoints at the part centroids: the nearest keypoint mostly agrees with the one-hot weights
+    assert float(seg_loss(pts, w, K)) < 0.3
+    assert float(seg_loss(pts, torch.nn.functional.one_hot(((pts - K[:, 1:]) ** 2).sum(-1).lt(
+        ((pts - K[:, :1]) ** 2).sum(-1)).long(), 2).to(D), K)) == 0.0
+    assert float(shape_var_loss(torch.zeros(2, 5, 3))) == 0.0
+    assert float(shape_var_loss(torch.full((1, 5, 3), 0.1))) == pytest.approx(1 - math.exp(-60 * 0.03))
+    # a hinge along y at x = 0.5: boundary points spread along y
+    soft = torch.stack([torch.sigmoid((0.5 - pts[..., 0]) * 40), torch.sigmoid((pts[..., 0] - 0.5) * 40)], -1)
+    pts_line = pts.clone()
+    pts_line[..., 2] *= 0.05
+    direction = boundary_direction(pts_line, soft, 0, 1)
+    assert abs(float(direction[0, 1])) > 0.95
+    assert float(dir_align_loss(pts_line, soft, torch.tensor([[[0.0, 1.0, 0.0]]], dtype=D), (0,), ((0, 1),))) < 0.01
+    assert float(dir_align_loss(pts_line, soft, torch.tensor([[[1.0, 0.0, 0.0]]], dtype=D), (0,), ((0, 1),))) > 0.9
+    on = pts[:, :1]
+    assert float(joint_prox_loss(pts, on, (0,))) == pytest.approx(0.0, abs=1e-12)
+    assert float(joint_prox_loss(pts, on + 10.0, (0,))) == pytest.approx(1.0)
+    assert float(joint_prox_loss(pts, on + 10.0, (1,))) == 0.0  # prismatic joints have no pivot
+    near = torch.tensor([[[0.5, 0.5, 0.5]]], dtype=D)
+    far = torch.tensor([[[0.0, 0.5, 0.5]]], dtype=D)
+    assert float(joint_boundary_loss(pts, soft, near, (0,))) < float(joint_boundary_loss(pts, soft, far, (0,))) < 0
+    H = entropy(torch.full((1, 1, 2), 0.5, dtype=D))
+    assert float(H) == pytest.approx(math.log(2))

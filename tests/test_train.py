@@ -1,0 +1,111 @@
+"""SCAPO training and inference: both stages run, resume reproduces, bad checkpoints are refused."""
+
+import dataclasses
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+import scapo.losses
+from scapo.baselines import run_method
+from scapo.errors import TrainingError
+from scapo.eval import evaluate
+from scapo.models import load as load_model
+from scapo.models.presets import PRESETS
+from scapo.models.train import Trainer
+
+TEST = PRESETS.get("test")
+
+
+def test_train_predict_evaluate_round_trip(laptop_data, tmp_path):
+    run = tmp_path / "run"
+    Trainer(laptop_data, run, TEST, progress=False).train()
+    for f in ("checkpoint.pt", "log.csv", "losses.png", "run.json"):
+        assert (run / f).is_file(), f
+    pred = load_model(run)
+    pts = np.random.default_rng(0).normal(size=(3, 200, 3)).astype(np.float32) * 0.1 + [0, 0, 1.5]
+    out = pred.predict(pts)
+    assert out["part_pose"].shape == (3, 2, 4, 4) and out["part_label"].shape == (3, 200)
+    assert out["joint_axis"].shape == (3, 1, 3) and np.isfinite(out["joint_pivot"]).all()
+    np.testing.assert_allclose(np.linalg.norm(out["joint_axis"], axis=-1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(out["weights"].sum(-1), 1.0, atol=1e-5)
+    with pytest.raises(ValueError, match="shape"):
+        pred.predict(pts[0])
+    bad = pts.copy()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        pred.predict(bad)
+    preds = run_method("scapo", laptop_data, tmp_path / "p.npz", run=run)
+    assert preds.needs_alignment and set(preds.split) == {"train", "test"}
+    res = evaluate(laptop_data, tmp_path / "p.npz")
+    for k in ("S", "D", "R", "t"):
+        assert np.isfinite(res.summary[k])
+
+
+def test_resume_gives_the_same_result(laptop_data, tmp_path):
+    p = dataclasses.replace(TEST, stage1_epochs=2, stage2_epochs=1)
+    Trainer(laptop_data, tmp_path / "a", p, progress=False).train()
+
+    class Stop(Exception):
+        pass
+
+    t = Trainer(laptop_data, tmp_path / "b", p, progress=False)
+    orig = t._epoch
+    calls = []
+
+    def interrupted(stage, epoch, *a):
+        calls.append((stage, epoch))
+        if (stage, epoch) == (1, 1):
+            raise Stop
+        return orig(stage, epoch, *a)
+
+    t._epoch = interrupted
+    with pytest.raises(Stop):
+        t.train()
+    Trainer(laptop_data, tmp_path / "b", p, progress=False).train()  # resumes at stage 1, epoch 1
+    a = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=False)["model"]
+    b = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=False)["model"]
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], msg=k)
+
+
+def test_checkpoint_of_another_config_is_refused(laptop_data, tmp_path):
+    Trainer(laptop_data, tmp_path / "r", TEST, progress=False).train()
+    other = dataclasses.replace(TEST, name="other", stage2_epochs=2)
+    with pytest.raises(TrainingError, match="trained with preset 'test'"):
+        Trainer(laptop_data, tmp_path / "r", other, progress=False).train()
+    (tmp_path / "broken").mkdir()
+    (tmp_path / "broken" / "checkpoint.pt").write_bytes(b"garbage")
+    with pytest.raises(TrainingError, match="cannot be read"):
+        Trainer(laptop_data, tmp_path / "broken", TEST, progress=False).train()
+    with pytest.raises(TrainingError, match="no checkpoint"):
+        load_model(tmp_path / "nothing")
+
+
+def test_nan_loss_stops_training_naming_the_loss(laptop_data, tmp_path, monkeypatch):
+    real = scapo.losses.stage2_terms
+
+    def poisoned(*a, **k):
+        terms = real(*a, **k)
+        terms["joint_prox"] = terms["joint_prox"] * float("nan")
+        return terms
+
+    monkeypatch.setattr("scapo.models.train.stage2_terms", poisoned)
+    with pytest.raises(TrainingError, match="loss 'joint_prox' became nan at stage 2"):
+        Trainer(laptop_data, tmp_path / "n", TEST, progress=False).train()
+    # the stage-1 checkpoint written before the failure is intact and resumable
+    state = torch.load(tmp_path / "n" / "checkpoint.pt", weights_only=False)
+    assert state["stage"] == 2 and not state["done"]
+    shutil.rmtree(tmp_path / "n")
+
+
+def test_regularisers_can_be_switched_off(laptop_data, tmp_path):
+    losses = dataclasses.replace(TEST.losses, disabled=("shape_var", "dir_align", "joint_prox", "joint_boundary"))
+    Trainer(laptop_data, tmp_path / "abl", dataclasses.replace(TEST, name="abl", losses=losses), progress=False).train()
+    import pandas as pd
+
+    log = pd.read_csv(tmp_path / "abl" / "log.csv")
+    assert log[log.stage == 2]["shape_var"].isna().all() and log[log.stage == 2]["cycle"].notna().all()
+    with pytest.raises(ValueError, match="unknown regularisers"):
+        dataclasses.replace(TEST.losses, disabled=("nope",))
