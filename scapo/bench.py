@@ -20,7 +20,8 @@ def dataset_dir(work: Path, category: str, instances: int, views: int, seed: int
 
 
 def run_table1(methods, categories, instances: int, views: int, seed: int = 0, work_dir: Path = Path("bench_work"),
-               out_dir: Path | None = None, workers: int = 1, cache_dir: Path | None = None, name: str = "table1"):
+               out_dir: Path | None = None, workers: int = 1, cache_dir: Path | None = None, name: str = "table1",
+               preset: str = "cpu"):
     """Generate one dataset per category, run every method, evaluate, and write Table 1."""
     results, hashes = [], {}
     for cat in categories:
@@ -35,13 +36,14 @@ def run_table1(methods, categories, instances: int, views: int, seed: int = 0, w
                 if preds.dataset_hash != load(data, "test").dataset_hash:
                     preds = None
             if preds is None:
-                preds = run_method(m, data, pred_path, progress=True)
+                opts = {"run": data / f"run_scapo_{preset}", "preset": preset} if m == "scapo" else {}
+                preds = run_method(m, data, pred_path, progress=True, **opts)
             res = evaluate(data, preds)
             print(f"{m:8s} {cat:11s} " + " ".join(f"{k}={res.summary[k]:.3f}" for k in ("S", "D", "C", "R", "t")))
             results.append(res)
     if out_dir is not None:
-        prov = provenance(preset=f"instances={instances} views={views} seed={seed}", datasets=hashes,
-                          methods=",".join(methods))
+        prov = provenance(preset=f"data: instances={instances} views={views} seed={seed}; scapo: {preset}",
+                          datasets=hashes, methods=",".join(methods))
         for p in write_table1(results, out_dir, prov, name=name):
             print(f"wrote {p}")
     return results

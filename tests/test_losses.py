@@ -174,3 +174,19 @@ def test_regulariser_hand_cases():
     assert float(joint_boundary_loss(pts, soft, near, (0,))) < float(joint_boundary_loss(pts, soft, far, (0,))) < 0
     H = entropy(torch.full((1, 1, 2), 0.5, dtype=D))
     assert float(H) == pytest.approx(math.log(2))
+
+
+def test_cross_instance_alignment_is_zero_for_aligned_copies_and_grows_with_misalignment():
+    from scapo.losses.scapo_losses import cross_instance_alignment_loss
+
+    torch.manual_seed(4)
+    shape = torch.rand(1, 96, 3, dtype=D)
+    Q = torch.from_numpy(Rotation.random(4, random_state=2).as_matrix())
+    u = torch.randn(4, 3, dtype=D)
+    X = shape @ Q.transpose(1, 2) + u[:, None]  # four posed copies of one shape
+    # frames that undo the poses: every canonical copy coincides -> zero
+    assert float(cross_instance_alignment_loss(X, u, Q)) == pytest.approx(0.0, abs=1e-12)
+    eye = torch.eye(3, dtype=D).expand(4, 3, 3)
+    assert float(cross_instance_alignment_loss(X, u, eye)) > 0.01  # frames ignoring the rotation
+    one = cross_instance_alignment_loss(X[:1], u[:1], Q[:1])
+    assert float(one) == 0.0  # a single cloud has no partner

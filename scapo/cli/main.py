@@ -184,14 +184,16 @@ def cmd_bench(args) -> int:
     from scapo.bench import run_table1
 
     run_table1(methods=args.methods, categories=args.categories, instances=args.instances, views=args.views,
-               seed=args.seed, work_dir=args.work, out_dir=args.out, workers=args.workers[0], cache_dir=args.cache)
+               seed=args.seed, work_dir=args.work, out_dir=args.out, workers=args.workers[0], cache_dir=args.cache,
+               preset=args.preset)
     return 0
 
 
 def cmd_demo(args) -> int:
     from scapo.demo import run_demo
 
-    run_demo(args.out, instances=args.instances, views=args.views, seed=args.seed, cache_dir=args.cache)
+    run_demo(args.out, instances=args.instances, views=args.views, seed=args.seed, cache_dir=args.cache,
+             preset=args.preset)
     return 0
 
 
@@ -279,7 +281,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("what", choices=["perf", "table1"])
     sp.add_argument("--what", dest="target", choices=["generate", "model"], default="generate",
                     help="perf: generation throughput, or SCAPO training/inference speed")
-    sp.add_argument("--preset", default="cpu", help="perf --what model: SCAPO preset")
+    sp.add_argument("--preset", default="cpu", help="SCAPO preset (perf --what model, table1 with scapo)")
     sp.add_argument("--device", default=None, help="perf --what model: cpu | cuda")
     sp.add_argument("--category", default="laptop", help="perf: category")
     sp.add_argument("--categories", type=_names, default=["laptop", "safe", "eyeglasses", "oven", "washer"])
@@ -293,9 +295,10 @@ def build_parser() -> argparse.ArgumentParser:
     common_cache(sp)
     sp.set_defaults(func=cmd_bench)
 
-    sp = sub.add_parser("demo", help="build assets, render, run ICP, evaluate, write a table and a figure")
+    sp = sub.add_parser("demo", help="build assets, render, run ICP and SCAPO, evaluate, write a table and figures")
     sp.add_argument("--out", type=Path, default=Path("demo_out"))
-    sp.add_argument("--instances", type=int, default=16)
+    sp.add_argument("--preset", default="demo", help="SCAPO training preset (demo: a few minutes)")
+    sp.add_argument("--instances", type=int, default=24)
     sp.add_argument("--views", type=int, default=12)
     sp.add_argument("--seed", type=int, default=0)
     common_cache(sp)

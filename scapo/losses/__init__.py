@@ -10,6 +10,7 @@ from scapo.losses.chamfer import chamfer_distance, pairwise_sq_dist
 from scapo.losses.scapo_losses import (
     augmentation_consistency_loss,
     canonical_consistency_loss,
+    cross_instance_alignment_loss,
     cross_space_loss,
     cycle_loss,
     dir_align_loss,
@@ -20,7 +21,6 @@ from scapo.losses.scapo_losses import (
     reconstruction_loss,
     seg_loss,
     shape_var_loss,
-    template_anchor_loss,
 )
 
 #: Regularisers that can be switched off (Table 3 ablations and more).
@@ -35,8 +35,8 @@ class LossConfig:
     ortho: float = 0.1
     aug_consist: float = 0.1
     can_consist: float = 0.1
-    template: float = 1.0
-    """Stage-1 template anchoring (not in the paper's stage 1; 0 switches it off)."""
+    align: float = 10.0
+    """Cross-instance canonical alignment in stage 1 (an addition to the paper; 0 switches it off)."""
     cycle: float = 10.0
     recon: float = 10.0
     kp_seg: float = 1.0
@@ -68,14 +68,13 @@ class LossConfig:
 
 
 def stage1_terms(model, X: torch.Tensor, s1: dict) -> dict[str, torch.Tensor]:
-    """Unweighted stage-1 loss terms."""
+    """Unweighted stage-1 loss terms (the two consistency terms use half of the batch, for speed)."""
     return {
         "rec": reconstruction_loss(X, s1["X_rec"]),
         "ortho": orthonormality_loss(s1["enc"].R_raw),
-        "aug_consist": augmentation_consistency_loss(model, X, s1),
-        "can_consist": canonical_consistency_loss(model, s1["S_dec"]),
-        **({"template": template_anchor_loss(s1["S_dec"], model.y_base)} if getattr(model, "y_base", None)
-           is not None else {}),
+        "aug_consist": augmentation_consistency_loss(model, X, s1, max_batch=max(2, X.shape[0] // 2)),
+        "can_consist": canonical_consistency_loss(model, s1["S_dec"][: max(2, X.shape[0] // 2)]),
+        "align": cross_instance_alignment_loss(X, s1["enc"].t, s1["enc"].R),
     }
 
 
@@ -116,7 +115,7 @@ def weighted_total(terms: dict[str, torch.Tensor], cfg: LossConfig, stage: int) 
     total = 0.0
     for name, value in terms.items():
         w = cfg.weight(name)
-        if stage == 2 and name in ("rec", "ortho", "aug_consist", "can_consist", "template"):
+        if stage == 2 and name in ("rec", "ortho", "aug_consist", "can_consist", "align"):
             w *= cfg.stage1_in_stage2
         total = total + w * value
     return total

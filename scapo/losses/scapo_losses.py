@@ -29,10 +29,19 @@ def orthonormality_loss(R_raw: torch.Tensor) -> torch.Tensor:
     return ((R_raw @ R_raw.transpose(1, 2) - eye) ** 2).sum((1, 2)).mean()
 
 
-def augmentation_consistency_loss(model, X: torch.Tensor, s1: dict, keep: float = 0.75) -> torch.Tensor:
+def augmentation_consistency_loss(model, X: torch.Tensor, s1: dict, keep: float = 0.75,
+                                  max_batch: int | None = None) -> torch.Tensor:
     """``L_aug_consist``: a re-sampled (a random ``keep`` fraction of the points), randomly rotated
     and translated copy ``X' = Q X_sub + u`` must give the same canonical shape and the
-    correspondingly moved pose: ``CD(S, S') + ||R' - Q R||^2 + ||t' - (Q t + u)||^2``."""
+    correspondingly moved pose: ``CD(S, S') + ||R' - Q R||^2 + ||t' - (Q t + u)||^2``.
+    ``max_batch`` limits the term to the first clouds of the batch (cost)."""
+    if max_batch is not None and max_batch < X.shape[0]:
+        enc = s1["enc"]
+        from scapo.models.encoder import EncoderOutput
+
+        s1 = {"enc": EncoderOutput(enc.t[:max_batch], enc.R_raw[:max_batch], enc.R[:max_batch],
+                                   enc.code[:max_batch]), "S_dec": s1["S_dec"][:max_batch]}
+        X = X[:max_batch]
     B, N, _ = X.shape
     n = max(16, int(keep * N))
     idx = torch.rand(B, N, device=X.device).argsort(dim=1)[:, :n]
@@ -48,20 +57,26 @@ def augmentation_consistency_loss(model, X: torch.Tensor, s1: dict, keep: float 
     return loss.mean()
 
 
-def template_anchor_loss(S_dec: torch.Tensor, template: torch.Tensor) -> torch.Tensor:
-    """Stage-1 anchoring of the canonical frame to the learnable category template ``Y_base (M, 3)``.
+def cross_instance_alignment_loss(X: torch.Tensor, t: torch.Tensor, R: torch.Tensor, points: int = 96,
+                                   keep: float = 0.7) -> torch.Tensor:
+    """Cross-instance canonical alignment (an addition to the paper's stage-1 losses).
 
-    ``mean_i min_j |s_i - y_j|^2`` (every decoded canonical point lies on the template) plus
-    ``mean_j min_(b,i) |y_j - s_bi|^2`` over the whole batch (the template is covered by the union
-    of the partial shapes). Shared across instances, the template pulls every instance into one
-    canonical frame; it is the template ``Y_base`` of Sec. 3.2, introduced already in stage 1.
+    Every pair of clouds in the batch, brought into the canonical frame (``S_b = R_b^T (X_b - t_b)``),
+    should overlap: the mean over ordered pairs (b != b') of the trimmed one-sided Chamfer distance
+    (the ``keep`` fraction of smallest nearest-neighbour distances, which tolerates partial views
+    and articulation). Equivariance makes each frame a function of the shape; this term makes those
+    functions agree across instances, views and states, i.e. one category-level canonical frame.
+    ``X (B, N, 3)``, ``t (B, 3)``, ``R (B, 3, 3)``; ``points`` of every cloud are used.
     """
-    B, N, _ = S_dec.shape
-    Y = template.unsqueeze(0).expand(B, -1, -1)
-    d = pairwise_sq_dist(S_dec, Y)  # (B, N, M)
-    forward = d.min(dim=2).values.mean()
-    backward = d.permute(2, 0, 1).reshape(template.shape[0], -1).min(dim=1).values.mean()
-    return forward + backward
+    B, N, _ = X.shape
+    n = min(points, N)
+    S = (X[:, :: max(1, N // n)][:, :n] - t[:, None]) @ R  # (B, n, 3)
+    A = S.unsqueeze(1).expand(B, B, n, 3).reshape(B * B, n, 3)
+    Bt = S.unsqueeze(0).expand(B, B, n, 3).reshape(B * B, n, 3)
+    d = pairwise_sq_dist(A, Bt).min(-1).values  # (B*B, n)
+    d = d.topk(max(1, int(keep * n)), dim=-1, largest=False).values.mean(-1).reshape(B, B)
+    off = ~torch.eye(B, dtype=torch.bool, device=X.device)
+    return d[off].mean() if B > 1 else d.sum() * 0.0
 
 
 def canonical_consistency_loss(model, S_dec: torch.Tensor) -> torch.Tensor:

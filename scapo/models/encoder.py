@@ -18,7 +18,6 @@ from torch import nn
 from scapo.models.vn import (
     VNLinear,
     VNLinearLeakyReLU,
-    VNMaxPool,
     VNTLinear,
     VNTLinearLeakyReLU,
     gather_neighbours,
@@ -43,6 +42,8 @@ class EncoderConfig:
     """Decoder MLP widths; the last one is the feature map F_x fed to the shape-residual head."""
     decoder_points: int = 512
     """Points of the decoded canonical shape S_dec."""
+    attention_points: int = 8
+    """Soft keypoints (attention-weighted means of the centred points) feeding the rotation head."""
 
 
 @dataclass
@@ -69,10 +70,10 @@ class SE3Encoder(nn.Module):
         c_r = cfg.rot_channels
         self.r_edge = VNLinearLeakyReLU(3, c_r[0])
         self.r_layers = nn.ModuleList(VNLinearLeakyReLU(a, b) for a, b in zip(c_r[:-1], c_r[1:]))
-        self.pool = VNMaxPool(c_r[-1])
-        self.r_head = VNLinearLeakyReLU(2 * c_r[-1], c_r[-1], batchnorm=False)
+        self.attn = nn.Sequential(nn.Linear(c_r[-1], 64), nn.LeakyReLU(0.2), nn.Linear(64, cfg.attention_points))
+        self.r_head = VNLinearLeakyReLU(c_r[-1] + cfg.attention_points, c_r[-1], batchnorm=False)
         self.r_out = VNLinear(c_r[-1], 3)
-        self.code = nn.Sequential(nn.Linear(2 * c_r[-1] * 3, cfg.code_dim), nn.LeakyReLU(0.2),
+        self.code = nn.Sequential(nn.Linear((c_r[-1] + cfg.attention_points) * 3, cfg.code_dim), nn.LeakyReLU(0.2),
                                   nn.Linear(cfg.code_dim, cfg.code_dim))
 
     def forward(self, points: torch.Tensor) -> EncoderOutput:
@@ -91,7 +92,11 @@ class SE3Encoder(nn.Module):
         g = self.r_edge(edge).mean(-1)
         for layer in self.r_layers:
             g = layer(g)
-        pooled = torch.cat([self.pool(g), g.mean(-1)], dim=1)  # (B, 2C, 3)
+        # invariant per-point scores (norms of the VN features) -> attention-weighted points: equivariant
+        # "soft keypoints" that anchor the frame to parts of the shape
+        scores = self.attn(g.norm(dim=2).transpose(1, 2)).softmax(dim=1)  # (B, N, K)
+        keypts = torch.einsum("bnk,bin->bki", scores, xc[:, 0])  # (B, K, 3), relative to t
+        pooled = torch.cat([g.mean(-1), keypts], dim=1)  # (B, C + K, 3)
         v = self.r_out(self.r_head(pooled.unsqueeze(-1))).squeeze(-1)  # (B, 3, 3): three vectors (rows)
         R_raw = v.transpose(1, 2)  # columns are the vectors
         R = gram_schmidt(v[:, 0], v[:, 1])

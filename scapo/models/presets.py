@@ -55,14 +55,17 @@ PRESETS.add("paper", TrainConfig(
     template_points=1024,
 ))
 PRESETS.add("cpu", TrainConfig(
-    name="cpu", stage1_epochs=12, stage2_epochs=12, batch_size=16, train_points=512, max_steps_per_epoch=45,
-    encoder=EncoderConfig(k=8, rot_channels=(24, 48, 96), trans_channels=(8, 16), code_dim=256, decoder_points=512),
+    name="cpu", stage1_epochs=14, stage2_epochs=8, batch_size=16, train_points=256, max_steps_per_epoch=100,
+    encoder=EncoderConfig(k=8, rot_channels=(16, 32, 64), trans_channels=(8, 16), code_dim=128,
+                          decoder_hidden=(256, 256), decoder_points=256),
+    template_points=256,
 ))
 PRESETS.add("demo", TrainConfig(
-    name="demo", stage1_epochs=4, stage2_epochs=4, batch_size=16, train_points=384, max_steps_per_epoch=20,
-    encoder=EncoderConfig(k=8, rot_channels=(16, 32, 64), trans_channels=(8, 16), code_dim=128, decoder_points=384,
-                          decoder_hidden=(256, 256)),
-    template_points=384,
+    # about 4 minutes on 2 CPU cores for the demo's ~200 training clouds: shows the pipeline, not converged
+    name="demo", stage1_epochs=28, stage2_epochs=14, batch_size=16, train_points=256, max_steps_per_epoch=100,
+    encoder=EncoderConfig(k=8, rot_channels=(16, 32, 64), trans_channels=(8, 16), code_dim=128,
+                          decoder_hidden=(256, 256), decoder_points=256),
+    template_points=256,
 ))
 PRESETS.add("test", TrainConfig(
     name="test", stage1_epochs=1, stage2_epochs=1, batch_size=4, train_points=128, max_steps_per_epoch=2,

@@ -134,8 +134,8 @@ class SCAPOModel(nn.Module):
             self.residual[-1].weight.mul_(0.01)
             self.residual[-1].bias.zero_()
         g = torch.Generator().manual_seed(0)
-        # an anisotropic blob: no rotational symmetry for the canonical frame to get stuck in
-        self.y_base = nn.Parameter(torch.randn(cfg.template_points, 3, generator=g) * torch.tensor([0.35, 0.2, 0.1]))
+        # replaced at the start of stage 2 by canonicalised training points (see the trainer)
+        self.y_base = nn.Parameter(0.3 * torch.randn(cfg.template_points, 3, generator=g))
 
     # ------------------------------------------------------------------ helpers
     @staticmethod

@@ -173,7 +173,7 @@ class Trainer:
                 if state is not None and stage == start_stage and "optimizer" in state and first > 0:
                     opt.load_state_dict(state["optimizer"])
                     sched.load_state_dict(state["scheduler"])
-                if stage == 2 and first == 0 and pc.losses.template == 0:
+                if stage == 2 and first == 0:
                     self._init_template(data)
                 for epoch in range(first, epochs):
                     self._epoch(stage, epoch, data, opt, sched, steps_per_epoch, log_path, bar)
@@ -194,22 +194,23 @@ class Trainer:
 
     def _params(self, stage: int):
         if stage == 1:
-            return [*self.model.encoder.parameters(), *self.model.decoder.parameters(), self.model.y_base]
+            return [*self.model.encoder.parameters(), *self.model.decoder.parameters()]
         return list(self.model.parameters())
 
     @torch.no_grad()
     def _init_template(self, data: TrainingClouds) -> None:
-        """Without stage-1 template anchoring, Y_base starts stage 2 as decoded canonical shapes."""
+        """Y_base starts stage 2 as a farthest-point sample of canonicalised training clouds."""
+        from scapo.sim.render import farthest_point_indices
+
         g = torch.Generator().manual_seed(self.preset.seed)
         idx = torch.randperm(len(data), generator=g)[: min(len(data), 64)]
         X, _ = SCAPOModel.normalize(data.clouds[idx].to(self.device))
         self.model.eval()
-        S = self.model.stage1(X)["S_dec"]  # (B, M_dec, 3)
+        enc = self.model.encoder(X)
         self.model.train()
-        M = self.mcfg.template_points
-        pts = S.reshape(-1, 3)
-        sel = torch.randperm(len(pts), generator=g)[:M].to(pts.device)
-        self.model.y_base.copy_(pts[sel])
+        S = ((X - enc.t[:, None]) @ enc.R).reshape(-1, 3).cpu().numpy()
+        sel = farthest_point_indices(S, self.mcfg.template_points, np.random.default_rng(self.preset.seed))
+        self.model.y_base.copy_(torch.from_numpy(S[sel]).to(self.model.y_base))
 
     def _epoch(self, stage, epoch, data, opt, sched, steps, log_path, bar) -> None:
         pc = self.preset
@@ -245,7 +246,7 @@ class Trainer:
                        "total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
                 if writer is None:
                     fields = ["stage", "epoch", "step", "lr", "total", "rec", "ortho", "aug_consist", "can_consist",
-                              "template", "cycle", "recon", "kp_seg", "seg", "shape_var", "dir_align", "joint_prox",
+                              "align", "cycle", "recon", "kp_seg", "seg", "shape_var", "dir_align", "joint_prox",
                               "joint_boundary"]
                     writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
                     if new_file:

@@ -46,10 +46,11 @@ class VNTLinear(nn.Module):
     The free parameter is projected each call: ``W = W_raw - mean_row(W_raw) + 1 / C_in``.
     """
 
-    def __init__(self, in_channels: int, out_channels: int):
+    def __init__(self, in_channels: int, out_channels: int, init_std: float = 0.1):
         super().__init__()
-        self.weight_raw = nn.Parameter(torch.empty(out_channels, in_channels))
-        nn.init.kaiming_uniform_(self.weight_raw, a=5 ** 0.5)
+        # near-uniform affine weights at start: outputs begin close to the mean of the inputs (e.g. the
+        # centroid of the points) instead of an arbitrary extrapolation far from them
+        self.weight_raw = nn.Parameter(torch.randn(out_channels, in_channels) * init_std / max(in_channels, 1) ** 0.5)
 
     @property
     def weight(self) -> torch.Tensor:
