@@ -174,7 +174,7 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
                 t = time.perf_counter()
                 X, _ = SCAPOModel.normalize(train_pts)
                 out = model(X, stage=stage)
-                terms = stage1_terms(model, X, out)
+                terms = stage1_terms(model, X, out, pc.losses)
                 if stage == 2:
                     terms.update(stage2_terms(model, X, out, pc.losses))
                 opt.zero_grad()

@@ -190,3 +190,27 @@ def test_cross_instance_alignment_is_zero_for_aligned_copies_and_grows_with_misa
     assert float(cross_instance_alignment_loss(X, u, eye)) > 0.01  # frames ignoring the rotation
     one = cross_instance_alignment_loss(X[:1], u[:1], Q[:1])
     assert float(one) == 0.0  # a single cloud has no partner
+
+
+def test_consensus_rotation_relabels_a_frame_that_disagrees_with_the_batch():
+    from scapo.losses.scapo_losses import candidate_rotations, consensus_rotation_loss
+
+    torch.manual_seed(5)
+    G = candidate_rotations(dtype=D)
+    assert G.shape == (30, 3, 3)
+    assert torch.allclose(G[0], torch.eye(3, dtype=D))
+    assert torch.allclose(G @ G.transpose(1, 2), torch.eye(3, dtype=D).expand(30, 3, 3), atol=1e-12)
+    shape = torch.rand(1, 64, 3, dtype=D) * torch.tensor([1.0, 0.5, 0.2], dtype=D)  # no symmetry
+    Q = torch.from_numpy(Rotation.random(5, random_state=3).as_matrix())
+    u = torch.randn(5, 3, dtype=D)
+    X = shape @ Q.transpose(1, 2) + u[:, None]
+    # consistent frames: nothing to relabel, and the loss is the distance of R_raw to R (zero here)
+    loss, frac = consensus_rotation_loss(X, u, Q, Q, G)
+    assert float(loss) == pytest.approx(0.0, abs=1e-12) and float(frac) == 0.0
+    # cloud 0 canonicalised 90 degrees off (a candidate): its target is the batch's frame Q[0]
+    wrong = Q.clone()
+    wrong[0] = Q[0] @ G[5]
+    loss, frac = consensus_rotation_loss(X, u, wrong, wrong, G)
+    assert float(frac) == pytest.approx(1 / 5)
+    expected = float(((wrong[0] - Q[0]) ** 2).sum()) / 5
+    assert float(loss) == pytest.approx(expected, rel=1e-9)

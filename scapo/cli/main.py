@@ -136,13 +136,17 @@ def cmd_evaluate(args) -> int:
     from scapo.eval.tables import write_table1
     from scapo.provenance import provenance
 
-    res = evaluate(args.data, args.pred, protocol=args.protocol)
-    _print_summary([res])
+    results = [evaluate(args.data, p, protocol=args.protocol) for p in args.pred]
+    _print_summary(results)
     if args.out:
-        prov = provenance(dataset_hash=res.info["dataset_hash"], dataset=str(args.data), predictions=str(args.pred),
-                          protocol=args.protocol)
-        paths = write_table1([res], args.out, prov, name=args.name)
-        res.per_sample.to_csv(Path(args.out) / f"{args.name}_{res.method}_{res.category}_per_sample.csv", index=False)
+        prov = provenance(dataset_hash=results[0].info["dataset_hash"], dataset=str(args.data),
+                          predictions=[str(p) for p in args.pred], protocol=args.protocol,
+                          methods={r.method: {k: r.info[k] for k in ("preset", "run", "trained_on") if k in r.info}
+                                   for r in results})
+        paths = write_table1(results, args.out, prov, name=args.name)
+        for res in results:
+            res.per_sample.to_csv(Path(args.out) / f"{args.name}_{res.method}_{res.category}_per_sample.csv",
+                                  index=False)
         print("wrote " + ", ".join(str(p) for p in paths))
     return 0
 
@@ -271,7 +275,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("evaluate", help="score a predictions file on a dataset's test split")
     sp.add_argument("--data", type=Path, required=True)
-    sp.add_argument("--pred", type=Path, required=True)
+    sp.add_argument("--pred", type=Path, required=True, nargs="+",
+                    help="one or more prediction files (one row per method in the table)")
     sp.add_argument("--protocol", default="per-sample", help="per-sample | per-category part matching")
     sp.add_argument("--out", type=Path, default=None, help="write Table 1 files here")
     sp.add_argument("--name", default="table1")

@@ -9,7 +9,9 @@ import torch
 from scapo.losses.chamfer import chamfer_distance, pairwise_sq_dist
 from scapo.losses.scapo_losses import (
     augmentation_consistency_loss,
+    candidate_rotations,
     canonical_consistency_loss,
+    consensus_rotation_loss,
     cross_instance_alignment_loss,
     cross_space_loss,
     cycle_loss,
@@ -37,6 +39,10 @@ class LossConfig:
     can_consist: float = 0.1
     align: float = 10.0
     """Cross-instance canonical alignment in stage 1 (an addition to the paper; 0 switches it off)."""
+    consensus: float = 0.0
+    """Batch-consensus frame pseudo-label in stage 1 (an addition to the paper; 0 switches it off)."""
+    consensus_small_deg: float = 25.0
+    """Angle of the small candidate rotations of the consensus search."""
     cycle: float = 10.0
     recon: float = 10.0
     kp_seg: float = 1.0
@@ -67,15 +73,21 @@ class LossConfig:
         return 0.0 if name in self.disabled else float(getattr(self, name))
 
 
-def stage1_terms(model, X: torch.Tensor, s1: dict) -> dict[str, torch.Tensor]:
-    """Unweighted stage-1 loss terms (the two consistency terms use half of the batch, for speed)."""
-    return {
+def stage1_terms(model, X: torch.Tensor, s1: dict, cfg: LossConfig | None = None) -> dict[str, torch.Tensor]:
+    """Unweighted stage-1 loss terms (the two consistency terms use half of the batch, for speed).
+    ``consensus`` is computed when ``cfg`` gives it a positive weight."""
+    terms = {
         "rec": reconstruction_loss(X, s1["X_rec"]),
         "ortho": orthonormality_loss(s1["enc"].R_raw),
         "aug_consist": augmentation_consistency_loss(model, X, s1, max_batch=max(2, X.shape[0] // 2)),
         "can_consist": canonical_consistency_loss(model, s1["S_dec"][: max(2, X.shape[0] // 2)]),
         "align": cross_instance_alignment_loss(X, s1["enc"].t, s1["enc"].R),
     }
+    if cfg is not None and cfg.weight("consensus") > 0:
+        enc = s1["enc"]
+        terms["consensus"], _ = consensus_rotation_loss(X, enc.t, enc.R_raw, enc.R,
+                                                        candidate_rotations(cfg.consensus_small_deg, X.dtype))
+    return terms
 
 
 def stage2_terms(model, X: torch.Tensor, out: dict, cfg: LossConfig) -> dict[str, torch.Tensor]:
@@ -115,7 +127,7 @@ def weighted_total(terms: dict[str, torch.Tensor], cfg: LossConfig, stage: int) 
     total = 0.0
     for name, value in terms.items():
         w = cfg.weight(name)
-        if stage == 2 and name in ("rec", "ortho", "aug_consist", "can_consist", "align"):
+        if stage == 2 and name in ("rec", "ortho", "aug_consist", "can_consist", "align", "consensus"):
             w *= cfg.stage1_in_stage2
         total = total + w * value
     return total

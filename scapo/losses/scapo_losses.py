@@ -9,6 +9,7 @@ Stage 2: :func:`cycle_loss`, :func:`cross_space_loss`, and the regularisers
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from scapo.losses.chamfer import chamfer_distance, pairwise_sq_dist
@@ -77,6 +78,54 @@ def cross_instance_alignment_loss(X: torch.Tensor, t: torch.Tensor, R: torch.Ten
     d = d.topk(max(1, int(keep * n)), dim=-1, largest=False).values.mean(-1).reshape(B, B)
     off = ~torch.eye(B, dtype=torch.bool, device=X.device)
     return d[off].mean() if B > 1 else d.sum() * 0.0
+
+
+def candidate_rotations(small_deg: float = 25.0, dtype=torch.float32) -> torch.Tensor:
+    """Rotations searched by :func:`consensus_rotation_loss`: the 24 rotations of the cube
+    (octahedral group, identity first) and rotations by +-``small_deg`` about x, y and z; ``(30, 3, 3)``."""
+    from scipy.spatial.transform import Rotation
+
+    octa = Rotation.create_group("O").as_matrix()
+    order = sorted(range(len(octa)), key=lambda i: -float(np.trace(octa[i])))  # identity first
+    small = Rotation.from_rotvec(np.deg2rad(small_deg) * np.concatenate([np.eye(3), -np.eye(3)])).as_matrix()
+    return torch.from_numpy(np.concatenate([octa[order], small])).to(dtype)
+
+
+def consensus_rotation_loss(X: torch.Tensor, t: torch.Tensor, R_raw: torch.Tensor, R: torch.Tensor,
+                            candidates: torch.Tensor, points: int = 64, keep: float = 0.7,
+                            margin: float = 0.05) -> tuple[torch.Tensor, torch.Tensor]:
+    """Batch-consensus pseudo-label for the canonical frame (an addition to the paper's stage-1 losses).
+
+    Gradient descent on :func:`cross_instance_alignment_loss` cannot leave a wrong basin (a laptop
+    canonicalised back to front, or off by tens of degrees). Here every canonical cloud
+    ``S_b = R_b^T (X_b - t_b)`` (detached) is rotated by each candidate ``G_g`` (``candidates (C, 3, 3)``,
+    identity first) and scored by the median over the other clouds of the trimmed one-sided Chamfer
+    distance; where the best candidate beats the identity by more than the relative ``margin``, the
+    frame's target becomes ``R_b G_g^T``, otherwise ``R_b``. Loss: ``||R_raw - target||_F^2`` (batch
+    mean). ``X (B, N, 3)``, ``t (B, 3)``, ``R_raw, R (B, 3, 3)``. Returns ``(loss, fraction of clouds
+    re-labelled)``.
+    """
+    B, N, _ = X.shape
+    if B < 3:
+        return R_raw.sum() * 0.0, R_raw.new_zeros(())
+    n = min(points, N)
+    G = candidates.to(X)
+    C = G.shape[0]
+    with torch.no_grad():
+        S = (X[:, :: max(1, N // n)][:, :n] - t[:, None]) @ R  # (B, n, 3)
+        SG = torch.einsum("bni,gji->bgnj", S, G)  # S_b G_g^T: (B, C, n, 3)
+        A = SG.unsqueeze(2).expand(B, C, B, n, 3).reshape(-1, n, 3)
+        T = S.unsqueeze(0).unsqueeze(0).expand(B, C, B, n, 3).reshape(-1, n, 3)
+        d = pairwise_sq_dist(A, T).min(-1).values
+        d = d.topk(max(1, int(keep * n)), dim=-1, largest=False).values.mean(-1).reshape(B, C, B)
+        others = ~torch.eye(B, dtype=torch.bool, device=X.device)
+        score = torch.stack([d[b][:, others[b]].median(dim=-1).values for b in range(B)])  # (B, C)
+        best = score.argmin(dim=1)
+        better = score.gather(1, best[:, None]).squeeze(1) < (1.0 - margin) * score[:, 0]
+        g = torch.where(better, best, torch.zeros_like(best))
+        target = R @ G[g].transpose(1, 2)
+    loss = ((R_raw - target) ** 2).sum((1, 2)).mean()
+    return loss, better.float().mean()
 
 
 def canonical_consistency_loss(model, S_dec: torch.Tensor) -> torch.Tensor:

@@ -228,7 +228,7 @@ class Trainer:
                     break
                 X, _ = SCAPOModel.normalize(points.to(self.device))
                 out = self.model(X, stage=stage)
-                terms = stage1_terms(self.model, X, out)
+                terms = stage1_terms(self.model, X, out, pc.losses)
                 if stage == 2:
                     terms.update(stage2_terms(self.model, X, out, pc.losses))
                 for name, value in terms.items():
@@ -246,8 +246,8 @@ class Trainer:
                        "total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
                 if writer is None:
                     fields = ["stage", "epoch", "step", "lr", "total", "rec", "ortho", "aug_consist", "can_consist",
-                              "align", "cycle", "recon", "kp_seg", "seg", "shape_var", "dir_align", "joint_prox",
-                              "joint_boundary"]
+                              "align", "consensus", "cycle", "recon", "kp_seg", "seg", "shape_var", "dir_align",
+                              "joint_prox", "joint_boundary"]
                     writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
                     if new_file:
                         writer.writeheader()
