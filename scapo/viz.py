@@ -13,7 +13,7 @@ from scapo.data.generate import sample_seed_key
 from scapo.errors import DatasetError
 from scapo.eval.predictions import Predictions
 from scapo.sim.assets import build_instance, parse_urdf
-from scapo.sim.preview import PART_COLORS, draw_sample, part_colors
+from scapo.sim.preview import PART_COLORS, draw_sample, frame_cloud_axes, part_colors
 from scapo.sim.render import Renderer, render_with_retries
 
 
@@ -78,14 +78,7 @@ def prediction_figure(data: str | Path, predictions: Predictions, path: str | Pa
                 seg = np.stack([p - 0.3 * diag * a, p + 0.3 * diag * a])
                 ax.plot(seg[:, 0], seg[:, 2], -seg[:, 1], "-", color="k" if t == 0 else "m", lw=2)
             ax.set_title(f"{predictions.method}: segmentation + joint axes", fontsize=8)
-        mid, rr = pts.mean(0), 0.5 * float(item["bbox_diag"])
-        ax.set_xlim(mid[0] - rr, mid[0] + rr)
-        ax.set_ylim(mid[2] - rr, mid[2] + rr)
-        ax.set_zlim(-mid[1] - rr, -mid[1] + rr)
-        ax.view_init(elev=10, azim=-90)
-        ax.set_xticks([])
-        ax.set_yticks([])
-        ax.set_zticks([])
+        frame_cloud_axes(ax, pts, float(item["bbox_diag"]))
     handles = [Line2D([], [], marker="o", ls="", color=PART_COLORS[i], label=nm) for i, nm in enumerate(names[0])]
     handles.append(Line2D([], [], color="k", lw=2, label="revolute axis"))
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8)

@@ -41,3 +41,18 @@ def test_icp_through_the_evaluator_gives_plausible_numbers(laptop_data, tmp_path
     assert 30.0 < s["S"] <= 100.0
     assert 0.0 < s["R"] < 180.0 and 0.0 < s["D"] <= 90.0 and 0.0 < s["t"] < 1.0 and 0.0 < s["C"] < 2.0
     assert res.info["supervision"]["segmentation"] is True
+
+
+def test_prediction_figure_draws_ground_truth_and_predictions(laptop_data, tmp_path, cache_dir):
+    from PIL import Image
+
+    from scapo.eval.predictions import Predictions
+    from scapo.viz import prediction_figure
+
+    path = tmp_path / "icp.npz"
+    if not path.is_file():
+        run_method("icp", laptop_data, path)
+    png = prediction_figure(laptop_data, Predictions.load(path), tmp_path / "fig.png", count=2, cache_dir=cache_dir)
+    img = np.asarray(Image.open(png).convert("L"))
+    assert img.shape[0] > 200 and img.shape[1] > 200
+    assert img.std() > 5.0  # not blank: points, axes and titles were drawn

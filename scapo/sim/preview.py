@@ -63,15 +63,7 @@ def draw_sample(fig, sample: dict, title: str = "", column: int = 0, columns: in
     ax.scatter(pts[:, 0], pts[:, 2], -pts[:, 1], c=part_colors(lab), s=1.5, depthshade=False)
     for t, s in segs:
         ax.plot(s[:, 0], s[:, 2], -s[:, 1], "-", color="k" if t == 0 else "m", lw=2)
-    mid = pts.mean(0)
-    r = 0.5 * diag
-    ax.set_xlim(mid[0] - r, mid[0] + r)
-    ax.set_ylim(mid[2] - r, mid[2] + r)
-    ax.set_zlim(-mid[1] - r, -mid[1] + r)
-    ax.view_init(elev=10, azim=-90)
-    ax.set_xticks([])
-    ax.set_yticks([])
-    ax.set_zticks([])
+    frame_cloud_axes(ax, pts, diag)
     if rows == 1:
         ax.set_title(title, fontsize=9)
     if part_names is not None:
@@ -102,3 +94,16 @@ def save_preview(samples: Sequence[dict], path: str | Path, titles: Sequence[str
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def frame_cloud_axes(ax, pts: np.ndarray, diag: float) -> None:
+    """Fit a matplotlib 3-D ``ax`` to camera-frame points ``pts (N, 3)`` plotted as (x, z, -y): a cube
+    of side ``diag`` (m) around their mean, seen from the camera side, without ticks."""
+    mid, r = pts.mean(0), 0.5 * float(diag)
+    ax.set_xlim(mid[0] - r, mid[0] + r)
+    ax.set_ylim(mid[2] - r, mid[2] + r)
+    ax.set_zlim(-mid[1] - r, -mid[1] + r)
+    ax.view_init(elev=10, azim=-90)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.set_zticks([])
