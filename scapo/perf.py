@@ -10,6 +10,7 @@ start to the last shard's end, excluding process start-up and asset building.
 
 from __future__ import annotations
 
+import functools
 import json
 import multiprocessing as mp
 import tempfile
@@ -142,6 +143,35 @@ def _box_clouds(batch: int, n: int, seed: int = 0) -> np.ndarray:
     return out
 
 
+def _median_seconds(fn, iters: int, cuda: bool) -> float:
+    """Median wall time (s) of ``iters`` calls of ``fn()`` after one warm-up call (CUDA synchronised)."""
+    import torch
+
+    times = []
+    for i in range(iters + 1):
+        if cuda:
+            torch.cuda.synchronize()
+        t = time.perf_counter()
+        fn()
+        if cuda:
+            torch.cuda.synchronize()
+        if i:
+            times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
+def _train_step(model, opt, points, stage: int, losses) -> None:
+    """One optimiser step of ``stage`` on camera-frame ``points (B, N, 3)``, as the trainer takes it."""
+    from scapo.models.scapo_model import SCAPOModel
+    from scapo.models.train import loss_terms
+
+    X, _ = SCAPOModel.normalize(points)
+    _, total = loss_terms(model, X, stage, losses)
+    opt.zero_grad()
+    total.backward()
+    opt.step()
+
+
 def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, num_points: int = 1024) -> list[dict]:
     """SCAPO speed: training samples/s per stage and inference latency (batch 1) / throughput (batch 32).
 
@@ -152,7 +182,6 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
     """
     import torch
 
-    from scapo.losses import stage1_terms, stage2_terms, weighted_total
     from scapo.models.presets import PRESETS
     from scapo.models.scapo_model import ModelConfig, SCAPOModel
 
@@ -167,38 +196,13 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
         train_pts = torch.from_numpy(_box_clouds(pc.batch_size, pc.train_points)).to(d)
         row = {"preset": preset, "device": dev, "batch_size": pc.batch_size, "train_points": pc.train_points}
         for stage in (1, 2):
-            times = []
-            for i in range(iters + 1):
-                if dev == "cuda":
-                    torch.cuda.synchronize()
-                t = time.perf_counter()
-                X, _ = SCAPOModel.normalize(train_pts)
-                out = model(X, stage=stage)
-                terms = stage1_terms(model, X, out, pc.losses)
-                if stage == 2:
-                    terms.update(stage2_terms(model, X, out, pc.losses))
-                opt.zero_grad()
-                weighted_total(terms, pc.losses, stage).backward()
-                opt.step()
-                if dev == "cuda":
-                    torch.cuda.synchronize()
-                if i:
-                    times.append(time.perf_counter() - t)
-            row[f"train_stage{stage}_samples_per_s"] = round(pc.batch_size / float(np.median(times)), 2)
+            med = _median_seconds(functools.partial(_train_step, model, opt, train_pts, stage, pc.losses), iters,
+                                  dev == "cuda")
+            row[f"train_stage{stage}_samples_per_s"] = round(pc.batch_size / med, 2)
         model.eval()
         for batch in (1, 32):
             pts = torch.from_numpy(_box_clouds(batch, num_points, seed=1)).to(d)
-            times = []
-            for i in range(iters + 1):
-                if dev == "cuda":
-                    torch.cuda.synchronize()
-                t = time.perf_counter()
-                model.predict(pts)
-                if dev == "cuda":
-                    torch.cuda.synchronize()
-                if i:
-                    times.append(time.perf_counter() - t)
-            med = float(np.median(times))
+            med = _median_seconds(functools.partial(model.predict, pts), iters, dev == "cuda")
             if batch == 1:
                 row["infer_ms_per_cloud_b1"] = round(1000 * med, 2)
                 row["infer_clouds_per_s_b1"] = round(1 / med, 2)

@@ -9,6 +9,8 @@ Stage 2: :func:`cycle_loss`, :func:`cross_space_loss`, and the regularisers
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import torch
 
@@ -83,12 +85,19 @@ def cross_instance_alignment_loss(X: torch.Tensor, t: torch.Tensor, R: torch.Ten
 def candidate_rotations(small_deg: float = 25.0, dtype=torch.float32) -> torch.Tensor:
     """Rotations searched by :func:`consensus_rotation_loss`: the 24 rotations of the cube
     (octahedral group, identity first) and rotations by +-``small_deg`` about x, y and z; ``(30, 3, 3)``."""
+    return torch.tensor(_candidate_rotations(float(small_deg)), dtype=dtype)
+
+
+@functools.lru_cache(maxsize=8)
+def _candidate_rotations(small_deg: float) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
     octa = Rotation.create_group("O").as_matrix()
     order = sorted(range(len(octa)), key=lambda i: -float(np.trace(octa[i])))  # identity first
     small = Rotation.from_rotvec(np.deg2rad(small_deg) * np.concatenate([np.eye(3), -np.eye(3)])).as_matrix()
-    return torch.from_numpy(np.concatenate([octa[order], small])).to(dtype)
+    out = np.concatenate([octa[order], small])
+    out.setflags(write=False)
+    return out
 
 
 def consensus_rotation_loss(X: torch.Tensor, t: torch.Tensor, R_raw: torch.Tensor, R: torch.Tensor,
@@ -118,8 +127,8 @@ def consensus_rotation_loss(X: torch.Tensor, t: torch.Tensor, R_raw: torch.Tenso
         T = S.unsqueeze(0).unsqueeze(0).expand(B, C, B, n, 3).reshape(-1, n, 3)
         d = pairwise_sq_dist(A, T).min(-1).values
         d = d.topk(max(1, int(keep * n)), dim=-1, largest=False).values.mean(-1).reshape(B, C, B)
-        others = ~torch.eye(B, dtype=torch.bool, device=X.device)
-        score = torch.stack([d[b][:, others[b]].median(dim=-1).values for b in range(B)])  # (B, C)
+        self_pair = torch.eye(B, dtype=torch.bool, device=X.device)[:, None, :]  # (B, 1, B)
+        score = d.masked_fill(self_pair, float("nan")).nanmedian(dim=-1).values  # (B, C): over the others
         best = score.argmin(dim=1)
         better = score.gather(1, best[:, None]).squeeze(1) < (1.0 - margin) * score[:, 0]
         g = torch.where(better, best, torch.zeros_like(best))

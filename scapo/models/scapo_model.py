@@ -25,6 +25,7 @@ from torch import nn
 
 from scapo.models.encoder import EncoderConfig, SE3Encoder, ShapeDecoder
 from scapo.models.skinning import (
+    apply_per_part,
     blend,
     bone_transforms,
     cross_space_transforms,
@@ -166,18 +167,19 @@ class SCAPOModel(nn.Module):
         jt, jp, P = cfg.joint_types, cfg.joint_parts, cfg.num_parts
         T_x = bone_transforms(jt, jp, d_x, c_x, a_x, P)  # canonical -> aligned input
         T_y = bone_transforms(jt, jp, d_y, c_y, a_y, P)
+        T_x_inv, T_y_inv = invert(T_x), invert(T_y)
         w, W = skinning_weights(S_obj, K, V, log_s, cfg.gamma)
-        S_star = blend(S_obj, w, invert(T_x))  # backward D^{o->c}
-        K_star = torch.einsum("bpij,bpj->bpi", invert(T_x)[..., :3, :3], K) + invert(T_x)[..., :3, 3]
+        S_star = blend(S_obj, w, T_x_inv)  # backward D^{o->c}
+        K_star = apply_per_part(T_x_inv, K)
         w_star, _ = skinning_weights(S_star, K_star, V, log_s, cfg.gamma)
         S_hat = blend(S_star, w_star, T_x)  # forward D^{c->o}
         X_hat = S_hat @ R.transpose(1, 2) + t[:, None]
         # template cycle (keypoints carried into the template space by the cross-space maps)
         T_xy = cross_space_transforms(jt, jp, P, c_x, d_x, a_x, c_y, d_y, a_y)
-        K_y = torch.einsum("bpij,bpj->bpi", T_xy[..., :3, :3], K) + T_xy[..., :3, 3]
+        K_y = apply_per_part(T_xy, K)
         w_y, _ = skinning_weights(Y, K_y, V, log_s, cfg.gamma)
-        Y_star = blend(Y, w_y, invert(T_y))
-        K_ystar = torch.einsum("bpij,bpj->bpi", invert(T_y)[..., :3, :3], K_y) + invert(T_y)[..., :3, 3]
+        Y_star = blend(Y, w_y, T_y_inv)
+        K_ystar = apply_per_part(T_y_inv, K_y)
         w_ystar, _ = skinning_weights(Y_star, K_ystar, V, log_s, cfg.gamma)
         Y_hat = blend(Y_star, w_ystar, T_y)
         # cross-space alignment

@@ -61,6 +61,12 @@ def apply(T: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     return points @ T[:, :3, :3].transpose(1, 2) + T[:, None, :3, 3]
 
 
+def apply_per_part(T: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """``T (B, P, 4, 4)`` applied part by part to ``points (B, P, 3)`` (one point per part, e.g. the
+    bone centres) -> ``(B, P, 3)``."""
+    return torch.einsum("bpij,bpj->bpi", T[..., :3, :3], points) + T[..., :3, 3]
+
+
 def joint_transform(joint_type: int, axis: torch.Tensor, pivot: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
     """Motion of a child part (paper Sec. 3.2): ``(B, 3), (B, 3), (B,)`` -> ``(B, 4, 4)``.
 

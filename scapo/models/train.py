@@ -28,6 +28,17 @@ from scapo.models.presets import PRESETS, TrainConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 
 
+def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+    """One forward pass of a training step on normalised clouds ``X (B, N, 3)``: the unweighted loss
+    terms of ``stage`` (1: stage-1 terms; 2: stage-1 and stage-2 terms) and their weighted total
+    under ``losses`` (a :class:`~scapo.losses.LossConfig`)."""
+    out = model(X, stage=stage)
+    terms = stage1_terms(model, X, out, losses)
+    if stage == 2:
+        terms.update(stage2_terms(model, X, out, losses))
+    return terms, weighted_total(terms, losses, stage)
+
+
 class TrainingClouds(Dataset):
     """The training split's point clouds only (no labels), each a random subset of ``points`` points."""
 
@@ -227,15 +238,11 @@ class Trainer:
                 if step >= steps:
                     break
                 X, _ = SCAPOModel.normalize(points.to(self.device))
-                out = self.model(X, stage=stage)
-                terms = stage1_terms(self.model, X, out, pc.losses)
-                if stage == 2:
-                    terms.update(stage2_terms(self.model, X, out, pc.losses))
+                terms, total = loss_terms(self.model, X, stage, pc.losses)
                 for name, value in terms.items():
                     if not torch.isfinite(value):
                         raise TrainingError(f"loss {name!r} became {float(value.detach())} at stage {stage}, "
                                             f"epoch {epoch}, step {step}; training stopped (last good checkpoint kept)")
-                total = weighted_total(terms, pc.losses, stage)
                 opt.zero_grad(set_to_none=True)
                 total.backward()
                 if pc.grad_clip:
