@@ -109,3 +109,25 @@ def test_regularisers_can_be_switched_off(laptop_data, tmp_path):
     assert log[log.stage == 2]["shape_var"].isna().all() and log[log.stage == 2]["cycle"].notna().all()
     with pytest.raises(ValueError, match="unknown regularisers"):
         dataclasses.replace(TEST.losses, disabled=("nope",))
+
+
+def test_an_unfinished_run_is_finished_with_its_own_preset_by_the_method(laptop_data, tmp_path):
+    p = dataclasses.replace(TEST, name="test_custom", stage1_epochs=2, stage2_epochs=1)
+    t = Trainer(laptop_data, tmp_path / "run", p, progress=False)
+    orig = t._epoch
+
+    class Stop(Exception):
+        pass
+
+    def interrupted(stage, epoch, *a):
+        if (stage, epoch) == (1, 1):
+            raise Stop
+        return orig(stage, epoch, *a)
+
+    t._epoch = interrupted
+    with pytest.raises(Stop):
+        t.train()
+    # the method's default preset ("cpu") differs; the run's own preset is used to finish it
+    preds = run_method("scapo", laptop_data, tmp_path / "p.npz", run=tmp_path / "run")
+    assert preds.info["preset"] == "test_custom"
+    assert torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["done"]

@@ -93,12 +93,16 @@ class SCAPOMethod:
         self.predictor: Predictor | None = None
 
     def fit(self, train: ArticulationDataset) -> None:
-        from scapo.models.train import Trainer
+        """Finish (or start) training into ``run``; an unfinished run resumes with its own preset."""
+        from scapo.models.train import Trainer, preset_from_dict
 
         ck = self.run / "checkpoint.pt"
         state = torch.load(ck, map_location="cpu", weights_only=False) if ck.is_file() else None
         if state is None or not state.get("done"):
-            Trainer(train.root, self.run, self.preset, self.progress, self.device).train()
+            preset = self.preset
+            if state is not None and "identity" in state:
+                preset = preset_from_dict(state["identity"]["preset"])
+            Trainer(train.root, self.run, preset, self.progress, self.device).train()
         self.predictor = Predictor.load(self.run, self.device)
         if self.predictor.identity["dataset_hash"] != train.dataset_hash:
             # a model trained on another dataset of the same category is allowed; note it
