@@ -131,3 +131,21 @@ def test_an_unfinished_run_is_finished_with_its_own_preset_by_the_method(laptop_
     preds = run_method("scapo", laptop_data, tmp_path / "p.npz", run=tmp_path / "run")
     assert preds.info["preset"] == "test_custom"
     assert torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["done"]
+
+
+def test_stage2_starts_from_the_rigid_split_of_the_canonical_clouds(laptop_data, tmp_path):
+    p = dataclasses.replace(TEST, name="test_part_init", part_init=True, stage1_epochs=1, stage2_epochs=0)
+    t = Trainer(laptop_data, tmp_path / "run", p, progress=False)
+    t.train()
+    from scapo.models.train import TrainingClouds
+
+    fixed = t.model.keypoints.net[-1].bias.detach().clone()
+    y0 = t.model.y_base.detach().clone()
+    t._init_template(TrainingClouds(laptop_data, p.train_points))
+    kb = t.model.keypoints.net[-1].bias.detach().view(2, 12)
+    jb = t.model.joints.out[-1].bias.detach().view(1, 7)
+    assert not torch.equal(kb.reshape(-1), fixed)  # keypoints moved from the fixed initialisation
+    assert torch.isfinite(kb).all() and torch.isfinite(jb).all()
+    assert float((kb[0, :3] - kb[1, :3]).norm()) > 0.05  # two distinct part centres
+    assert float(jb[0, 3:6].norm()) == pytest.approx(1.0, abs=1e-5)  # a unit axis
+    assert torch.isfinite(t.model.y_base).all() and not torch.equal(t.model.y_base, y0)  # the medoid cloud

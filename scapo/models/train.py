@@ -35,6 +35,8 @@ def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses) -> tuple[
     out = model(X, stage=stage)
     terms = stage1_terms(model, X, out, losses)
     if stage == 2:
+        if not losses.align_in_stage2:
+            terms.pop("align")
         terms.update(stage2_terms(model, X, out, losses))
     return terms, weighted_total(terms, losses, stage)
 
@@ -210,7 +212,14 @@ class Trainer:
 
     @torch.no_grad()
     def _init_template(self, data: TrainingClouds) -> None:
-        """Y_base starts stage 2 as a farthest-point sample of canonicalised training clouds."""
+        """Initial state of stage 2 from up to 64 training clouds canonicalised by the stage-1 encoder.
+
+        With ``part_init`` (default): ``Y_base`` is a farthest-point sample of the medoid canonical
+        cloud (one instance in one articulation state), and the keypoint and joint heads start from
+        the most rigid part split (:meth:`_init_parts`). Without it: ``Y_base`` is a farthest-point
+        sample of the union of the canonical clouds and the heads keep their fixed initialisation.
+        """
+        from scapo.models import part_init
         from scapo.sim.render import farthest_point_indices
 
         g = torch.Generator().manual_seed(self.preset.seed)
@@ -219,9 +228,40 @@ class Trainer:
         self.model.eval()
         enc = self.model.encoder(X)
         self.model.train()
-        S = ((X - enc.t[:, None]) @ enc.R).reshape(-1, 3).cpu().numpy()
-        sel = farthest_point_indices(S, self.mcfg.template_points, np.random.default_rng(self.preset.seed))
-        self.model.y_base.copy_(torch.from_numpy(S[sel]).to(self.model.y_base))
+        clouds = ((X - enc.t[:, None]) @ enc.R).cpu()
+        sub = clouds[:, :: max(1, clouds.shape[1] // 128)]
+        M = self.mcfg.template_points
+        rng = np.random.default_rng(self.preset.seed)
+        if self.preset.part_init and len(clouds) >= 2 and clouds.shape[1] >= M:
+            S = clouds[part_init.medoid(sub)].numpy()
+        else:
+            S = clouds.reshape(-1, 3).numpy()
+        self.model.y_base.copy_(torch.from_numpy(S[farthest_point_indices(S, M, rng)]).to(self.model.y_base))
+        if self.preset.part_init and len(clouds) >= 2:
+            self._init_parts(sub, clouds.reshape(-1, 3), self.model.y_base.detach().cpu())
+
+    @torch.no_grad()
+    def _init_parts(self, clouds: torch.Tensor, union: torch.Tensor, template: torch.Tensor) -> None:
+        """Keypoint and joint heads start from the most rigid split (:mod:`scapo.models.part_init`) of
+        the canonical ``clouds (B, n, 3)``, candidates drawn from their ``union (U, 3)``: keypoints at
+        the part centroids of ``template (M, 3)`` under that split; each joint's pivot at the boundary
+        between its two parts of the template, its axis from the parts' relative motions across the
+        clouds (:func:`~scapo.models.part_init.estimate_axes`; the boundary's direction if too few
+        pairs move)."""
+        from scapo.models import part_init
+
+        g = torch.Generator().manual_seed(self.preset.seed)
+        pool = union[torch.randperm(len(union), generator=g)[:1024]]
+        K, _ = part_init.initial_split(clouds, pool, self.mcfg.num_parts, seed=self.preset.seed)
+        K = part_init.part_centroids(template, K)
+        kb = self.model.keypoints.net[-1].bias.view(self.mcfg.num_parts, -1)
+        kb[:, :3] = K.to(kb)
+        axes = part_init.estimate_axes(clouds, K, self.mcfg.joint_types, self.mcfg.joint_parts, generator=g)
+        jb = self.model.joints.out[-1].bias.view(len(self.mcfg.joint_types), -1)
+        for j, (parent, child) in enumerate(self.mcfg.joint_parts):
+            pivot, axis = part_init.boundary_joint(template, K, parent, child)
+            jb[j, :3] = pivot.to(jb)
+            jb[j, 3:6] = (axis if axes[j] is None else axes[j]).to(jb)
 
     def _epoch(self, stage, epoch, data, opt, sched, steps, log_path, bar) -> None:
         pc = self.preset

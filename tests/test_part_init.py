@@ -1,0 +1,132 @@
+"""Data-driven stage-2 initialisation (scapo.models.part_init) on synthetic hinged plates."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from scapo.losses import LossConfig, stage2_terms
+from scapo.models import part_init as PI
+from scapo.models.encoder import EncoderConfig
+from scapo.models.scapo_model import ModelConfig, SCAPOModel
+from scapo.models.skinning import exp_so3
+
+HINGE = torch.tensor([0.0, 0.0, 1.0])
+
+
+def hinged_plates(B: int = 16, n: int = 160, seed: int = 0):
+    """Laptop-like clouds in a bisector frame: a base plate (x in [0, .4], y = 0) and a screen plate
+    hinged on the z axis (width 1.2 along z, wider than deep, so k-means cuts across the hinge),
+    opened by 40..160 deg; each cloud rotated by minus half its opening about z (the frame of a
+    whole-object canonicaliser). Returns clouds (B, n, 3), labels (B, n) (0 base, 1 screen)."""
+    g = torch.Generator().manual_seed(seed)
+    clouds, labels = [], []
+    for _ in range(B):
+        theta = math.radians(40 + 120 * float(torch.rand(1, generator=g)))
+        lab = (torch.rand(n, generator=g) < 0.5).long()
+        r = 0.4 * torch.rand(n, generator=g)
+        z = 1.2 * torch.rand(n, generator=g) - 0.6
+        ang = torch.where(lab == 1, torch.tensor(theta), torch.tensor(0.0))
+        pts = torch.stack([r * torch.cos(ang), r * torch.sin(ang), z], -1)
+        pts = pts + 0.005 * torch.randn(n, 3, generator=g)
+        pts = pts @ exp_so3(HINGE, torch.tensor(-theta / 2)).T
+        clouds.append(pts)
+        labels.append(lab)
+    return torch.stack(clouds), torch.stack(labels)
+
+
+def best_iou(pred: torch.Tensor, gt: torch.Tensor) -> float:
+    ious = []
+    for perm in ((0, 1), (1, 0)):
+        v = [((pred == perm[p]) & (gt == p)).sum() / ((pred == perm[p]) | (gt == p)).sum() for p in (0, 1)]
+        ious.append(float(torch.stack(v).mean()))
+    return max(ious)
+
+
+def test_kabsch_recovers_a_rigid_transform():
+    g = torch.Generator().manual_seed(1)
+    src = torch.randn(3, 50, 3, generator=g, dtype=torch.float64)
+    R = torch.from_numpy(Rotation.random(3, random_state=2).as_matrix())
+    t = torch.randn(3, 3, generator=g, dtype=torch.float64)
+    dst = src @ R.transpose(1, 2) + t[:, None]
+    R_est, t_est = PI.kabsch(src, dst, torch.ones(3, 50, dtype=torch.float64))
+    assert torch.allclose(R_est, R, atol=1e-9) and torch.allclose(t_est, t, atol=1e-9)
+
+
+def test_true_parts_register_rigidly_and_a_cut_across_the_hinge_does_not():
+    X, lab = hinged_plates(B=8, n=512)
+    A, B, la, lb = X[:4], X[4:], lab[:4], lab[4:]
+    good = PI.part_rigidity_residual(A, B, la, lb, 2)
+    cross_a, cross_b = (A[..., 2] > 0).long(), (B[..., 2] > 0).long()  # left/right halves
+    bad = PI.part_rigidity_residual(A, B, cross_a, cross_b, 2)
+    # the true parts leave only the sampling floor (nearest-neighbour spacing)
+    assert (good <= bad).all() and good.mean() < 0.5 * bad.mean(), (good, bad)
+
+
+def test_initial_split_finds_the_moving_parts_where_kmeans_cuts_across_the_hinge():
+    X, lab = hinged_plates()
+    union = X.reshape(-1, 3)[::8]
+    km = PI.kmeans(union, 2, starts=8, generator=torch.Generator().manual_seed(0))[0]
+    km_lab = PI.pairwise_sq_dist(X, km.expand(len(X), 2, 3)).argmin(-1)
+    assert best_iou(km_lab, lab) < 0.6  # the k-means attractor the initialisation avoids
+    K, scores = PI.initial_split(X, union, 2, seed=0, directions=24, starts=8)
+    assert K.shape == (2, 3) and torch.isfinite(scores).all()
+    pred = PI.pairwise_sq_dist(X, K.expand(len(X), 2, 3)).argmin(-1)
+    assert best_iou(pred, lab) > 0.8
+
+
+def test_axis_from_motions_recovers_revolute_and_prismatic_axes():
+    axis = torch.tensor([0.3, -0.5, 0.8], dtype=torch.float64)
+    axis = axis / axis.norm()
+    angles = torch.linspace(-1.2, 1.2, 9, dtype=torch.float64)
+    R = exp_so3(axis.expand(9, 3), angles)
+    est = PI.axis_from_motions(R, torch.zeros(9, 3, dtype=torch.float64), 0)
+    assert abs(float(est @ axis)) == pytest.approx(1.0, abs=1e-9)
+    est = PI.axis_from_motions(torch.eye(3, dtype=torch.float64).expand(9, 3, 3), angles[:, None] * axis, 1)
+    assert abs(float(est @ axis)) == pytest.approx(1.0, abs=1e-9)
+    assert PI.axis_from_motions(R[4:5], torch.zeros(1, 3, dtype=torch.float64), 0) is None  # too few
+
+
+def test_estimate_axes_finds_the_hinge_of_hinged_plates():
+    X, lab = hinged_plates()
+    K = torch.stack([X[lab == 0].mean(0), X[lab == 1].mean(0)])
+    (axis,) = PI.estimate_axes(X, K, (0,), ((0, 1),), generator=torch.Generator().manual_seed(0))
+    assert math.degrees(math.acos(min(1.0, abs(float(axis @ HINGE))))) < 5.0
+
+
+def test_medoid_and_part_centroids():
+    g = torch.arange(5, dtype=torch.float32) * 0.5
+    grid = torch.stack(torch.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    shifts = torch.tensor([[0.0, 0, 0], [0.1, 0, 0], [-0.1, 0, 0], [0, 0.1, 0], [0, -0.1, 0]])
+    clouds = torch.stack([grid + s for s in shifts[[1, 3, 0, 2, 4]]])
+    assert PI.medoid(clouds) == 2
+    K = torch.tensor([[-1.0, 0, 0], [1.0, 0, 0], [50.0, 0, 0]])
+    pts = torch.tensor([[-2.0, 0, 0], [-1.0, 1, 0], [2.0, 0, 0]])
+    C = PI.part_centroids(pts, K)
+    assert torch.allclose(C[0], torch.tensor([-1.5, 0.5, 0])) and torch.allclose(C[1], pts[2])
+    assert torch.equal(C[2], K[2])  # no points: unchanged
+
+
+def test_initial_split_rejects_bad_input():
+    with pytest.raises(ValueError, match="two parts"):
+        PI.initial_split(torch.zeros(4, 16, 3), torch.zeros(16, 3), 1)
+    with pytest.raises(ValueError, match="two clouds"):
+        PI.score_keypoints(torch.zeros(1, 16, 3), torch.zeros(2, 2, 3))
+
+
+def test_seg_loss_shapes_bones_without_moving_their_centres():
+    cfg = ModelConfig(num_parts=2, joint_types=(0,), joint_parts=((0, 1),),
+                      encoder=EncoderConfig(k=4, rot_channels=(8,), trans_channels=(4,), code_dim=8,
+                                            decoder_hidden=(16, 16), decoder_points=32), template_points=32)
+    torch.manual_seed(0)
+    model = SCAPOModel(cfg)
+    X = torch.from_numpy(np.random.default_rng(0).normal(size=(2, 48, 3))).float()
+    out = model(X, 2)
+    for fixed, centre_grad in ((True, False), (False, True)):
+        terms = stage2_terms(model, X, out, LossConfig(seg_fixed_centres=fixed))
+        gK, gs = torch.autograd.grad(terms["seg"], [out["K"], out["log_scale"]], retain_graph=True, allow_unused=True)
+        moved = gK is not None and float(gK.abs().max()) > 0
+        assert moved == centre_grad
+        assert gs is not None and float(gs.abs().max()) > 0
