@@ -114,6 +114,22 @@ def axis_from_motions(R: torch.Tensor, t: torch.Tensor, joint_type: int, min_ang
     return torch.linalg.eigh(torch.einsum("q,qi,qj->ij", angle, u, u)).eigenvectors[:, -1]
 
 
+def random_pairs(count: int, pairs: int, generator: torch.Generator | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+    """``pairs`` random ordered pairs ``(a, b)`` of different indices in ``[0, count)``: two ``(pairs,)``
+    int64 tensors. Needs ``count >= 2``."""
+    a = torch.randint(count, (pairs,), generator=generator)
+    return a, (a + 1 + torch.randint(count - 1, (pairs,), generator=generator)) % count
+
+
+def nearest_keypoint(points: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """Part labels by nearest keypoint: ``points (B, n, 3)``, ``K (B, P, 3)`` -> int64 ``(B, n)``; or
+    unbatched ``(n, 3)``, ``(P, 3)`` -> ``(n,)``."""
+    if points.dim() == 2:
+        return pairwise_sq_dist(points[None], K[None])[0].argmin(-1)
+    return pairwise_sq_dist(points, K).argmin(-1)
+
+
 def fibonacci_hemisphere(count: int, dtype=torch.float32) -> torch.Tensor:
     """``count`` nearly uniform unit directions ``(count, 3)`` with ``z >= 0`` (a half Fibonacci sphere)."""
     i = torch.arange(count, dtype=torch.float64) + 0.5
@@ -173,18 +189,16 @@ def score_keypoints(clouds: torch.Tensor, candidates: torch.Tensor, pairs: int =
     B = clouds.shape[0]
     if B < 2:
         raise ValueError("scoring a part split needs at least two clouds")
-    a = torch.randint(B, (pairs,), generator=generator)
-    b = (a + 1 + torch.randint(B - 1, (pairs,), generator=generator)) % B
+    a, b = random_pairs(B, pairs, generator)
     A, Bc = clouds[a.to(clouds.device)], clouds[b.to(clouds.device)]
     C, P, _ = candidates.shape
     scores = []
     for k in range(0, C, chunk):
         K = candidates[k:k + chunk]  # (c, P, 3)
         c = K.shape[0]
-        la = pairwise_sq_dist(A.unsqueeze(0).expand(c, *A.shape).reshape(c * pairs, -1, 3),
-                              K.repeat_interleave(pairs, 0)).argmin(-1)
-        lb = pairwise_sq_dist(Bc.unsqueeze(0).expand(c, *Bc.shape).reshape(c * pairs, -1, 3),
-                              K.repeat_interleave(pairs, 0)).argmin(-1)
+        Kc = K.repeat_interleave(pairs, 0)
+        la = nearest_keypoint(A.repeat(c, 1, 1), Kc)
+        lb = nearest_keypoint(Bc.repeat(c, 1, 1), Kc)
         r = part_rigidity_residual(A.repeat(c, 1, 1), Bc.repeat(c, 1, 1), la, lb, P, iters, clip)
         scores.append(r.reshape(c, pairs).mean(1))
     return torch.cat(scores)
@@ -232,7 +246,7 @@ def medoid(clouds: torch.Tensor, keep: float = 0.7) -> int:
 def part_centroids(points: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
     """Centroids ``(P, 3)`` of ``points (M, 3)`` grouped by nearest keypoint ``K (P, 3)``; a keypoint
     with no points keeps its place."""
-    lab = pairwise_sq_dist(points[None], K[None])[0].argmin(-1)
+    lab = nearest_keypoint(points, K)
     out = K.clone()
     for p in range(len(K)):
         if (lab == p).any():
@@ -245,7 +259,7 @@ def boundary_joint(template: torch.Tensor, K: torch.Tensor, parent: int, child: 
     """Initial pivot and axis of the joint between two parts of ``template (M, 3)`` split by nearest
     keypoint ``K (P, 3)``: the ``top`` fraction of the two parts' points closest to their bisecting
     plane; pivot = their mean, axis = their principal direction. -> ``pivot (3,), axis (3,)``."""
-    lab = pairwise_sq_dist(template[None], K[None])[0].argmin(-1)
+    lab = nearest_keypoint(template, K)
     pts = template[(lab == parent) | (lab == child)]
     n = K[child] - K[parent]
     n = n / (n.norm() + EPS)
@@ -270,12 +284,11 @@ def estimate_axes(clouds: torch.Tensor, K: torch.Tensor, joint_types, joint_part
     B, n, _ = clouds.shape
     if B < 2:
         raise ValueError("estimating joint axes needs at least two clouds")
-    a = torch.randint(B, (pairs,), generator=generator)
-    b = (a + 1 + torch.randint(B - 1, (pairs,), generator=generator)) % B
+    a, b = random_pairs(B, pairs, generator)
     A, Bc = clouds[a], clouds[b]
     P = K.shape[0]
-    la = pairwise_sq_dist(A, K.expand(pairs, P, 3)).argmin(-1)
-    lb = pairwise_sq_dist(Bc, K.expand(pairs, P, 3)).argmin(-1)
+    la = nearest_keypoint(A, K.expand(pairs, P, 3))
+    lb = nearest_keypoint(Bc, K.expand(pairs, P, 3))
     _, R, t = register_parts(A, Bc, la, lb, P)
     out = []
     for (pa, ch), jt in zip(joint_parts, joint_types):

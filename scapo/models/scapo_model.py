@@ -72,7 +72,8 @@ def _mlp(widths: list[int]) -> nn.Sequential:
 
 class KeypointHead(nn.Module):
     """Theta_K: invariant code -> keypoints ``K (B, P, 3)``, bone orientations ``V (B, P, 3, 3)`` and
-    log scales ``(B, P, 3)``. Initialised with keypoints spread along x and isotropic bones."""
+    log scales ``(B, P, 3)``. Initialised with keypoints spread along x and isotropic bones; the trainer
+    moves the keypoints to the most rigid part split before stage 2 (``TrainConfig.part_init``)."""
 
     def __init__(self, code_dim: int, num_parts: int, width: int):
         super().__init__()

@@ -301,7 +301,7 @@ class Trainer:
                 writer.writerow(row)
                 if bar is not None:
                     bar.update(1)
-                    bar.set_postfix(stage=stage, loss=f"{float(total):.4f}")
+                    bar.set_postfix(stage=stage, loss=f"{float(total.detach()):.4f}")
 
 
 def plot_losses(log_csv: Path, png: Path) -> None:
