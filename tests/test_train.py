@@ -18,6 +18,24 @@ from scapo.models.train import Trainer
 TEST = PRESETS.get("test")
 
 
+class Stop(Exception):
+    pass
+
+
+def interrupt_at(trainer: Trainer, stage: int, epoch: int) -> None:
+    """Run ``trainer`` and stop it (as an interruption would) when it reaches ``(stage, epoch)``."""
+    orig = trainer._epoch
+
+    def interrupted(st, ep, *a):
+        if (st, ep) == (stage, epoch):
+            raise Stop
+        return orig(st, ep, *a)
+
+    trainer._epoch = interrupted
+    with pytest.raises(Stop):
+        trainer.train()
+
+
 def test_train_predict_evaluate_round_trip(laptop_data, tmp_path):
     run = tmp_path / "run"
     Trainer(laptop_data, run, TEST, progress=False).train()
@@ -47,22 +65,7 @@ def test_resume_gives_the_same_result(laptop_data, tmp_path):
     p = dataclasses.replace(TEST, stage1_epochs=2, stage2_epochs=1)
     Trainer(laptop_data, tmp_path / "a", p, progress=False).train()
 
-    class Stop(Exception):
-        pass
-
-    t = Trainer(laptop_data, tmp_path / "b", p, progress=False)
-    orig = t._epoch
-    calls = []
-
-    def interrupted(stage, epoch, *a):
-        calls.append((stage, epoch))
-        if (stage, epoch) == (1, 1):
-            raise Stop
-        return orig(stage, epoch, *a)
-
-    t._epoch = interrupted
-    with pytest.raises(Stop):
-        t.train()
+    interrupt_at(Trainer(laptop_data, tmp_path / "b", p, progress=False), 1, 1)
     Trainer(laptop_data, tmp_path / "b", p, progress=False).train()  # resumes at stage 1, epoch 1
     a = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=False)["model"]
     b = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=False)["model"]
@@ -113,20 +116,7 @@ def test_regularisers_can_be_switched_off(laptop_data, tmp_path):
 
 def test_an_unfinished_run_is_finished_with_its_own_preset_by_the_method(laptop_data, tmp_path):
     p = dataclasses.replace(TEST, name="test_custom", stage1_epochs=2, stage2_epochs=1)
-    t = Trainer(laptop_data, tmp_path / "run", p, progress=False)
-    orig = t._epoch
-
-    class Stop(Exception):
-        pass
-
-    def interrupted(stage, epoch, *a):
-        if (stage, epoch) == (1, 1):
-            raise Stop
-        return orig(stage, epoch, *a)
-
-    t._epoch = interrupted
-    with pytest.raises(Stop):
-        t.train()
+    interrupt_at(Trainer(laptop_data, tmp_path / "run", p, progress=False), 1, 1)
     # the method's default preset ("cpu") differs; the run's own preset is used to finish it
     preds = run_method("scapo", laptop_data, tmp_path / "p.npz", run=tmp_path / "run")
     assert preds.info["preset"] == "test_custom"

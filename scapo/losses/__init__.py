@@ -81,16 +81,19 @@ class LossConfig:
         return 0.0 if name in self.disabled else float(getattr(self, name))
 
 
-def stage1_terms(model, X: torch.Tensor, s1: dict, cfg: LossConfig | None = None) -> dict[str, torch.Tensor]:
+def stage1_terms(model, X: torch.Tensor, s1: dict, cfg: LossConfig | None = None, align: bool = True
+                 ) -> dict[str, torch.Tensor]:
     """Unweighted stage-1 loss terms (the two consistency terms use half of the batch, for speed).
-    ``consensus`` is computed when ``cfg`` gives it a positive weight."""
+    ``align`` False leaves out the cross-instance alignment term; ``consensus`` is computed when
+    ``cfg`` gives it a positive weight."""
     terms = {
         "rec": reconstruction_loss(X, s1["X_rec"]),
         "ortho": orthonormality_loss(s1["enc"].R_raw),
         "aug_consist": augmentation_consistency_loss(model, X, s1, max_batch=max(2, X.shape[0] // 2)),
         "can_consist": canonical_consistency_loss(model, s1["S_dec"][: max(2, X.shape[0] // 2)]),
-        "align": cross_instance_alignment_loss(X, s1["enc"].t, s1["enc"].R),
     }
+    if align:
+        terms["align"] = cross_instance_alignment_loss(X, s1["enc"].t, s1["enc"].R)
     if cfg is not None and cfg.weight("consensus") > 0:
         enc = s1["enc"]
         terms["consensus"], _ = consensus_rotation_loss(X, enc.t, enc.R_raw, enc.R,

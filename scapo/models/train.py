@@ -33,10 +33,8 @@ def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses) -> tuple[
     terms of ``stage`` (1: stage-1 terms; 2: stage-1 and stage-2 terms) and their weighted total
     under ``losses`` (a :class:`~scapo.losses.LossConfig`)."""
     out = model(X, stage=stage)
-    terms = stage1_terms(model, X, out, losses)
+    terms = stage1_terms(model, X, out, losses, align=stage == 1 or losses.align_in_stage2)
     if stage == 2:
-        if not losses.align_in_stage2:
-            terms.pop("align")
         terms.update(stage2_terms(model, X, out, losses))
     return terms, weighted_total(terms, losses, stage)
 
