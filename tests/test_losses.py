@@ -214,3 +214,37 @@ def test_consensus_rotation_relabels_a_frame_that_disagrees_with_the_batch():
     assert float(frac) == pytest.approx(1 / 5)
     expected = float(((wrong[0] - Q[0]) ** 2).sum()) / 5
     assert float(loss) == pytest.approx(expected, rel=1e-9)
+
+
+def test_root_motion_turns_the_base_and_carries_the_chain():
+    axis = torch.tensor([[[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]], dtype=D)
+    pivot = torch.tensor([[[0.0, 0.5, 0.0], [0.3, 0.0, 0.2]]], dtype=D)
+    state = torch.tensor([[0.4, 0.3]], dtype=D)
+    root = torch.tensor([-0.25], dtype=D)
+    jp = ((0, 1), (1, 2))
+    T = bone_transforms((0, 0), jp, axis, pivot, state, 3, root)
+    T0 = bone_transforms((0, 0), jp, axis, pivot, state, 3)
+    M = torch.from_numpy(joint_motion(0, np.array([0, 0, 1.0]), np.array([0, 0.5, 0]), -0.25))
+    torch.testing.assert_close(T[0, 0], M)  # the base turns about the root joint
+    torch.testing.assert_close(T[0, 1:], M @ T0[0, 1:])  # and the whole chain follows it
+    # child of the root joint: one rotation by state + root about the same line
+    ref = joint_motion(0, np.array([0, 0, 1.0]), np.array([0, 0.5, 0]), 0.4 - 0.25)
+    np.testing.assert_allclose(T[0, 1].numpy(), ref, atol=1e-12)
+    with pytest.raises(ValueError, match="base part"):
+        bone_transforms((0,), ((1, 0),), axis[:, :1], pivot[:, :1], state[:, :1], 2, root)
+
+
+def test_cross_space_transform_with_root_motion_maps_input_parts_onto_template_parts():
+    torch.manual_seed(3)
+    d = torch.nn.functional.normalize(torch.randn(2, 1, 3, dtype=D), dim=-1)
+    c = torch.randn(2, 1, 3, dtype=D)
+    a_x, a_y = torch.randn(2, 1, dtype=D), torch.randn(2, 1, dtype=D)
+    b_x, b_y = torch.randn(2, dtype=D), torch.randn(2, dtype=D)
+    T_x = bone_transforms((0,), ((0, 1),), d, c, a_x, 2, b_x)
+    T_y = bone_transforms((0,), ((0, 1),), d, c, a_y, 2, b_y)
+    T = cross_space_transforms((0,), ((0, 1),), 2, c, d, a_x, c, d, a_y, b_x, b_y)
+    # same joint frame in both spaces: X -> Y is "undo the input's motion, apply the template's"
+    torch.testing.assert_close(T, T_y @ invert(T_x))
+    # without root states the base stays put
+    T = cross_space_transforms((0,), ((0, 1),), 2, c, d, a_x, c, d, a_y)
+    torch.testing.assert_close(T[:, 0], torch.eye(4, dtype=D).expand(2, 4, 4))

@@ -139,3 +139,22 @@ def test_stage2_starts_from_the_rigid_split_of_the_canonical_clouds(laptop_data,
     assert float((kb[0, :3] - kb[1, :3]).norm()) > 0.05  # two distinct part centres
     assert float(jb[0, 3:6].norm()) == pytest.approx(1.0, abs=1e-5)  # a unit axis
     assert torch.isfinite(t.model.y_base).all() and not torch.equal(t.model.y_base, y0)  # the medoid cloud
+
+
+def test_root_motion_run_round_trips_and_its_poses_are_consistent(laptop_data, tmp_path):
+    from scapo.geometry import joint_motion
+
+    run = tmp_path / "run"
+    Trainer(laptop_data, run, dataclasses.replace(TEST, root_motion=True), progress=False).train()
+    pred = load_model(run)
+    assert pred.model.cfg.root_motion
+    with torch.no_grad():  # a visible root state, so that the base really moves off the stage-1 frame
+        pred.model.joints.out[-1].bias[-1] = 0.4
+    pts = np.random.default_rng(0).normal(size=(2, 200, 3)).astype(np.float32) * 0.1 + [0, 0, 1.5]
+    o = pred.predict(pts)
+    np.testing.assert_allclose(o["T_cam_obj"], o["part_pose"][:, 0], atol=1e-6)
+    for b in range(2):
+        rel = o["part_pose"][b, 1] @ np.linalg.inv(o["part_pose"][b, 0])  # the child's motion, camera frame
+        ref = joint_motion(0, o["joint_axis"][b, 0].astype(np.float64), o["joint_pivot"][b, 0].astype(np.float64),
+                           float(o["joint_state"][b, 0]))
+        np.testing.assert_allclose(rel, ref, atol=1e-4)

@@ -54,6 +54,12 @@ class ModelConfig:
     """PointNet widths of the joint head Theta_J."""
     head_width: int = 256
     """Hidden width of the keypoint and residual heads."""
+    root_motion: bool = False
+    """Let the base part move about (along) the root joint by a predicted root state (an addition
+    to the paper; see :func:`scapo.models.skinning.bone_transforms`). The stage-1 frame of a
+    two-slab object such as a laptop settles between its two parts (measured on lap70: the base
+    turned by -0.36 and the screen by +0.43 times the joint state in that frame); with the base
+    pinned to that frame, the learned joint states came out at 0.28 of the true ones."""
 
     def __post_init__(self):
         if len(self.joint_types) != len(self.joint_parts):
@@ -96,28 +102,36 @@ class KeypointHead(nn.Module):
 
 class JointHead(nn.Module):
     """Theta_J: a PointNet on an aligned shape ``(B, M, 3)`` -> per joint pivot ``c``, unit axis ``d``
-    and state ``a``: ``(B, J, 3), (B, J, 3), (B, J)``."""
+    and state ``a``: ``(B, J, 3), (B, J, 3), (B, J)``, and with ``root`` a root state ``(B,)`` (else
+    None; see ``ModelConfig.root_motion``)."""
 
-    def __init__(self, num_joints: int, widths: tuple[int, ...]):
+    def __init__(self, num_joints: int, widths: tuple[int, ...], root: bool = False):
         super().__init__()
         dims = [3, *widths]
         layers = []
         for a, b in zip(dims[:-1], dims[1:]):
             layers += [nn.Conv1d(a, b, 1), nn.LeakyReLU(0.2)]
         self.point_mlp = nn.Sequential(*layers)
-        self.out = _mlp([widths[-1], widths[-1] // 2, num_joints * 7])
+        self.out = _mlp([widths[-1], widths[-1] // 2, num_joints * 7 + int(root)])
         self.J = num_joints
+        self.root = root
         with torch.no_grad():
             self.out[-1].weight.mul_(0.01)
             bias = torch.zeros(num_joints, 7)
             bias[:, 3:6] = torch.tensor([0.0, 1.0, 0.0])
-            self.out[-1].bias.copy_(bias.reshape(-1))
+            self.out[-1].bias.copy_(torch.cat([bias.reshape(-1), torch.zeros(int(root))]))
+
+    def joint_bias(self) -> torch.Tensor:
+        """View ``(J, 7)`` of the output bias (pivot, axis, state per joint), for initialisation."""
+        return self.out[-1].bias[: self.J * 7].view(self.J, 7)
 
     def forward(self, shape: torch.Tensor):
         f = self.point_mlp(shape.transpose(1, 2)).max(dim=2).values
-        o = self.out(f).reshape(-1, self.J, 7)
+        raw = self.out(f)
+        o = raw[:, : self.J * 7].reshape(-1, self.J, 7)
         d = o[..., 3:6]
-        return o[..., :3], d / (d.norm(dim=-1, keepdim=True) + 1e-8), o[..., 6]
+        root = raw[:, -1] if self.root else None
+        return o[..., :3], d / (d.norm(dim=-1, keepdim=True) + 1e-8), o[..., 6], root
 
 
 class SCAPOModel(nn.Module):
@@ -130,7 +144,7 @@ class SCAPOModel(nn.Module):
         self.encoder = SE3Encoder(e)
         self.decoder = ShapeDecoder(e)
         self.keypoints = KeypointHead(e.code_dim, cfg.num_parts, cfg.head_width)
-        self.joints = JointHead(len(cfg.joint_types), cfg.joint_widths)
+        self.joints = JointHead(len(cfg.joint_types), cfg.joint_widths, cfg.root_motion)
         self.residual = _mlp([e.decoder_hidden[-1], cfg.head_width, cfg.template_points * 3])
         with torch.no_grad():
             self.residual[-1].weight.mul_(0.01)
@@ -163,11 +177,11 @@ class SCAPOModel(nn.Module):
         K, V, log_s = self.keypoints(enc.code)
         delta = self.residual(s1["F_x"]).reshape(-1, cfg.template_points, 3)
         Y = self.y_base.unsqueeze(0) + delta
-        c_x, d_x, a_x = self.joints(S_obj)
-        c_y, d_y, a_y = self.joints(Y)
+        c_x, d_x, a_x, b_x = self.joints(S_obj)
+        c_y, d_y, a_y, b_y = self.joints(Y)
         jt, jp, P = cfg.joint_types, cfg.joint_parts, cfg.num_parts
-        T_x = bone_transforms(jt, jp, d_x, c_x, a_x, P)  # canonical -> aligned input
-        T_y = bone_transforms(jt, jp, d_y, c_y, a_y, P)
+        T_x = bone_transforms(jt, jp, d_x, c_x, a_x, P, b_x)  # canonical -> aligned input
+        T_y = bone_transforms(jt, jp, d_y, c_y, a_y, P, b_y)
         T_x_inv, T_y_inv = invert(T_x), invert(T_y)
         w, W = skinning_weights(S_obj, K, V, log_s, cfg.gamma)
         S_star = blend(S_obj, w, T_x_inv)  # backward D^{o->c}
@@ -176,7 +190,7 @@ class SCAPOModel(nn.Module):
         S_hat = blend(S_star, w_star, T_x)  # forward D^{c->o}
         X_hat = S_hat @ R.transpose(1, 2) + t[:, None]
         # template cycle (keypoints carried into the template space by the cross-space maps)
-        T_xy = cross_space_transforms(jt, jp, P, c_x, d_x, a_x, c_y, d_y, a_y)
+        T_xy = cross_space_transforms(jt, jp, P, c_x, d_x, a_x, c_y, d_y, a_y, b_x, b_y)
         K_y = apply_per_part(T_xy, K)
         w_y, _ = skinning_weights(Y, K_y, V, log_s, cfg.gamma)
         Y_star = blend(Y, w_y, T_y_inv)
@@ -189,7 +203,8 @@ class SCAPOModel(nn.Module):
         return {
             "S_obj": S_obj, "K": K, "V": V, "log_scale": log_s, "w": w, "W": W,
             "Y": Y, "delta": delta, "pivot_x": c_x, "axis_x": d_x, "state_x": a_x,
-            "pivot_y": c_y, "axis_y": d_y, "state_y": a_y, "T_x": T_x, "T_y": T_y, "T_xy": T_xy,
+            "pivot_y": c_y, "axis_y": d_y, "state_y": a_y, "root_x": b_x, "root_y": b_y,
+            "T_x": T_x, "T_y": T_y, "T_xy": T_xy,
             "S_star": S_star, "K_star": K_star, "w_star": w_star, "S_hat": S_hat, "X_hat": X_hat,
             "K_y": K_y, "w_y": w_y, "Y_star": Y_star, "K_ystar": K_ystar, "w_ystar": w_ystar, "Y_hat": Y_hat,
             "S_x2y": S_x2y, "S_y2x": S_y2x,
@@ -206,7 +221,8 @@ class SCAPOModel(nn.Module):
     def predict(self, points: torch.Tensor) -> dict:
         """Inference on camera-frame points ``(B, N, 3)`` float32, metres (SPEC section 6 outputs).
 
-        Returns float32 tensors on the input's device: ``T_cam_obj (B, 4, 4)``; ``part_label (B, N)``
+        Returns float32 tensors on the input's device: ``T_cam_obj (B, 4, 4)`` (the base part's pose:
+        the stage-1 frame, moved by the root state when ``cfg.root_motion``); ``part_label (B, N)``
         int64 (argmax of the skinning weights) and ``weights (B, N, P)``; ``part_pose (B, P, 4, 4)``
         (canonical rest -> camera, metres); ``joint_axis (B, J, 3)``, ``joint_pivot (B, J, 3)``
         (camera frame, m), ``joint_state (B, J)`` (rad / m from the canonical rest state);
@@ -232,7 +248,7 @@ class SCAPOModel(nn.Module):
         prismatic = torch.tensor(self.cfg.joint_types, device=points.device) == 1
         state = torch.where(prismatic, out["state_x"] * scale[:, None], out["state_x"])
         return {
-            "T_cam_obj": G,
+            "T_cam_obj": part_pose[:, 0],
             "part_label": out["w"].argmax(-1),
             "weights": out["w"],
             "part_pose": part_pose,

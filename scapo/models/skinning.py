@@ -7,7 +7,8 @@ are ``(..., 4, 4)`` acting on column vectors.
   and ``w_i = softmax(-W_i / gamma)`` (the Mahalanobis skinning field).
 - :func:`joint_transform` / :func:`bone_transforms`: a revolute joint moves its child part by
   ``ExpSO3([d]_x a)`` about the line through the pivot ``c`` (translate to the pivot, rotate,
-  translate back); a prismatic joint by ``d * a``. The base part (slot 0) stays fixed; parts are
+  translate back); a prismatic joint by ``d * a``. The base part (slot 0) stays fixed unless a root
+  motion is given (it then moves about / along the root joint, see :func:`root_joint`); parts are
   chained along the kinematic tree.
 - :func:`blend`: ``T_i = sum_p w_i^p T^p`` applied to ``[s_i; 1]`` (Eq. 2-4).
 - :func:`cross_space_transforms`: ``T_X->Y`` per part (Sec. 3.2, cross-space alignment): the
@@ -82,15 +83,34 @@ def joint_transform(joint_type: int, axis: torch.Tensor, pivot: torch.Tensor, st
     raise ValueError(f"joint_type must be 0 (revolute) or 1 (prismatic), got {joint_type}")
 
 
+def root_joint(joint_parts) -> int:
+    """Index of the root joint: the first joint whose parent is the base part (slot 0).
+
+    Raises:
+        ValueError: no joint has the base as its parent.
+    """
+    for j, (pa, _) in enumerate(joint_parts):
+        if pa == 0:
+            return j
+    raise ValueError("no joint has the base part (slot 0) as its parent")
+
+
 def bone_transforms(joint_types, joint_parts, axis: torch.Tensor, pivot: torch.Tensor, state: torch.Tensor,
-                    num_parts: int) -> torch.Tensor:
+                    num_parts: int, root: torch.Tensor | None = None) -> torch.Tensor:
     """Per-part transforms ``T^p (B, P, 4, 4)`` from joints ``axis, pivot (B, J, 3)``, ``state (B, J)``.
 
-    The base part 0 is the identity; joint j moves its child part (``joint_parts[j] = (parent,
-    child)``) relative to its parent, composed along the tree (joints must list parents first).
+    The base part 0 is the identity, or, with a root motion ``root (B,)`` (rad / normalised units; an
+    addition to the paper, ``ModelConfig.root_motion``), the motion of the root joint
+    (:func:`root_joint`) by ``root``: the base then turns about (slides along) the root joint's axis,
+    which absorbs a canonical frame that sits between the base and its child. Joint j moves its child
+    part (``joint_parts[j] = (parent, child)``) relative to its parent, composed along the tree
+    (joints must list parents first).
     """
     B = axis.shape[0]
     eye = torch.eye(4, dtype=axis.dtype, device=axis.device).expand(B, 4, 4)
+    if root is not None:
+        r = root_joint(joint_parts)
+        eye = joint_transform(int(joint_types[r]), axis[:, r], pivot[:, r], root)
     T = [eye] + [None] * (num_parts - 1)
     for j, ((pa, ch), jt) in enumerate(zip(joint_parts, joint_types)):
         if T[pa] is None:
@@ -150,20 +170,29 @@ def rotation_between(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def cross_space_transforms(joint_types, joint_parts, num_parts: int, pivot_x, axis_x, state_x, pivot_y, axis_y,
-                           state_y) -> torch.Tensor:
+                           state_y, root_x: torch.Tensor | None = None, root_y: torch.Tensor | None = None
+                           ) -> torch.Tensor:
     """``T^p_{X->Y} (B, P, 4, 4)`` mapping the aligned input space to the template space.
 
     For the child of joint j: align the joint frames (``R_r d_x = d_y``; ``c_x -> c_y``), then move
     by the state difference about / along the template's joint: revolute
-    ``ExpSO3([d_y]_x (a_y - a_x))`` about ``c_y``, prismatic ``d_y (a_y - a_x)``. The base part
-    stays in place. ``T_{Y->X}`` is the per-part inverse.
+    ``ExpSO3([d]_x (a_y - a_x))`` about ``c_y``, prismatic ``d_y (a_y - a_x)``. The base part
+    stays in place; with root motions ``root_x, root_y (B,)`` (see :func:`bone_transforms`) it is
+    undone about the input's root joint and redone about the template's, and the children of the
+    base turn (slide) by ``root_y - root_x`` more about the template's root joint. ``T_{Y->X}`` is the per-part inverse.
     """
     B = pivot_x.shape[0]
     eye = torch.eye(4, dtype=pivot_x.dtype, device=pivot_x.device).expand(B, 4, 4)
-    T = [eye] + [None] * (num_parts - 1)
-    for j, ((_, ch), jt) in enumerate(zip(joint_parts, joint_types)):
+    base = T0 = None
+    if root_x is not None and root_y is not None:
+        r, rt = root_joint(joint_parts), int(joint_types[root_joint(joint_parts)])
+        base = joint_transform(rt, axis_y[:, r], pivot_y[:, r], root_y - root_x)  # children: after the align
+        T0 = joint_transform(rt, axis_y[:, r], pivot_y[:, r], root_y) @ joint_transform(rt, axis_x[:, r],
+                                                                                       pivot_x[:, r], -root_x)
+    T = [eye if base is None else T0] + [None] * (num_parts - 1)
+    for j, ((pa, ch), jt) in enumerate(zip(joint_parts, joint_types)):
         R_r = rotation_between(axis_x[:, j], axis_y[:, j])
         align = make_transform(R_r, pivot_y[:, j] - (R_r @ pivot_x[:, j].unsqueeze(-1)).squeeze(-1))
         move = joint_transform(int(jt), axis_y[:, j], pivot_y[:, j], state_y[:, j] - state_x[:, j])
-        T[ch] = move @ align
+        T[ch] = move @ align if base is None or pa != 0 else base @ move @ align
     return torch.stack(T, dim=1)

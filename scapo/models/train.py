@@ -61,7 +61,7 @@ def model_config(card: dict, preset: TrainConfig) -> ModelConfig:
     """The network's structure for a dataset's category (parts and joints from its card)."""
     return ModelConfig(num_parts=len(card["part_names"]), joint_types=tuple(card["joint_type"]),
                        joint_parts=tuple(tuple(p) for p in card["joint_parts"]), encoder=preset.encoder,
-                       template_points=preset.template_points, gamma=preset.gamma)
+                       template_points=preset.template_points, gamma=preset.gamma, root_motion=preset.root_motion)
 
 
 def resolve_device(name: str) -> torch.device:
@@ -255,7 +255,7 @@ class Trainer:
         kb = self.model.keypoints.net[-1].bias.view(self.mcfg.num_parts, -1)
         kb[:, :3] = K.to(kb)
         axes = part_init.estimate_axes(clouds, K, self.mcfg.joint_types, self.mcfg.joint_parts, generator=g)
-        jb = self.model.joints.out[-1].bias.view(len(self.mcfg.joint_types), -1)
+        jb = self.model.joints.joint_bias()
         for j, (parent, child) in enumerate(self.mcfg.joint_parts):
             pivot, axis = part_init.boundary_joint(template, K, parent, child)
             jb[j, :3] = pivot.to(jb)
