@@ -78,6 +78,9 @@ def test_checkpoint_of_another_config_is_refused(laptop_data, tmp_path):
     other = dataclasses.replace(TEST, name="other", stage2_epochs=2)
     with pytest.raises(TrainingError, match="trained with preset 'test'"):
         Trainer(laptop_data, tmp_path / "r", other, progress=False).train()
+    same_name = dataclasses.replace(TEST, root_motion=True, losses=dataclasses.replace(TEST.losses, seg=2.0))
+    with pytest.raises(TrainingError, match=r"differ: losses\.seg, root_motion"):
+        Trainer(laptop_data, tmp_path / "r", same_name, progress=False).train()
     (tmp_path / "broken").mkdir()
     (tmp_path / "broken" / "checkpoint.pt").write_bytes(b"garbage")
     with pytest.raises(TrainingError, match="cannot be read"):

@@ -64,6 +64,18 @@ def model_config(card: dict, preset: TrainConfig) -> ModelConfig:
                        template_points=preset.template_points, gamma=preset.gamma, root_motion=preset.root_motion)
 
 
+def _changed_fields(old: dict, new: dict, prefix: str = "") -> list[str]:
+    """Dotted names of the entries that differ between two (nested) preset dicts."""
+    out = []
+    for k in sorted(set(old) | set(new)):
+        a, b = old.get(k), new.get(k)
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _changed_fields(a, b, f"{prefix}{k}.")
+        elif a != b:
+            out.append(f"{prefix}{k}")
+    return out
+
+
 def resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -135,10 +147,12 @@ class Trainer:
             raise TrainingError(f"checkpoint {path} cannot be read ({e}); delete it to start over") from e
         if state.get("identity_hash") != _hash(self.identity):
             old = state.get("identity", {})
+            changed = _changed_fields(old.get("preset", {}), self.identity["preset"])
+            what = f" (preset fields that differ: {', '.join(changed)})" if changed else ""
             raise TrainingError(
                 f"{path} was trained with preset {old.get('preset', {}).get('name')!r} on the {old.get('category')!r} "
                 f"dataset {str(old.get('dataset_hash'))[:12]}..., not with preset {self.preset.name!r} on "
-                f"{self.card['category']!r} dataset {self.card['dataset_hash'][:12]}...; use another --out folder")
+                f"{self.card['category']!r} dataset {self.card['dataset_hash'][:12]}...{what}; use another --out folder")
         return state
 
     # ------------------------------------------------------------------ training
