@@ -64,7 +64,8 @@ PRESETS.add("cpu", TrainConfig(
     # stage 2 needs 16 epochs and lr 3e-4 (the paper: 1e-4) for the joint states to spread within the CPU
     # budget (lap70, full runs: lr 1e-4 -> D 8.7, R 36.5; 3e-4 -> D 6.5, R 34.9 deg). root_motion: the
     # stage-1 frame sits between a laptop's base and screen; letting the base turn about the hinge
-    # (stage 2 alone from one stage-1 encoder: state error 43.6 -> 17.9, R 34.9 -> 29.4, D 6.5 -> 5.7 deg)
+    # (full lap70 run: R 34.9 -> 32.2, t 0.090 -> 0.078, D 6.5 -> 7.9 deg, S 82.6 -> 82.8; stage 2 alone
+    # from an earlier stage-1 encoder: R 29.4, D 5.7, S 69.5)
     name="cpu", stage1_epochs=20, stage2_epochs=16, lr_stage2=3e-4, batch_size=16, train_points=256,
     max_steps_per_epoch=100, root_motion=True,
     encoder=EncoderConfig(k=8, rot_channels=(16, 32, 64), trans_channels=(8, 16), code_dim=16,

@@ -152,7 +152,8 @@ class Trainer:
             raise TrainingError(
                 f"{path} was trained with preset {old.get('preset', {}).get('name')!r} on the {old.get('category')!r} "
                 f"dataset {str(old.get('dataset_hash'))[:12]}..., not with preset {self.preset.name!r} on "
-                f"{self.card['category']!r} dataset {self.card['dataset_hash'][:12]}...{what}; use another --out folder")
+                f"{self.card['category']!r} dataset {self.card['dataset_hash'][:12]}...{what}; "
+                "use another --out folder")
         return state
 
     # ------------------------------------------------------------------ training
