@@ -185,7 +185,8 @@ def cross_space_transforms(joint_types, joint_parts, num_parts: int, pivot_x, ax
     eye = torch.eye(4, dtype=pivot_x.dtype, device=pivot_x.device).expand(B, 4, 4)
     base = T0 = None
     if root_x is not None and root_y is not None:
-        r, rt = root_joint(joint_parts), int(joint_types[root_joint(joint_parts)])
+        r = root_joint(joint_parts)
+        rt = int(joint_types[r])
         base = joint_transform(rt, axis_y[:, r], pivot_y[:, r], root_y - root_x)  # children: after the align
         T0 = joint_transform(rt, axis_y[:, r], pivot_y[:, r], root_y) @ joint_transform(rt, axis_x[:, r],
                                                                                        pivot_x[:, r], -root_x)
