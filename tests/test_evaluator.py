@@ -10,8 +10,10 @@ from scapo.eval import Predictions, evaluate
 from scapo.geometry import as_transform
 
 
-def oracle(data, split, perm=None, offsets=None, needs_alignment=False, state_offset=0.0, flip_axis=False):
-    """Ground truth written as predictions; optionally with permuted slots and per-part frame offsets."""
+def oracle(data, split, perm=None, offsets=None, needs_alignment=False, state_offset=0.0, flip_axis=False,
+           reverse_joints=False):
+    """Ground truth written as predictions; optionally with permuted slots and per-part frame offsets, and
+    with every joint written the other way round (parent and child exchanged, so the state negated)."""
     ds = load(data, split)
     a = ds.arrays()
     P = ds.num_parts
@@ -22,9 +24,12 @@ def oracle(data, split, perm=None, offsets=None, needs_alignment=False, state_of
         poses = poses @ np.linalg.inv(offsets)[None]
     axis = -a["joint_axis"] if flip_axis else a["joint_axis"]
     state = (-1 if flip_axis else 1) * (a["joint_state"] - state_offset)
+    joint_parts = perm[a["joint_parts"]]
+    if reverse_joints:
+        joint_parts, state = joint_parts[..., ::-1].copy(), -state
     return Predictions(
         method="oracle", instance_id=a["instance_id"], view_id=a["view_id"], split=np.full(len(ds), split),
-        part_label=perm[a["part_label"]], part_pose=poses[:, inv], joint_parts=perm[a["joint_parts"]],
+        part_label=perm[a["part_label"]], part_pose=poses[:, inv], joint_parts=joint_parts,
         joint_type=a["joint_type"], joint_axis=axis, joint_pivot=a["joint_pivot"], joint_state=state,
         T_cam_obj=a["T_cam_obj"], needs_alignment=needs_alignment, dataset_hash=ds.dataset_hash)
 
@@ -45,6 +50,15 @@ def test_permuted_slots_are_matched(laptop_data):
     assert_perfect(res.summary)
     res = evaluate(laptop_data, oracle(laptop_data, "test", perm=[1, 0]), protocol="per-category")
     assert_perfect(res.summary)
+
+
+def test_a_joint_written_from_child_to_parent_has_its_state_negated(laptop_data):
+    # a self-supervised model may call the screen its base: its joint then runs screen -> base and its
+    # state is the base's motion relative to the screen, the negative of the GT state
+    assert_perfect(evaluate(laptop_data, oracle(laptop_data, "test", perm=[1, 0], reverse_joints=True)).summary)
+    kw = dict(perm=[1, 0], needs_alignment=True, state_offset=0.3, flip_axis=True, reverse_joints=True)
+    preds = Predictions.concatenate([oracle(laptop_data, "test", **kw), oracle(laptop_data, "train", **kw)])
+    assert_perfect(evaluate(laptop_data, preds).summary)
 
 
 def test_canonical_frame_offsets_are_estimated_from_training_predictions(laptop_data):

@@ -161,3 +161,33 @@ def test_root_motion_run_round_trips_and_its_poses_are_consistent(laptop_data, t
         ref = joint_motion(0, o["joint_axis"][b, 0].astype(np.float64), o["joint_pivot"][b, 0].astype(np.float64),
                            float(o["joint_state"][b, 0]))
         np.testing.assert_allclose(rel, ref, atol=1e-4)
+
+
+def test_refinement_is_an_inference_setting_and_keeps_poses_consistent(laptop_data, tmp_path):
+    from scapo.geometry import joint_motion
+    from scapo.models.refine import RefineConfig
+
+    run = tmp_path / "run"
+    Trainer(laptop_data, run, dataclasses.replace(TEST, root_motion=True), progress=False).train()
+    # another refinement setting is the same run: the finished checkpoint is accepted, not refused
+    Trainer(laptop_data, run, dataclasses.replace(TEST, root_motion=True, refine=RefineConfig(steps=4)),
+            progress=False).train()
+    assert load_model(run).refine.steps == 0  # the run's own preset: off
+    pred = load_model(run, refine_steps=8)
+    assert pred.refine.steps == 8
+    pts = np.random.default_rng(0).normal(size=(3, 200, 3)).astype(np.float32) * 0.1 + [0, 0, 1.5]
+    plain, o = load_model(run).predict(pts), pred.predict(pts)
+    assert not np.allclose(plain["part_pose"], o["part_pose"])  # the fit moved the pose
+    np.testing.assert_allclose(o["weights"].sum(-1), 1.0, atol=1e-5)
+    np.testing.assert_array_equal(o["part_label"], o["weights"].argmax(-1))
+    np.testing.assert_allclose(o["T_cam_obj"], o["part_pose"][:, 0], atol=1e-6)
+    for b in range(3):
+        rel = o["part_pose"][b, 1] @ np.linalg.inv(o["part_pose"][b, 0])
+        ref = joint_motion(0, o["joint_axis"][b, 0].astype(np.float64), o["joint_pivot"][b, 0].astype(np.float64),
+                           float(o["joint_state"][b, 0]))
+        np.testing.assert_allclose(rel, ref, atol=1e-4)
+    # a view's refined answer does not depend on the other views of its batch
+    one = pred.predict(pts[1:2])
+    np.testing.assert_allclose(one["part_pose"][0], o["part_pose"][1], atol=1e-4)
+    preds = run_method("scapo", laptop_data, tmp_path / "p.npz", run=run, refine_steps=3, label="scapo-refined")
+    assert preds.method == "scapo-refined" and preds.info["refine_steps"] == 3

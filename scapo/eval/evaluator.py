@@ -88,7 +88,11 @@ def _match(preds: Predictions, rows: np.ndarray, gt_label: np.ndarray, P: int, p
 
 
 def _gather(preds: Predictions, rows: np.ndarray, slots: np.ndarray, gt_joint_parts: np.ndarray):
-    """Predicted poses per GT part and predicted joints per GT joint (with a matched flag)."""
+    """Predicted poses per GT part and predicted joints per GT joint (with a matched flag).
+
+    A predicted joint matches a GT joint when it links the same two parts, in either order; when its
+    parent is the GT child, its state is negated (the motion of the parent relative to the child).
+    """
     M, P = slots.shape
     J = gt_joint_parts.shape[0]
     pose = np.tile(np.eye(4), (M, P, 1, 1))
@@ -104,8 +108,12 @@ def _gather(preds: Predictions, rows: np.ndarray, slots: np.ndarray, gt_joint_pa
             want = {int(slots[m, a]), int(slots[m, b])}
             for k in range(len(pj)):
                 if {int(pj[k, 0]), int(pj[k, 1])} == want:
+                    # a joint matched with parent and child exchanged describes the inverse motion
+                    # (the parent moves by -state relative to the child), so its state changes sign
+                    reverse = int(pj[k, 0]) != int(slots[m, a])
                     axis[m, j], pivot[m, j] = preds.joint_axis[r, k], preds.joint_pivot[r, k]
-                    state[m, j], matched[m, j] = preds.joint_state[r, k], True
+                    state[m, j] = -preds.joint_state[r, k] if reverse else preds.joint_state[r, k]
+                    matched[m, j] = True
                     break
     return pose, axis, pivot, state, matched
 

@@ -29,7 +29,8 @@ CATEGORY_ORDER = ("laptop", "safe", "eyeglasses", "oven", "washer", "basket", "d
 TABLE1_BLOCKS = ("S", "D", "C", "R", "t")
 
 #: Display names of methods in tables (the paper's names for its own rows).
-DISPLAY_NAMES = {"icp": "ICP", "scapo": "SCAPO (ours)", "opalign": "OP-Align-style", "eap": "EAP-style",
+DISPLAY_NAMES = {"icp": "ICP", "scapo": "SCAPO (ours)", "scapo-no-refine": "SCAPO (ours, no refinement)",
+                 "opalign": "OP-Align-style", "eap": "EAP-style",
                  "npcs": "NPCS-style (supervised)"}
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from scapo.data.dataset import ArticulationDataset
 from scapo.errors import TrainingError
 from scapo.eval.predictions import Predictions
 from scapo.models.encoder import EncoderConfig
+from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.models.train import resolve_device
 
@@ -28,17 +30,23 @@ def _model_config(d: dict) -> ModelConfig:
 class Predictor:
     """A trained SCAPO model ready for inference (``scapo.models.load(run)``)."""
 
-    def __init__(self, model: SCAPOModel, identity: dict, device: torch.device):
+    def __init__(self, model: SCAPOModel, identity: dict, device: torch.device, refine: RefineConfig | None = None):
         self.model = model.to(device).eval()
         self.identity = identity
         self.device = device
+        self.refine = refine if refine is not None else RefineConfig()
 
     @classmethod
-    def load(cls, run: str | Path, device: str | None = None) -> Predictor:
+    def load(cls, run: str | Path, device: str | None = None, refine_steps: int | None = None) -> Predictor:
         """Load ``run/checkpoint.pt``.
+
+        The test-time refinement (:mod:`scapo.models.refine`) follows the run's preset
+        (``TrainConfig.refine``; off for runs from before it existed); ``refine_steps`` overrides its
+        number of steps (0 turns it off).
 
         Raises:
             TrainingError: missing, unreadable or unfinished checkpoint.
+            ValueError: negative ``refine_steps``.
         """
         path = Path(run) / "checkpoint.pt"
         if not path.is_file():
@@ -53,10 +61,16 @@ class Predictor:
         if not state.get("done"):
             raise TrainingError(f"{path} is from an unfinished run (stage {state.get('stage')}, epoch "
                                 f"{state.get('epoch')}); resume it with 'scapo train' first")
-        return cls(model, state["identity"], dev)
+        refine = RefineConfig(**state["identity"].get("preset", {}).get("refine", {}))
+        if refine_steps is not None:
+            refine = dataclasses.replace(refine, steps=int(refine_steps))
+        return cls(model, state["identity"], dev, refine)
 
     def predict(self, points, batch_size: int = 32) -> dict[str, np.ndarray]:
         """Predict for ``points (B, N, 3)`` float32 camera-frame metres (numpy or torch).
+
+        With refinement on (``self.refine.steps > 0``) each batch is also fitted to its points
+        (:mod:`scapo.models.refine`); a view's result does not depend on the other views of its batch.
 
         Returns numpy arrays (float32 / int64): ``T_cam_obj (B,4,4)``, ``part_label (B,N)``,
         ``weights (B,N,P)``, ``part_pose (B,P,4,4)``, ``joint_axis (B,J,3)``, ``joint_pivot (B,J,3)``,
@@ -72,7 +86,7 @@ class Predictor:
             raise ValueError("points contain NaN or inf")
         outs = []
         for k in range(0, len(pts), batch_size):
-            o = self.model.predict(pts[k:k + batch_size].to(self.device))
+            o = self.model.predict(pts[k:k + batch_size].to(self.device), self.refine)
             outs.append({n: v.cpu().numpy() for n, v in o.items()})
         return {n: np.concatenate([o[n] for o in outs]) for n in outs[0]}
 
@@ -85,11 +99,14 @@ class SCAPOMethod:
     supervision = {"pose": False, "segmentation": False, "joint": False}
 
     def __init__(self, run: str | Path | None = None, preset: str = "cpu", device: str | None = None,
-                 progress: bool = False, batch_size: int = 32):
+                 progress: bool = False, batch_size: int = 32, refine_steps: int | None = None,
+                 label: str = "scapo"):
         if run is None:
             raise TrainingError("the scapo method needs a run folder (option run=...)")
         self.run, self.preset, self.device, self.progress, self.batch_size = Path(run), preset, device, progress, \
             batch_size
+        self.refine_steps = refine_steps
+        self.label = str(label)
         self.predictor: Predictor | None = None
 
     def fit(self, train: ArticulationDataset) -> None:
@@ -103,7 +120,7 @@ class SCAPOMethod:
             if state is not None and "identity" in state:
                 preset = preset_from_dict(state["identity"]["preset"])
             Trainer(train.root, self.run, preset, self.progress, self.device).train()
-        self.predictor = Predictor.load(self.run, self.device)
+        self.predictor = Predictor.load(self.run, self.device, self.refine_steps)
         if self.predictor.identity["dataset_hash"] != train.dataset_hash:
             # a model trained on another dataset of the same category is allowed; note it
             self.trained_on = self.predictor.identity["dataset_hash"]
@@ -116,7 +133,7 @@ class SCAPOMethod:
         M = len(a["points"])
         mc = self.predictor.model.cfg
         return Predictions(
-            method=self.name, instance_id=a["instance_id"], view_id=a["view_id"], split=np.full(M, dataset.split),
+            method=self.label, instance_id=a["instance_id"], view_id=a["view_id"], split=np.full(M, dataset.split),
             part_label=o["part_label"], part_pose=o["part_pose"].astype(np.float64),
             joint_parts=np.tile(np.array(mc.joint_parts), (M, 1, 1)), joint_type=np.tile(np.array(mc.joint_types),
                                                                                          (M, 1)),
@@ -125,13 +142,16 @@ class SCAPOMethod:
             needs_alignment=True, supervision=dict(self.supervision),
             info={"run": str(self.run), "preset": self.predictor.identity["preset"]["name"],
                   "trained_on": self.predictor.identity["dataset_hash"],
+                  "refine_steps": self.predictor.refine.steps,
                   "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2)},
         )
 
 
 @METHODS.register("scapo")
 def make_scapo(**options) -> SCAPOMethod:
-    """SCAPO (ours); options: run (folder), preset, device, progress, batch_size."""
+    """SCAPO (ours); options: run (folder), preset, device, progress, batch_size, refine_steps (test-time
+    refinement steps; default: the run's preset), label (the method name written into the predictions,
+    e.g. ``scapo-no-refine`` for a second row of the same run)."""
     return SCAPOMethod(**options)
 
 

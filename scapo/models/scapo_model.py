@@ -24,6 +24,7 @@ import torch
 from torch import nn
 
 from scapo.models.encoder import EncoderConfig, SE3Encoder, ShapeDecoder
+from scapo.models.refine import RefineConfig, refine_articulation
 from scapo.models.skinning import (
     apply_per_part,
     blend,
@@ -218,8 +219,13 @@ class SCAPOModel(nn.Module):
 
     # ------------------------------------------------------------------ inference
     @torch.no_grad()
-    def predict(self, points: torch.Tensor) -> dict:
+    def predict(self, points: torch.Tensor, refine: RefineConfig | None = None) -> dict:
         """Inference on camera-frame points ``(B, N, 3)`` float32, metres (SPEC section 6 outputs).
+
+        With ``refine`` (``steps > 0``) the pose, joint states and joints come from the test-time
+        articulated refinement (:mod:`scapo.models.refine`, an addition to the paper): the frame and
+        states are fitted to the observed points, the joints are the template's (``c_Y, d_Y``) and each
+        point's weights are those of its nearest point of the fitted template.
 
         Returns float32 tensors on the input's device: ``T_cam_obj (B, 4, 4)`` (the base part's pose:
         the stage-1 frame, moved by the root state when ``cfg.root_motion``); ``part_label (B, N)``
@@ -236,24 +242,30 @@ class SCAPOModel(nn.Module):
         finally:
             self.train(was_training)
         enc = out["enc"]
+        R, t, T, pivot, axis, state = enc.R, enc.t, out["T_x"], out["pivot_x"], out["axis_x"], out["state_x"]
+        weights = out["w"]
+        if refine is not None and refine.steps > 0:
+            r = refine_articulation(self.cfg, X, out, refine)
+            R, t, T, pivot, axis, state = r["R"], r["t"], r["T"], r["pivot"], r["axis"], r["state"]
+            weights = r["weights"]
         B = points.shape[0]
         sc = scale[:, None, None]
         G = torch.zeros(B, 4, 4, dtype=points.dtype, device=points.device)
-        G[:, :3, :3] = enc.R
-        G[:, :3, 3] = enc.t * scale[:, None]
+        G[:, :3, :3] = R
+        G[:, :3, 3] = t * scale[:, None]
         G[:, 3, 3] = 1.0
-        T = out["T_x"].clone()
+        T = T.clone()
         T[..., :3, 3] = T[..., :3, 3] * scale[:, None, None]
         part_pose = G.unsqueeze(1) @ T
         prismatic = torch.tensor(self.cfg.joint_types, device=points.device) == 1
-        state = torch.where(prismatic, out["state_x"] * scale[:, None], out["state_x"])
+        state = torch.where(prismatic, state * scale[:, None], state)
         return {
             "T_cam_obj": part_pose[:, 0],
-            "part_label": out["w"].argmax(-1),
-            "weights": out["w"],
+            "part_label": weights.argmax(-1),
+            "weights": weights,
             "part_pose": part_pose,
-            "joint_axis": out["axis_x"] @ enc.R.transpose(1, 2),
-            "joint_pivot": (out["pivot_x"] @ enc.R.transpose(1, 2) + enc.t[:, None]) * sc,
+            "joint_axis": axis @ R.transpose(1, 2),
+            "joint_pivot": (pivot @ R.transpose(1, 2) + t[:, None]) * sc,
             "joint_state": state,
             "canonical_shape": out["S_star"] * sc,
             "template": out["Y"] * sc,

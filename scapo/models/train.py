@@ -25,6 +25,7 @@ from scapo.errors import DatasetError, TrainingError
 from scapo.losses import LossConfig, stage1_terms, stage2_terms, weighted_total
 from scapo.models.encoder import EncoderConfig
 from scapo.models.presets import PRESETS, TrainConfig
+from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 
 
@@ -82,13 +83,22 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
+#: preset fields that only affect inference; a checkpoint is not refused when they differ
+INFERENCE_FIELDS = ("refine",)
+
+
 def _run_identity(preset: TrainConfig, card: dict) -> dict:
     return {"preset": dataclasses.asdict(preset), "dataset_hash": card["dataset_hash"], "category": card["category"],
             "part_names": card["part_names"], "joint_type": card["joint_type"], "joint_parts": card["joint_parts"]}
 
 
-def _hash(obj: dict) -> str:
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+def _training_identity(identity: dict) -> dict:
+    """``identity`` without the preset's inference-only fields (what decides whether a checkpoint fits)."""
+    return {**identity, "preset": {k: v for k, v in identity.get("preset", {}).items() if k not in INFERENCE_FIELDS}}
+
+
+def _identity_hash(obj: dict) -> str:
+    return hashlib.sha256(json.dumps(_training_identity(obj), sort_keys=True, default=str).encode()).hexdigest()
 
 
 def preset_from_dict(d: dict) -> TrainConfig:
@@ -97,6 +107,7 @@ def preset_from_dict(d: dict) -> TrainConfig:
     loss = dict(d["losses"])
     loss["disabled"] = tuple(loss.get("disabled", ()))
     d["losses"] = LossConfig(**loss)
+    d["refine"] = RefineConfig(**d.get("refine", {}))  # runs from before the refinement existed: off
     return TrainConfig(**d)
 
 
@@ -145,9 +156,9 @@ class Trainer:
             state = torch.load(path, map_location=self.device, weights_only=False)
         except Exception as e:  # noqa: BLE001 - torch raises many kinds for a broken file
             raise TrainingError(f"checkpoint {path} cannot be read ({e}); delete it to start over") from e
-        if state.get("identity_hash") != _hash(self.identity):
+        if state.get("identity_hash") != _identity_hash(self.identity):
             old = state.get("identity", {})
-            changed = _changed_fields(old.get("preset", {}), self.identity["preset"])
+            changed = _changed_fields(_training_identity(old)["preset"], _training_identity(self.identity)["preset"])
             what = f" (preset fields that differ: {', '.join(changed)})" if changed else ""
             raise TrainingError(
                 f"{path} was trained with preset {old.get('preset', {}).get('name')!r} on the {old.get('category')!r} "
@@ -208,7 +219,7 @@ class Trainer:
                     nxt = (stage, epoch + 1) if epoch + 1 < epochs else (stage + 1, 0)
                     self._save({"model": self.model.state_dict(), "optimizer": opt.state_dict(),
                                 "scheduler": sched.state_dict(), "stage": nxt[0], "epoch": nxt[1], "done": done,
-                                "identity": self.identity, "identity_hash": _hash(self.identity),
+                                "identity": self.identity, "identity_hash": _identity_hash(self.identity),
                                 "model_config": dataclasses.asdict(self.mcfg)})
                     plot_losses(log_path, self.run / "losses.png")
         finally:

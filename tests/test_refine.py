@@ -1,0 +1,94 @@
+"""Test-time articulated refinement: a known articulated motion is recovered from a wrong start."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from scapo.models.refine import RefineConfig, posed_template, refine_articulation, rotation_from_rotvec
+from scapo.models.scapo_model import ModelConfig
+
+CFG = ModelConfig(num_parts=2, joint_types=(0,), joint_parts=((0, 1),))
+
+
+def two_slabs(n: int = 300) -> tuple[torch.Tensor, torch.Tensor]:
+    """A laptop-like rest shape: a base slab (part 0) and an upright screen slab (part 1) hinged along y
+    at x = 0.3, z = 0; one-hot skinning weights. Returns (points (1, 2n, 3), weights (1, 2n, 2))."""
+    g = torch.Generator().manual_seed(0)
+    base = torch.rand(n, 3, generator=g) * torch.tensor([0.6, 0.8, 0.05]) + torch.tensor([-0.3, -0.4, -0.05])
+    screen = torch.rand(n, 3, generator=g) * torch.tensor([0.03, 0.8, 0.5]) + torch.tensor([0.27, -0.4, 0.0])
+    w = torch.zeros(2 * n, 2)
+    w[:n, 0], w[n:, 1] = 1.0, 1.0
+    return torch.cat([base, screen])[None], w[None]
+
+
+def fake_forward(rest, w, state0, R0, t0, root0=None):
+    """The slice of ``SCAPOModel.forward`` outputs that the refinement reads."""
+    return {"enc": SimpleNamespace(R=R0, t=t0), "pivot_y": torch.tensor([[[0.3, 0.0, 0.0]]]),
+            "axis_y": torch.tensor([[[0.0, 1.0, 0.0]]]), "Y_star": rest, "w_ystar": w,
+            "state_x": state0, "root_x": root0}
+
+
+def test_posed_template_moves_only_the_child_by_the_joint_state():
+    rest, w = two_slabs()
+    out = fake_forward(rest, w, None, None, None)
+    eye, zero = torch.eye(3)[None], torch.zeros(1, 3)
+    pts, T = posed_template(CFG.joint_types, CFG.joint_parts, 2, rest, w, out["pivot_y"], out["axis_y"],
+                            torch.tensor([[0.0]]), None, eye, zero)
+    torch.testing.assert_close(pts, rest)
+    pts, T = posed_template(CFG.joint_types, CFG.joint_parts, 2, rest, w, out["pivot_y"], out["axis_y"],
+                            torch.tensor([[np.pi / 2]]), None, eye, zero)
+    n = rest.shape[1] // 2
+    torch.testing.assert_close(pts[:, :n], rest[:, :n])
+    # a quarter turn about +y through (0.3, 0, 0): (x, z) -> (0.3 + z, -(x - 0.3))
+    ref = torch.stack([0.3 + rest[0, n:, 2], rest[0, n:, 1], -(rest[0, n:, 0] - 0.3)], -1)
+    torch.testing.assert_close(pts[0, n:], ref, atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("root", [False, True])
+def test_refinement_recovers_a_known_pose_and_joint_state(root):
+    rest, w = two_slabs()
+    R_true = rotation_from_rotvec(torch.tensor([[0.10, -0.15, 0.05]]))
+    t_true = torch.tensor([[0.05, -0.03, 0.02]])
+    a_true = torch.tensor([[0.6]])
+    out = fake_forward(rest, w, None, None, None)
+    obs, _ = posed_template(CFG.joint_types, CFG.joint_parts, 2, rest, w, out["pivot_y"], out["axis_y"], a_true,
+                            None, R_true, t_true)
+    # the network's (wrong) answer: identity frame, half the joint state
+    out = fake_forward(rest, w, torch.tensor([[0.3]]), torch.eye(3)[None], torch.zeros(1, 3),
+                       torch.zeros(1) if root else None)
+    r = refine_articulation(CFG, obs, out, RefineConfig(steps=200, lr=0.02, points=600))
+    assert r["residual"].item() < 0.02 * r["residual_start"].item()
+    # the fitted articulated pose: base frame and child frame agree with the truth
+    R_base = r["R"] @ r["T"][:, 0, :3, :3]
+    R_child = r["R"] @ r["T"][:, 1, :3, :3]
+    child_true = R_true @ rotation_from_rotvec(torch.tensor([[0.0, 0.6, 0.0]]))
+    for R, ref in ((R_base, R_true), (R_child, child_true)):
+        cos = ((R.transpose(1, 2) @ ref).diagonal(dim1=1, dim2=2).sum(-1) - 1) / 2
+        angle = torch.arccos(cos.clamp(-1.0, 1.0))
+        assert np.degrees(angle.item()) < 1.5
+    assert r["state"].item() == pytest.approx(0.6, abs=0.03)  # the child's turn relative to the base
+    torch.testing.assert_close(r["pivot"], out["pivot_y"])
+
+
+def test_refinement_settings_are_checked():
+    with pytest.raises(ValueError, match="steps"):
+        RefineConfig(steps=-1)
+    rest, w = two_slabs()
+    out = fake_forward(rest, w, torch.zeros(1, 1), torch.eye(3)[None], torch.zeros(1, 3))
+    with pytest.raises(ValueError, match="steps > 0"):
+        refine_articulation(CFG, rest, out, RefineConfig(steps=0))
+
+
+def test_refined_segmentation_follows_the_fitted_template():
+    rest, w = two_slabs()
+    out = fake_forward(rest, w, None, None, None)
+    a_true = torch.tensor([[0.6]])
+    obs, _ = posed_template(CFG.joint_types, CFG.joint_parts, 2, rest, w, out["pivot_y"], out["axis_y"], a_true,
+                            None, torch.eye(3)[None], torch.zeros(1, 3))
+    out = fake_forward(rest, w, torch.tensor([[0.3]]), torch.eye(3)[None], torch.zeros(1, 3))
+    r = refine_articulation(CFG, obs, out, RefineConfig(steps=150, points=600))
+    assert r["weights"].shape == (1, rest.shape[1], 2)
+    truth = w.argmax(-1)  # the observation is the template itself, in the same point order
+    assert (r["weights"].argmax(-1) == truth).float().mean() > 0.98
