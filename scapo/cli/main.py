@@ -117,7 +117,7 @@ def cmd_predict(args) -> int:
     if method is None:
         raise ScapoError("give --method NAME (see 'scapo list') or --run RUN (a trained SCAPO run)")
     preds = run_method(method, args.data, args.out, **opts)
-    print(f"wrote {args.out}: {len(preds)} predictions of {method} "
+    print(f"wrote {args.out}: {len(preds)} predictions of {preds.method} "
           f"({preds.info.get('ms_per_cloud_test', float('nan')):.1f} ms per test cloud)")
     return 0
 
