@@ -19,7 +19,9 @@ started from the network's answer:
 Measured on the laptop benchmark (lap70, the cpu preset run trained at 965fa32; 60 steps, 384
 points): part rotation error R 32.2 -> 27.4 deg, joint direction error D 7.9 -> 3.9 deg, segmentation
 IoU S 82.8 -> 85.6 % (ICP with the GT segmentation: R 29.7, D 5.6). 40 steps on 256 points: R 28.3,
-D 4.7; 100 steps at lr 0.01: R 27.7, D 3.9; adding a trimmed template -> observation term: no change.
+D 4.7; 30 steps at lr 0.04: R 27.7, D 4.2; 20 steps at lr 0.06: R 28.3, D 4.6 (about 80 ms per cloud
+at batch 1 on 2 cores with the network, against 179 ms for 60 steps); 100 steps at lr 0.01: R 27.7,
+D 3.9; adding a trimmed template -> observation term: no change.
 Posing the template with the input's joints (``c_X, d_X``) instead of its own: D 9.6. Flipped starts
 (180 deg about a canonical axis, best residual wins) made it worse: a laptop's slabs fit nearly as
 well upside down (R 27.4 -> 54.7).
