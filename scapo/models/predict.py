@@ -14,6 +14,7 @@ from scapo.data.dataset import ArticulationDataset
 from scapo.errors import TrainingError
 from scapo.eval.predictions import Predictions
 from scapo.models.encoder import EncoderConfig
+from scapo.models.presets import PRESETS
 from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.models.train import resolve_device
@@ -40,9 +41,10 @@ class Predictor:
     def load(cls, run: str | Path, device: str | None = None, refine_steps: int | None = None) -> Predictor:
         """Load ``run/checkpoint.pt``.
 
-        The test-time refinement (:mod:`scapo.models.refine`) follows the run's preset
-        (``TrainConfig.refine``; off for runs from before it existed); ``refine_steps`` overrides its
-        number of steps (0 turns it off).
+        The test-time refinement (:mod:`scapo.models.refine`) follows the current definition of the
+        run's preset (``TrainConfig.refine``; it is an inference setting, not part of the run), or the
+        settings stored with the run when its preset is not a registered one; ``refine_steps``
+        overrides its number of steps (0 turns it off).
 
         Raises:
             TrainingError: missing, unreadable or unfinished checkpoint.
@@ -61,7 +63,11 @@ class Predictor:
         if not state.get("done"):
             raise TrainingError(f"{path} is from an unfinished run (stage {state.get('stage')}, epoch "
                                 f"{state.get('epoch')}); resume it with 'scapo train' first")
-        refine = RefineConfig(**state["identity"].get("preset", {}).get("refine", {}))
+        stored = state["identity"].get("preset", {})
+        if stored.get("name") in PRESETS.names():  # an inference setting follows the preset's current definition
+            refine = PRESETS.get(stored["name"]).refine
+        else:
+            refine = RefineConfig(**stored.get("refine", {}))
         if refine_steps is not None:
             refine = dataclasses.replace(refine, steps=int(refine_steps))
         return cls(model, state["identity"], dev, refine)
