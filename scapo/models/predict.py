@@ -17,7 +17,7 @@ from scapo.models.encoder import EncoderConfig
 from scapo.models.presets import PRESETS
 from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
-from scapo.models.train import resolve_device
+from scapo.models.train import preset_from_dict, resolve_device
 
 
 def _model_config(d: dict) -> ModelConfig:
@@ -63,11 +63,10 @@ class Predictor:
         if not state.get("done"):
             raise TrainingError(f"{path} is from an unfinished run (stage {state.get('stage')}, epoch "
                                 f"{state.get('epoch')}); resume it with 'scapo train' first")
-        stored = state["identity"].get("preset", {})
-        if stored.get("name") in PRESETS.names():  # an inference setting follows the preset's current definition
-            refine = PRESETS.get(stored["name"]).refine
-        else:
-            refine = RefineConfig(**stored.get("refine", {}))
+        stored = state["identity"]["preset"]
+        # an inference setting follows the preset's current definition when the preset is registered
+        registered = stored.get("name") in PRESETS.names()
+        refine = (PRESETS.get(stored["name"]) if registered else preset_from_dict(stored)).refine
         if refine_steps is not None:
             refine = dataclasses.replace(refine, steps=int(refine_steps))
         return cls(model, state["identity"], dev, refine)
@@ -117,7 +116,7 @@ class SCAPOMethod:
 
     def fit(self, train: ArticulationDataset) -> None:
         """Finish (or start) training into ``run``; an unfinished run resumes with its own preset."""
-        from scapo.models.train import Trainer, preset_from_dict
+        from scapo.models.train import Trainer
 
         ck = self.run / "checkpoint.pt"
         state = torch.load(ck, map_location="cpu", weights_only=False) if ck.is_file() else None

@@ -113,12 +113,12 @@ def refine_articulation(cfg, X: torch.Tensor, out: dict, rc: RefineConfig) -> di
     def objective():
         R = R0 @ rotation_from_rotvec(w)
         model, T = posed_template(jt, jp, P, rest, weights, pivot, axis, state, root, R, t0 + dt)
-        return torch.cdist(obs, model).pow(2).min(dim=2).values.mean(dim=1), R, T
+        return torch.cdist(obs, model).pow(2).min(dim=2).values.mean(dim=1), R, T, model
 
     with torch.enable_grad():
         start = None
         for _ in range(rc.steps):
-            loss, _, _ = objective()
+            loss = objective()[0]
             if start is None:
                 start = loss.detach()
             opt.zero_grad(set_to_none=True)
@@ -126,8 +126,7 @@ def refine_articulation(cfg, X: torch.Tensor, out: dict, rc: RefineConfig) -> di
             opt.step()
             sched.step()
     with torch.no_grad():
-        loss, R, T = objective()
-        model = blend(rest, weights, T) @ R.transpose(1, 2) + (t0 + dt)[:, None]
+        loss, R, T, model = objective()
         nearest = torch.cdist(X.detach(), model).argmin(dim=2)  # (B, N) over all observed points
         point_weights = torch.gather(weights, 1, nearest.unsqueeze(-1).expand(-1, -1, weights.shape[-1]))
     return {"R": R, "t": (t0 + dt).detach(), "state": state.detach(),
