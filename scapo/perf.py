@@ -212,8 +212,7 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
             else:
                 row["infer_clouds_per_s_b32"] = round(batch / med, 2)
             if pc.refine.steps > 0:  # the preset's test-time refinement on top (scapo.models.refine)
-                med = _median_seconds(functools.partial(model.predict, pts, pc.refine), max(1, iters // 2),
-                                      dev == "cuda")
+                med = _median_seconds(functools.partial(model.predict, pts, pc.refine), iters, dev == "cuda")
                 key = "refined_ms_per_cloud_b1" if batch == 1 else "refined_clouds_per_s_b32"
                 row[key] = round(1000 * med, 2) if batch == 1 else round(batch / med, 2)
         row["refine_steps"] = pc.refine.steps

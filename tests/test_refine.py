@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 import torch
 
-from scapo.models.refine import RefineConfig, posed_template, refine_articulation, rotation_from_rotvec
+from scapo.models.refine import (
+    RefineConfig,
+    TemplatePoser,
+    posed_template,
+    refine_articulation,
+    rotation_from_rotvec,
+)
 from scapo.models.scapo_model import ModelConfig
 
 CFG = ModelConfig(num_parts=2, joint_types=(0,), joint_parts=((0, 1),))
@@ -92,3 +98,39 @@ def test_refined_segmentation_follows_the_fitted_template():
     assert r["weights"].shape == (1, rest.shape[1], 2)
     truth = w.argmax(-1)  # the observation is the template itself, in the same point order
     assert (r["weights"].argmax(-1) == truth).float().mean() > 0.98
+
+
+@pytest.mark.parametrize("root", [False, True])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_template_poser_equals_the_reference_posed_template(root, dtype):
+    """The refinement's fast poser against posed_template (bone_transforms + blend) on a 4-part tree with
+    revolute and prismatic joints, a chain (part 3 hangs from part 2) and soft weights, batch 3."""
+    g = torch.Generator().manual_seed(1)
+    B, M, P = 3, 50, 4
+    jt, jp = (0, 1, 0), ((0, 1), (0, 2), (2, 3))
+    rest = torch.randn(B, M, 3, generator=g, dtype=dtype)
+    w = torch.softmax(torch.randn(B, M, P, generator=g, dtype=dtype) * 3, -1)
+    axis = torch.nn.functional.normalize(torch.randn(B, 3, 3, generator=g, dtype=dtype), dim=-1)
+    pivot = torch.randn(B, 3, 3, generator=g, dtype=dtype) * 0.3
+    R0 = rotation_from_rotvec(torch.randn(B, 3, generator=g, dtype=dtype))
+    t0 = torch.randn(B, 3, generator=g, dtype=dtype)
+    theta = torch.randn(B, 6 + 3 + int(root), generator=g, dtype=dtype) * 0.5
+    theta[0, :3] = 0.0  # the smooth limit at a zero rotation vector
+    poser = TemplatePoser(jt, jp, P, rest, w, pivot, axis, R0, t0, root)
+    pts, T, R, t = poser(theta)
+    R_ref = R0 @ rotation_from_rotvec(theta[:, :3])
+    ref, T_ref = posed_template(jt, jp, P, rest, w, pivot, axis, theta[:, 6:9], theta[:, 9] if root else None,
+                                R_ref, t0 + theta[:, 3:6])
+    tol = {"atol": 1e-5, "rtol": 1e-5} if dtype == torch.float32 else {"atol": 1e-12, "rtol": 1e-12}
+    torch.testing.assert_close(pts, ref, **tol)
+    torch.testing.assert_close(T, T_ref, **tol)
+    torch.testing.assert_close(R, R_ref, **tol)
+    torch.testing.assert_close(t, t0 + theta[:, 3:6], **tol)
+    # its gradient with respect to theta matches the reference's (the refinement descends on it)
+    th = theta.clone().requires_grad_(True)
+    poser(th)[0].square().sum().backward()
+    th_ref = theta.clone().requires_grad_(True)
+    posed_template(jt, jp, P, rest, w, pivot, axis, th_ref[:, 6:9], th_ref[:, 9] if root else None,
+                   R0 @ rotation_from_rotvec(th_ref[:, :3]), t0 + th_ref[:, 3:6])[0].square().sum().backward()
+    torch.testing.assert_close(th.grad, th_ref.grad, **({"atol": 1e-3, "rtol": 1e-4} if dtype == torch.float32
+                                                         else {"atol": 1e-9, "rtol": 1e-9}))

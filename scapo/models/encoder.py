@@ -94,7 +94,9 @@ class SE3Encoder(nn.Module):
             g = layer(g)
         # invariant per-point scores (norms of the VN features) -> attention-weighted points: equivariant
         # "soft keypoints" that anchor the frame to parts of the shape
-        scores = self.attn(g.norm(dim=2).transpose(1, 2)).softmax(dim=1)  # (B, N, K)
+        # (the norm written as sqrt(sum(g^2)): Tensor.norm over this middle dimension is ~50x slower on CPU)
+        norms = (g * g).sum(2).clamp_min(1e-24).sqrt()  # (B, C, N)
+        scores = self.attn(norms.transpose(1, 2)).softmax(dim=1)  # (B, N, K)
         keypts = torch.einsum("bnk,bin->bki", scores, xc[:, 0])  # (B, K, 3), relative to t
         pooled = torch.cat([g.mean(-1), keypts], dim=1)  # (B, C + K, 3)
         v = self.r_out(self.r_head(pooled.unsqueeze(-1))).squeeze(-1)  # (B, 3, 3): three vectors (rows)

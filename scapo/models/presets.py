@@ -71,8 +71,8 @@ PRESETS.add("cpu", TrainConfig(
     # stage-1 frame sits between a laptop's base and screen; letting the base turn about the hinge
     # (full lap70 run: R 34.9 -> 32.2, t 0.090 -> 0.078, D 6.5 -> 7.9 deg, S 82.6 -> 82.8; stage 2 alone
     # from an earlier stage-1 encoder: R 29.4, D 5.7, S 69.5). refine: test-time fit of the posed template
-    # to each view (same lap70 run, 60 steps at lr 0.02: R 32.2 -> 27.4, D 7.9 -> 3.9 deg, 206 ms per cloud
-    # at batch 1; 20 steps at lr 0.06: R 28.3, D 4.6 in 84-110 ms, about the 100 ms CPU goal; ICP 29.7, 5.6)
+    # to each view (same lap70 run, 60 steps at lr 0.02: R 32.2 -> 27.4, D 7.9 -> 3.9 deg, 124 ms per cloud
+    # at batch 1; 20 steps at lr 0.06: R 28.3, D 4.6 in 61 ms, within the 100 ms CPU goal; ICP 29.7, 5.6)
     name="cpu", stage1_epochs=20, stage2_epochs=16, lr_stage2=3e-4, batch_size=16, train_points=256,
     max_steps_per_epoch=100, root_motion=True, refine=RefineConfig(steps=20, lr=0.06),
     encoder=EncoderConfig(k=8, rot_channels=(16, 32, 64), trans_channels=(8, 16), code_dim=16,
