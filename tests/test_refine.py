@@ -134,3 +134,71 @@ def test_template_poser_equals_the_reference_posed_template(root, dtype):
                    R0 @ rotation_from_rotvec(th_ref[:, :3]), t0 + th_ref[:, 3:6])[0].square().sum().backward()
     torch.testing.assert_close(th.grad, th_ref.grad, **({"atol": 1e-3, "rtol": 1e-4} if dtype == torch.float32
                                                          else {"atol": 1e-9, "rtol": 1e-9}))
+
+
+def test_octahedral_rotations_are_the_24_proper_cube_rotations():
+    from scapo.models.refine import octahedral_rotations
+    C = octahedral_rotations(torch.float64)
+    assert C.shape == (24, 3, 3)
+    torch.testing.assert_close(C[0], torch.eye(3, dtype=torch.float64))
+    torch.testing.assert_close(C @ C.transpose(1, 2), torch.eye(3, dtype=torch.float64).expand(24, 3, 3))
+    torch.testing.assert_close(torch.linalg.det(C), torch.ones(24, dtype=torch.float64))
+    assert len({tuple(m.flatten().tolist()) for m in C}) == 24
+    # closed under composition: a group
+    keys = {tuple(m.flatten().tolist()) for m in C}
+    assert all(tuple((a @ b).flatten().tolist()) in keys for a in C for b in C)
+
+
+def _quarter_turned_start(rest, w):
+    """Observation: the slabs at joint state 0.6, seen in the identity frame; the network's start is off
+    by a quarter turn about x (one of the cube rotations) - a frame error a local fit does not undo."""
+    out = fake_forward(rest, w, None, None, None)
+    obs, _ = posed_template(CFG.joint_types, CFG.joint_parts, 2, rest, w, out["pivot_y"], out["axis_y"],
+                            torch.tensor([[0.6]]), None, torch.eye(3)[None], torch.zeros(1, 3))
+    R_bad = rotation_from_rotvec(torch.tensor([[np.pi / 2, 0.0, 0.0]]))
+    return obs, fake_forward(rest, w, torch.tensor([[0.5]]), R_bad, torch.zeros(1, 3))
+
+
+def test_octahedral_starts_recover_a_frame_that_is_a_quarter_turn_off():
+    rest, w = two_slabs()
+    obs, out = _quarter_turned_start(rest, w)
+    one = refine_articulation(CFG, obs, out, RefineConfig(steps=40, lr=0.05, points=300))
+    multi = refine_articulation(CFG, obs, out, RefineConfig(steps=40, lr=0.05, points=300, starts="octahedral"))
+    assert multi["start"].item() != 0  # an alternative start won
+    assert multi["residual"].item() < 0.3 * one["residual"].item()
+    R_base = multi["R"] @ multi["T"][:, 0, :3, :3]
+    angle = torch.arccos((((R_base.diagonal(dim1=1, dim2=2).sum(-1)) - 1) / 2).clamp(-1, 1))
+    assert np.degrees(angle.item()) < 3.0
+    assert multi["weights"].shape == (1, obs.shape[1], 2)
+
+
+def test_octahedral_starts_keep_the_network_start_unless_the_margin_is_beaten():
+    rest, w = two_slabs()
+    out = fake_forward(rest, w, None, None, None)
+    obs, _ = posed_template(CFG.joint_types, CFG.joint_parts, 2, rest, w, out["pivot_y"], out["axis_y"],
+                            torch.tensor([[0.6]]), None, torch.eye(3)[None], torch.zeros(1, 3))
+    # a good network start (small error): its fit is kept, identical to the single-start refinement
+    out = fake_forward(rest, w, torch.tensor([[0.5]]), rotation_from_rotvec(torch.tensor([[0.05, 0.0, 0.0]])),
+                       torch.zeros(1, 3))
+    rc = dict(steps=30, lr=0.05, points=300)
+    one = refine_articulation(CFG, obs, out, RefineConfig(**rc))
+    multi = refine_articulation(CFG, obs, out, RefineConfig(**rc, starts="octahedral"))
+    assert multi["start"].item() == 0
+    torch.testing.assert_close(multi["R"], one["R"])
+    torch.testing.assert_close(multi["state"], one["state"])
+    # batch of two views: each picks on its own
+    obs2, bad = _quarter_turned_start(rest, w)
+    both = {k: (torch.cat([out[k], bad[k]]) if torch.is_tensor(out[k]) and k not in ("pivot_y", "axis_y", "Y_star",
+                                                                                       "w_ystar") else out[k])
+            for k in out}
+    both.update({k: out[k].expand(2, *out[k].shape[1:]) for k in ("pivot_y", "axis_y", "Y_star", "w_ystar")})
+    both["enc"] = SimpleNamespace(R=torch.cat([out["enc"].R, bad["enc"].R]), t=torch.zeros(2, 3))
+    r = refine_articulation(CFG, torch.cat([obs, obs2]), both, RefineConfig(**rc, starts="octahedral"))
+    assert r["start"][0].item() == 0 and r["start"][1].item() != 0
+
+
+def test_unknown_refinement_starts_are_refused():
+    with pytest.raises(ValueError, match="unknown refinement starts 'cube'"):
+        RefineConfig(steps=5, starts="cube")
+    with pytest.raises(ValueError, match="margin"):
+        RefineConfig(steps=5, starts="octahedral", margin=1.5)

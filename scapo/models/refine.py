@@ -35,6 +35,7 @@ differentiated ``cdist(...).min``); the same predictions to the evaluator's prec
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import torch
@@ -54,11 +55,44 @@ class RefineConfig:
     """Observed points per view used by the objective (a fixed random subset; all when fewer)."""
     seed: int = 0
     """Seed of the point subset."""
+    starts: str = "network"
+    """``"network"``: one fit from the network's frame. ``"octahedral"``: also screen the 23 other
+    rotations of the cube group applied in the canonical frame (``R_g C``), each by ``screen_steps``
+    steps on ``screen_points`` points, fully refine the best of them beside the network's start, and
+    keep it only when its residual is ``margin`` below the network start's."""
+    screen_steps: int = 5
+    """Adam steps of the screening fit of every start (``starts = "octahedral"``)."""
+    screen_points: int = 128
+    """Observed points per view in the screening fit."""
+    margin: float = 0.3
+    """Relative residual margin an alternative start needs to replace the network's (0: the best wins)."""
 
     def __post_init__(self):
         if self.steps < 0 or self.lr <= 0 or self.points < 8:
             raise ValueError(f"invalid refinement settings: steps {self.steps} (>= 0), lr {self.lr} (> 0), "
                              f"points {self.points} (>= 8)")
+        if self.starts not in START_SETS:
+            raise ValueError(f"unknown refinement starts {self.starts!r}; known: {', '.join(START_SETS)}")
+        if self.screen_steps < 1 or self.screen_points < 8 or not 0.0 <= self.margin < 1.0:
+            raise ValueError(f"invalid refinement screening: screen_steps {self.screen_steps} (>= 1), "
+                             f"screen_points {self.screen_points} (>= 8), margin {self.margin} (in [0, 1))")
+
+
+START_SETS = ("network", "octahedral")
+
+
+def octahedral_rotations(dtype=torch.float32, device=None) -> torch.Tensor:
+    """The 24 rotations of the cube group (signed permutation matrices of determinant +1) as
+    ``(24, 3, 3)``, the identity first."""
+    mats = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            M = torch.zeros(3, 3, dtype=torch.float64)
+            M[range(3), perm] = torch.tensor(signs, dtype=torch.float64)
+            if torch.linalg.det(M) > 0:
+                mats.append(M)
+    mats.sort(key=lambda M: -float(torch.trace(M)))  # identity (trace 3) first
+    return torch.stack(mats).to(dtype=dtype, device=device)
 
 
 def rotation_from_rotvec(w: torch.Tensor) -> torch.Tensor:
@@ -93,6 +127,9 @@ class TemplatePoser:
         template_rest: (B, M, 3) rest points; weights: (B, M, P) skinning weights.
         pivot, axis: (B, J, 3) the joints (rest frame); R0: (B, 3, 3), t0: (B, 3) the start frame.
         root: whether ``theta`` carries a root state (``ModelConfig.root_motion``).
+
+    Raises:
+        ValueError: (when called) a joint type other than 0 (revolute) or 1 (prismatic).
     """
 
     def __init__(self, joint_types, joint_parts, num_parts: int, template_rest: torch.Tensor,
@@ -172,20 +209,56 @@ def refine_articulation(cfg, X: torch.Tensor, out: dict, rc: RefineConfig) -> di
     if rc.steps <= 0:
         raise ValueError("refine_articulation needs rc.steps > 0")
     enc = out["enc"]
-    has_root = out.get("root_x") is not None
-    weights = out["w_ystar"].detach()
-    poser = TemplatePoser(cfg.joint_types, cfg.joint_parts, cfg.num_parts, out["Y_star"].detach(), weights,
-                          out["pivot_y"].detach(), out["axis_y"].detach(), enc.R.detach(), enc.t.detach(), has_root)
-    B, N = X.shape[:2]
+    R0, t0 = enc.R.detach(), enc.t.detach()
+    state0 = out["state_x"].detach()
+    root0 = out["root_x"].detach() if out.get("root_x") is not None else None
+    rest, weights = out["Y_star"].detach(), out["w_ystar"].detach()
+    pivot, axis = out["pivot_y"].detach(), out["axis_y"].detach()
+    X = X.detach()
+    if rc.starts == "network":
+        return _fit(cfg, X, rest, weights, pivot, axis, R0, t0, state0, root0, rc.steps, rc.lr, rc.points, rc.seed)
+    B = X.shape[0]
+    C = octahedral_rotations(X.dtype, X.device)  # (K, 3, 3), identity first
+    K = C.shape[0]
+
+    def rep(v, k):  # (B, ...) -> (B * k, ...), each view's copies together
+        return None if v is None else v.repeat_interleave(k, 0)
+
+    # screen every start briefly, on fewer points
+    screen = _fit(cfg, X, rep(rest, K), rep(weights, K), rep(pivot, K), rep(axis, K),
+                  rep(R0, K) @ C.repeat(B, 1, 1), rep(t0, K), rep(state0, K), rep(root0, K), rc.screen_steps,
+                  rc.lr, rc.screen_points, rc.seed, repeat_obs=K, segment=False)["residual"].reshape(B, K)
+    alt = 1 + screen[:, 1:].argmin(dim=1)  # (B,) the best start other than the network's
+    # refine the network's start and the best alternative fully; the alternative must win by the margin
+    Rs = torch.stack([R0, R0 @ C[alt]], 1).reshape(2 * B, 3, 3)
+    r = _fit(cfg, X, rep(rest, 2), rep(weights, 2), rep(pivot, 2), rep(axis, 2), Rs, rep(t0, 2), rep(state0, 2),
+             rep(root0, 2), rc.steps, rc.lr, rc.points, rc.seed, repeat_obs=2)
+    res = r["residual"].reshape(B, 2)
+    pick = (res[:, 1] < (1.0 - rc.margin) * res[:, 0]).long()  # 1: the alternative start
+    sel = torch.arange(B, device=X.device) * 2 + pick
+    r = {k: (v[sel] if torch.is_tensor(v) else v) for k, v in r.items()}
+    r["start"] = torch.where(pick.bool(), alt, torch.zeros_like(alt))
+    return r
+
+
+def _fit(cfg, X, rest, weights, pivot, axis, R0, t0, state0, root0, steps: int, lr: float, points: int, seed: int,
+         repeat_obs: int = 1, segment: bool = True) -> dict:
+    """Adam fit of the posed template from one start per row (see :func:`refine_articulation`); with
+    ``repeat_obs = k`` the starts come in groups of ``k`` rows per view of ``X (B, N, 3)``; ``segment``:
+    also transfer the fitted template's weights to every observed point (``weights``, else None)."""
+    has_root = root0 is not None
+    poser = TemplatePoser(cfg.joint_types, cfg.joint_parts, cfg.num_parts, rest, weights, pivot, axis, R0, t0,
+                          has_root)
+    N = X.shape[1]
     J = len(cfg.joint_types)
-    g = torch.Generator().manual_seed(rc.seed)
-    idx = torch.randperm(N, generator=g)[: rc.points].to(X.device)
-    obs = X.detach()[:, idx]
+    g = torch.Generator().manual_seed(seed)
+    idx = torch.randperm(N, generator=g)[:points].to(X.device)
+    obs = X[:, idx].repeat_interleave(repeat_obs, 0)
+    B = obs.shape[0]
     zeros = torch.zeros(B, 6, dtype=X.dtype, device=X.device)
-    start_state = [out["state_x"].detach()] + ([out["root_x"].detach()[:, None]] if has_root else [])
-    theta = torch.cat([zeros] + start_state, 1).requires_grad_(True)  # (B, 6 + J [+ 1])
-    opt = torch.optim.Adam([theta], lr=rc.lr)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, rc.steps, eta_min=0.05 * rc.lr)
+    theta = torch.cat([zeros, state0] + ([root0[:, None]] if has_root else []), 1).requires_grad_(True)
+    opt = torch.optim.Adam([theta], lr=lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps, eta_min=0.05 * lr)
 
     def objective():
         model, T, R, t = poser(theta)
@@ -196,7 +269,7 @@ def refine_articulation(cfg, X: torch.Tensor, out: dict, rc: RefineConfig) -> di
 
     with torch.enable_grad():
         start = None
-        for _ in range(rc.steps):
+        for _ in range(steps):
             loss = objective()[0]
             if start is None:
                 start = loss.detach()
@@ -206,9 +279,10 @@ def refine_articulation(cfg, X: torch.Tensor, out: dict, rc: RefineConfig) -> di
             sched.step()
     with torch.no_grad():
         loss, R, t, T, model = objective()
-        nearest = torch.cdist(X.detach(), model).argmin(dim=2)  # (B, N) over all observed points
-        point_weights = torch.gather(weights, 1, nearest.unsqueeze(-1).expand(-1, -1, weights.shape[-1]))
+        point_weights = None
+        if segment:  # over all observed points
+            nearest = torch.cdist(X.repeat_interleave(repeat_obs, 0), model).argmin(dim=2)
+            point_weights = torch.gather(weights, 1, nearest.unsqueeze(-1).expand(-1, -1, weights.shape[-1]))
     theta = theta.detach()
     return {"R": R, "t": t, "state": theta[:, 6:6 + J], "root": theta[:, 6 + J] if has_root else None, "T": T,
-            "pivot": out["pivot_y"].detach(), "axis": out["axis_y"].detach(),
-            "weights": point_weights, "residual": loss, "residual_start": start}
+            "pivot": pivot, "axis": axis, "weights": point_weights, "residual": loss, "residual_start": start}
