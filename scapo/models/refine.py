@@ -15,6 +15,11 @@ started from the network's answer:
 - optimised over ``w, dt (B, 3)``, ``a (B, J)`` and ``b (B,)`` by Adam with a cosine schedule; the
   views of a batch are independent (the loss is a sum over views);
 - segmentation: each observed point takes the part weights of its nearest point of the fitted template.
+- starts (``RefineConfig.starts = "octahedral"``): the stage-1 frame of some views is 60-90 deg off,
+  which a local fit does not undo; the 24 rotations ``C`` of the cube group, applied in the canonical
+  frame (``R_g C``), are screened by a short fit each, the best is refined fully beside the network's
+  start, and it replaces it only when its residual is lower by ``margin`` (180-degree flips of a
+  laptop fit nearly as well as the truth, so the network's start keeps the benefit of the doubt).
 
 Measured on the laptop benchmark (lap70, the cpu preset run trained at 965fa32; 60 steps, 384
 points): part rotation error R 32.2 -> 27.4 deg, joint direction error D 7.9 -> 3.9 deg, segmentation
