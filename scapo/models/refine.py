@@ -40,6 +40,7 @@ differentiated ``cdist(...).min``); the same predictions to the evaluator's prec
 
 from __future__ import annotations
 
+import functools
 import itertools
 from dataclasses import dataclass
 
@@ -89,6 +90,12 @@ START_SETS = ("network", "octahedral")
 def octahedral_rotations(dtype=torch.float32, device=None) -> torch.Tensor:
     """The 24 rotations of the cube group (signed permutation matrices of determinant +1) as
     ``(24, 3, 3)``, the identity first."""
+    return _octahedral_rotations().to(dtype=dtype, device=device, copy=True)
+
+
+@functools.lru_cache(maxsize=1)
+def _octahedral_rotations() -> torch.Tensor:
+    """float64 CPU table of :func:`octahedral_rotations`, built once (it sits on the prediction path)."""
     mats = []
     for perm in itertools.permutations(range(3)):
         for signs in itertools.product((1.0, -1.0), repeat=3):
@@ -97,7 +104,7 @@ def octahedral_rotations(dtype=torch.float32, device=None) -> torch.Tensor:
             if torch.linalg.det(M) > 0:
                 mats.append(M)
     mats.sort(key=lambda M: -float(torch.trace(M)))  # identity (trace 3) first
-    return torch.stack(mats).to(dtype=dtype, device=device)
+    return torch.stack(mats)
 
 
 def rotation_from_rotvec(w: torch.Tensor) -> torch.Tensor:
