@@ -12,6 +12,8 @@ from scapo.baselines import run_method
 from scapo.data import generate, load, make_config
 from scapo.eval import Predictions, evaluate
 from scapo.eval.tables import write_table1
+from scapo.files import check_output_dir
+from scapo.models.train import train
 from scapo.provenance import provenance
 
 
@@ -23,6 +25,9 @@ def run_table1(methods, categories, instances: int, views: int, seed: int = 0, w
                out_dir: Path | None = None, workers: int = 1, cache_dir: Path | None = None, name: str = "table1",
                preset: str = "cpu"):
     """Generate one dataset per category, run every method, evaluate, and write Table 1."""
+    if out_dir is not None:
+        check_output_dir(out_dir, "table folder")
+    check_output_dir(work_dir, "bench work folder")
     results, hashes = [], {}
     for cat in categories:
         data = dataset_dir(work_dir, cat, instances, views, seed)
@@ -36,7 +41,10 @@ def run_table1(methods, categories, instances: int, views: int, seed: int = 0, w
                 if preds.dataset_hash != load(data, "test").dataset_hash:
                     preds = None
             if preds is None:
-                opts = {"run": data / f"run_scapo_{preset}", "preset": preset} if m == "scapo" else {}
+                opts = {}
+                if m == "scapo":
+                    opts = {"run": data / f"run_scapo_{preset}"}
+                    train(data, opts["run"], preset, progress=True)
                 preds = run_method(m, data, pred_path, progress=True, **opts)
             res = evaluate(data, preds)
             print(f"{m:8s} {cat:11s} " + " ".join(f"{k}={res.summary[k]:.3f}" for k in ("S", "D", "C", "R", "t")))

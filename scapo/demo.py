@@ -23,13 +23,14 @@ def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12,
     from scapo.data import generate, make_config
     from scapo.eval import evaluate
     from scapo.eval.tables import write_table1
+    from scapo.files import check_output_dir
+    from scapo.models.train import train
     from scapo.provenance import provenance, render_device
     from scapo.sim.assets import build_category
     from scapo.viz import prediction_figure
 
     t0 = time.perf_counter()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_output_dir(out, "demo output folder")
     _step(f"render device: {render_device()}")
     _step(f"building {instances} procedural {category} instances (URDF + meshes)")
     recs = build_category(category, instances, seed, cache_dir, progress=True)
@@ -46,7 +47,8 @@ def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12,
     _step(f"SCAPO: self-supervised training on the training clouds only (preset '{preset}')")
     run = out / f"run_scapo_{preset}"
     scapo_path = out / "predictions_scapo.npz"
-    scapo = run_method("scapo", data, scapo_path, run=run, preset=preset, progress=True)
+    train(data, run, preset, progress=True)
+    scapo = run_method("scapo", data, scapo_path, run=run, progress=True)
     ms = scapo.info["ms_per_cloud_test"]
     print(f"   {ms:.0f} ms per test cloud -> {scapo_path}; loss curves in {run}/losses.png")
     _step("evaluating (one evaluator for every method)")

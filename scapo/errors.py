@@ -54,5 +54,14 @@ class PredictionError(ScapoError, ValueError):
     """A predictions file is malformed or does not match the dataset it is evaluated on."""
 
 
+class OutputError(ScapoError):
+    """An output path cannot be used (a folder where a file is expected, not writable, locked by another
+    process); raised before any long work starts."""
+
+
+class InputError(ScapoError, ValueError):
+    """Input data given to the Python API (point clouds, arrays) is malformed or out of the accepted range."""
+
+
 class TrainingError(ScapoError):
     """Training cannot continue (NaN/inf loss, incompatible checkpoint); the message names the cause."""

@@ -22,6 +22,7 @@ import numpy as np
 
 from scapo.data.config import make_config
 from scapo.data.generate import _WORKER, _init_worker, generate, plan, sample_seed_key
+from scapo.files import atomic_write_text, check_output_dir
 from scapo.geometry import sapien_camera_pose
 from scapo.provenance import provenance, render_device
 from scapo.report import markdown_table
@@ -117,16 +118,15 @@ def write_perf(rows: list[dict], out_dir: Path, name: str, **prov) -> list[Path]
     """Write ``<name>.csv``, ``<name>.md`` and ``<name>.json`` (rows + provenance) into ``out_dir``."""
     import pandas as pd
 
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = check_output_dir(out_dir, "benchmark output folder")
     p = provenance(render_device=render_device(), **prov)
     df = pd.DataFrame(rows)
     paths = [out_dir / f"{name}.csv", out_dir / f"{name}.md", out_dir / f"{name}.json"]
-    df.to_csv(paths[0], index=False)
+    atomic_write_text(paths[0], df.to_csv(index=False))
     md = [f"# {name}", "", markdown_table(list(df.columns), df.astype(str).values.tolist()), "",
           "Provenance: " + ", ".join(f"{k}={v}" for k, v in p.items())]
-    paths[1].write_text("\n".join(md) + "\n")
-    paths[2].write_text(json.dumps({"rows": rows, "provenance": p}, indent=1) + "\n")
+    atomic_write_text(paths[1], "\n".join(md) + "\n")
+    atomic_write_text(paths[2], json.dumps({"rows": rows, "provenance": p}, indent=1) + "\n")
     return paths
 
 

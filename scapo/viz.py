@@ -12,6 +12,7 @@ from scapo.data.dataset import load
 from scapo.data.generate import sample_seed_key
 from scapo.errors import DatasetError
 from scapo.eval.predictions import Predictions
+from scapo.files import atomic_savefig, check_output_file
 from scapo.sim.assets import build_instance, parse_urdf
 from scapo.sim.preview import PART_COLORS, draw_sample, frame_cloud_axes, part_colors
 from scapo.sim.render import Renderer, render_with_retries
@@ -84,7 +85,7 @@ def prediction_figure(data: str | Path, predictions: Predictions, path: str | Pa
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    check_output_file(path, "figure")
+    atomic_savefig(fig, path, dpi=110)
     plt.close(fig)
     return path

@@ -13,7 +13,7 @@ from scapo.errors import TrainingError
 from scapo.eval import evaluate
 from scapo.models import load as load_model
 from scapo.models.presets import PRESETS
-from scapo.models.train import Trainer
+from scapo.models.train import Trainer, train
 
 TEST = PRESETS.get("test")
 
@@ -117,13 +117,19 @@ def test_regularisers_can_be_switched_off(laptop_data, tmp_path):
         dataclasses.replace(TEST.losses, disabled=("nope",))
 
 
-def test_an_unfinished_run_is_finished_with_its_own_preset_by_the_method(laptop_data, tmp_path):
+def test_an_unfinished_run_is_refused_by_predict_and_finished_by_train_with_its_own_preset(laptop_data, tmp_path):
     p = dataclasses.replace(TEST, name="test_custom", stage1_epochs=2, stage2_epochs=1)
     interrupt_at(Trainer(laptop_data, tmp_path / "run", p, progress=False), 1, 1)
-    # the method's default preset ("cpu") differs; the run's own preset is used to finish it
+    # prediction never trains (issue 11): an unfinished run is an error naming how to resume it
+    with pytest.raises(TrainingError, match="unfinished run .*scapo train"):
+        run_method("scapo", laptop_data, tmp_path / "p.npz", run=tmp_path / "run")
+    assert not (tmp_path / "p.npz").exists()
+    assert not torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["done"]
+    # train without a preset resumes with the run's own (unregistered) preset
+    train(laptop_data, tmp_path / "run", progress=False)
+    assert torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["done"]
     preds = run_method("scapo", laptop_data, tmp_path / "p.npz", run=tmp_path / "run")
     assert preds.info["preset"] == "test_custom"
-    assert torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["done"]
 
 
 def test_stage2_starts_from_the_rigid_split_of_the_canonical_clouds(laptop_data, tmp_path):

@@ -38,7 +38,7 @@ from scipy.spatial.transform import Rotation
 
 from scapo.baselines.base import METHODS
 from scapo.data.dataset import ArticulationDataset
-from scapo.errors import DatasetError
+from scapo.errors import ConfigError, DatasetError
 from scapo.eval.predictions import Predictions
 from scapo.geometry import as_transform, invert_transform, relative_motion_to_joint, transform_points
 from scapo.sim.render import farthest_point_indices
@@ -66,6 +66,17 @@ class ICPConfig:
     seed: int = 0
     progress: bool = False
     """Show a progress bar while predicting."""
+
+    def __post_init__(self):
+        checks = {"template_points": self.template_points >= 16, "max_iterations": self.max_iterations >= 1,
+                  "max_correspondence": self.max_correspondence > 0, "refine_top": self.refine_top >= 1,
+                  "visibility_cell": self.visibility_cell > 0, "min_joint_angle_deg": self.min_joint_angle_deg >= 0,
+                  "hypotheses": self.hypotheses in ("I", "O", "T")}
+        bad = [k for k, ok in checks.items() if not ok]
+        if bad:
+            raise ConfigError(f"invalid ICP option(s) {', '.join(f'{k}={getattr(self, k)!r}' for k in bad)}: need "
+                              "template_points >= 16, max_iterations >= 1, refine_top >= 1, max_correspondence > 0, "
+                              "visibility_cell > 0, min_joint_angle_deg >= 0, hypotheses in I, O, T")
 
 
 class ICPBaseline:
@@ -269,3 +280,6 @@ class ICPBaseline:
 def make_icp(**options) -> ICPBaseline:
     """ICP baseline; options are :class:`ICPConfig` fields."""
     return ICPBaseline(**options)
+
+
+make_icp.options = ICPConfig

@@ -7,10 +7,11 @@ inside the commands so that ``scapo --help`` is instant.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
-from scapo.errors import ScapoError
+from scapo.errors import ConfigError, ScapoError
 
 
 def _ints(text: str) -> list[int]:
@@ -78,13 +79,23 @@ def cmd_generate(args) -> int:
     print(f"{rep.out}: {rep.samples} samples ({rep.rendered} rendered now, {rep.skipped_shards} shards already "
           f"done); {sum(rep.rejections.values())} rejected views {dict(rep.rejections)}; "
           f"{rep.samples_per_second:.1f} samples/s")
+    if rep.rejected_shards:
+        print(f"re-rendered {len(rep.rejected_shards)} shard(s) that failed verification; the old files are in "
+              f"{rep.out / 'rejected'}")
+    if rep.test_samples == 0:
+        print(f"scapo generate: warning: the test split is empty ({args.instances} instances, --test-fraction "
+              f"{args.test_fraction}); methods cannot be evaluated on this dataset", file=sys.stderr)
     return 0
 
 
 def cmd_preview(args) -> int:
+    from scapo.files import check_output_file
     from scapo.sim.preview import save_preview
     from scapo.viz import render_dataset_samples
 
+    if args.count < 1:
+        raise ConfigError(f"--count must be >= 1, got {args.count}")
+    check_output_file(args.out, "preview image")
     samples, titles, names = render_dataset_samples(args.data, args.split, args.count, args.cache)
     path = save_preview(samples, args.out, titles, names)
     print(f"wrote {path}")
@@ -104,8 +115,10 @@ def cmd_predict(args) -> int:
 
     opts = {}
     for kv in args.option or []:
-        k, _, v = kv.partition("=")
-        opts[k] = _parse_value(v)
+        k, eq, v = kv.partition("=")
+        if not eq or not k.strip():
+            raise ConfigError(f"--option {kv!r} is not of the form key=value")
+        opts[k.strip()] = v  # converted to the option's type by the method's options dataclass
     method = args.method
     if args.run is not None:
         if method not in (None, "scapo"):
@@ -122,20 +135,14 @@ def cmd_predict(args) -> int:
     return 0
 
 
-def _parse_value(v: str):
-    for cast in (int, float):
-        try:
-            return cast(v)
-        except ValueError:
-            pass
-    return {"true": True, "false": False}.get(v.lower(), v)
-
-
 def cmd_evaluate(args) -> int:
     from scapo.eval import evaluate
     from scapo.eval.tables import write_table1
+    from scapo.files import atomic_write_text, check_output_dir
     from scapo.provenance import provenance
 
+    if args.out:
+        check_output_dir(args.out, "table folder")
     results = [evaluate(args.data, p, protocol=args.protocol) for p in args.pred]
     _print_summary(results)
     if args.out:
@@ -145,8 +152,8 @@ def cmd_evaluate(args) -> int:
                                    for r in results})
         paths = write_table1(results, args.out, prov, name=args.name)
         for res in results:
-            res.per_sample.to_csv(Path(args.out) / f"{args.name}_{res.method}_{res.category}_per_sample.csv",
-                                  index=False)
+            atomic_write_text(Path(args.out) / f"{args.name}_{res.method}_{res.category}_per_sample.csv",
+                              res.per_sample.to_csv(index=False))
         print("wrote " + ", ".join(str(p) for p in paths))
     return 0
 
@@ -165,7 +172,13 @@ def _print_summary(results) -> None:
 
 
 def cmd_bench(args) -> int:
+    if min(args.workers) < 1 or args.instances < 1 or args.views < 1:
+        raise ConfigError("--workers, --instances and --views must be >= 1")
     if args.what == "perf":
+        from scapo.files import check_output_dir
+
+        if args.out:
+            check_output_dir(args.out, "benchmark output folder")
         from scapo.perf import write_perf
 
         if args.target == "generate":
@@ -258,7 +271,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("train", help="train SCAPO (both stages) on a dataset's training clouds (no labels)")
     sp.add_argument("--data", type=Path, required=True)
-    sp.add_argument("--preset", default="cpu", help="paper | cpu | demo | test")
+    sp.add_argument("--preset", default=None, help="paper | cpu | demo | test (default: an existing run's own "
+                    "preset, else cpu)")
     sp.add_argument("--out", type=Path, required=True, help="run folder (resumes from its checkpoint)")
     sp.add_argument("--device", default=None, help="cpu | cuda (default: the preset's, auto)")
     sp.add_argument("--no-progress", action="store_true")
@@ -311,7 +325,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: What an interrupted command leaves behind, by command.
+_INTERRUPTED = {
+    "generate": "finished shards are kept; rerun the same command to resume",
+    "train": "the last finished epoch is kept in the run's checkpoint.pt; rerun the same command to resume",
+    "bench": "finished datasets, runs and predictions in the work folder are kept; rerun to resume",
+    "demo": "what finished is kept in the output folder; rerun the same command to resume",
+    "assets": "finished instances are kept in the asset cache",
+}
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; returns its exit status (0 ok, 2 a user error, 3 a bug, 130 interrupted).
+
+    Every error raised on purpose (:class:`~scapo.errors.ScapoError`) is printed as one line
+    ``scapo <command>: error: <what is wrong and what to do>``; an operating-system error (disk full,
+    permission) as one line naming the file. Anything else is a bug in scapo: one line says so
+    (``SCAPO_DEBUG=1`` shows the traceback).
+    """
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
@@ -319,8 +350,21 @@ def main(argv: list[str] | None = None) -> int:
         print(f"scapo {args.command}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"scapo {args.command}: interrupted (finished shards are kept; rerun to resume)", file=sys.stderr)
+        left = _INTERRUPTED.get(args.command, "nothing was written")
+        print(f"scapo {args.command}: interrupted ({left})", file=sys.stderr)
         return 130
+    except OSError as e:
+        if os.environ.get("SCAPO_DEBUG"):
+            raise
+        where = f": {e.filename}" if e.filename else ""
+        print(f"scapo {args.command}: error: {e.strerror or e}{where}", file=sys.stderr)
+        return 2
+    except Exception as e:  # noqa: BLE001 - the last line of defence: a bug, said as such, not a traceback
+        if os.environ.get("SCAPO_DEBUG"):
+            raise
+        print(f"scapo {args.command}: internal error ({type(e).__name__}: {e}); this is a bug in scapo: please report "
+              "it with the command line (SCAPO_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 3
 
 
 if __name__ == "__main__":

@@ -68,15 +68,25 @@ class GenerateConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> GenerateConfig:
+        """Inverse of :meth:`to_dict`.
+
+        Raises:
+            ConfigError: another format version, or fields missing / unknown / of the wrong type.
+        """
         d = dict(d)
         fv = d.pop("format_version", FORMAT_VERSION)
         if fv != FORMAT_VERSION:
             raise ConfigError(f"dataset format version {fv} is not supported (this scapo reads {FORMAT_VERSION})")
-        r = dict(d.pop("render"))
-        render = RenderConfig(camera=CameraConfig(**r.pop("camera")), sensor=SensorConfig(**r.pop("sensor")), **r)
-        v = d.pop("view")
-        view = ViewConfig(**{k: tuple(x) if isinstance(x, list) else x for k, x in v.items()}) if v else None
-        return cls(render=render, view=view, **d)
+        try:
+            r = dict(d.pop("render"))
+            render = RenderConfig(camera=CameraConfig(**r.pop("camera")), sensor=SensorConfig(**r.pop("sensor")),
+                                  **r)
+            v = d.pop("view")
+            view = ViewConfig(**{k: tuple(x) if isinstance(x, list) else x for k, x in v.items()}) if v else None
+            return cls(render=render, view=view, **d)
+        except (KeyError, TypeError, AttributeError) as e:
+            raise ConfigError(f"not a scapo generate config ({type(e).__name__}: {e}); was it written by another "
+                              "version of scapo?") from None
 
 
 def make_config(

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from collections import OrderedDict
 from pathlib import Path
 
@@ -10,10 +9,17 @@ import numpy as np
 import pandas as pd
 from torch.utils.data import Dataset
 
+from scapo.data.config import FORMAT_VERSION
 from scapo.data.storage import ARRAY_FIELDS, read_shard
 from scapo.errors import DatasetError
+from scapo.files import read_json
 
 SPLITS = ("train", "test", "all")
+
+#: Entries of ``card.json`` the loader and the evaluator rely on.
+CARD_KEYS = ("category", "part_names", "joint_names", "joint_type", "joint_parts", "shards", "dataset_hash")
+#: Columns of ``manifest.parquet`` the loader relies on.
+MANIFEST_COLUMNS = ("split", "shard", "row", "category", "instance_id", "view_id", "seed")
 
 #: dtypes of the arrays handed out (storage may be narrower).
 OUTPUT_DTYPES = {
@@ -38,7 +44,8 @@ class ArticulationDataset(Dataset):
     of a shard checks its sha256 against the card.
 
     Raises:
-        DatasetError: the directory has no ``card.json`` (generation unfinished) or manifest.
+        DatasetError: the directory does not exist, has no ``card.json`` (generation unfinished), a
+            truncated or incomplete card, or an unreadable manifest (each names the file and what to do).
         CorruptShardError: on access to a damaged shard (the message names it).
     """
 
@@ -46,16 +53,33 @@ class ArticulationDataset(Dataset):
         self.root = Path(root)
         if split not in SPLITS:
             raise DatasetError(f"unknown split {split!r}; known splits: {', '.join(SPLITS)}")
+        if not self.root.is_dir():
+            what = "it is a file" if self.root.exists() else "the folder does not exist"
+            raise DatasetError(f"{self.root} is not a scapo dataset: {what}; give the folder written by "
+                               "'scapo generate --out'")
         card_path = self.root / "card.json"
+        rerun = "rerun 'scapo generate' with the same arguments to rewrite it"
         if not card_path.is_file():
             hint = " (generation unfinished: rerun 'scapo generate' with the same arguments to resume)" \
                 if (self.root / "config.json").is_file() else ""
             raise DatasetError(f"{self.root} is not a scapo dataset: no card.json{hint}")
-        self.card = json.loads(card_path.read_text())
+        self.card = read_json(card_path, "dataset card", DatasetError, rerun)
+        missing = [k for k in CARD_KEYS if k not in self.card]
+        if missing:
+            raise DatasetError(f"dataset card {card_path} lacks {missing} (incomplete, or not written by scapo "
+                               f"generate); {rerun}")
+        fv = self.card.get("format_version", FORMAT_VERSION)
+        if fv != FORMAT_VERSION:
+            raise DatasetError(f"{self.root} has dataset format version {fv}; this scapo reads version "
+                               f"{FORMAT_VERSION}: regenerate it with this version")
         try:
             manifest = pd.read_parquet(self.root / "manifest.parquet")
-        except (OSError, ValueError) as e:
-            raise DatasetError(f"{self.root}/manifest.parquet cannot be read: {e}") from e
+        except Exception as e:  # noqa: BLE001 - pyarrow raises several kinds for a damaged file
+            raise DatasetError(f"{self.root}/manifest.parquet cannot be read ({type(e).__name__}: {e}); {rerun}") \
+                from e
+        lacking = [c for c in MANIFEST_COLUMNS if c not in manifest.columns]
+        if lacking:
+            raise DatasetError(f"{self.root}/manifest.parquet lacks columns {lacking}; {rerun}")
         if split != "all":
             manifest = manifest[manifest["split"] == split]
         self.manifest = manifest.reset_index(drop=True)

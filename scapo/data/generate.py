@@ -4,14 +4,25 @@ The work is planned up front as shards of ``(sample_id, instance_id, view_id)`` 
 sample's randomness is derived from ``(seed, category, instance_id, view_id, attempt)``, so the
 output is identical for an identical config whatever the number of workers, and an interrupted
 run resumes by skipping the shards already on disk. Each worker process owns one SAPIEN scene.
+
+Nothing on disk is blessed without a check. Every shard written is recorded, with its sha256 and
+the sha256 of the config, in the journal ``shards.jsonl`` (and, once all are done, in
+``card.json``). On resume a shard counts as done only if its bytes match that record and its
+sample keys match the plan; a shard that fails (replaced, edited, truncated, or written by a process
+killed before recording it) is moved to ``rejected/`` with a warning and rendered again. The asset
+digests the shards were rendered from are recorded too; assets that changed since (another
+generator version) make the run refuse rather than mix two versions in one dataset. One process at
+a time writes a dataset folder (:class:`~scapo.files.FolderLock`).
 """
 
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import platform
+import sys
 import threading
 import time
 import zlib
@@ -31,7 +42,8 @@ from scapo.data.storage import (
     write_json,
     write_shard,
 )
-from scapo.errors import ConfigError, CorruptShardError, DatasetError
+from scapo.errors import ConfigError, DatasetError
+from scapo.files import FolderLock, atomic_write_bytes, check_output_dir, clean_stale_temps, read_json
 from scapo.sim.assets import GENERATOR_VERSION, build_category, parse_urdf
 from scapo.sim.render import Renderer, render_many
 
@@ -56,6 +68,9 @@ class GenerateReport:
     rejections: Counter = field(default_factory=Counter)
     seconds: float = 0.0
     steady_seconds: float = 0.0
+    rejected_shards: list[str] = field(default_factory=list)
+    """Shards that failed verification on resume, moved to ``rejected/`` and rendered again."""
+    test_samples: int = 0
 
     @property
     def samples_per_second(self) -> float:
@@ -136,14 +151,112 @@ def _render_shard(task: ShardTask, shard_dir: str) -> dict:
             "samples": len(samples)}
 
 
-def _shard_is_complete(path: Path, task: ShardTask) -> bool:
-    if not path.is_file():
-        return False
+JOURNAL = "shards.jsonl"
+REJECTED = "rejected"
+
+
+def config_sha256(cfg: GenerateConfig) -> str:
+    """sha256 of the config's canonical JSON (what every shard record is tied to)."""
+    return hashlib.sha256(cfg.to_json().encode()).hexdigest()
+
+
+def _append_journal(out: Path, entry: dict) -> None:
+    with open(out / JOURNAL, "a") as f:
+        f.write(json.dumps(entry, sort_keys=True) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _read_journal(out: Path, cfg_sha: str) -> tuple[dict[str, str], dict[str, str] | None]:
+    """Shard records and the asset digests of the last start, of the journal lines made with ``cfg_sha``.
+
+    A torn last line (the process died while appending) is ignored.
+    """
+    shards: dict[str, str] = {}
+    assets = None
     try:
-        arrays = read_shard(path)
-    except CorruptShardError:
-        return False
-    return [int(i) for i in arrays["sample_id"]] == [i[0] for i in task.items]
+        lines = (out / JOURNAL).read_text().splitlines()
+    except (OSError, UnicodeDecodeError):
+        return shards, assets
+    for line in lines:
+        try:
+            e = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if not isinstance(e, dict) or e.get("config_sha256") != cfg_sha:
+            continue
+        if "shard" in e and "sha256" in e:
+            shards[str(e["shard"])] = str(e["sha256"])
+        elif "assets" in e:
+            assets = {str(k): str(v) for k, v in e["assets"].items()}
+    return shards, assets
+
+
+def _card_records(out: Path, cfg: GenerateConfig) -> tuple[dict[str, str], dict[str, str] | None]:
+    """Shard sha256s and asset digests recorded in an existing ``card.json`` of the same config."""
+    try:
+        card = json.loads((out / "card.json").read_text())
+        if card.get("config") != json.loads(cfg.to_json()):
+            return {}, None
+        return ({str(k): str(v["sha256"]) for k, v in card.get("shards", {}).items()},
+                {str(k): str(v) for k, v in card.get("assets", {}).items()})
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return {}, None
+
+
+def _shard_status(path: Path, task: ShardTask, recorded: str | None) -> str:
+    """"ok", "missing", "unrecorded" (no record of writing it), "modified" (bytes differ from the
+    record) or "foreign" (its sample keys are not the plan's)."""
+    if not path.is_file():
+        return "missing"
+    if recorded is None:
+        return "unrecorded"
+    if sha256_file(path) != recorded:
+        return "modified"
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            keys = list(zip(z["sample_id"].tolist(), z["instance_id"].tolist(), z["view_id"].tolist()))
+    except Exception:  # noqa: BLE001 - any unreadable file fails verification
+        return "modified"
+    return "ok" if keys == [tuple(i) for i in task.items] else "foreign"
+
+
+def _move_to_rejected(out: Path, path: Path, status: str) -> Path:
+    dest_dir = out / REJECTED
+    dest_dir.mkdir(exist_ok=True)
+    dest = dest_dir / f"{path.stem}.{status}.npz"
+    k = 1
+    while dest.exists():
+        dest = dest_dir / f"{path.stem}.{status}.{k}.npz"
+        k += 1
+    os.replace(path, dest)
+    return dest
+
+
+def _check_out_folder(out: Path) -> None:
+    """Refuse an ``--out`` that is a file, or a non-empty folder that holds no scapo dataset."""
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out} is an existing file; give a folder for the dataset")
+    if out.is_dir() and not (out / "config.json").exists():
+        foreign = [p.name for p in out.iterdir() if p.name != FolderLock.NAME]
+        if foreign:
+            raise ConfigError(f"--out {out} is a non-empty folder without a scapo dataset (holds "
+                              f"{', '.join(sorted(foreign)[:4])}{', ...' if len(foreign) > 4 else ''}); give a new "
+                              "or empty folder")
+
+
+def _dict_diff(old, new, prefix: str = "") -> list[str]:
+    """Dotted names of the entries that differ between two JSON-like dicts."""
+    if not (isinstance(old, dict) and isinstance(new, dict)):
+        return [prefix.rstrip(".") or "(whole config)"] if old != new else []
+    out = []
+    for k in sorted(set(old) | set(new)):
+        out += _dict_diff(old.get(k), new.get(k), f"{prefix}{k}.")
+    return out
+
+
+def _warn(msg: str) -> None:
+    print(f"scapo generate: warning: {msg}", file=sys.stderr, flush=True)
 
 
 # ---------------------------------------------------------------------------- driver
@@ -164,31 +277,76 @@ def generate(
         on_shard_done: called with each shard name after it is written (used by tests to
             interrupt a run).
 
+    Resuming verifies every shard already on disk against its record (see the module docstring);
+    failing shards are moved to ``out/rejected/`` and rendered again (listed in the report's
+    ``rejected_shards``; a moved shard identical to its new rendering is deleted instead).
+
     Raises:
-        ConfigError: ``out`` holds a dataset made with a different config.
+        ConfigError: ``out`` holds a dataset made with a different config (the message names the
+            differing fields), is a file or a foreign non-empty folder, ``workers < 1``, or the assets
+            differ from those the finished shards were rendered with.
+        DatasetError: ``out/config.json`` is unreadable.
+        OutputError: ``out`` cannot be written, or another process is generating into it.
         RenderError: a sample's views were all rejected, or no Vulkan device.
     """
     t0 = time.perf_counter()
+    if int(workers) < 1:
+        raise ConfigError(f"workers must be >= 1, got {workers}")
     out = Path(out)
+    _check_out_folder(out)
+    check_output_dir(out, "dataset folder")
+    with FolderLock(out, "generate"):
+        return _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0)
+
+
+def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0) -> GenerateReport:
     shard_dir = out / "shards"
     shard_dir.mkdir(parents=True, exist_ok=True)
+    for folder in (out, shard_dir):  # leftovers of interrupted writes (we hold the folder's lock)
+        clean_stale_temps(folder, any_pid=True)
     cfg_json = cfg.to_json()
     cfg_path = out / "config.json"
     if cfg_path.is_file():
-        old = json.loads(cfg_path.read_text())
+        old = read_json(cfg_path, "dataset config", DatasetError,
+                        "if the folder was made with these same arguments, delete that file and rerun to resume; "
+                        "otherwise choose another --out")
         if old != json.loads(cfg_json):
-            diff = sorted(k for k in set(old) | set(cfg.to_dict()) if old.get(k) != cfg.to_dict().get(k))
+            diff = _dict_diff(old, json.loads(cfg_json))
             raise ConfigError(f"{out} already holds a dataset generated with a different config (differs in "
-                              f"{diff}); choose another --out or delete {out}")
+                              f"{', '.join(diff)}); choose another --out or delete {out}")
     else:
         write_json(cfg_path, json.loads(cfg_json))
-    for stale in shard_dir.glob(".*.tmp-*"):  # leftovers of an interrupted write
-        stale.unlink()
+    cfg_sha = config_sha256(cfg)
 
     records = build_category(cfg.category, cfg.instances, cfg.seed, cache_dir, progress=False)
+    assets = {str(r.instance_id): r.digest for r in records}
+    card_shards, card_assets = _card_records(out, cfg)
+    journal_shards, journal_assets = _read_journal(out, cfg_sha)
+    recorded = {**card_shards, **journal_shards}
+    before = journal_assets if journal_assets is not None else card_assets
+    if recorded and before is not None:
+        changed = sorted((k for k in assets if k in before and before[k] != assets[k]), key=int)
+        if changed:
+            raise ConfigError(
+                f"{out}: the assets of instance(s) {', '.join(changed)} differ from those its finished shards were "
+                "rendered with (the asset generator or its templates changed since); generate into a new --out")
+    _append_journal(out, {"event": "start", "config_sha256": cfg_sha, "assets": assets,
+                          "time": time.strftime("%Y-%m-%dT%H:%M:%S")})
+
     urdfs = {r.instance_id: str(r.urdf) for r in records}
     tasks = plan(cfg)
-    todo = [t for t in tasks if not _shard_is_complete(shard_dir / f"{t.name}.npz", t)]
+    todo, moved = [], {}
+    for t in tasks:
+        path = shard_dir / f"{t.name}.npz"
+        status = _shard_status(path, t, recorded.get(t.name))
+        if status == "ok":
+            continue
+        if status != "missing":
+            moved[t.name] = _move_to_rejected(out, path, status)
+        todo.append(t)
+    if moved:
+        _warn(f"{len(moved)} shard(s) on disk failed verification and will be rendered again (moved to "
+              f"{out / REJECTED}): " + ", ".join(f"{n} ({p.name.split('.')[1]})" for n, p in moved.items()))
     total = sum(len(t.items) for t in tasks)
     n_todo = sum(len(t.items) for t in todo)
     bar = None
@@ -201,6 +359,8 @@ def generate(
     spans: list[tuple[float, float]] = []
 
     def done(res: dict) -> None:
+        _append_journal(out, {"shard": res["name"], "sha256": res["sha256"], "config_sha256": cfg_sha})
+        recorded[res["name"]] = res["sha256"]
         rejections.update(res["reasons"])
         spans.append((res["t0"], res["t1"]))
         if on_shard_done is not None:
@@ -221,10 +381,17 @@ def generate(
             bar.close()
     render_seconds = time.perf_counter() - t_render
     steady = (max(s[1] for s in spans) - min(s[0] for s in spans)) if spans else 0.0
-    card = _finalize(cfg, out, tasks, records)
+    for name, path in list(moved.items()):  # a rejected shard identical to its new rendering was ours
+        if sha256_file(path) == recorded.get(name):
+            path.unlink()
+    if (out / REJECTED).is_dir() and not any((out / REJECTED).iterdir()):
+        (out / REJECTED).rmdir()
+    card = _finalize(cfg, out, tasks, records, recorded)
     _write_run_log(out, workers, n_todo, render_seconds, time.perf_counter() - t0, rejections)
     rej = Counter(card["rejections"]["by_reason"])
-    return GenerateReport(out, total, n_todo, len(tasks) - len(todo), rej, render_seconds, steady)
+    rejected = [n for n, p in moved.items() if p.exists()]
+    return GenerateReport(out, total, n_todo, len(tasks) - len(todo), rej, render_seconds, steady, rejected,
+                          card["splits"]["test"]["samples"])
 
 
 def _run_pool(cfg_json, urdfs, todo, shard_dir, workers, bar, done) -> None:
@@ -253,16 +420,16 @@ def _run_pool(cfg_json, urdfs, todo, shard_dir, workers, bar, done) -> None:
         th.join(timeout=5)
 
 
-def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records) -> dict:
-    """Check every shard, write ``manifest.parquet`` and ``card.json``; returns the card."""
+def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records, recorded: dict[str, str]) -> dict:
+    """Check every shard against its record, write ``manifest.parquet`` and ``card.json``; returns the card."""
     shard_dir = out / "shards"
     rows, shards, reasons = [], {}, Counter()
     for t in tasks:
         path = shard_dir / f"{t.name}.npz"
-        arrays = read_shard(path)
+        arrays = read_shard(path, recorded.get(t.name))
         if [int(i) for i in arrays["sample_id"]] != [i[0] for i in t.items]:
             raise DatasetError(f"shard {path} holds other samples than planned; delete it and rerun")
-        shards[t.name] = {"sha256": sha256_file(path), "samples": len(t.items), "split": t.split}
+        shards[t.name] = {"sha256": recorded[t.name], "samples": len(t.items), "split": t.split}
         if "rejections" in arrays:
             reasons.update(json.loads(str(arrays["rejections"])))
         for r in range(len(t.items)):
@@ -279,8 +446,9 @@ def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records) -
                 "joint_state": [float(x) for x in arrays["joint_state"][r]],
             })
     manifest = pd.DataFrame(rows)
-    manifest.to_parquet(out / ".manifest.parquet.tmp", index=False)
-    os.replace(out / ".manifest.parquet.tmp", out / "manifest.parquet")
+    buf = io.BytesIO()
+    manifest.to_parquet(buf, index=False)
+    atomic_write_bytes(out / "manifest.parquet", buf.getvalue())
     spec = parse_urdf(records[0].urdf, category=cfg.category)
     train, test = split_instances(cfg.instances, cfg.test_fraction, cfg.seed)
     attempts = manifest["attempts"].to_numpy()

@@ -16,13 +16,13 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from scapo.errors import CorruptShardError
+from scapo.files import atomic_write_bytes, write_json  # noqa: F401  (re-exported)
 
 #: Per-sample array fields stored in shards, with their dtype (SPEC section 5 names).
 ARRAY_FIELDS: dict[str, np.dtype] = {
@@ -47,17 +47,6 @@ META_FIELDS: dict[str, np.dtype] = {
     "view_id": np.dtype(np.int32),
     "attempts": np.dtype(np.int16),
 }
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a hidden temporary file in the same folder and a rename."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def sha256_file(path: Path) -> str:
@@ -114,7 +103,3 @@ def read_shard(path: Path, expected_sha256: str | None = None) -> dict[str, np.n
     if len(n) != 1:
         raise CorruptShardError(f"shard {path} has fields of different lengths")
     return arrays
-
-
-def write_json(path: Path, obj: dict) -> None:
-    atomic_write_bytes(Path(path), (json.dumps(obj, indent=1, sort_keys=True) + "\n").encode())

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from scapo.data.dataset import ArticulationDataset, load
-from scapo.errors import PredictionError
+from scapo.errors import DatasetError, PredictionError
 from scapo.eval.alignment import CanonicalAlignment, axis_sign, estimate_alignment
 from scapo.eval.metrics import (
     AP_THRESHOLDS,
@@ -130,14 +130,20 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
         check_hash: refuse predictions made on a dataset with another hash.
 
     Raises:
-        PredictionError: missing samples, wrong shapes, or predictions of another dataset.
+        PredictionError: missing samples, wrong shapes or values (see
+            :meth:`~scapo.eval.predictions.Predictions.validate`), or predictions of another dataset.
+        DatasetError: ``dataset`` is not a dataset, or its test split is empty.
     """
     t0 = time.perf_counter()
     if protocol not in PROTOCOLS:
         raise PredictionError(f"unknown protocol {protocol!r}; known protocols: {', '.join(PROTOCOLS)}")
     root = dataset.root if isinstance(dataset, ArticulationDataset) else Path(dataset)
-    preds = predictions if isinstance(predictions, Predictions) else Predictions.load(predictions)
     test = load(root, "test")
+    if len(test) == 0:
+        raise DatasetError(f"the test split of {root} is empty (generated with --test-fraction "
+                           f"{test.card.get('config', {}).get('test_fraction')}); nothing to evaluate: regenerate "
+                           "it with test instances")
+    preds = predictions if isinstance(predictions, Predictions) else Predictions.load(predictions)
     if check_hash and preds.dataset_hash and preds.dataset_hash != test.dataset_hash:
         raise PredictionError(f"predictions of {preds.method!r} were made on dataset {preds.dataset_hash[:12]}..., "
                               f"not on {root} ({test.dataset_hash[:12]}...)")

@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from scapo.data.storage import atomic_write_bytes
 from scapo.errors import PredictionError
+from scapo.files import atomic_write_bytes, check_output_file, clean_stale_temps
 
 _FIELDS = {
     "part_label": (np.int64, 2),
@@ -47,6 +47,11 @@ _FIELDS = {
     "joint_state": (np.float64, 2),
     "T_cam_obj": (np.float64, 3),
 }
+#: Fields that must hold integers (a float array is refused, never truncated).
+_INTEGER_FIELDS = ("part_label", "joint_parts", "joint_type")
+#: Tolerances of the checks on load: |axis| = 1 and R^T R = I, det R = +1 (float32 outputs pass).
+AXIS_TOL = 1e-3
+RIGID_TOL = 1e-3
 
 
 @dataclass
@@ -76,36 +81,90 @@ class Predictions:
     def __len__(self) -> int:
         return len(self.instance_id)
 
+    def _where(self, row: int) -> str:
+        try:
+            return f"sample {row} (instance {int(self.instance_id[row])}, view {int(self.view_id[row])})"
+        except (IndexError, TypeError, ValueError):
+            return f"sample {row}"
+
     def validate(self) -> None:
-        """Check shapes, dtypes and finiteness.
+        """Check shapes, dtypes, finiteness and meaning of every field.
+
+        Checked: every field has M rows and its documented shape (``part_pose (M, S, 4, 4)``,
+        ``joint_axis`` and ``joint_pivot (M, J, 3)``, ``joint_parts (M, J, 2)``, ``joint_state`` and
+        ``joint_type (M, J)``, ``T_cam_obj (M, 4, 4)``); labels, slots and joint types are integers
+        (float arrays are refused, never truncated); labels are -1 or a slot index; joint types are 0 or
+        1; joint axes are unit vectors (within :data:`AXIS_TOL`); poses are rigid (rotation block
+        orthonormal with determinant +1 within :data:`RIGID_TOL`, last row ``0 0 0 1``); no NaN/inf.
 
         Raises:
-            PredictionError: naming the offending field.
+            PredictionError: naming the offending field and the first offending sample.
         """
         M = len(self.instance_id)
         for name in ("view_id", "split"):
             if len(getattr(self, name)) != M:
                 raise PredictionError(f"predictions field {name!r} has {len(getattr(self, name))} rows, expected {M}")
+        for name in ("instance_id", "view_id"):
+            arr = np.asarray(getattr(self, name))
+            if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
+                raise PredictionError(f"predictions field {name!r} must be a 1-D integer array, got {arr.dtype} "
+                                      f"of shape {arr.shape}")
         for name, (dt, ndim) in _FIELDS.items():
             arr = np.asarray(getattr(self, name))
             if arr.ndim != ndim or arr.shape[0] != M:
                 raise PredictionError(f"predictions field {name!r} has shape {arr.shape}, expected {ndim} dims "
                                       f"with {M} rows")
+            if name in _INTEGER_FIELDS and arr.size and not (np.issubdtype(arr.dtype, np.integer)
+                                                              or arr.dtype == bool):
+                raise PredictionError(f"predictions field {name!r} must hold integers, got dtype {arr.dtype}")
+            if not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+                raise PredictionError(f"predictions field {name!r} must be numeric, got dtype {arr.dtype}")
             if np.issubdtype(arr.dtype, np.floating) and not np.isfinite(arr).all():
-                bad = int(np.count_nonzero(~np.isfinite(arr).reshape(M, -1).all(1)))
-                raise PredictionError(f"predictions field {name!r} holds NaN/inf in {bad} of {M} samples")
+                rows = ~np.isfinite(arr).reshape(M, -1).all(1)
+                raise PredictionError(f"predictions field {name!r} holds NaN/inf in {int(rows.sum())} of {M} samples "
+                                      f"(first: {self._where(int(np.argmax(rows)))})")
             setattr(self, name, arr.astype(dt, copy=False))
         if self.part_pose.shape[-2:] != (4, 4) or self.T_cam_obj.shape[-2:] != (4, 4):
-            raise PredictionError(f"part_pose and T_cam_obj must have shape (..., 4, 4), got {self.part_pose.shape} "
-                                  f"and {self.T_cam_obj.shape}")
+            raise PredictionError(f"part_pose and T_cam_obj must have shape (M, S, 4, 4) and (M, 4, 4), got "
+                                  f"{self.part_pose.shape} and {self.T_cam_obj.shape}")
         J = self.joint_axis.shape[1]
-        if self.joint_pivot.shape[1] != J or self.joint_state.shape[1] != J or self.joint_parts.shape[1:] != (J, 2):
-            raise PredictionError("joint_axis, joint_pivot, joint_state and joint_parts disagree on J")
+        for name, shape in (("joint_axis", (J, 3)), ("joint_pivot", (J, 3)), ("joint_parts", (J, 2)),
+                            ("joint_state", (J,)), ("joint_type", (J,))):
+            if getattr(self, name).shape[1:] != shape:
+                raise PredictionError(f"predictions field {name!r} has shape {getattr(self, name).shape}, expected "
+                                      f"(M, {', '.join(map(str, shape))}) with J = {J} joints (from joint_axis)")
         S = self.part_pose.shape[1]
         if self.joint_parts.size and (self.joint_parts.min() < 0 or self.joint_parts.max() >= S):
-            raise PredictionError(f"joint_parts refers to slots outside 0..{S - 1}")
-        if self.part_label.size and self.part_label.max() >= S:
-            raise PredictionError(f"part_label refers to slots outside -1..{S - 1}")
+            row = int(np.argmax(((self.joint_parts < 0) | (self.joint_parts >= S)).reshape(M, -1).any(1)))
+            raise PredictionError(f"joint_parts refers to slots outside 0..{S - 1} ({self._where(row)})")
+        if self.part_label.size and (self.part_label.min() < -1 or self.part_label.max() >= S):
+            row = int(np.argmax(((self.part_label < -1) | (self.part_label >= S)).any(1)))
+            raise PredictionError(f"part_label must be -1 (not object) or a slot in 0..{S - 1}; "
+                                  f"{self._where(row)} has {sorted(set(self.part_label[row].tolist()))[:6]}")
+        if self.joint_type.size and not np.isin(self.joint_type, (0, 1)).all():
+            row = int(np.argmax(~np.isin(self.joint_type, (0, 1)).all(1)))
+            raise PredictionError(f"joint_type must be 0 (revolute) or 1 (prismatic); {self._where(row)} has "
+                                  f"{self.joint_type[row].tolist()}")
+        if self.joint_axis.size:
+            err = np.abs(np.linalg.norm(self.joint_axis, axis=-1) - 1.0)
+            if (err > AXIS_TOL).any():
+                row, j = np.unravel_index(int(np.argmax(err)), err.shape)
+                raise PredictionError(f"joint_axis must hold unit vectors; joint {j} of {self._where(int(row))} has "
+                                      f"length {np.linalg.norm(self.joint_axis[row, j]):.4g} (a zero axis cannot be "
+                                      "scored)")
+        for name, T in (("part_pose", self.part_pose), ("T_cam_obj", self.T_cam_obj[:, None])):
+            if not T.size:
+                continue
+            R = T[..., :3, :3]
+            ortho = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max((-1, -2))
+            bad = (ortho > RIGID_TOL) | (np.linalg.det(R) < 0) | \
+                (np.abs(T[..., 3, :] - [0.0, 0.0, 0.0, 1.0]).max(-1) > 1e-6)
+            if bad.any():
+                row, k = np.unravel_index(int(np.argmax(bad)), bad.shape)
+                slot = f" slot {k}" if name == "part_pose" else ""
+                raise PredictionError(f"predictions field {name!r} must hold rigid transforms (rotation with "
+                                      f"R^T R = I, det +1, last row 0 0 0 1);{slot} of {self._where(int(row))} is not "
+                                      f"(|R^T R - I| = {ortho[row, k]:.3g}, det = {np.linalg.det(R[row, k]):.3g})")
         self.split = np.asarray(self.split).astype(str)
         self.instance_id = np.asarray(self.instance_id, dtype=np.int64)
         self.view_id = np.asarray(self.view_id, dtype=np.int64)
@@ -117,9 +176,14 @@ class Predictions:
                 "format": "scapo-predictions-1"}
 
     def save(self, path: str | Path) -> Path:
-        """Write atomically to ``path`` (``.npz``)."""
+        """Write atomically to ``path`` (``.npz``).
+
+        Raises:
+            OutputError: ``path`` cannot be written (nothing is left under its name).
+        """
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        check_output_file(path, "predictions file")
+        clean_stale_temps(path.parent, only=path.name)
         arrays = {k: getattr(self, k) for k in _FIELDS}
         arrays.update(instance_id=self.instance_id, view_id=self.view_id, split=self.split.astype("U8"),
                       meta=np.array(json.dumps(self.meta(), default=str)))
@@ -146,11 +210,22 @@ class Predictions:
         missing = ({"meta", "instance_id", "view_id", "split"} | set(_FIELDS)) - set(arrays)
         if missing:
             raise PredictionError(f"predictions file {path} lacks fields {sorted(missing)}")
-        meta = json.loads(str(arrays.pop("meta")))
-        if meta.get("format") != "scapo-predictions-1":
-            raise PredictionError(f"{path} is not a scapo predictions file (format {meta.get('format')!r})")
-        return cls(method=meta["method"], needs_alignment=meta["needs_alignment"], supervision=meta["supervision"],
-                   dataset_hash=meta.get("dataset_hash", ""), info=meta.get("info", {}), **arrays)
+        try:
+            meta = json.loads(str(arrays.pop("meta")))
+        except ValueError as e:
+            raise PredictionError(f"predictions file {path} has an unreadable header (meta: {e})") from None
+        if not isinstance(meta, dict) or meta.get("format") != "scapo-predictions-1":
+            fmt = meta.get("format") if isinstance(meta, dict) else None
+            raise PredictionError(f"{path} is not a scapo predictions file (format {fmt!r})")
+        lacking = [k for k in ("method", "needs_alignment", "supervision") if k not in meta]
+        if lacking:
+            raise PredictionError(f"predictions file {path}: header lacks {lacking}")
+        try:
+            return cls(method=str(meta["method"]), needs_alignment=bool(meta["needs_alignment"]),
+                       supervision=dict(meta["supervision"]), dataset_hash=str(meta.get("dataset_hash", "")),
+                       info=dict(meta.get("info", {})), **arrays)
+        except PredictionError as e:
+            raise PredictionError(f"predictions file {path}: {e}") from None
 
     def select(self, mask: np.ndarray) -> Predictions:
         """Rows where ``mask`` is True."""

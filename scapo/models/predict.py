@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +13,7 @@ import torch
 
 from scapo.baselines.base import METHODS
 from scapo.data.dataset import ArticulationDataset
-from scapo.errors import TrainingError
+from scapo.errors import ConfigError, InputError, TrainingError
 from scapo.eval.predictions import Predictions
 from scapo.models.encoder import EncoderConfig
 from scapo.models.presets import PRESETS
@@ -28,14 +30,70 @@ def _model_config(d: dict) -> ModelConfig:
                        head_width=d["head_width"], root_motion=d.get("root_motion", False))
 
 
+#: Points per cloud that :meth:`Predictor.predict` accepts: below ``MIN_POINTS`` the encoder's k-nearest-
+#: neighbour features (k up to 16) span a large part of the cloud and a part segmentation means little.
+MIN_POINTS = 64
+#: Larger clouds are farthest-point subsampled to this many points (with a warning): the encoder's
+#: pairwise distances grow as N^2 per cloud (1e5 points would need 40 GB).
+MAX_POINTS = 4096
+#: Bytes of pairwise-distance matrices (B x N x N float32) one inference batch may allocate.
+_BATCH_BYTES = 1 << 29
+
+
+def check_points(points) -> torch.Tensor:
+    """Validate clouds for :meth:`Predictor.predict`; returns them as a float32 CPU tensor ``(B, N, 3)``.
+
+    Args:
+        points: ``(B, N, 3)`` camera-frame metres, numpy or torch, any real dtype.
+
+    Raises:
+        InputError: not a numeric (B, N, 3) array (a single (N, 3) cloud is named as such), an empty
+            batch, fewer than :data:`MIN_POINTS` points per cloud, NaN/inf coordinates, or a degenerate
+            cloud (all points within 0.1 mm of their centroid, or on one line); the message names the
+            cloud index.
+    """
+    try:
+        pts = points.detach().to("cpu", torch.float32) if torch.is_tensor(points) else \
+            torch.from_numpy(np.asarray(points, dtype=np.float32))
+    except (TypeError, ValueError) as e:
+        raise InputError(f"points must be a numeric array of shape (B, N, 3) in metres ({e})") from None
+    if pts.dim() == 2 and pts.shape[-1] == 3:
+        raise InputError(f"points has shape {tuple(pts.shape)}, one cloud; pass a batch of shape (B, N, 3), "
+                         "e.g. points[None]")
+    if pts.dim() != 3 or pts.shape[-1] != 3:
+        raise InputError(f"points must have shape (B, N, 3), got {tuple(pts.shape)}")
+    B, N = pts.shape[:2]
+    if B == 0:
+        raise InputError("points is an empty batch (B = 0); pass at least one cloud")
+    if N < MIN_POINTS:
+        raise InputError(f"clouds of {N} points are too small: SCAPO needs at least {MIN_POINTS} points per cloud")
+    finite = torch.isfinite(pts).all(dim=2)
+    if not finite.all():
+        bad = torch.nonzero(~finite.all(dim=1)).flatten().tolist()
+        raise InputError(f"cloud(s) {bad[:8]}{' ...' if len(bad) > 8 else ''} contain NaN or inf coordinates "
+                         f"({int((~finite).sum())} points); remove those points first")
+    c = pts.double() - pts.double().mean(dim=1, keepdim=True)
+    ev = torch.linalg.eigvalsh(c.transpose(1, 2) @ c / N).clamp_min(0.0).sqrt()  # (B, 3) ascending, metres
+    tiny = torch.nonzero(ev.norm(dim=1) < 1e-4).flatten().tolist()
+    if tiny:
+        raise InputError(f"cloud(s) {tiny[:8]} are degenerate: all points lie within 0.1 mm of their centroid "
+                         "(identical points?)")
+    line = torch.nonzero(ev[:, 1] < 1e-3 * ev[:, 2]).flatten().tolist()
+    if line:
+        raise InputError(f"cloud(s) {line[:8]} are degenerate: all points lie on one line")
+    return pts
+
+
 class Predictor:
     """A trained SCAPO model ready for inference (``scapo.models.load(run)``)."""
 
-    def __init__(self, model: SCAPOModel, identity: dict, device: torch.device, refine: RefineConfig | None = None):
+    def __init__(self, model: SCAPOModel, identity: dict, device: torch.device, refine: RefineConfig | None = None,
+                 max_points: int = MAX_POINTS):
         self.model = model.to(device).eval()
         self.identity = identity
         self.device = device
         self.refine = refine if refine is not None else RefineConfig()
+        self.max_points = int(max_points)
 
     @classmethod
     def load(cls, run: str | Path, device: str | None = None, refine_steps: int | None = None) -> Predictor:
@@ -47,32 +105,49 @@ class Predictor:
         overrides its number of steps (0 turns it off).
 
         Raises:
-            TrainingError: missing, unreadable or unfinished checkpoint.
-            ValueError: negative ``refine_steps``.
+            TrainingError: the run folder does not exist, has no checkpoint, or its checkpoint is
+                unreadable (truncated, not a checkpoint) or from an unfinished run.
+            ConfigError: negative ``refine_steps``; an unknown or unavailable ``device``.
         """
-        path = Path(run) / "checkpoint.pt"
+        run = Path(run)
+        path = run / "checkpoint.pt"
+        if not run.is_dir():
+            what = "it is a file, not a run folder" if run.exists() else "the folder does not exist"
+            raise TrainingError(f"{run} holds no checkpoint: {what}; train a run first with 'scapo train --data DATA "
+                                f"--out {run}'")
         if not path.is_file():
-            raise TrainingError(f"{run} holds no checkpoint.pt; train first with 'scapo train --out {run}'")
+            raise TrainingError(f"{run} holds no checkpoint.pt (not a trained run); train first with "
+                                f"'scapo train --data DATA --out {run}'")
+        if refine_steps is not None and int(refine_steps) < 0:
+            raise ConfigError(f"refine_steps must be >= 0, got {refine_steps}")
         dev = resolve_device(device or "auto")
         try:
             state = torch.load(path, map_location=dev, weights_only=False)
             model = SCAPOModel(_model_config(state["model_config"]))
             model.load_state_dict(state["model"])
-        except (KeyError, RuntimeError, OSError, EOFError) as e:
-            raise TrainingError(f"checkpoint {path} cannot be loaded ({type(e).__name__}: {e})") from e
-        if not state.get("done"):
+            identity, done = state["identity"], state.get("done")
+            stored = identity["preset"]
+        except Exception as e:  # noqa: BLE001 - torch.load raises many kinds for a damaged file
+            raise TrainingError(f"checkpoint {path} cannot be loaded ({type(e).__name__}: {e}); it is damaged or not "
+                                f"a scapo checkpoint: retrain with 'scapo train --out {run}' (delete the damaged "
+                                "file first)") from None
+        if not done:
             raise TrainingError(f"{path} is from an unfinished run (stage {state.get('stage')}, epoch "
-                                f"{state.get('epoch')}); resume it with 'scapo train' first")
-        stored = state["identity"]["preset"]
+                                f"{state.get('epoch')}); resume it with 'scapo train --out {run}' first")
         # an inference setting follows the preset's current definition when the preset is registered
         registered = stored.get("name") in PRESETS.names()
         refine = (PRESETS.get(stored["name"]) if registered else preset_from_dict(stored)).refine
         if refine_steps is not None:
             refine = dataclasses.replace(refine, steps=int(refine_steps))
-        return cls(model, state["identity"], dev, refine)
+        return cls(model, identity, dev, refine)
 
-    def predict(self, points, batch_size: int = 32) -> dict[str, np.ndarray]:
+    def predict(self, points, batch_size: int = 32, progress: bool = False) -> dict[str, np.ndarray]:
         """Predict for ``points (B, N, 3)`` float32 camera-frame metres (numpy or torch).
+
+        Clouds must have at least :data:`MIN_POINTS` points (see :func:`check_points`). Clouds of more
+        than ``self.max_points`` points are farthest-point subsampled to that many (a warning says so);
+        the per-point outputs (``part_label``, ``weights``, ``canonical_shape``) are then those of each
+        input point's nearest subsampled point, so they keep the input's N.
 
         With refinement on (``self.refine.steps > 0``) each batch is also fitted to its points
         (:mod:`scapo.models.refine`); a view's result does not depend on the other views of its batch.
@@ -82,58 +157,117 @@ class Predictor:
         ``joint_state (B,J)``, ``canonical_shape (B,N,3)``, ``template (B,M,3)``.
 
         Raises:
-            ValueError: points not of shape (B, N, 3) or not finite.
+            InputError: see :func:`check_points` (also a ``ValueError``).
         """
-        pts = torch.as_tensor(np.asarray(points) if not torch.is_tensor(points) else points).float()
-        if pts.dim() != 3 or pts.shape[-1] != 3:
-            raise ValueError(f"points must have shape (B, N, 3), got {tuple(pts.shape)}")
-        if not torch.isfinite(pts).all():
-            raise ValueError("points contain NaN or inf")
+        pts = check_points(points)
+        B, N = pts.shape[:2]
+        nearest = None
+        if N > self.max_points:
+            warnings.warn(f"clouds of {N} points were farthest-point subsampled to {self.max_points} for SCAPO; "
+                          "per-point outputs come from each point's nearest subsampled point", stacklevel=2)
+            from scipy.spatial import cKDTree
+
+            from scapo.sim.render import farthest_point_indices
+
+            rng = np.random.default_rng(0)
+            full = pts.numpy()
+            idx = np.stack([farthest_point_indices(c, self.max_points, rng) for c in full])
+            nearest = np.stack([cKDTree(c[i]).query(c)[1] for c, i in zip(full, idx)])
+            pts = torch.from_numpy(np.take_along_axis(full, idx[..., None], axis=1))
+        n = pts.shape[1]
+        step = max(1, min(int(batch_size), _BATCH_BYTES // (4 * n * n)))
+        starts = range(0, B, step)
+        if progress:
+            from tqdm import tqdm
+
+            starts = tqdm(starts, desc="scapo predict", unit="batch")
         outs = []
-        for k in range(0, len(pts), batch_size):
-            o = self.model.predict(pts[k:k + batch_size].to(self.device), self.refine)
-            outs.append({n: v.cpu().numpy() for n, v in o.items()})
-        return {n: np.concatenate([o[n] for o in outs]) for n in outs[0]}
+        for k in starts:
+            o = self.model.predict(pts[k:k + step].to(self.device), self.refine)
+            outs.append({name: v.cpu().numpy() for name, v in o.items()})
+        res = {name: np.concatenate([o[name] for o in outs]) for name in outs[0]}
+        if nearest is not None:
+            for name in ("part_label", "weights", "canonical_shape"):
+                res[name] = np.take_along_axis(res[name], nearest.reshape(B, N, *[1] * (res[name].ndim - 2)), axis=1)
+        return res
+
+
+@dataclass(frozen=True)
+class SCAPOOptions:
+    """Options of the ``scapo`` method (``scapo predict --run RUN --option k=v``)."""
+
+    run: Path | None = None
+    """Trained run folder (written by ``scapo train``); required. Prediction never trains."""
+    device: str | None = None
+    """cpu | cuda | cuda:N (default: CUDA when available)."""
+    batch_size: int = 32
+    """Clouds per inference batch."""
+    refine_steps: int | None = None
+    """Steps of the test-time refinement (default: the run's preset; 0 turns it off)."""
+    label: str = "scapo"
+    """Method name written into the predictions (e.g. ``scapo-no-refine`` for a second row of one run)."""
+    cross_category: bool = False
+    """Allow predicting on a dataset of another category with the same kinematic structure."""
+    progress: bool = False
+    """Show a progress bar over inference batches."""
+
+    def __post_init__(self):
+        if self.batch_size < 1:
+            raise ConfigError(f"batch_size must be >= 1, got {self.batch_size}")
+        if self.refine_steps is not None and self.refine_steps < 0:
+            raise ConfigError(f"refine_steps must be >= 0, got {self.refine_steps}")
+        if not str(self.label).strip():
+            raise ConfigError("label must not be empty")
+
+
+def _structure(d: dict) -> str:
+    kinds = ", ".join("revolute" if t == 0 else "prismatic" for t in d["joint_type"]) or "none"
+    return f"{len(d['part_names'])} parts ({', '.join(d['part_names'])}), joints: {kinds}"
 
 
 class SCAPOMethod:
-    """SCAPO in the method registry: trains into ``run`` with ``preset`` if that run is not finished."""
+    """SCAPO in the method registry: loads a trained run (never trains; that is ``scapo train``)."""
 
     name = "scapo"
     needs_alignment = True
     supervision = {"pose": False, "segmentation": False, "joint": False}
 
-    def __init__(self, run: str | Path | None = None, preset: str = "cpu", device: str | None = None,
-                 progress: bool = False, batch_size: int = 32, refine_steps: int | None = None,
-                 label: str = "scapo"):
-        if run is None:
-            raise TrainingError("the scapo method needs a run folder (option run=...)")
-        self.run, self.preset, self.device, self.progress, self.batch_size = Path(run), preset, device, progress, \
-            batch_size
-        self.refine_steps = refine_steps
-        self.label = str(label)
+    def __init__(self, options: SCAPOOptions | None = None, **overrides):
+        self.options = dataclasses.replace(options or SCAPOOptions(), **overrides)
+        if self.options.run is None:
+            raise ConfigError("the scapo method needs a trained run: --run RUN (a folder written by 'scapo train')")
+        self.run = Path(self.options.run)
+        self.label = str(self.options.label)
         self.predictor: Predictor | None = None
 
     def fit(self, train: ArticulationDataset) -> None:
-        """Finish (or start) training into ``run``; an unfinished run resumes with its own preset."""
-        from scapo.models.train import Trainer
+        """Load the run and check that it was trained on this dataset's category and kinematic structure.
 
-        ck = self.run / "checkpoint.pt"
-        state = torch.load(ck, map_location="cpu", weights_only=False) if ck.is_file() else None
-        if state is None or not state.get("done"):
-            preset = self.preset
-            if state is not None and "identity" in state:
-                preset = preset_from_dict(state["identity"]["preset"])
-            Trainer(train.root, self.run, preset, self.progress, self.device).train()
-        self.predictor = Predictor.load(self.run, self.device, self.refine_steps)
-        if self.predictor.identity["dataset_hash"] != train.dataset_hash:
-            # a model trained on another dataset of the same category is allowed; note it
-            self.trained_on = self.predictor.identity["dataset_hash"]
+        Raises:
+            TrainingError: see :meth:`Predictor.load`.
+            ConfigError: the run's parts or joints differ from the dataset's, or its category differs
+                (allowed with ``cross_category`` when the structure is the same); names both.
+        """
+        o = self.options
+        self.predictor = Predictor.load(self.run, o.device, o.refine_steps)
+        ident, card = self.predictor.identity, train.card
+        same = (len(ident["part_names"]) == len(card["part_names"])
+                and np.array_equal(np.asarray(ident["joint_type"]), np.asarray(card["joint_type"]))
+                and np.array_equal(np.asarray(ident["joint_parts"]), np.asarray(card["joint_parts"])))
+        what = (f"run {self.run} was trained on {ident['category']!r} ({_structure(ident)}), but {train.root} is "
+                f"{card['category']!r} ({_structure(card)})")
+        if not same:
+            raise ConfigError(f"{what}: a SCAPO model predicts only the structure it was trained on; train a run on "
+                              f"this dataset first ('scapo train --data {train.root} --out RUN')")
+        if ident["category"] != card["category"] and not o.cross_category:
+            raise ConfigError(f"{what}; train a run on this category, or pass --option cross_category=true to "
+                              "predict across categories anyway")
+        self.trained_on = ident["dataset_hash"]
 
     def predict(self, dataset: ArticulationDataset) -> Predictions:
         a = dataset.arrays(["points"])
         t0 = time.perf_counter()
-        o = self.predictor.predict(a["points"], self.batch_size)
+        o = self.predictor.predict(a["points"], self.options.batch_size, self.options.progress)
         seconds = time.perf_counter() - t0
         M = len(a["points"])
         mc = self.predictor.model.cfg
@@ -147,6 +281,7 @@ class SCAPOMethod:
             needs_alignment=True, supervision=dict(self.supervision),
             info={"run": str(self.run), "preset": self.predictor.identity["preset"]["name"],
                   "trained_on": self.predictor.identity["dataset_hash"],
+                  "trained_category": self.predictor.identity["category"],
                   "refine_steps": self.predictor.refine.steps,
                   "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2)},
         )
@@ -154,9 +289,8 @@ class SCAPOMethod:
 
 @METHODS.register("scapo")
 def make_scapo(**options) -> SCAPOMethod:
-    """SCAPO (ours); options: run (folder), preset, device, progress, batch_size, refine_steps (test-time
-    refinement steps; default: the run's preset), label (the method name written into the predictions,
-    e.g. ``scapo-no-refine`` for a second row of the same run)."""
+    """SCAPO (ours) from a trained run; options are :class:`SCAPOOptions` fields."""
     return SCAPOMethod(**options)
 
 
+make_scapo.options = SCAPOOptions

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import hashlib
+import io
 import json
 import os
 import time
@@ -21,7 +22,16 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from scapo.data.dataset import load
-from scapo.errors import DatasetError, TrainingError
+from scapo.errors import ConfigError, DatasetError, TrainingError
+from scapo.files import (
+    FolderLock,
+    atomic_savefig,
+    atomic_write_bytes,
+    atomic_write_text,
+    check_output_dir,
+    clean_stale_temps,
+    write_json,
+)
 from scapo.losses import LossConfig, stage1_terms, stage2_terms, weighted_total
 from scapo.models.encoder import EncoderConfig
 from scapo.models.presets import PRESETS, TrainConfig
@@ -78,9 +88,26 @@ def _changed_fields(old: dict, new: dict, prefix: str = "") -> list[str]:
 
 
 def resolve_device(name: str) -> torch.device:
+    """``"auto"`` (CUDA when available, else CPU), ``"cpu"``, ``"cuda"`` or ``"cuda:N"`` -> a usable device.
+
+    Raises:
+        ConfigError: an unknown device name, or a CUDA device this machine or torch build does not have.
+    """
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
+    try:
+        dev = torch.device(name)
+    except (RuntimeError, TypeError):
+        raise ConfigError(f"unknown device {name!r}; use cpu, cuda, cuda:N or auto") from None
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            why = "this torch build has no CUDA" if torch.version.cuda is None else "no CUDA GPU is visible"
+            raise ConfigError(f"device {name!r} requested, but {why} (torch {torch.__version__}); use --device cpu")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ConfigError(f"device {name!r} requested, but only {torch.cuda.device_count()} CUDA device(s) exist")
+    elif dev.type != "cpu":
+        raise ConfigError(f"device {name!r} is not supported; use cpu, cuda, cuda:N or auto")
+    return dev
 
 
 #: preset fields that only affect inference; a checkpoint is not refused when they differ
@@ -144,9 +171,9 @@ class Trainer:
         return self.run / "checkpoint.pt"
 
     def _save(self, state: dict) -> None:
-        tmp = self.run / f".checkpoint.pt.tmp-{os.getpid()}"
-        torch.save(state, tmp)
-        os.replace(tmp, self._ckpt_path())
+        buf = io.BytesIO()
+        torch.save(state, buf)
+        atomic_write_bytes(self._ckpt_path(), buf.getvalue())
 
     def _load_checkpoint(self) -> dict | None:
         path = self._ckpt_path()
@@ -167,24 +194,66 @@ class Trainer:
                 "use another --out folder")
         return state
 
+    def _check_run_folder(self) -> None:
+        """Refuse a ``run`` that is a file, or a non-empty folder that holds no scapo run."""
+        if self.run.exists() and not self.run.is_dir():
+            raise ConfigError(f"--out {self.run} is an existing file; give a folder for the run")
+        if self.run.is_dir() and not ((self.run / "checkpoint.pt").exists() or (self.run / "run.json").exists()):
+            foreign = sorted(p.name for p in self.run.iterdir() if p.name != FolderLock.NAME)
+            if foreign:
+                raise ConfigError(f"--out {self.run} is a non-empty folder without a scapo run (holds "
+                                  f"{', '.join(foreign[:4])}{', ...' if len(foreign) > 4 else ''}); give a new or "
+                                  "empty folder")
+
+    def _check_unstarted_run(self) -> None:
+        """A run folder without a checkpoint but with ``run.json`` must be this run (refuse before writing)."""
+        try:
+            old = json.loads((self.run / "run.json").read_text())
+        except (OSError, ValueError):
+            return  # no run.json, or one truncated before any epoch finished: nothing to protect
+        if isinstance(old, dict) and _identity_hash(old) != _identity_hash(json.loads(json.dumps(
+                self.identity, default=str))):
+            old_preset = old.get("preset", {}).get("name") if isinstance(old.get("preset"), dict) else None
+            raise TrainingError(f"{self.run} holds a run started with preset {old_preset!r} on the "
+                                f"{old.get('category')!r} dataset {str(old.get('dataset_hash'))[:12]}..., not with "
+                                f"preset {self.preset.name!r} on {self.card['category']!r} dataset "
+                                f"{self.card['dataset_hash'][:12]}...; use another --out folder")
+
     # ------------------------------------------------------------------ training
     def train(self) -> Path:
-        """Run (or resume) both stages; returns the checkpoint path."""
-        self.run.mkdir(parents=True, exist_ok=True)
-        (self.run / "run.json").write_text(json.dumps(self.identity, indent=1, default=str) + "\n")
+        """Run (or resume) both stages; returns the checkpoint path.
+
+        Everything is checked before anything is written: the run folder (a file, a foreign non-empty
+        folder, or not writable), another process training into it, and a checkpoint or ``run.json`` of
+        another preset or dataset.
+
+        Raises:
+            ConfigError, OutputError: unusable run folder. TrainingError: see the class docstring.
+        """
+        self._check_run_folder()
+        check_output_dir(self.run, "run folder")
+        with FolderLock(self.run, "train"):
+            clean_stale_temps(self.run, any_pid=True)
+            return self._train_locked()
+
+    def _train_locked(self) -> Path:
         pc = self.preset
+        state = self._load_checkpoint()
+        if state is None:
+            self._check_unstarted_run()
+        elif state.get("done"):
+            return self._ckpt_path()
+        write_json(self.run / "run.json", json.loads(json.dumps(self.identity, default=str)))
         torch.set_num_threads(max(1, os.cpu_count() or 1))
         data = TrainingClouds(self.data, pc.train_points)
         steps_per_epoch = len(data) // pc.batch_size if len(data) >= pc.batch_size else 1
         if pc.max_steps_per_epoch:
             steps_per_epoch = min(steps_per_epoch, pc.max_steps_per_epoch)
-        state = self._load_checkpoint()
         start_stage, start_epoch = 1, 0
         if state is not None:
             self.model.load_state_dict(state["model"])
             start_stage, start_epoch = state["stage"], state["epoch"]
-            if state.get("done"):
-                return self._ckpt_path()
+        truncate_log(self.run / "log.csv", start_stage, start_epoch)
         total = steps_per_epoch * (pc.stage1_epochs + pc.stage2_epochs)
         done_steps = steps_per_epoch * (start_epoch if start_stage == 1 else pc.stage1_epochs + start_epoch)
         bar = None
@@ -225,8 +294,8 @@ class Trainer:
         finally:
             if bar is not None:
                 bar.close()
-        (self.run / "timing.json").write_text(json.dumps({"seconds": round(time.perf_counter() - t0, 1),
-                                                          "device": str(self.device)}) + "\n")
+        atomic_write_text(self.run / "timing.json", json.dumps({"seconds": round(time.perf_counter() - t0, 1),
+                                                                "device": str(self.device)}) + "\n")
         return self._ckpt_path()
 
     def _params(self, stage: int):
@@ -328,6 +397,36 @@ class Trainer:
                     bar.set_postfix(stage=stage, loss=f"{float(total.detach()):.4f}")
 
 
+def truncate_log(log_csv: Path, stage: int, epoch: int) -> None:
+    """Keep only the rows of ``log.csv`` from before ``(stage, epoch)``, where a resumed run restarts
+    (an interrupted epoch's rows are written again); a torn last line is dropped."""
+    if not log_csv.is_file():
+        return
+    with open(log_csv, newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows:
+        log_csv.unlink()
+        return
+    header, kept = rows[0], []
+    try:
+        si, ei = header.index("stage"), header.index("epoch")
+    except ValueError:
+        log_csv.unlink()
+        return
+    for r in rows[1:]:
+        try:
+            if len(r) == len(header) and (int(r[si]), int(r[ei])) < (stage, epoch):
+                kept.append(r)
+        except ValueError:
+            continue
+    if not kept:
+        log_csv.unlink()
+        return
+    buf = io.StringIO()
+    csv.writer(buf).writerows([header, *kept])
+    atomic_write_text(log_csv, buf.getvalue())
+
+
 def plot_losses(log_csv: Path, png: Path) -> None:
     """Loss curves (log scale, one panel per stage) from ``log.csv``."""
     import matplotlib
@@ -352,14 +451,29 @@ def plot_losses(log_csv: Path, png: Path) -> None:
         ax.set_xlabel("iteration")
         ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    fig.savefig(png, dpi=90)
+    atomic_savefig(fig, png, dpi=90)
     plt.close(fig)
 
 
-def train(data: str | Path, run: str | Path, preset: str | TrainConfig = "cpu", progress: bool = True,
+def run_preset(run: str | Path) -> TrainConfig | None:
+    """The preset a run folder was started with (from its ``run.json``), or None when there is none."""
+    try:
+        ident = json.loads((Path(run) / "run.json").read_text())
+        return preset_from_dict(ident["preset"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def train(data: str | Path, run: str | Path, preset: str | TrainConfig | None = None, progress: bool = True,
           device: str | None = None) -> Path:
-    """Train (or resume) SCAPO; see :class:`Trainer`."""
+    """Train (or resume) SCAPO; see :class:`Trainer`.
+
+    ``preset=None`` resumes an existing run with its own preset (from ``run.json``) and starts a new
+    run with the ``cpu`` preset.
+    """
+    if preset is None:
+        preset = run_preset(run) or "cpu"
     return Trainer(data, run, preset, progress, device).train()
 
 
-__all__ = ["Trainer", "TrainingClouds", "model_config", "plot_losses", "preset_from_dict", "train"]
+__all__ = ["Trainer", "TrainingClouds", "model_config", "plot_losses", "preset_from_dict", "run_preset", "train"]

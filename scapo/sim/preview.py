@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from scapo.files import atomic_savefig, check_output_file
+
 PART_COLORS = np.array([
     [0.12, 0.47, 0.71], [0.89, 0.10, 0.11], [0.20, 0.63, 0.17], [1.00, 0.50, 0.00],
     [0.42, 0.24, 0.60], [0.65, 0.34, 0.16], [0.97, 0.51, 0.75], [0.50, 0.50, 0.50],
@@ -90,8 +92,8 @@ def save_preview(samples: Sequence[dict], path: str | Path, titles: Sequence[str
                     part_names=part_names[i] if part_names else None)
     fig.tight_layout()
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    check_output_file(path, "figure")
+    atomic_savefig(fig, path, dpi=110)
     plt.close(fig)
     return path
 

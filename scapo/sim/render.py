@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scapo.errors import AssetError, RejectedViewError, RenderError
+from scapo.errors import AssetError, ConfigError, RejectedViewError, RenderError
 from scapo.geometry import invert_transform, look_at, normalize, sapien_camera_pose, transform_points
 from scapo.sim.assets.templates import ViewTemplate
 from scapo.sim.assets.urdf import ArticulationSpec
@@ -48,6 +48,14 @@ class CameraConfig:
     """Near clipping plane (m)."""
     far: float = 20.0
     """Far clipping plane (m)."""
+
+    def __post_init__(self):
+        if self.width < 1 or self.height < 1:
+            raise ConfigError(f"image size must be at least 1 x 1 pixels, got {self.width} x {self.height}")
+        if not 0.0 < self.fovy_deg < 180.0:
+            raise ConfigError(f"fovy_deg must be in (0, 180), got {self.fovy_deg}")
+        if not 0.0 < self.near < self.far:
+            raise ConfigError(f"need 0 < near < far, got near={self.near}, far={self.far}")
 
 
 @dataclass(frozen=True)
@@ -95,9 +103,15 @@ class RenderConfig:
 
     def __post_init__(self):
         if self.num_points < 16:
-            raise ValueError(f"num_points must be >= 16, got {self.num_points}")
+            raise ConfigError(f"the number of points per sample (--points) must be >= 16, got {self.num_points}")
         if not 0.0 <= self.min_part_fraction < 1.0:
-            raise ValueError(f"min_part_fraction must be in [0, 1), got {self.min_part_fraction}")
+            raise ConfigError(f"min_part_fraction must be in [0, 1), got {self.min_part_fraction}")
+        pixels = self.camera.width * self.camera.height
+        if pixels < self.num_points:
+            raise ConfigError(f"an image of {self.camera.width} x {self.camera.height} pixels has fewer pixels ({pixels}) "
+                              f"than the {self.num_points} points per sample; raise --width/--height or lower --points")
+        if self.max_attempts < 1:
+            raise ConfigError(f"max_attempts must be >= 1, got {self.max_attempts}")
 
     @property
     def min_part_points(self) -> int:
@@ -490,6 +504,19 @@ def _reason_key(reason: str) -> str:
     return reason.split(" (")[0].split(" keeps")[0]
 
 
+def _rejection_hint(reasons: Counter, cfg: RenderConfig) -> str:
+    """What to change when every view of a sample was rejected, from the most frequent reason."""
+    top = reasons.most_common(1)[0][0] if reasons else ""
+    c = cfg.camera
+    if top.startswith("too few object pixels"):
+        return (f"the object covers fewer than {cfg.num_points} pixels of the {c.width} x {c.height} image: raise "
+                "--width/--height, lower --points, or bring the camera closer (view distance range)")
+    if top.startswith("part"):
+        return ("a part is hidden or too small in these views: lower --min-part-fraction (now "
+                f"{cfg.min_part_fraction}) or change the view ranges so that every part is visible")
+    return "change the view ranges or lower --min-part-fraction"
+
+
 def render_many(
     renderer: Renderer,
     jobs: list[tuple[object, ArticulationSpec, tuple[int, ...]]],
@@ -533,9 +560,8 @@ def render_many(
             if a + 1 >= cfg.max_attempts:
                 if pending_job is not None:
                     renderer.fetch()
-                raise RenderError(
-                    f"{Path(jobs[i][1].urdf)}: all {cfg.max_attempts} sampled views were rejected "
-                    f"({dict(reasons[i])}); widen the view ranges or lower min_part_fraction") from None
+                raise RenderError(f"{Path(jobs[i][1].urdf)}: all {cfg.max_attempts} sampled views were rejected "
+                                  f"({dict(reasons[i])}); {_rejection_hint(reasons[i], cfg)}") from None
             queue.insert(0, (i, a + 1))
             continue
         sample["attempts"] = a + 1

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from scapo.errors import ConfigError
+
 
 @dataclass(frozen=True)
 class SensorConfig:
@@ -43,7 +45,7 @@ class SensorConfig:
 
     def __post_init__(self):
         if self.kind not in ("clean", "realistic"):
-            raise ValueError(f"sensor kind must be 'clean' or 'realistic', got {self.kind!r}")
+            raise ConfigError(f"sensor kind must be 'clean' or 'realistic', got {self.kind!r}")
 
 
 SENSORS = {"clean": SensorConfig("clean"), "realistic": SensorConfig("realistic")}
@@ -71,7 +73,8 @@ def apply_sensor(
     # depth edges: any 4-neighbour with a jump above the threshold (or no return at all)
     pad = np.pad(zf, 1, constant_values=np.inf)
     neigh = np.stack([pad[:-2, 1:-1], pad[2:, 1:-1], pad[1:-1, :-2], pad[1:-1, 2:]])
-    jump = np.abs(neigh - zf[None])
+    with np.errstate(invalid="ignore"):  # inf - inf between two pixels without depth: no edge there
+        jump = np.abs(neigh - zf[None])
     jump = np.where(np.isfinite(jump), jump, np.inf)
     edge = valid & (jump.max(0) > cfg.edge_threshold)
     sigma = cfg.sigma_base + cfg.sigma_quad * (z - 0.4) ** 2

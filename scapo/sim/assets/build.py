@@ -3,7 +3,13 @@
 An instance is identified by ``(category, seed, instance_id)``. Its files live in
 ``<cache>/<category>/g<GENERATOR_VERSION>-<template digest>/seed<seed>/<instance_id:05d>/`` and are
 byte-identical for the same key, on any machine. Builds are atomic: the directory appears only
-when complete.
+when complete (it is built in a hidden ``.<id>.tmp-<pid>-*`` folder, removed by a later build if the
+process died).
+
+The cache is not trusted blindly: each instance folder records the sha256 of its files
+(``files.sha256``), and every reuse recomputes it. A folder whose files were changed, removed or
+truncated since it was built is rebuilt (the build is deterministic), with a warning. A folder of
+an older scapo without the record is checked once against a fresh build.
 """
 
 from __future__ import annotations
@@ -12,6 +18,7 @@ import hashlib
 import json
 import os
 import shutil
+import sys
 import tempfile
 import zlib
 from dataclasses import dataclass
@@ -19,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from scapo.errors import AssetError
+from scapo.errors import AssetError, ConfigError
+from scapo.files import atomic_write_text, clean_stale_temps
 from scapo.sim.assets.categories import CATEGORIES
 from scapo.sim.assets.design import ArticulatedDesign, finalize, write_asset
 from scapo.sim.assets.templates import ParamSampler, load_template
@@ -78,9 +86,14 @@ class AssetRecord:
         return json.loads((self.directory / "asset.json").read_text())
 
 
+#: File in each instance folder holding the sha256 of the folder's other files (not part of the digest).
+DIGEST_FILE = "files.sha256"
+
+
 def _digest(directory: Path) -> str:
+    """sha256 over the relative paths and bytes of the files of an instance folder (``DIGEST_FILE`` excluded)."""
     h = hashlib.sha256()
-    for f in sorted(p for p in directory.rglob("*") if p.is_file()):
+    for f in sorted(p for p in directory.rglob("*") if p.is_file() and p.name != DIGEST_FILE):
         h.update(f.relative_to(directory).as_posix().encode())
         h.update(f.read_bytes())
     return h.hexdigest()
@@ -93,45 +106,104 @@ def instance_dir(category: str, instance_id: int, seed: int, cache_dir: Path | N
     return root / category / f"g{GENERATOR_VERSION}-{tpl.digest[:12]}" / f"seed{seed}" / f"{instance_id:05d}"
 
 
+def _cache_error(root: Path, e: OSError) -> AssetError:
+    return AssetError(f"the asset cache {root} cannot be written ({e.strerror or e}); point SCAPO_CACHE (or "
+                      "--cache) at a writable folder")
+
+
+def _build_into_temp(category: str, instance_id: int, seed: int, parent: Path, name: str) -> Path:
+    """Write the instance into a fresh hidden folder beside its cache folder; returns that folder."""
+    design = design_instance(category, instance_id, seed)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.tmp-{os.getpid()}-", dir=parent))
+    try:
+        extra = {"seed": int(seed), "instance_id": int(instance_id), "generator_version": GENERATOR_VERSION,
+                 "template_digest": load_template(category).digest}
+        write_asset(design, tmp, extra)
+        atomic_write_text(tmp / DIGEST_FILE, _digest(tmp) + "\n")
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return tmp
+
+
+def _recorded_digest(folder: Path) -> str | None:
+    try:
+        return (folder / DIGEST_FILE).read_text().strip() or None
+    except OSError:
+        return None
+
+
 def build_instance(category: str, instance_id: int, seed: int, cache_dir: Path | None = None) -> AssetRecord:
-    """Build one instance into the cache (or reuse it) and return its record.
+    """Build one instance into the cache (or reuse it, after checking its files) and return its record.
 
     Raises:
-        UnknownNameError: unknown category. AssetError: the cached folder is incomplete.
+        UnknownNameError: unknown category.
+        AssetError: the cache folder cannot be created or written (names it and what to do).
     """
     CATEGORIES.get(category)
     out = instance_dir(category, instance_id, seed, cache_dir)
-    if not (out / "asset.json").is_file():
-        design = design_instance(category, instance_id, seed)
+    root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    for parent in [root, *root.parents]:
+        if parent.exists() and not parent.is_dir():
+            raise AssetError(f"the asset cache {root} cannot be used: {parent} is a file; point SCAPO_CACHE (or "
+                             "--cache) at a folder")
+    try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp", dir=out.parent))
-        try:
-            extra = {"seed": int(seed), "instance_id": int(instance_id), "generator_version": GENERATOR_VERSION,
-                     "template_digest": load_template(category).digest}
-            write_asset(design, tmp, extra)
+        clean_stale_temps(out.parent)  # folders of builds whose process died
+        if (out / "asset.json").is_file():
+            recorded = _recorded_digest(out)
+            actual = _digest(out)
+            if recorded is None:  # a cache folder of an older scapo: compare with a fresh build once
+                tmp = _build_into_temp(category, instance_id, seed, out.parent, out.name)
+                fresh = _digest(tmp)
+                if fresh == actual:
+                    shutil.rmtree(tmp, ignore_errors=True)
+                    atomic_write_text(out / DIGEST_FILE, actual + "\n")
+                else:
+                    _replace(out, tmp, "differs from a fresh build")
+            elif recorded != actual:
+                tmp = _build_into_temp(category, instance_id, seed, out.parent, out.name)
+                _replace(out, tmp, "was modified after it was built (its files no longer match files.sha256)")
+        else:
+            tmp = _build_into_temp(category, instance_id, seed, out.parent, out.name)
             try:
                 os.rename(tmp, out)
             except OSError:
+                shutil.rmtree(tmp, ignore_errors=True)
                 if not (out / "asset.json").is_file():  # not a concurrent build of the same instance
                     raise
-        finally:
-            if tmp.exists():
-                shutil.rmtree(tmp, ignore_errors=True)
+    except OSError as e:
+        raise _cache_error(root, e) from e
     try:
         meta = json.loads((out / "asset.json").read_text())
-    except (OSError, json.JSONDecodeError) as e:
+        bbox_diag = float(meta["bbox_diag"])
+    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
         raise AssetError(f"cached asset {out} is unreadable ({e}); delete the folder to rebuild it") from e
-    return AssetRecord(category, int(seed), int(instance_id), out, out / "model.urdf", float(meta["bbox_diag"]),
-                       _digest(out))
+    return AssetRecord(category, int(seed), int(instance_id), out, out / "model.urdf", bbox_diag, _digest(out))
+
+
+def _replace(out: Path, fresh: Path, why: str) -> None:
+    """Swap a damaged cache folder ``out`` for the freshly built ``fresh`` (warning on stderr)."""
+    print(f"scapo: warning: cached asset {out} {why}; rebuilt it", file=sys.stderr)
+    old = out.with_name(f".{out.name}.tmp-{os.getpid()}-old")
+    os.rename(out, old)
+    os.rename(fresh, out)
+    shutil.rmtree(old, ignore_errors=True)
 
 
 def build_category(
     category: str, instances: int, seed: int, cache_dir: Path | None = None, progress: bool = False
 ) -> list[AssetRecord]:
-    """Build instances ``0 .. instances-1`` of ``category``; returns their records in order."""
-    ids = range(int(instances))
-    if progress:
-        from tqdm import tqdm
+    """Build instances ``0 .. instances-1`` of ``category``; returns their records in order.
 
-        ids = tqdm(ids, desc=f"assets {category}", unit="inst")
-    return [build_instance(category, i, seed, cache_dir) for i in ids]
+    Raises:
+        ConfigError: ``instances < 1``. Otherwise as :func:`build_instance`.
+    """
+    if int(instances) < 1:
+        raise ConfigError(f"the number of instances must be >= 1, got {instances}")
+    if not progress:
+        return [build_instance(category, i, seed, cache_dir) for i in range(int(instances))]
+    from tqdm import tqdm
+
+    with tqdm(range(int(instances)), desc=f"assets {category}", unit="inst") as ids:
+        return [build_instance(category, i, seed, cache_dir) for i in ids]

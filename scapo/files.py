@@ -1,0 +1,253 @@
+"""Safe file handling shared by every command: atomic writes, checked outputs, folder locks, JSON reads.
+
+Every file scapo writes goes through :func:`atomic_write_bytes` (a hidden temporary file
+``.<name>.tmp-<pid>`` in the same folder, fsync, rename), so a file that exists is complete and an
+interrupted or killed process never leaves a half-written result under its real name. Temporary
+files of processes that no longer run are removed by :func:`clean_stale_temps`.
+
+Outputs are checked *before* long work starts (:func:`check_output_file`, :func:`check_output_dir`):
+an output path that is an existing folder (or file), lies below a file, or cannot be written raises
+:class:`~scapo.errors.OutputError` naming the path and the reason, so no computation is lost to an
+unwritable output.
+
+A folder that one process writes into (a dataset being generated, a training run) is held with
+:class:`FolderLock` (``fcntl.flock`` on ``<folder>/.scapo.lock``; the kernel releases it when the
+process dies, even by ``kill -9``); a second process is refused with a message naming the first.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import io
+import json
+import os
+import re
+import shutil
+import time
+from pathlib import Path
+
+from scapo.errors import OutputError
+
+#: Name pattern of scapo's temporary files and folders: ``.<name>.tmp-<pid>[-<suffix>]``.
+_TEMP_RE = re.compile(r"^\..+\.tmp-(\d+)(-.*)?$")
+
+
+def temp_path(path: Path) -> Path:
+    """The temporary sibling ``.<name>.tmp-<pid>`` used to write ``path`` atomically."""
+    path = Path(path)
+    return path.with_name(f".{path.name}.tmp-{os.getpid()}")
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a hidden temporary file in the same folder, fsync and rename.
+
+    Raises:
+        OutputError: the folder cannot be written (names the path and the system's reason); the
+            temporary file is removed and an existing ``path`` is left as it was.
+    """
+    path = Path(path)
+    tmp = temp_path(path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        raise OutputError(f"cannot write {path}: {e.strerror or e}") from e
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """:func:`atomic_write_bytes` of UTF-8 ``text``."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def write_json(path: str | Path, obj) -> None:
+    """Write ``obj`` as indented, key-sorted JSON, atomically."""
+    atomic_write_text(path, json.dumps(obj, indent=1, sort_keys=True, default=str) + "\n")
+
+
+def atomic_savefig(fig, path: str | Path, **kwargs) -> Path:
+    """Save a matplotlib figure atomically (rendered to memory first); returns ``path``."""
+    path = Path(path)
+    buf = io.BytesIO()
+    fmt = path.suffix.lstrip(".") or "png"
+    fig.savefig(buf, format=fmt, **kwargs)
+    atomic_write_bytes(path, buf.getvalue())
+    return path
+
+
+def read_json(path: str | Path, what: str, error: type[Exception], hint: str = "") -> dict:
+    """Read a JSON object from ``path``.
+
+    Args:
+        what: how to name the file in messages (e.g. "the dataset card").
+        error: the :class:`~scapo.errors.ScapoError` subclass to raise.
+        hint: what the user should do, appended to the message.
+
+    Raises:
+        error: the file is missing, unreadable, truncated, not JSON, or not a JSON object.
+    """
+    path = Path(path)
+    tail = f"; {hint}" if hint else ""
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise error(f"{what} {path} does not exist{tail}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise error(f"{what} {path} cannot be read ({e}){tail}") from e
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as e:
+        state = "is empty" if not text.strip() else f"is not valid JSON (truncated or edited? {e})"
+        raise error(f"{what} {path} {state}{tail}") from None
+    if not isinstance(obj, dict):
+        raise error(f"{what} {path} holds a JSON {type(obj).__name__}, not an object{tail}")
+    return obj
+
+
+def _probe_writable(folder: Path, what: str) -> None:
+    probe = folder / f".scapo-write-test.tmp-{os.getpid()}"
+    try:
+        with open(probe, "wb") as f:
+            f.write(b"ok")
+        probe.unlink()
+    except OSError as e:
+        raise OutputError(f"{what} {folder} is not writable ({e.strerror or e}); choose a writable location") from e
+
+
+def _make_dir(folder: Path, what: str) -> None:
+    for parent in [folder, *folder.parents]:
+        if parent.exists() and not parent.is_dir():
+            raise OutputError(f"{what} {folder} cannot be created: {parent} is a file; choose another path")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"{what} {folder} cannot be created ({e.strerror or e}); choose a writable location") \
+            from e
+
+
+def check_output_dir(folder: str | Path, what: str = "output folder") -> Path:
+    """Create ``folder`` if needed and check that files can be written in it; returns it.
+
+    Raises:
+        OutputError: ``folder`` (or a parent) is a file, cannot be created, or is not writable
+            (read-only mount, permissions).
+    """
+    folder = Path(folder)
+    _make_dir(folder, what)
+    _probe_writable(folder, what)
+    return folder
+
+
+def check_output_file(path: str | Path, what: str = "output file") -> Path:
+    """Check that ``path`` can be written (creating its folder); returns it. Nothing is written to it.
+
+    Raises:
+        OutputError: ``path`` is an existing folder, its folder is a file or cannot be created, or
+            the folder is not writable.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{what} {path} is an existing folder; give a file name (e.g. {path / 'predictions.npz'})")
+    _make_dir(path.parent, f"folder of the {what}")
+    _probe_writable(path.parent, f"folder of the {what}")
+    return path
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process with ``pid`` runs on this machine."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def clean_stale_temps(folder: str | Path, only: str | None = None, any_pid: bool = False) -> list[Path]:
+    """Remove scapo temporary files and folders (``.<name>.tmp-<pid>...``) left in ``folder`` by
+    processes that no longer run (e.g. after ``kill -9``); returns what was removed.
+
+    Args:
+        only: remove only temporaries of this target file name (``.<only>.tmp-<pid>``).
+        any_pid: also remove those of running processes (the caller holds the folder's lock).
+    """
+    folder = Path(folder)
+    removed = []
+    if not folder.is_dir():
+        return removed
+    for entry in folder.iterdir():
+        m = _TEMP_RE.match(entry.name)
+        if not m or (only is not None and not entry.name.startswith(f".{only}.tmp-")):
+            continue
+        pid = int(m.group(1))
+        if pid == os.getpid() or (not any_pid and pid_alive(pid)):
+            continue
+        try:
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+            removed.append(entry)
+        except OSError:
+            pass
+    return removed
+
+
+class FolderLock:
+    """Exclusive lock on a folder a process writes into (``<folder>/.scapo.lock``, ``fcntl.flock``).
+
+    Use as a context manager. The kernel releases the lock when the holder exits or is killed.
+
+    Raises:
+        OutputError: from ``__enter__`` when another process holds the lock (names it and what to
+            do) or the lock file cannot be created.
+    """
+
+    NAME = ".scapo.lock"
+
+    def __init__(self, folder: str | Path, command: str):
+        self.folder = Path(folder)
+        self.command = command
+        self._fd: int | None = None
+
+    def __enter__(self) -> FolderLock:
+        path = self.folder / self.NAME
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise OutputError(f"cannot create the lock file {path} ({e.strerror or e}); choose a writable "
+                              "location") from e
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as e:
+            holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "another process"
+            os.close(fd)
+            if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise OutputError(f"{self.folder} is in use by {holder}; wait for it to finish (or stop it) "
+                                  f"before running '{self.command}' on the same folder, or choose another "
+                                  "folder") from None
+            raise OutputError(f"cannot lock {path} ({e.strerror or e})") from e
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"scapo {self.command} (pid {os.getpid()}, since {time.strftime('%H:%M:%S')})".encode(), 0)
+        self._fd = fd
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._fd is not None:
+            try:
+                os.ftruncate(self._fd, 0)
+            except OSError:
+                pass
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+            os.close(self._fd)
+            self._fd = None

@@ -1,0 +1,530 @@
+"""Every mistake a user can make ends in a clear ``scapo:`` error: no traceback, no silent wrong result,
+nothing already written lost (issue 11). ``tests/README.md`` lists the entry points and the cases."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import shutil
+import subprocess
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from scapo.cli.main import main
+from scapo.data import generate, load, make_config
+from scapo.errors import (
+    ConfigError,
+    DatasetError,
+    InputError,
+    OutputError,
+    PredictionError,
+    TrainingError,
+)
+from scapo.eval import Predictions, evaluate
+from scapo.files import FolderLock
+from scapo.models import load as load_model
+from scapo.models.presets import PRESETS
+from scapo.models.train import Trainer
+
+TEST = PRESETS.get("test")
+#: A folder the kernel refuses to create anything in, even for root (a stand-in for a read-only mount).
+READ_ONLY = "/sys/scapo-test-out"
+
+
+def cli(*args: str) -> tuple[int, str, str]:
+    """Run ``scapo ARGS`` in this process; returns (exit code, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in args])
+    return code, out.getvalue(), err.getvalue()
+
+
+def assert_clear_error(result, command: str, *fragments: str) -> str:
+    """Exit 2 with one ``scapo COMMAND: error:`` message holding every fragment, and no traceback."""
+    code, _, err = result
+    assert code == 2, err
+    assert "Traceback" not in err and "internal error" not in err, err
+    last = err.replace("\r", "\n").strip().splitlines()[-1]  # after any progress bar, on a line of its own
+    assert last.startswith(f"scapo {command}: error: ") and err.count(": error: ") == 1, err
+    err = last
+    for f in fragments:
+        assert f in err, (f, err)
+    return err
+
+
+def dead_pid() -> int:
+    p = subprocess.Popen(["true"])
+    p.wait()
+    return p.pid
+
+
+@pytest.fixture(scope="module")
+def run(laptop_data, tmp_path_factory):
+    """A finished run of the test preset on the shared laptop dataset."""
+    path = tmp_path_factory.mktemp("runs") / "laptop"
+    Trainer(laptop_data, path, TEST, progress=False).train()
+    return path
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    """Three tiny datasets: laptop seed 0 and seed 1 (same plan, other samples), safe (same structure)."""
+    root = tmp_path_factory.mktemp("small")
+    for name, cat, seed in (("lap0", "laptop", 0), ("lap1", "laptop", 1), ("safe", "safe", 0)):
+        generate(make_config(cat, 3, 2, seed=seed, shard_size=2, test_fraction=0.34), root / name, progress=False)
+    return root
+
+
+def oracle_file(data, path, **edit) -> str:
+    """Ground truth of test and train splits written as predictions (``needs_alignment``), with edits."""
+    parts = []
+    for split in ("test", "train"):
+        ds = load(data, split)
+        a = ds.arrays()
+        parts.append(dict(instance_id=a["instance_id"], view_id=a["view_id"], split=np.full(len(ds), split),
+                          part_label=a["part_label"], part_pose=a["part_pose"], joint_parts=a["joint_parts"],
+                          joint_type=a["joint_type"], joint_axis=a["joint_axis"], joint_pivot=a["joint_pivot"],
+                          joint_state=a["joint_state"], T_cam_obj=a["T_cam_obj"]))
+    arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    for k, fn in edit.items():
+        arrays[k] = fn(arrays[k].copy())
+    meta = {"method": "oracle", "needs_alignment": True, "supervision": {}, "info": {},
+            "dataset_hash": load(data, "test").dataset_hash, "format": "scapo-predictions-1"}
+    np.savez(path, meta=np.array(json.dumps(meta)), **{k: (v.astype("U8") if k == "split" else v)
+                                                        for k, v in arrays.items()})
+    return str(path)
+
+
+# ------------------------------------------------------------------ silent wrong results and data loss
+def test_resume_rerenders_a_foreign_shard_instead_of_blessing_it(small, tmp_path):
+    d = tmp_path / "d"
+    shutil.copytree(small / "lap0", d)
+    shard = sorted((d / "shards").glob("train-*.npz"))[0]
+    good = shard.read_bytes()
+    card = json.loads((d / "card.json").read_text())
+    shutil.copy(small / "lap1" / "shards" / shard.name, shard)  # same keys, another seed's samples
+    assert load(d, "train").card["dataset_hash"] == card["dataset_hash"]
+    with pytest.raises(Exception, match="corrupted"):
+        load(d, "train").arrays()  # the loader refuses it ...
+    code, out, err = cli("generate", "--category", "laptop", "--instances", 3, "--views", 2, "--seed", 0,
+                         "--shard-size", 2, "--test-fraction", 0.34, "--out", d, "--no-progress")
+    assert code == 0, err
+    assert f"{shard.stem} (modified)" in err and "re-rendered 1 shard" in out  # ... and generate re-renders it
+    assert shard.read_bytes() == good
+    assert json.loads((d / "card.json").read_text()) == card
+    assert (d / "rejected" / f"{shard.stem}.modified.npz").is_file()  # the foreign file is kept aside, not lost
+
+
+def test_resume_of_an_unfinished_dataset_verifies_shards_against_the_journal(small, tmp_path):
+    d = tmp_path / "d"
+    shutil.copytree(small / "lap0", d)
+    (d / "card.json").unlink()  # as if interrupted before the card was written
+    (d / "manifest.parquet").unlink()
+    shard = sorted((d / "shards").glob("train-*.npz"))[1]
+    good = shard.read_bytes()
+    shutil.copy(small / "lap1" / "shards" / shard.name, shard)
+    rep = generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34), d, progress=False)
+    assert rep.rejected_shards == [shard.stem] and rep.rendered == 2
+    assert shard.read_bytes() == good
+    # a shard written by a process killed before it was recorded is re-rendered; identical ones are not kept aside
+    lines = (d / "shards.jsonl").read_text().splitlines()
+    (d / "shards.jsonl").write_text("\n".join(x for x in lines if shard.stem not in x) + "\n")
+    (d / "card.json").unlink()
+    rep = generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34), d, progress=False)
+    assert rep.rendered == 2 and rep.rejected_shards == [] and shard.read_bytes() == good
+
+
+def test_tampered_asset_cache_is_rebuilt_not_rendered(tmp_path):
+    cache = tmp_path / "cache"
+    cfg = make_config("laptop", 2, 2, seed=5, shard_size=4, test_fraction=0.5)
+    generate(cfg, tmp_path / "clean", progress=False, cache_dir=cache)
+    obj = next(cache.rglob("screen.obj"))
+    lines = obj.read_text().splitlines()
+    obj.write_text("\n".join(x for i, x in enumerate(lines) if not (x.startswith("f ") and i % 2)) + "\n")
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        generate(cfg, tmp_path / "again", progress=False, cache_dir=cache)
+    assert "was modified after it was built" in err.getvalue()
+    a, b = load(tmp_path / "clean", "all").arrays(), load(tmp_path / "again", "all").arrays()
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def test_assets_that_changed_since_the_finished_shards_are_refused(small, tmp_path):
+    d = tmp_path / "d"
+    shutil.copytree(small / "lap0", d)
+    lines = [json.loads(x) for x in (d / "shards.jsonl").read_text().splitlines()]
+    start = [x for x in lines if "assets" in x][-1]
+    start["assets"]["1"] = "0" * 64  # the shards were rendered from other assets
+    with open(d / "shards.jsonl", "a") as f:
+        f.write(json.dumps(start) + "\n")
+    with pytest.raises(ConfigError, match=r"assets of instance\(s\) 1 differ"):
+        generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34), d, progress=False)
+
+
+def test_predict_refuses_a_run_of_another_category(run, small, laptop_data, tmp_path):
+    eye = tmp_path / "eye"
+    generate(make_config("eyeglasses", 2, 2, seed=0, test_fraction=0.5), eye, progress=False)
+    out = tmp_path / "p.npz"
+    assert_clear_error(cli("predict", "--run", run, "--data", eye, "--out", out), "predict",
+                       "trained on 'laptop'", "'eyeglasses'", "3 parts")
+    assert_clear_error(cli("predict", "--run", run, "--data", small / "safe", "--out", out), "predict",
+                       "trained on 'laptop'", "'safe'", "cross_category=true")
+    assert not out.exists()
+    code, _, err = cli("predict", "--run", run, "--data", small / "safe", "--out", out, "--option",
+                       "cross_category=true")
+    assert code == 0, err
+    assert Predictions.load(out).info["trained_category"] == "laptop"
+
+
+def test_a_mistyped_run_is_an_error_and_trains_nothing(laptop_data, tmp_path):
+    err = assert_clear_error(cli("predict", "--run", tmp_path / "typo", "--data", laptop_data, "--out",
+                                 tmp_path / "p.npz"), "predict", "typo", "scapo train")
+    assert "does not exist" in err and not (tmp_path / "typo").exists() and not (tmp_path / "p.npz").exists()
+
+
+def test_train_refuses_another_preset_or_dataset_before_writing_anything(run, small, laptop_data, tmp_path):
+    r = tmp_path / "r"
+    shutil.copytree(run, r)
+    before = {p.name: p.read_bytes() for p in r.iterdir() if p.is_file()}
+    assert_clear_error(cli("train", "--data", laptop_data, "--preset", "demo", "--out", r), "train",
+                       "trained with preset 'test'")
+    assert_clear_error(cli("train", "--data", small / "safe", "--preset", "test", "--out", r), "train",
+                       "'laptop' dataset", "'safe' dataset")
+    assert {p.name: p.read_bytes() for p in r.iterdir() if p.is_file()} == before
+    # a run folder whose first epoch never finished (run.json, no checkpoint) is protected too
+    (r / "checkpoint.pt").unlink()
+    assert_clear_error(cli("train", "--data", small / "safe", "--preset", "test", "--out", r), "train",
+                       "run started with preset 'test'")
+    assert (r / "run.json").read_bytes() == before["run.json"]
+
+
+EDITS = {
+    "zero-length joint axis": ("joint_axis", lambda a: a * 0.0, "joint_axis must hold unit vectors"),
+    "label below -1": ("part_label", lambda a: np.where(np.arange(a.shape[1]) == 3, -5, a), "part_label must be -1"),
+    "float labels": ("part_label", lambda a: a.astype(np.float32) + 0.4, "must hold integers"),
+    "non-rigid part pose": ("part_pose", lambda a: a * np.array([2.0, 1, 1, 1])[None, None, :, None],
+                            "must hold rigid transforms"),
+    "mirrored object pose": ("T_cam_obj", lambda a: a @ np.diag([-1.0, 1, 1, 1]), "det +1"),
+    "joint axis of 2 numbers": ("joint_axis", lambda a: a[..., :2], "expected (M, 1, 3)"),
+    "joint pivot of 4 numbers": ("joint_pivot", lambda a: np.concatenate([a, a[..., :1]], -1), "expected (M, 1, 3)"),
+    "joint type 7": ("joint_type", lambda a: a + 7, "joint_type must be 0"),
+    "NaN state": ("joint_state", lambda a: a * np.nan, "NaN/inf"),
+}
+
+
+@pytest.mark.parametrize("case", list(EDITS))
+def test_evaluate_validates_predictions_naming_field_and_sample(laptop_data, tmp_path, case):
+    field, fn, fragment = EDITS[case]
+    path = oracle_file(laptop_data, tmp_path / "p.npz", **{field: fn})
+    assert_clear_error(cli("evaluate", "--data", laptop_data, "--pred", path), "evaluate", field, fragment)
+    with pytest.raises(PredictionError, match=field):
+        evaluate(laptop_data, path)
+
+
+def test_the_untouched_oracle_file_evaluates_perfectly(laptop_data, tmp_path):
+    res = evaluate(laptop_data, oracle_file(laptop_data, tmp_path / "p.npz"))
+    assert res.summary["S"] == pytest.approx(100.0) and res.summary["D"] == pytest.approx(0.0, abs=1e-6)
+
+
+POINTS = {
+    "5 points": (np.random.default_rng(0).normal(size=(1, 5, 3)), "at least 64 points"),
+    "0 points": (np.zeros((1, 0, 3)), "at least 64 points"),
+    "batch of 0": (np.zeros((0, 1024, 3)), "empty batch"),
+    "1024 identical points": (np.ones((1, 1024, 3)), "within 0.1 mm"),
+    "collinear points": (np.linspace(0, 1, 3 * 300).reshape(1, 300, 3) * [1.0, 2.0, 3.0], "on one line"),
+    "one cloud without batch axis": (np.random.default_rng(0).normal(size=(300, 3)), "e.g. points[None]"),
+    "(B, N, 2)": (np.zeros((1, 300, 2)), "shape (B, N, 3)"),
+    "NaN point": (np.where(np.arange(300)[None, :, None] == 7, np.nan, np.ones((2, 300, 3))), "cloud(s) [0, 1]"),
+    "strings": (np.array([[["a", "b", "c"]] * 100]), "numeric array"),
+}
+
+
+@pytest.mark.parametrize("case", list(POINTS))
+def test_predictor_defines_its_accepted_input(run, case):
+    pts, fragment = POINTS[case]
+    model = load_model(run)
+    with pytest.raises(InputError, match=fragment.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[")):
+        model.predict(pts)
+
+
+def test_predictor_subsamples_large_clouds_with_a_warning(run):
+    model = load_model(run, refine_steps=0)
+    rng = np.random.default_rng(1)
+    pts = (rng.normal(size=(1, 100_000, 3)) * [0.2, 0.1, 0.05] + [0, 0, 1.5]).astype(np.float32)
+    with pytest.warns(UserWarning, match="subsampled to 4096"):
+        out = model.predict(pts)
+    assert out["part_label"].shape == (1, 100_000) and out["weights"].shape == (1, 100_000, 2)
+    assert out["canonical_shape"].shape == (1, 100_000, 3) and out["part_pose"].shape == (1, 2, 4, 4)
+    assert np.isfinite(out["joint_axis"]).all()
+
+
+def test_unwritable_predict_output_fails_before_any_work(laptop_data, tmp_path, monkeypatch):
+    from scapo.baselines.icp import ICPBaseline
+
+    def never(*a, **k):
+        raise AssertionError("fit ran although the output cannot be written")
+
+    monkeypatch.setattr(ICPBaseline, "fit", never)
+    (tmp_path / "dir.npz").mkdir()
+    for out, fragment in ((READ_ONLY + "/p.npz", "cannot be created"), (tmp_path / "dir.npz", "existing folder"),
+                          (tmp_path / "file" / "p.npz", "is a file")):
+        (tmp_path / "file").write_text("x")
+        assert_clear_error(cli("predict", "--method", "icp", "--data", laptop_data, "--out", out), "predict",
+                           fragment)
+
+
+# ------------------------------------------------------------------ tracebacks turned into clear errors
+def test_generate_argument_errors(tmp_path):
+    base = ["generate", "--category", "laptop", "--instances", 2, "--views", 2, "--no-progress"]
+    assert_clear_error(cli(*base, "--points", 8, "--out", tmp_path / "a"), "generate", "must be >= 16, got 8")
+    assert_clear_error(cli(*base, "--width", 8, "--height", 8, "--out", tmp_path / "b"), "generate",
+                       "8 x 8 pixels", "raise --width/--height")
+    assert_clear_error(cli(*base, "--workers", 0, "--out", tmp_path / "c"), "generate", "workers must be >= 1")
+    assert_clear_error(cli(*base[:4], 0, *base[5:], "--out", tmp_path / "d"), "generate", "must be >= 1")
+    assert_clear_error(cli(*base, "--sensor", "lidar", "--out", tmp_path / "e"), "generate", "unknown sensor")
+    assert not any((tmp_path / x).exists() for x in "abcde")
+
+
+def test_all_views_rejected_names_the_real_cause(tmp_path):
+    err = assert_clear_error(cli("generate", "--category", "laptop", "--instances", 2, "--views", 1, "--width", 40,
+                                 "--height", 40, "--out", tmp_path / "d", "--no-progress"), "generate",
+                             "too few object pixels", "raise --width/--height")
+    assert "widen the view ranges" not in err
+
+
+@pytest.mark.parametrize("command", ["generate", "train", "predict", "evaluate"])
+def test_out_that_is_a_file_or_read_only(command, laptop_data, run, tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("mine")
+    args = {"generate": ["--category", "laptop", "--instances", 2, "--views", 2, "--no-progress"],
+            "train": ["--data", laptop_data, "--preset", "test", "--no-progress"],
+            "predict": ["--run", run, "--data", laptop_data],
+            "evaluate": ["--data", laptop_data, "--pred", oracle_file(laptop_data, tmp_path / "p.npz")]}[command]
+    for out, fragment in ((afile / "sub", "is a file"), (READ_ONLY, "choose a writable location")):
+        assert_clear_error(cli(command, *args, "--out", out), command, fragment)
+    if command != "predict":  # a file where a folder is expected (predict writes a file)
+        assert_clear_error(cli(command, *args, "--out", afile), command, str(afile))
+    assert afile.read_text() == "mine"
+
+
+def test_unusable_asset_cache(tmp_path, monkeypatch):
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    for cache, fragment in ((afile, "is a file"), (READ_ONLY, "cannot be written")):
+        monkeypatch.setenv("SCAPO_CACHE", str(cache))
+        assert_clear_error(cli("generate", "--category", "laptop", "--instances", 2, "--views", 2, "--out",
+                               tmp_path / "d", "--no-progress"), "generate", "SCAPO_CACHE", fragment)
+        assert_clear_error(cli("assets", "build", "--category", "laptop", "--instances", 1), "assets", fragment)
+    assert_clear_error(cli("assets", "build", "--category", "laptop", "--instances", 0), "assets", ">= 1")
+
+
+def test_truncated_card_and_config(laptop_data, run, tmp_path):
+    d = tmp_path / "d"
+    shutil.copytree(laptop_data, d)
+    (d / "card.json").write_text('{"category": "lap')
+    for command, args in (("evaluate", ["--pred", "x.npz"]), ("predict", ["--method", "icp", "--out", tmp_path / "p"]),
+                          ("train", ["--out", tmp_path / "r", "--preset", "test"]), ("preview", [])):
+        assert_clear_error(cli(command, "--data", d, *args), command, "card.json is not valid JSON")
+    (d / "card.json").write_text('{"category": "laptop"}')
+    with pytest.raises(DatasetError, match="lacks"):
+        load(d)
+    (d / "config.json").write_text("")
+    assert_clear_error(cli("generate", "--category", "laptop", "--instances", 8, "--views", 6, "--seed", 3, "--out",
+                           d), "generate", "config.json is empty", "delete that file")
+    (d / "manifest.parquet").write_bytes(b"PAR1 broken")
+
+
+def test_config_mismatch_names_only_the_differing_fields(small, tmp_path):
+    d = tmp_path / "d"
+    shutil.copytree(small / "lap0", d)
+    with pytest.raises(ConfigError) as e:
+        generate(make_config("laptop", 3, 3, seed=0, shard_size=2, test_fraction=0.34), d, progress=False)
+    assert "differs in views)" in str(e.value) and "view." not in str(e.value)
+    with pytest.raises(ConfigError, match=r"differs in render\.num_points\)"):
+        generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34, num_points=512), d,
+                 progress=False)
+
+
+def test_corrupt_or_truncated_checkpoint_through_predict(run, laptop_data, tmp_path):
+    for name, data in (("garbage", b"not a checkpoint"), ("truncated", (run / "checkpoint.pt").read_bytes()[:5000])):
+        r = tmp_path / name
+        shutil.copytree(run, r)
+        (r / "checkpoint.pt").write_bytes(data)
+        assert_clear_error(cli("predict", "--run", r, "--data", laptop_data, "--out", tmp_path / "p.npz"), "predict",
+                           "cannot be loaded", "checkpoint.pt")
+        with pytest.raises(TrainingError, match="cannot be loaded"):
+            load_model(r)
+    afile = tmp_path / "f"
+    afile.write_text("x")
+    with pytest.raises(TrainingError, match="it is a file"):
+        load_model(afile)
+
+
+@pytest.mark.parametrize("device,fragment", [("cuda", "use --device cpu"), ("foo", "unknown device 'foo'"),
+                                             ("cuda:7", "device"), ("mps", "not supported")])
+def test_unavailable_or_unknown_devices(device, fragment, run, laptop_data, tmp_path):
+    if torch.cuda.is_available() and device.startswith("cuda") and device != "cuda:7":
+        pytest.skip("this machine has CUDA")
+    assert_clear_error(cli("train", "--data", laptop_data, "--preset", "test", "--out", tmp_path / "r", "--device",
+                           device, "--no-progress"), "train", fragment)
+    assert_clear_error(cli("predict", "--run", run, "--data", laptop_data, "--out", tmp_path / "p.npz", "--device",
+                           device), "predict", fragment)
+    with pytest.raises(ConfigError):
+        load_model(run, device=device)
+    assert not (tmp_path / "r").exists()
+
+
+def test_method_options_are_validated_listing_the_valid_ones(laptop_data, run, tmp_path):
+    out = tmp_path / "p.npz"
+    base = ["predict", "--data", laptop_data, "--out", out]
+    assert_clear_error(cli(*base, "--method", "icp", "--option", "foo=1"), "predict", "unknown option 'foo'",
+                       "valid options: template_points, hypotheses, max_iterations")
+    assert_clear_error(cli(*base, "--method", "icp", "--option", "max_iterations=abc"), "predict",
+                       "max_iterations='abc'", "not a valid int")
+    assert_clear_error(cli(*base, "--method", "icp", "--option", "max_iterations=0"), "predict",
+                       "max_iterations=0")
+    assert_clear_error(cli(*base, "--method", "icp", "--option", "hypotheses=Z"), "predict", "hypotheses in I, O, T")
+    assert_clear_error(cli(*base, "--method", "icp", "--option", "progress"), "predict", "key=value")
+    assert_clear_error(cli(*base, "--run", run, "--option", "refine_steps=-1"), "predict", "refine_steps must be >= 0")
+    assert_clear_error(cli(*base, "--run", run, "--option", "preset=cpu"), "predict", "unknown option 'preset'",
+                       "valid options: run, device")
+    assert_clear_error(cli(*base, "--run", run, "--option", "cross_category=maybe"), "predict", "not a valid bool")
+    assert not out.exists()
+
+
+def test_an_empty_test_split_is_named(tmp_path):
+    d = tmp_path / "d"
+    code, _, err = cli("generate", "--category", "laptop", "--instances", 2, "--views", 2, "--test-fraction", 0,
+                       "--out", d, "--no-progress")
+    assert code == 0 and "the test split is empty" in err
+    assert_clear_error(cli("predict", "--method", "icp", "--data", d, "--out", tmp_path / "p.npz"), "predict",
+                       "test split", "is empty")
+    assert_clear_error(cli("evaluate", "--data", d, "--pred", tmp_path / "p.npz"), "evaluate", "test split",
+                       "is empty")
+
+
+def test_two_generates_on_one_folder_are_refused_by_a_lock(tmp_path):
+    d = tmp_path / "d"
+    d.mkdir()
+    cfg = make_config("laptop", 2, 2)
+    with FolderLock(d, "generate"):  # another process writing the dataset (flock conflicts across open files)
+        with pytest.raises(OutputError, match=r"in use by scapo generate \(pid \d+"):
+            generate(cfg, d, progress=False)
+        assert_clear_error(cli("generate", "--category", "laptop", "--instances", 2, "--views", 2, "--out", d),
+                           "generate", "in use by")
+    assert generate(cfg, d, progress=False).samples == 4  # released: works
+
+
+def test_folders_that_are_not_ours_are_not_written_into(laptop_data, tmp_path):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("x")
+    assert_clear_error(cli("generate", "--category", "laptop", "--instances", 2, "--views", 2, "--out", mine),
+                       "generate", "non-empty folder without a scapo dataset", "thesis.tex")
+    assert_clear_error(cli("train", "--data", laptop_data, "--preset", "test", "--out", laptop_data), "train",
+                       "non-empty folder without a scapo run")
+    assert sorted(p.name for p in mine.iterdir()) == ["thesis.tex"]
+
+
+def test_ctrl_c_names_what_is_kept_per_command(monkeypatch, laptop_data, tmp_path):
+    def interrupt(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("scapo.models.train.Trainer.train", interrupt)
+    code, _, err = cli("train", "--data", laptop_data, "--preset", "test", "--out", tmp_path / "r")
+    assert code == 130 and "last finished epoch is kept" in err and "shards" not in err
+    monkeypatch.setattr("scapo.baselines.run_method", interrupt)
+    code, _, err = cli("predict", "--method", "icp", "--data", laptop_data, "--out", tmp_path / "p.npz")
+    assert code == 130 and "nothing was written" in err
+
+
+def test_a_bug_is_one_line_not_a_traceback(monkeypatch, laptop_data, tmp_path):
+    def bug(*a, **k):
+        raise TypeError("unsupported operand")
+
+    monkeypatch.setattr("scapo.baselines.run_method", bug)
+    code, _, err = cli("predict", "--method", "icp", "--data", laptop_data, "--out", tmp_path / "p.npz")
+    assert code == 3 and "internal error (TypeError: unsupported operand)" in err and "Traceback" not in err
+
+
+def test_temporaries_of_killed_processes_are_cleaned(run, laptop_data, tmp_path):
+    pid = dead_pid()
+    cache = tmp_path / "cache"
+    generate(make_config("laptop", 2, 2, test_fraction=0.5), tmp_path / "d", progress=False, cache_dir=cache)
+    seed_dir = next(cache.rglob("seed0"))
+    stale_build = seed_dir / f".00001.tmp-{pid}-abc"
+    stale_build.mkdir()
+    (stale_build / "model.urdf").write_text("half")
+    stale = [tmp_path / "d" / f".card.json.tmp-{pid}", tmp_path / "d" / "shards" / f".test-00000.npz.tmp-{pid}"]
+    r = tmp_path / "r"
+    shutil.copytree(run, r)
+    stale.append(r / f".checkpoint.pt.tmp-{pid}")
+    stale.append(tmp_path / f".p.npz.tmp-{pid}")
+    for p in stale:
+        p.write_bytes(b"partial")
+    generate(make_config("laptop", 2, 2, test_fraction=0.5), tmp_path / "d", progress=False, cache_dir=cache)
+    Trainer(laptop_data, r, TEST, progress=False).train()
+    assert cli("predict", "--run", r, "--data", laptop_data, "--out", tmp_path / "p.npz")[0] == 0
+    assert not stale_build.exists() and not any(p.exists() for p in stale)
+
+
+def test_resume_drops_the_log_rows_of_the_interrupted_epoch(laptop_data, tmp_path):
+    import dataclasses
+
+    import pandas as pd
+
+    p = dataclasses.replace(TEST, stage1_epochs=2, stage2_epochs=1)
+    t = Trainer(laptop_data, tmp_path / "r", p, progress=False)
+    orig = t._epoch
+
+    def stop_mid_epoch(st, ep, *a):
+        if (st, ep) == (1, 1):
+            with open(tmp_path / "r" / "log.csv", "a") as f:  # a row of the epoch, then the interruption
+                f.write("1,1,0,0.001,1.0" + "," * 14 + "\n1,1,1,0.0")
+            raise KeyboardInterrupt
+        return orig(st, ep, *a)
+
+    t._epoch = stop_mid_epoch
+    with pytest.raises(KeyboardInterrupt):
+        t.train()
+    Trainer(laptop_data, tmp_path / "r", p, progress=False).train()
+    log = pd.read_csv(tmp_path / "r" / "log.csv")
+    assert not log.duplicated(["stage", "epoch", "step"]).any()
+    assert (log.groupby(["stage", "epoch"]).size() == 2).all() and len(log) == 6
+
+
+def test_realistic_sensor_is_quiet(tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        generate(make_config("laptop", 2, 1, sensor="realistic", test_fraction=0.5), tmp_path / "d", progress=False)
+
+
+def test_loader_and_other_entry_points(laptop_data, tmp_path):
+    afile = tmp_path / "f"
+    afile.write_text("x")
+    with pytest.raises(DatasetError, match="it is a file"):
+        load(afile)
+    d = tmp_path / "d"
+    shutil.copytree(laptop_data, d)
+    (d / "manifest.parquet").write_bytes(b"PAR1 broken")
+    with pytest.raises(DatasetError, match="manifest.parquet cannot be read"):
+        load(d)
+    assert_clear_error(cli("preview", "--data", laptop_data, "--count", 0), "preview", "--count must be >= 1")
+    assert_clear_error(cli("preview", "--data", laptop_data, "--out", tmp_path), "preview", "existing folder")
+    assert_clear_error(cli("bench", "perf", "--workers", "0", "--out", tmp_path / "b"), "bench", ">= 1")
+    assert_clear_error(cli("evaluate", "--data", laptop_data, "--pred", tmp_path / "none.npz"), "evaluate",
+                       "does not exist")
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"PK not a zip")
+    assert_clear_error(cli("evaluate", "--data", laptop_data, "--pred", bad), "evaluate", "cannot be read")
+    np.savez(bad, meta=np.array("{broken"), **{k: np.zeros(1) for k in (
+        "instance_id", "view_id", "split", "part_label", "part_pose", "joint_parts", "joint_type", "joint_axis",
+        "joint_pivot", "joint_state", "T_cam_obj")})
+    assert_clear_error(cli("evaluate", "--data", laptop_data, "--pred", bad), "evaluate", "unreadable header")
+    assert os.path.exists(laptop_data / "card.json")
