@@ -25,6 +25,15 @@ def run_table1(methods, categories, instances: int, views: int, seed: int = 0, w
                out_dir: Path | None = None, workers: int = 1, cache_dir: Path | None = None, name: str = "table1",
                preset: str = "cpu"):
     """Generate one dataset per category, run every method, evaluate, and write Table 1."""
+    from scapo.baselines import METHODS
+    from scapo.models.presets import PRESETS
+
+    for m in methods:  # unknown names are refused before any dataset is rendered
+        METHODS.get(m)
+    for cat in categories:
+        make_config(cat, instances, views, seed)
+    if "scapo" in methods:
+        PRESETS.get(preset)
     if out_dir is not None:
         check_output_dir(out_dir, "table folder")
     check_output_dir(work_dir, "bench work folder")

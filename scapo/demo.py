@@ -24,12 +24,15 @@ def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12,
     from scapo.eval import evaluate
     from scapo.eval.tables import write_table1
     from scapo.files import check_output_dir
+    from scapo.models.presets import PRESETS
     from scapo.models.train import train
     from scapo.provenance import provenance, render_device
     from scapo.sim.assets import build_category
     from scapo.viz import prediction_figure
 
     t0 = time.perf_counter()
+    PRESETS.get(preset)  # an unknown preset is refused before any work
+    make_config(category, instances, views, seed, test_fraction=0.25)  # so are bad sizes
     out = check_output_dir(out, "demo output folder")
     _step(f"render device: {render_device()}")
     _step(f"building {instances} procedural {category} instances (URDF + meshes)")

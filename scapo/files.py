@@ -145,7 +145,7 @@ def check_output_dir(folder: str | Path, what: str = "output folder") -> Path:
     return folder
 
 
-def check_output_file(path: str | Path, what: str = "output file") -> Path:
+def check_output_file(path: str | Path, what: str = "output file", example: str = "out.npz") -> Path:
     """Check that ``path`` can be written (creating its folder); returns it. Nothing is written to it.
 
     Raises:
@@ -154,7 +154,7 @@ def check_output_file(path: str | Path, what: str = "output file") -> Path:
     """
     path = Path(path)
     if path.is_dir():
-        raise OutputError(f"{what} {path} is an existing folder; give a file name (e.g. {path / 'predictions.npz'})")
+        raise OutputError(f"{what} {path} is an existing folder; give a file name (e.g. {path / example})")
     _make_dir(path.parent, f"folder of the {what}")
     _probe_writable(path.parent, f"folder of the {what}")
     return path

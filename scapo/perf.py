@@ -186,12 +186,14 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
 
     from scapo.models.presets import PRESETS
     from scapo.models.scapo_model import ModelConfig, SCAPOModel
+    from scapo.models.train import resolve_device
 
     pc = PRESETS.get(preset)
     devices = [device] if device else ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    resolved = {dev: resolve_device(dev) for dev in devices}  # unknown or unavailable devices: ConfigError
     rows = []
     for dev in devices:
-        d = torch.device(dev)
+        d = resolved[dev]
         cfg = ModelConfig(2, (0,), ((0, 1),), encoder=pc.encoder, template_points=pc.template_points, gamma=pc.gamma,
                           root_motion=pc.root_motion)
         model = SCAPOModel(cfg).to(d)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +11,7 @@ from scapo.data.dataset import load
 from scapo.data.generate import sample_seed_key
 from scapo.errors import DatasetError
 from scapo.eval.predictions import Predictions
-from scapo.files import atomic_savefig, check_output_file
+from scapo.files import atomic_savefig, check_output_file, read_json
 from scapo.sim.assets import build_instance, parse_urdf
 from scapo.sim.preview import PART_COLORS, draw_sample, frame_cloud_axes, part_colors
 from scapo.sim.render import Renderer, render_with_retries
@@ -25,7 +24,10 @@ def render_dataset_samples(data: str | Path, split: str = "test", count: int = 4
     the stored one (the assets or renderer changed since generation).
     """
     ds = load(data, split)
-    cfg = GenerateConfig.from_dict(json.loads((Path(data) / "config.json").read_text()))
+    if len(ds) == 0:
+        raise DatasetError(f"the {split} split of {data} is empty; choose another split (--split train, test or all)")
+    cfg = GenerateConfig.from_dict(read_json(Path(data) / "config.json", "dataset config", DatasetError,
+                                             "rerun 'scapo generate' with the dataset's arguments to rewrite it"))
     if indices is None:
         indices = np.linspace(0, len(ds) - 1, min(count, len(ds))).round().astype(int)
     renderer = Renderer(cfg.render.camera, cfg.render.shader)
@@ -85,7 +87,7 @@ def prediction_figure(data: str | Path, predictions: Predictions, path: str | Pa
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     path = Path(path)
-    check_output_file(path, "figure")
+    check_output_file(path, "figure", "figure.png")
     atomic_savefig(fig, path, dpi=110)
     plt.close(fig)
     return path

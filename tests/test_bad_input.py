@@ -288,7 +288,10 @@ def test_generate_argument_errors(tmp_path):
     assert_clear_error(cli(*base, "--workers", 0, "--out", tmp_path / "c"), "generate", "workers must be >= 1")
     assert_clear_error(cli(*base[:4], 0, *base[5:], "--out", tmp_path / "d"), "generate", "must be >= 1")
     assert_clear_error(cli(*base, "--sensor", "lidar", "--out", tmp_path / "e"), "generate", "unknown sensor")
-    assert not any((tmp_path / x).exists() for x in "abcde")
+    assert_clear_error(cli(*base, "--seed", -1, "--out", tmp_path / "f"), "generate", "seed must be >= 0")
+    # --width 0 was silently replaced by the default width
+    assert_clear_error(cli(*base, "--width", 0, "--out", tmp_path / "g"), "generate", "at least 1 x 1", "0 x 256")
+    assert not any((tmp_path / x).exists() for x in "abcdefg")
 
 
 def test_all_views_rejected_names_the_real_cause(tmp_path):
@@ -421,6 +424,15 @@ def test_two_generates_on_one_folder_are_refused_by_a_lock(tmp_path):
     assert generate(cfg, d, progress=False).samples == 4  # released: works
 
 
+def test_two_trainings_on_one_run_are_refused_by_a_lock(run, laptop_data, tmp_path):
+    r = tmp_path / "r"
+    shutil.copytree(run, r)
+    with FolderLock(r, "train"):
+        assert_clear_error(cli("train", "--data", laptop_data, "--preset", "test", "--out", r), "train",
+                           "in use by scapo train")
+    assert cli("train", "--data", laptop_data, "--out", r)[0] == 0  # released; its own preset, already finished
+
+
 def test_folders_that_are_not_ours_are_not_written_into(laptop_data, tmp_path):
     mine = tmp_path / "mine"
     mine.mkdir()
@@ -528,3 +540,23 @@ def test_loader_and_other_entry_points(laptop_data, tmp_path):
         "joint_pivot", "joint_state", "T_cam_obj")})
     assert_clear_error(cli("evaluate", "--data", laptop_data, "--pred", bad), "evaluate", "unreadable header")
     assert os.path.exists(laptop_data / "card.json")
+    # preview: an empty split, a truncated config.json
+    d2 = tmp_path / "d2"
+    shutil.copytree(laptop_data, d2)
+    (d2 / "config.json").write_text('{"category": ')
+    assert_clear_error(cli("preview", "--data", d2, "--out", tmp_path / "p.png"), "preview", "config.json is not valid")
+    empty = tmp_path / "empty"
+    generate(make_config("laptop", 2, 1, test_fraction=0.0), empty, progress=False)
+    assert_clear_error(cli("preview", "--data", empty, "--out", tmp_path / "p.png"), "preview", "test split",
+                       "is empty")
+
+
+def test_names_are_checked_before_any_work(tmp_path):
+    assert_clear_error(cli("bench", "perf", "--what", "model", "--preset", "test", "--device", "foo"), "bench",
+                       "unknown device 'foo'")
+    assert_clear_error(cli("demo", "--out", tmp_path / "demo", "--preset", "huge"), "demo", "unknown preset 'huge'")
+    assert_clear_error(cli("bench", "table1", "--methods", "nope", "--categories", "laptop", "--work", tmp_path / "w"),
+                       "bench", "unknown method 'nope'")
+    assert_clear_error(cli("bench", "table1", "--categories", "laptop,teapot", "--work", tmp_path / "w"), "bench",
+                       "unknown category 'teapot'")
+    assert not (tmp_path / "demo").exists() and not (tmp_path / "w").exists()

@@ -110,7 +110,7 @@ def run_method(name: str, data: str | Path, out: str | Path | None = None, **opt
     factory = METHODS.get(name)
     method = factory(**validate_options(name, options))
     if out is not None:
-        check_output_file(out, "predictions file")
+        check_output_file(out, "predictions file", "predictions.npz")
     train = load(data, "train")
     test = load(data, "test")
     if len(test) == 0:

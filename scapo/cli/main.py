@@ -95,7 +95,7 @@ def cmd_preview(args) -> int:
 
     if args.count < 1:
         raise ConfigError(f"--count must be >= 1, got {args.count}")
-    check_output_file(args.out, "preview image")
+    check_output_file(args.out, "preview image", "preview.png")
     samples, titles, names = render_dataset_samples(args.data, args.split, args.count, args.cache)
     path = save_preview(samples, args.out, titles, names)
     print(f"wrote {path}")

@@ -45,6 +45,8 @@ class GenerateConfig:
         from scapo.sim.assets.categories import CATEGORIES
 
         CATEGORIES.get(self.category)  # raises UnknownNameError listing the known categories
+        if self.seed < 0:
+            raise ConfigError(f"seed must be >= 0, got {self.seed}")
         if self.instances < 1 or self.views < 1:
             raise ConfigError(f"instances and views must be >= 1, got {self.instances} and {self.views}")
         if not 0.0 <= self.test_fraction < 1.0:
@@ -98,7 +100,8 @@ def make_config(
     if sensor not in SENSORS:
         raise ConfigError(f"unknown sensor {sensor!r}; known sensors: {', '.join(SENSORS)}")
     cam = CameraConfig()
-    cam = dataclasses.replace(cam, width=width or cam.width, height=height or cam.height)
+    cam = dataclasses.replace(cam, width=cam.width if width is None else width,
+                              height=cam.height if height is None else height)
     render = RenderConfig(camera=cam, num_points=num_points, min_part_fraction=min_part_fraction,
                           shader=shader, sensor=SENSORS[sensor])
     view = None

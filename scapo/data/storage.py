@@ -89,13 +89,15 @@ def read_shard(path: Path, expected_sha256: str | None = None) -> dict[str, np.n
         if got != expected_sha256:
             raise CorruptShardError(
                 f"shard {path} is corrupted (sha256 {got[:12]}... differs from the card's {expected_sha256[:12]}...); "
-                "delete it and rerun 'scapo generate' with the same arguments to regenerate it")
+                "rerun 'scapo generate' with the dataset's arguments: it moves the shard to rejected/ and renders it "
+                "again")
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
     except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as e:
-        raise CorruptShardError(f"shard {path} cannot be read ({type(e).__name__}: {e}); delete it and rerun "
-                                "'scapo generate' with the same arguments to regenerate it") from e
+        raise CorruptShardError(f"shard {path} cannot be read ({type(e).__name__}: {e}); rerun 'scapo generate' "
+                                "with the dataset's arguments: it moves the shard to rejected/ and renders it "
+                                "again") from e
     missing = (set(ARRAY_FIELDS) | set(META_FIELDS)) - set(arrays)
     if missing:
         raise CorruptShardError(f"shard {path} lacks fields {sorted(missing)}")

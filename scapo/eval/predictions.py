@@ -182,7 +182,7 @@ class Predictions:
             OutputError: ``path`` cannot be written (nothing is left under its name).
         """
         path = Path(path)
-        check_output_file(path, "predictions file")
+        check_output_file(path, "predictions file", "predictions.npz")
         clean_stale_temps(path.parent, only=path.name)
         arrays = {k: getattr(self, k) for k in _FIELDS}
         arrays.update(instance_id=self.instance_id, view_id=self.view_id, split=self.split.astype("U8"),

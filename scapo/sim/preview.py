@@ -92,7 +92,7 @@ def save_preview(samples: Sequence[dict], path: str | Path, titles: Sequence[str
                     part_names=part_names[i] if part_names else None)
     fig.tight_layout()
     path = Path(path)
-    check_output_file(path, "figure")
+    check_output_file(path, "figure", "preview.png")
     atomic_savefig(fig, path, dpi=110)
     plt.close(fig)
     return path

@@ -108,8 +108,9 @@ class RenderConfig:
             raise ConfigError(f"min_part_fraction must be in [0, 1), got {self.min_part_fraction}")
         pixels = self.camera.width * self.camera.height
         if pixels < self.num_points:
-            raise ConfigError(f"an image of {self.camera.width} x {self.camera.height} pixels has fewer pixels ({pixels}) "
-                              f"than the {self.num_points} points per sample; raise --width/--height or lower --points")
+            c = self.camera
+            raise ConfigError(f"an image of {c.width} x {c.height} pixels has fewer pixels ({pixels}) than the "
+                              f"{self.num_points} points per sample; raise --width/--height or lower --points")
         if self.max_attempts < 1:
             raise ConfigError(f"max_attempts must be >= 1, got {self.max_attempts}")
 

@@ -48,7 +48,13 @@ def list_categories() -> list[str]:
 
 
 def instance_rng(category: str, seed: int, instance_id: int) -> np.random.Generator:
-    """The random generator that draws the design of one instance (independent of other instances)."""
+    """The random generator that draws the design of one instance (independent of other instances).
+
+    Raises:
+        ConfigError: a negative seed or instance id.
+    """
+    if int(seed) < 0 or int(instance_id) < 0:
+        raise ConfigError(f"seed and instance id must be >= 0, got {seed} and {instance_id}")
     return np.random.default_rng([int(seed), int(instance_id), zlib.crc32(category.encode())])
 
 
