@@ -215,6 +215,7 @@ EDITS = {
     "joint pivot of 4 numbers": ("joint_pivot", lambda a: np.concatenate([a, a[..., :1]], -1), "expected (M, 1, 3)"),
     "joint type 7": ("joint_type", lambda a: a + 7, "joint_type must be 0"),
     "NaN state": ("joint_state", lambda a: a * np.nan, "NaN/inf"),
+    "duplicate samples": ("view_id", lambda a: np.where(np.arange(len(a)) == 1, a[0], a), "duplicate samples"),
 }
 
 
@@ -524,6 +525,11 @@ def test_loader_and_other_entry_points(laptop_data, tmp_path):
         load(afile)
     d = tmp_path / "d"
     shutil.copytree(laptop_data, d)
+    card = json.loads((d / "card.json").read_text())
+    card["shards"].pop("train-00000")
+    (d / "card.json").write_text(json.dumps(card))
+    with pytest.raises(DatasetError, match="train-00000 .* is not listed in card.json"):
+        load(d, "train")[0]
     (d / "manifest.parquet").write_bytes(b"PAR1 broken")
     with pytest.raises(DatasetError, match="manifest.parquet cannot be read"):
         load(d)

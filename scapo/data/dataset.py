@@ -11,7 +11,7 @@ from torch.utils.data import Dataset
 
 from scapo.data.config import FORMAT_VERSION
 from scapo.data.storage import ARRAY_FIELDS, read_shard
-from scapo.errors import DatasetError
+from scapo.errors import CorruptShardError, DatasetError
 from scapo.files import read_json
 
 SPLITS = ("train", "test", "all")
@@ -119,7 +119,12 @@ class ArticulationDataset(Dataset):
         if name in self._cache:
             self._cache.move_to_end(name)
             return self._cache[name]
-        expected = self.card["shards"].get(name, {}).get("sha256") if self.verify else None
+        expected = None
+        if self.verify:
+            if name not in self.card["shards"]:
+                raise CorruptShardError(f"shard {name} of {self.root}/manifest.parquet is not listed in card.json; "
+                                        "rerun 'scapo generate' with the dataset's arguments to rewrite both")
+            expected = self.card["shards"][name].get("sha256")
         arrays = read_shard(self.root / "shards" / f"{name}.npz", expected)
         self._cache[name] = arrays
         if len(self._cache) > self._cache_size:

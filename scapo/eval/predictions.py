@@ -95,7 +95,8 @@ class Predictions:
         ``joint_type (M, J)``, ``T_cam_obj (M, 4, 4)``); labels, slots and joint types are integers
         (float arrays are refused, never truncated); labels are -1 or a slot index; joint types are 0 or
         1; joint axes are unit vectors (within :data:`AXIS_TOL`); poses are rigid (rotation block
-        orthonormal with determinant +1 within :data:`RIGID_TOL`, last row ``0 0 0 1``); no NaN/inf.
+        orthonormal with determinant +1 within :data:`RIGID_TOL`, last row ``0 0 0 1``); no NaN/inf;
+        each (instance, view, split) appears once.
 
         Raises:
             PredictionError: naming the offending field and the first offending sample.
@@ -168,6 +169,13 @@ class Predictions:
         self.split = np.asarray(self.split).astype(str)
         self.instance_id = np.asarray(self.instance_id, dtype=np.int64)
         self.view_id = np.asarray(self.view_id, dtype=np.int64)
+        keys = np.rec.fromarrays([self.instance_id, self.view_id, self.split])
+        uniq, first, counts = np.unique(keys, return_index=True, return_counts=True)
+        if (counts > 1).any():
+            row = int(first[np.argmax(counts > 1)])
+            raise PredictionError(f"predictions fields instance_id, view_id, split hold {int((counts - 1).sum())} "
+                                  f"duplicate samples (e.g. {self._where(row)}, {self.split[row]} split); each "
+                                  "sample may appear once")
 
     # ---------------------------------------------------------------- io
     def meta(self) -> dict:
