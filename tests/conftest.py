@@ -28,9 +28,10 @@ def renderer():
 
 @pytest.fixture(scope="session")
 def laptop_data(tmp_path_factory) -> Path:
-    """8 laptop instances x 6 views (2 test instances)."""
+    """8 laptop instances x 6 views (2 test instances, no val split; val splits are tested in test_data.py)."""
     from scapo.data import generate, make_config
 
     out = tmp_path_factory.mktemp("data") / "laptop"
-    generate(make_config("laptop", 8, 6, seed=3, test_fraction=0.25, shard_size=16), out, progress=False)
+    generate(make_config("laptop", 8, 6, seed=3, test_fraction=0.25, shard_size=16, val_fraction=0.0), out,
+             progress=False)
     return out

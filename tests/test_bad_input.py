@@ -76,7 +76,8 @@ def small(tmp_path_factory):
     """Three tiny datasets: laptop seed 0 and seed 1 (same plan, other samples), safe (same structure)."""
     root = tmp_path_factory.mktemp("small")
     for name, cat, seed in (("lap0", "laptop", 0), ("lap1", "laptop", 1), ("safe", "safe", 0)):
-        generate(make_config(cat, 3, 2, seed=seed, shard_size=2, test_fraction=0.34), root / name, progress=False)
+        generate(make_config(cat, 3, 2, seed=seed, shard_size=2, test_fraction=0.34, val_fraction=0.0), root / name,
+                 progress=False)
     return root
 
 
@@ -112,7 +113,7 @@ def test_resume_rerenders_a_foreign_shard_instead_of_blessing_it(small, tmp_path
     with pytest.raises(Exception, match="corrupted"):
         load(d, "train").arrays()  # the loader refuses it ...
     code, out, err = cli("generate", "--category", "laptop", "--instances", 3, "--views", 2, "--seed", 0,
-                         "--shard-size", 2, "--test-fraction", 0.34, "--out", d, "--no-progress")
+                         "--shard-size", 2, "--test-fraction", 0.34, "--val-fraction", 0, "--out", d, "--no-progress")
     assert code == 0, err
     assert f"{shard.stem} (modified)" in err and "re-rendered 1 shard" in out  # ... and generate re-renders it
     assert shard.read_bytes() == good
@@ -128,14 +129,14 @@ def test_resume_of_an_unfinished_dataset_verifies_shards_against_the_journal(sma
     shard = sorted((d / "shards").glob("train-*.npz"))[1]
     good = shard.read_bytes()
     shutil.copy(small / "lap1" / "shards" / shard.name, shard)
-    rep = generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34), d, progress=False)
+    rep = generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34, val_fraction=0.0), d, progress=False)
     assert rep.rejected_shards == [shard.stem] and rep.rendered == 2
     assert shard.read_bytes() == good
     # a shard written by a process killed before it was recorded is re-rendered; identical ones are not kept aside
     lines = (d / "shards.jsonl").read_text().splitlines()
     (d / "shards.jsonl").write_text("\n".join(x for x in lines if shard.stem not in x) + "\n")
     (d / "card.json").unlink()
-    rep = generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34), d, progress=False)
+    rep = generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34, val_fraction=0.0), d, progress=False)
     assert rep.rendered == 2 and rep.rejected_shards == [] and shard.read_bytes() == good
 
 
@@ -164,7 +165,7 @@ def test_assets_that_changed_since_the_finished_shards_are_refused(small, tmp_pa
     with open(d / "shards.jsonl", "a") as f:
         f.write(json.dumps(start) + "\n")
     with pytest.raises(ConfigError, match=r"assets of instance\(s\) 1 differ"):
-        generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34), d, progress=False)
+        generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34, val_fraction=0.0), d, progress=False)
 
 
 def test_predict_refuses_a_run_of_another_category(run, small, laptop_data, tmp_path):
@@ -348,10 +349,10 @@ def test_config_mismatch_names_only_the_differing_fields(small, tmp_path):
     d = tmp_path / "d"
     shutil.copytree(small / "lap0", d)
     with pytest.raises(ConfigError) as e:
-        generate(make_config("laptop", 3, 3, seed=0, shard_size=2, test_fraction=0.34), d, progress=False)
+        generate(make_config("laptop", 3, 3, seed=0, shard_size=2, test_fraction=0.34, val_fraction=0.0), d, progress=False)
     assert "differs in views)" in str(e.value) and "view." not in str(e.value)
     with pytest.raises(ConfigError, match=r"differs in render\.num_points\)"):
-        generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34, num_points=512), d,
+        generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34, num_points=512, val_fraction=0.0), d,
                  progress=False)
 
 

@@ -48,7 +48,43 @@ def test_split_is_by_instance(laptop_data):
     assert split_instances(10, 0.1, 0) == split_instances(10, 0.1, 0)
     assert len(split_instances(10, 0.1, 0)[1]) == 1 and len(split_instances(2, 0.1, 0)[1]) == 1
     with pytest.raises(DatasetError, match="unknown split"):
+        load(laptop_data, "validation")
+    with pytest.raises(DatasetError, match="has no val split"):  # this fixture was generated with --val-fraction 0
         load(laptop_data, "val")
+
+
+def test_default_generate_writes_train_val_and_test_by_instance(tmp_path):
+    cfg = make_config("oven", 10, 2, seed=4, shard_size=8)
+    assert cfg.val_fraction == 0.1 and cfg.test_fraction == 0.1
+    generate(cfg, tmp_path / "d", progress=False)
+    splits = {s: load(tmp_path / "d", s) for s in ("train", "val", "test")}
+    ids = {s: set(ds.manifest["instance_id"]) for s, ds in splits.items()}
+    assert [len(ids[s]) for s in ("train", "val", "test")] == [8, 1, 1]
+    assert not ids["train"] & ids["val"] and not ids["train"] & ids["test"] and not ids["val"] & ids["test"]
+    assert len(splits["val"]) == 2 and splits["val"][0]["instance_id"] in ids["val"]
+    card = json.loads((tmp_path / "d" / "card.json").read_text())
+    assert card["splits"]["val"]["instances"] == sorted(ids["val"])
+    # the test instances are those of the same seed without a val split (draws are independent)
+    assert split_instances(10, 0.1, 4, 0.1).test == split_instances(10, 0.1, 4).test
+    assert split_instances(10, 0.1, 4).val == [] and split_instances(2, 0.5, 0, 0.1).val == []
+    # a dataset written without a val split has the config (and hash) of one written before val splits existed
+    old = make_config("oven", 10, 2, seed=4, shard_size=8, val_fraction=0.0).to_dict()
+    assert "val_fraction" not in old
+    with pytest.raises(ConfigError, match="val_fraction"):
+        make_config("oven", 10, 2, test_fraction=0.5, val_fraction=0.5)
+
+
+def test_methods_predict_the_val_split_and_the_evaluator_scores_it(tmp_path):
+    from scapo.baselines import run_method
+    from scapo.eval import evaluate
+
+    d = tmp_path / "d"
+    generate(make_config("laptop", 6, 3, seed=1, test_fraction=0.2, val_fraction=0.2), d, progress=False)
+    preds = run_method("icp", d, tmp_path / "p.npz")
+    assert set(preds.split) == {"test", "val"}
+    val, test = evaluate(d, preds, split="val"), evaluate(d, preds)
+    assert val.split == "val" and val.summary["samples"] == len(load(d, "val")) == 3
+    assert test.split == "test" and test.summary["samples"] == len(load(d, "test")) == 3
 
 
 def test_manifest_and_card(laptop_data):
@@ -57,7 +93,8 @@ def test_manifest_and_card(laptop_data):
     assert {"split", "shard", "row", "category", "instance_id", "view_id", "seed", "attempts"} <= set(m.columns)
     card = json.loads((laptop_data / "card.json").read_text())
     assert card["category"] == "laptop" and card["part_names"] == ["base", "screen"]
-    assert len(card["shards"]) == len(plan(make_config("laptop", 8, 6, seed=3, test_fraction=0.25, shard_size=16)))
+    assert len(card["shards"]) == len(plan(make_config("laptop", 8, 6, seed=3, test_fraction=0.25, shard_size=16,
+                                                                    val_fraction=0.0)))
     assert card["rejections"]["total"] == int((m["attempts"] - 1).sum())
     assert len(card["dataset_hash"]) == 64
 

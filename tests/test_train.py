@@ -197,3 +197,16 @@ def test_refinement_is_an_inference_setting_and_keeps_poses_consistent(laptop_da
     np.testing.assert_allclose(one["part_pose"][0], o["part_pose"][1], atol=1e-4)
     preds = run_method("scapo", laptop_data, tmp_path / "p.npz", run=run, refine_steps=3, label="scapo-refined")
     assert preds.method == "scapo-refined" and preds.info["refine_steps"] == 3
+
+
+def test_training_seed_gives_another_run_and_is_part_of_its_identity(laptop_data, tmp_path):
+    train(laptop_data, tmp_path / "s0", TEST, progress=False, seed=0)
+    train(laptop_data, tmp_path / "s1", TEST, progress=False, seed=1)
+    a = torch.load(tmp_path / "s0" / "checkpoint.pt", weights_only=False)
+    b = torch.load(tmp_path / "s1" / "checkpoint.pt", weights_only=False)
+    assert a["identity"]["preset"]["seed"] == 0 and b["identity"]["preset"]["seed"] == 1
+    assert not torch.equal(a["model"]["y_base"], b["model"]["y_base"])
+    with pytest.raises(TrainingError, match="differ: seed"):
+        train(laptop_data, tmp_path / "s0", TEST, progress=False, seed=1)
+    preds = run_method("scapo", laptop_data, None, run=tmp_path / "s1")
+    assert preds.info["seed"] == 1

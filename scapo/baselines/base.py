@@ -95,8 +95,9 @@ def validate_options(name: str, options: dict[str, Any]) -> dict[str, Any]:
 
 
 def run_method(name: str, data: str | Path, out: str | Path | None = None, **options) -> Predictions:
-    """Fit method ``name`` on the training split of ``data``, predict the test split (and the
-    training split when the method needs canonical-frame alignment), and save to ``out``.
+    """Fit method ``name`` on the training split of ``data``, predict the test split, the val split
+    when the dataset has one (so choices can be made on it with the same file), and the training split
+    when the method needs canonical-frame alignment, and save to ``out``.
 
     Options are validated (:func:`validate_options`) and ``out`` is checked to be writable before
     any work; the file is written atomically.
@@ -124,6 +125,10 @@ def run_method(name: str, data: str | Path, out: str | Path | None = None, **opt
     t1 = time.perf_counter()
     parts = [method.predict(test)]
     t_pred = time.perf_counter() - t1
+    if "val" in train.card.get("splits", {}):
+        val = load(data, "val")
+        if len(val):
+            parts.append(method.predict(val))
     if method.needs_alignment:
         parts.append(method.predict(train))
     preds = Predictions.concatenate(parts)

@@ -73,7 +73,8 @@ def cmd_generate(args) -> int:
 
     cfg = make_config(args.category, args.instances, args.views, args.seed, num_points=args.points,
                       sensor=args.sensor, random_rotation=args.random_rotation, width=args.width,
-                      height=args.height, test_fraction=args.test_fraction, min_part_fraction=args.min_part_fraction,
+                      height=args.height, test_fraction=args.test_fraction, val_fraction=args.val_fraction,
+                      min_part_fraction=args.min_part_fraction,
                       shard_size=args.shard_size)
     rep = generate(cfg, args.out, workers=args.workers, progress=not args.no_progress, cache_dir=args.cache)
     print(f"{rep.out}: {rep.samples} samples ({rep.rendered} rendered now, {rep.skipped_shards} shards already "
@@ -105,7 +106,7 @@ def cmd_preview(args) -> int:
 def cmd_train(args) -> int:
     from scapo.models.train import train
 
-    ck = train(args.data, args.out, args.preset, progress=not args.no_progress, device=args.device)
+    ck = train(args.data, args.out, args.preset, progress=not args.no_progress, device=args.device, seed=args.seed)
     print(f"trained: {ck} (loss curves in {Path(args.out) / 'losses.png'})")
     return 0
 
@@ -143,11 +144,11 @@ def cmd_evaluate(args) -> int:
 
     if args.out:
         check_output_dir(args.out, "table folder")
-    results = [evaluate(args.data, p, protocol=args.protocol) for p in args.pred]
+    results = [evaluate(args.data, p, protocol=args.protocol, split=args.split) for p in args.pred]
     _print_summary(results)
     if args.out:
         prov = provenance(dataset_hash=results[0].info["dataset_hash"], dataset=str(args.data),
-                          predictions=[str(p) for p in args.pred], protocol=args.protocol,
+                          predictions=[str(p) for p in args.pred], protocol=args.protocol, split=args.split,
                           methods={r.method: {k: r.info[k] for k in ("preset", "run", "trained_on") if k in r.info}
                                    for r in results})
         paths = write_table1(results, args.out, prov, name=args.name)
@@ -254,7 +255,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--random-rotation", action="store_true", help="uniform SO(3) object rotation")
     sp.add_argument("--width", type=int, default=None)
     sp.add_argument("--height", type=int, default=None)
-    sp.add_argument("--test-fraction", type=float, default=0.1)
+    sp.add_argument("--test-fraction", type=float, default=0.1, help="fraction of instances in the test split")
+    sp.add_argument("--val-fraction", type=float, default=0.1, help="fraction of instances in the validation split "
+                    "(where choices are made; 0: none)")
     sp.add_argument("--min-part-fraction", type=float, default=0.05)
     sp.add_argument("--shard-size", type=int, default=64)
     sp.add_argument("--no-progress", action="store_true")
@@ -275,6 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "preset, else cpu)")
     sp.add_argument("--out", type=Path, required=True, help="run folder (resumes from its checkpoint)")
     sp.add_argument("--device", default=None, help="cpu | cuda (default: the preset's, auto)")
+    sp.add_argument("--seed", type=int, default=None, help="training seed (default: the preset's, 0); one run "
+                    "folder per seed")
     sp.add_argument("--no-progress", action="store_true")
     sp.set_defaults(func=cmd_train)
 
@@ -292,6 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--pred", type=Path, required=True, nargs="+",
                     help="one or more prediction files (one row per method in the table)")
     sp.add_argument("--protocol", default="per-sample", help="per-sample | per-category part matching")
+    sp.add_argument("--split", default="test", choices=["test", "val"],
+                    help="test (reported results) or val (where choices are made)")
     sp.add_argument("--out", type=Path, default=None, help="write Table 1 files here")
     sp.add_argument("--name", default="table1")
     sp.set_defaults(func=cmd_evaluate)

@@ -20,8 +20,10 @@ class GenerateConfig:
     """What ``scapo generate`` renders.
 
     Instances ``0 .. instances-1`` of ``category`` are built with ``seed``; a fraction
-    ``test_fraction`` of them (at least one when there are two or more) forms the test split;
-    each instance is rendered from ``views`` sampled viewpoints and joint states.
+    ``test_fraction`` of them (at least one when there are two or more) forms the test split, a
+    fraction ``val_fraction`` of them (at least one when it is positive and the training split keeps
+    one) the validation split, the rest the training split (all by instance, never by view); each
+    instance is rendered from ``views`` sampled viewpoints and joint states.
     """
 
     category: str
@@ -40,6 +42,9 @@ class GenerateConfig:
     """Viewpoint ranges; None takes the category template's ranges."""
     shard_size: int = 64
     """Samples per shard file (the unit of atomic writes and of resuming)."""
+    val_fraction: float = 0.1
+    """Fraction of instances in the validation split, where every choice is made (0: no val split; the
+    config of a dataset written before val splits existed reads as 0 and hashes as before)."""
 
     def __post_init__(self):
         from scapo.sim.assets.categories import CATEGORIES
@@ -53,6 +58,9 @@ class GenerateConfig:
             raise ConfigError(f"test_fraction must be in [0, 1), got {self.test_fraction}")
         if self.shard_size < 1:
             raise ConfigError(f"shard_size must be >= 1, got {self.shard_size}")
+        if not 0.0 <= self.val_fraction < 1.0 or self.val_fraction + self.test_fraction >= 1.0:
+            raise ConfigError(f"val_fraction must be in [0, 1) with val_fraction + test_fraction < 1, got "
+                              f"{self.val_fraction} and {self.test_fraction}")
 
     @property
     def view_config(self) -> ViewConfig:
@@ -63,6 +71,8 @@ class GenerateConfig:
         d = dataclasses.asdict(self)
         d["view"] = dataclasses.asdict(self.view_config)
         d["format_version"] = FORMAT_VERSION
+        if not self.val_fraction:  # identical to a config written before val splits existed
+            del d["val_fraction"]
         return d
 
     def to_json(self) -> str:
@@ -76,6 +86,7 @@ class GenerateConfig:
             ConfigError: another format version, or fields missing / unknown / of the wrong type.
         """
         d = dict(d)
+        d.setdefault("val_fraction", 0.0)  # written before val splits existed
         fv = d.pop("format_version", FORMAT_VERSION)
         if fv != FORMAT_VERSION:
             raise ConfigError(f"dataset format version {fv} is not supported (this scapo reads {FORMAT_VERSION})")
@@ -95,6 +106,7 @@ def make_config(
     category: str, instances: int, views: int, seed: int = 0, *, num_points: int = 1024,
     sensor: str = "clean", random_rotation: bool = False, width: int | None = None, height: int | None = None,
     test_fraction: float = 0.1, min_part_fraction: float = 0.05, shard_size: int = 64, shader: str = "trivial",
+    val_fraction: float = 0.1,
 ) -> GenerateConfig:
     """Convenience constructor used by the CLI (named sensor, optional SO(3) rotation, image size)."""
     if sensor not in SENSORS:
@@ -107,4 +119,4 @@ def make_config(
     view = None
     if random_rotation:
         view = dataclasses.replace(ViewConfig.from_template(load_template(category).view), random_rotation=True)
-    return GenerateConfig(category, instances, views, seed, test_fraction, render, view, shard_size)
+    return GenerateConfig(category, instances, views, seed, test_fraction, render, view, shard_size, val_fraction)

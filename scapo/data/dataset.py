@@ -14,7 +14,7 @@ from scapo.data.storage import ARRAY_FIELDS, read_shard
 from scapo.errors import CorruptShardError, DatasetError
 from scapo.files import read_json
 
-SPLITS = ("train", "test", "all")
+SPLITS = ("train", "val", "test", "all")
 
 #: Entries of ``card.json`` the loader and the evaluator rely on.
 CARD_KEYS = ("category", "part_names", "joint_names", "joint_type", "joint_parts", "shards", "dataset_hash")
@@ -80,6 +80,10 @@ class ArticulationDataset(Dataset):
         lacking = [c for c in MANIFEST_COLUMNS if c not in manifest.columns]
         if lacking:
             raise DatasetError(f"{self.root}/manifest.parquet lacks columns {lacking}; {rerun}")
+        if split == "val" and "val" not in self.card.get("splits", {}):
+            raise DatasetError(f"{self.root} has no val split (generated with --val-fraction 0, or before val splits "
+                               "existed); choices need one: regenerate into a new folder with --val-fraction (default "
+                               "0.1)")
         if split != "all":
             manifest = manifest[manifest["split"] == split]
         self.manifest = manifest.reset_index(drop=True)
@@ -166,5 +170,5 @@ class ArticulationDataset(Dataset):
 
 
 def load(path: str | Path, split: str = "train", **kwargs) -> ArticulationDataset:
-    """Open ``split`` ("train", "test" or "all") of the dataset at ``path``; see :class:`ArticulationDataset`."""
+    """Open ``split`` ("train", "val", "test" or "all") of the dataset at ``path``; see :class:`ArticulationDataset`."""
     return ArticulationDataset(path, split, **kwargs)

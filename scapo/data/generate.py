@@ -30,6 +30,7 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -83,22 +84,44 @@ class GenerateReport:
         return self.rendered / self.steady_seconds if self.steady_seconds > 0 else float("nan")
 
 
-def split_instances(instances: int, test_fraction: float, seed: int) -> tuple[list[int], list[int]]:
-    """Deterministic split of instance ids into (train, test); at least one test instance if 2+ exist."""
+class Splits(NamedTuple):
+    """Instance ids of each split (sorted, disjoint)."""
+
+    train: list[int]
+    test: list[int]
+    val: list[int]
+
+
+def split_instances(instances: int, test_fraction: float, seed: int, val_fraction: float = 0.0) -> Splits:
+    """Deterministic split of instance ids into (train, test, val), by instance.
+
+    The test split is drawn first, as before val splits existed (at least one test instance if 2+
+    exist, so the same seed gives the same test instances with or without a val split); the val split
+    is then drawn from the rest with its own stream (at least one instance when ``val_fraction > 0``
+    and the training split keeps one).
+    """
     n_test = int(round(test_fraction * instances))
     if test_fraction > 0 and instances >= 2:
         n_test = min(max(n_test, 1), instances - 1)
     rng = np.random.default_rng([int(seed), 0x5CA90])
     test = sorted(int(i) for i in rng.choice(instances, size=n_test, replace=False)) if n_test else []
-    train = [i for i in range(instances) if i not in set(test)]
-    return train, test
+    rest = [i for i in range(instances) if i not in set(test)]
+    n_val = int(round(val_fraction * instances))
+    if val_fraction > 0 and len(rest) >= 2:
+        n_val = min(max(n_val, 1), len(rest) - 1)
+    else:
+        n_val = 0
+    rng_val = np.random.default_rng([int(seed), 0x5CA91])
+    val = sorted(int(i) for i in rng_val.choice(rest, size=n_val, replace=False)) if n_val else []
+    train = [i for i in rest if i not in set(val)]
+    return Splits(train, test, val)
 
 
 def plan(cfg: GenerateConfig) -> list[ShardTask]:
-    """All shards of a dataset, train first, samples ordered by instance then view."""
-    train, test = split_instances(cfg.instances, cfg.test_fraction, cfg.seed)
+    """All shards of a dataset (train, val, test), samples ordered by instance then view."""
+    sp = split_instances(cfg.instances, cfg.test_fraction, cfg.seed, cfg.val_fraction)
     tasks, sid = [], 0
-    for split, ids in (("train", train), ("test", test)):
+    for split, ids in (("train", sp.train), ("val", sp.val), ("test", sp.test)):
         items = []
         for inst in ids:
             for v in range(cfg.views):
@@ -312,8 +335,12 @@ def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0) 
                         "otherwise choose another --out")
         if old != json.loads(cfg_json):
             diff = _dict_diff(old, json.loads(cfg_json))
+            hint = ""
+            if "val_fraction" in diff:
+                hint = (f" (its --val-fraction is {old.get('val_fraction', 0)}; a dataset written before val splits "
+                        "existed resumes with --val-fraction 0)")
             raise ConfigError(f"{out} already holds a dataset generated with a different config (differs in "
-                              f"{', '.join(diff)}); choose another --out or delete {out}")
+                              f"{', '.join(diff)}){hint}; choose another --out or delete {out}")
     else:
         write_json(cfg_path, json.loads(cfg_json))
     cfg_sha = config_sha256(cfg)
@@ -450,7 +477,11 @@ def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records, r
     manifest.to_parquet(buf, index=False)
     atomic_write_bytes(out / "manifest.parquet", buf.getvalue())
     spec = parse_urdf(records[0].urdf, category=cfg.category)
-    train, test = split_instances(cfg.instances, cfg.test_fraction, cfg.seed)
+    sp = split_instances(cfg.instances, cfg.test_fraction, cfg.seed, cfg.val_fraction)
+    splits = {name: {"instances": ids, "samples": int((manifest["split"] == name).sum())}
+              for name, ids in (("train", sp.train), ("val", sp.val), ("test", sp.test))}
+    if not cfg.val_fraction:  # the card of a dataset without a val split is as before val splits existed
+        del splits["val"]
     attempts = manifest["attempts"].to_numpy()
     reasons_total = int((attempts - 1).sum())
     h = hashlib.sha256(cfg.to_json().encode())
@@ -467,8 +498,7 @@ def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records, r
         "joint_parts": spec.joint_parts.tolist(),
         "num_points": cfg.render.num_points,
         "config": cfg.to_dict(),
-        "splits": {"train": {"instances": train, "samples": int((manifest["split"] == "train").sum())},
-                   "test": {"instances": test, "samples": int((manifest["split"] == "test").sum())}},
+        "splits": splits,
         "assets": {str(r.instance_id): r.digest for r in records},
         "shards": shards,
         "rejections": {"total": reasons_total, "by_reason": dict(sorted(reasons.items()))},

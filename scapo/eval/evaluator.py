@@ -119,8 +119,8 @@ def _gather(preds: Predictions, rows: np.ndarray, slots: np.ndarray, gt_joint_pa
 
 
 def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path | Predictions,
-             protocol: str = "per-sample", check_hash: bool = True) -> EvalResult:
-    """Score ``predictions`` on the test split of ``dataset``.
+             protocol: str = "per-sample", check_hash: bool = True, split: str = "test") -> EvalResult:
+    """Score ``predictions`` on the test split (or the val split, where choices are made) of ``dataset``.
 
     Args:
         dataset: dataset directory (or an opened dataset of any split; its root is used).
@@ -128,6 +128,7 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
             training sample too when ``needs_alignment`` is set.
         protocol: "per-sample" Hungarian matching (default) or "per-category" (one assignment).
         check_hash: refuse predictions made on a dataset with another hash.
+        split: "test" (reported results) or "val" (choices: hyperparameters, margins, checkpoints).
 
     Raises:
         PredictionError: missing samples, wrong shapes or values (see
@@ -138,18 +139,20 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     if protocol not in PROTOCOLS:
         raise PredictionError(f"unknown protocol {protocol!r}; known protocols: {', '.join(PROTOCOLS)}")
     root = dataset.root if isinstance(dataset, ArticulationDataset) else Path(dataset)
-    test = load(root, "test")
+    if split not in ("test", "val"):
+        raise PredictionError(f"evaluate scores the 'test' or 'val' split, not {split!r}")
+    test = load(root, split)
     if len(test) == 0:
-        raise DatasetError(f"the test split of {root} is empty (generated with --test-fraction "
-                           f"{test.card.get('config', {}).get('test_fraction')}); nothing to evaluate: regenerate "
-                           "it with test instances")
+        raise DatasetError(f"the {split} split of {root} is empty (generated with --{split}-fraction "
+                           f"{test.card.get('config', {}).get(f'{split}_fraction')}); nothing to evaluate: "
+                           f"regenerate it with {split} instances")
     preds = predictions if isinstance(predictions, Predictions) else Predictions.load(predictions)
     if check_hash and preds.dataset_hash and preds.dataset_hash != test.dataset_hash:
         raise PredictionError(f"predictions of {preds.method!r} were made on dataset {preds.dataset_hash[:12]}..., "
                               f"not on {root} ({test.dataset_hash[:12]}...)")
     P, J = test.num_parts, test.num_joints
     gt = test.arrays()
-    rows = _rows_for(preds, test, "test")
+    rows = _rows_for(preds, test, split)
     if preds.part_label.shape[1] != gt["points"].shape[1]:
         raise PredictionError(f"predictions have {preds.part_label.shape[1]} labels per sample, the dataset "
                               f"{gt['points'].shape[1]} points")
@@ -221,7 +224,8 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
             "needs_alignment": preds.needs_alignment, "supervision": preds.supervision, **preds.info}
     if alignment is not None:
         info["alignment_inlier_ratio"] = alignment.inlier_ratio.round(3).tolist()
-    return EvalResult(preds.method, test.category, "test", per_sample, summary, alignment, info)
+    info["split"] = split
+    return EvalResult(preds.method, test.category, split, per_sample, summary, alignment, info)
 
 
 def _average_precision(iou, R_err, t_cm, D, C_cm, joint_type) -> dict:

@@ -8,7 +8,7 @@ name           shape / dtype     meaning
 ============== ================= =========================================================
 instance_id    (M,) int64        sample key, with view_id (matches the dataset manifest)
 view_id        (M,) int64
-split          (M,) str          "train" or "test"
+split          (M,) str          "train", "val" or "test"
 part_label     (M, N) int64      predicted slot per input point (-1 = not object)
 part_pose      (M, S, 4, 4) f64  slot pose: predicted canonical frame -> camera (m)
 joint_parts    (M, J, 2) int64   (parent slot, child slot) of each predicted joint

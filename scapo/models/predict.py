@@ -96,13 +96,15 @@ class Predictor:
         self.max_points = int(max_points)
 
     @classmethod
-    def load(cls, run: str | Path, device: str | None = None, refine_steps: int | None = None) -> Predictor:
+    def load(cls, run: str | Path, device: str | None = None, refine_steps: int | None = None,
+             refine_margin: float | None = None) -> Predictor:
         """Load ``run/checkpoint.pt``.
 
         The test-time refinement (:mod:`scapo.models.refine`) follows the current definition of the
         run's preset (``TrainConfig.refine``; it is an inference setting, not part of the run), or the
         settings stored with the run when its preset is not a registered one; ``refine_steps``
-        overrides its number of steps (0 turns it off).
+        overrides its number of steps (0 turns it off), ``refine_margin`` the residual margin of its
+        multi-start (:class:`~scapo.models.refine.RefineConfig`; choose it on the val split).
 
         Raises:
             TrainingError: the run folder does not exist, has no checkpoint, or its checkpoint is
@@ -137,8 +139,13 @@ class Predictor:
         # an inference setting follows the preset's current definition when the preset is registered
         registered = stored.get("name") in PRESETS.names()
         refine = (PRESETS.get(stored["name"]) if registered else preset_from_dict(stored)).refine
-        if refine_steps is not None:
-            refine = dataclasses.replace(refine, steps=int(refine_steps))
+        try:
+            if refine_steps is not None:
+                refine = dataclasses.replace(refine, steps=int(refine_steps))
+            if refine_margin is not None:
+                refine = dataclasses.replace(refine, margin=float(refine_margin))
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
         return cls(model, identity, dev, refine)
 
     def predict(self, points, batch_size: int = 32, progress: bool = False) -> dict[str, np.ndarray]:
@@ -204,6 +211,8 @@ class SCAPOOptions:
     """Clouds per inference batch."""
     refine_steps: int | None = None
     """Steps of the test-time refinement (default: the run's preset; 0 turns it off)."""
+    refine_margin: float | None = None
+    """Residual margin of the refinement's multi-start (default: the run's preset); choose it on val."""
     label: str = "scapo"
     """Method name written into the predictions (e.g. ``scapo-no-refine`` for a second row of one run)."""
     cross_category: bool = False
@@ -249,7 +258,7 @@ class SCAPOMethod:
                 (allowed with ``cross_category`` when the structure is the same); names both.
         """
         o = self.options
-        self.predictor = Predictor.load(self.run, o.device, o.refine_steps)
+        self.predictor = Predictor.load(self.run, o.device, o.refine_steps, o.refine_margin)
         ident, card = self.predictor.identity, train.card
         same = (len(ident["part_names"]) == len(card["part_names"])
                 and np.array_equal(np.asarray(ident["joint_type"]), np.asarray(card["joint_type"]))
@@ -282,7 +291,9 @@ class SCAPOMethod:
             info={"run": str(self.run), "preset": self.predictor.identity["preset"]["name"],
                   "trained_on": self.predictor.identity["dataset_hash"],
                   "trained_category": self.predictor.identity["category"],
+                  "seed": self.predictor.identity["preset"].get("seed"),
                   "refine_steps": self.predictor.refine.steps,
+                  "refine_margin": self.predictor.refine.margin,
                   "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2)},
         )
 

@@ -465,14 +465,23 @@ def run_preset(run: str | Path) -> TrainConfig | None:
 
 
 def train(data: str | Path, run: str | Path, preset: str | TrainConfig | None = None, progress: bool = True,
-          device: str | None = None) -> Path:
+          device: str | None = None, seed: int | None = None) -> Path:
     """Train (or resume) SCAPO; see :class:`Trainer`.
 
     ``preset=None`` resumes an existing run with its own preset (from ``run.json``) and starts a new
-    run with the ``cpu`` preset.
+    run with the ``cpu`` preset. ``seed`` replaces the preset's training seed (parameter
+    initialisation, batches, augmentations); it is part of the run's identity, so each seed needs its
+    own run folder.
+
+    Raises:
+        ConfigError: a negative seed. Otherwise as :class:`Trainer`.
     """
     if preset is None:
         preset = run_preset(run) or "cpu"
+    if seed is not None:
+        if int(seed) < 0:
+            raise ConfigError(f"seed must be >= 0, got {seed}")
+        preset = dataclasses.replace(PRESETS.get(preset) if isinstance(preset, str) else preset, seed=int(seed))
     return Trainer(data, run, preset, progress, device).train()
 
 
