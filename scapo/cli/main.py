@@ -138,17 +138,19 @@ def cmd_predict(args) -> int:
 
 def cmd_evaluate(args) -> int:
     from scapo.eval import evaluate
+    from scapo.eval.protocols import get_protocol
     from scapo.eval.tables import write_table1
     from scapo.files import atomic_write_text, check_output_dir
     from scapo.provenance import provenance
 
+    protocol = get_protocol(args.protocol).name  # an unknown name is refused before any work
     if args.out:
         check_output_dir(args.out, "table folder")
-    results = [evaluate(args.data, p, protocol=args.protocol, split=args.split) for p in args.pred]
-    _print_summary(results)
+    results = [evaluate(args.data, p, protocol=protocol, split=args.split) for p in args.pred]
+    _print_summary(results, protocol)
     if args.out:
         prov = provenance(dataset_hash=results[0].info["dataset_hash"], dataset=str(args.data),
-                          predictions=[str(p) for p in args.pred], protocol=args.protocol, split=args.split,
+                          predictions=[str(p) for p in args.pred], protocol=protocol, split=args.split,
                           methods={r.method: {k: r.info[k] for k in ("preset", "run", "trained_on") if k in r.info}
                                    for r in results})
         paths = write_table1(results, args.out, prov, name=args.name)
@@ -159,17 +161,11 @@ def cmd_evaluate(args) -> int:
     return 0
 
 
-def _print_summary(results) -> None:
-    from scapo.eval.metrics import TABLE1_METRICS
+def _print_summary(results, protocol: str = "scapo") -> None:
+    """Print Table 1 in the paper's layout (our rows and the paper's), then the medians and rates."""
+    from scapo.eval.tables import table1_markdown
 
-    keys = ["S", "D", "C", "R", "t", "state_deg", "state_cm"]
-    print(f"{'method':10s} {'category':11s} {'n':>4s} " + " ".join(f"{k:>9s}" for k in keys))
-    for r in results:
-        vals = []
-        for k in keys:
-            v = r.summary.get(k, float("nan"))
-            vals.append(f"{v:9.{TABLE1_METRICS[k].decimals}f}" if v == v else f"{'-':>9s}")
-        print(f"{r.method:10s} {r.category:11s} {r.summary['samples']:4d} " + " ".join(vals))
+    print(table1_markdown(results, protocol))
 
 
 def cmd_bench(args) -> int:
@@ -296,7 +292,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--data", type=Path, required=True)
     sp.add_argument("--pred", type=Path, required=True, nargs="+",
                     help="one or more prediction files (one row per method in the table)")
-    sp.add_argument("--protocol", default="per-sample", help="per-sample | per-category part matching")
+    sp.add_argument("--protocol", default="scapo", help="evaluation protocol: scapo (the paper's; default), op-align, "
+                    "eap (those papers' released evaluation code), scapo-per-category")
     sp.add_argument("--split", default="test", choices=["test", "val"],
                     help="test (reported results) or val (where choices are made)")
     sp.add_argument("--out", type=Path, default=None, help="write Table 1 files here")

@@ -20,15 +20,21 @@ from scapo.geometry import as_transform, invert_transform, project_to_so3
 
 @dataclass(frozen=True)
 class CanonicalAlignment:
-    """Estimated offsets: ``part_offset (P, 4, 4)`` and joint ``state_offset (J,)``, inlier ratios."""
+    """Estimated offsets: ``part_offset (P, 4, 4)`` (translation in the protocol's units: metres, or a
+    per-sample unit given to :meth:`apply_poses`), joint ``state_offset (J,)``, inlier ratios (P,)."""
 
     part_offset: np.ndarray
     state_offset: np.ndarray
     inlier_ratio: np.ndarray
 
-    def apply_poses(self, part_pose: np.ndarray) -> np.ndarray:
-        """Aligned poses ``part_pose (M, P, 4, 4) @ part_offset`` (already matched to GT parts)."""
-        return part_pose @ self.part_offset[None]
+    def apply_poses(self, part_pose: np.ndarray, unit: np.ndarray | None = None) -> np.ndarray:
+        """Aligned poses ``part_pose (M, P, 4, 4) @ part_offset`` (already matched to GT parts); with
+        ``unit (M,)`` (metres per unit of each sample) the offsets' translations are scaled by it."""
+        if unit is None:
+            return part_pose @ self.part_offset[None]
+        O = np.repeat(self.part_offset[None], len(part_pose), axis=0)
+        O[..., :3, 3] *= np.asarray(unit, dtype=np.float64)[:, None, None]
+        return part_pose @ O
 
     def apply_states(self, state: np.ndarray, axis_sign: np.ndarray) -> np.ndarray:
         """Aligned joint states ``sign * state + offset`` for (M, J) inputs."""
@@ -68,30 +74,79 @@ def robust_rotation_mean(R: np.ndarray, inlier_deg: float = 15.0, max_candidates
     return mean, inliers
 
 
+def ransac_sample_means(R: np.ndarray, t: np.ndarray, iterations: int = 100, sample: int = 5,
+                        inlier_deg: float = 10.0, inlier_t: float = 0.25, seed: int = 0
+                        ) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """OP-Align's canonical-frame estimator (``Art_Metric.standardization_ransac`` in YC-Che/OP-Align
+    SPConvNets/models/art_metric.py): each iteration averages ``sample`` random training samples'
+    offsets (per part: chordal mean of rotations, mean of translations); the rotation means and the
+    translation means with the most inliers over all parts (within ``inlier_deg``, resp. ``inlier_t``)
+    win, separately.
+
+    Args:
+        R: (M, P, 3, 3) per-sample offset rotations. t: (M, P, 3) offset translations (any unit).
+
+    Returns:
+        (R_mean (P, 3, 3), t_mean (P, 3), rotation inlier ratio, translation inlier ratio).
+    """
+    R = project_to_so3(np.asarray(R, dtype=np.float64))
+    t = np.asarray(t, dtype=np.float64)
+    M, P = R.shape[:2]
+    rng = np.random.default_rng(seed)
+    k = min(sample, M)
+    cos_thr = np.cos(np.radians(inlier_deg))
+    best_r, best_t = (-1, None), (-1, None)
+    for _ in range(iterations):
+        idx = rng.choice(M, size=k, replace=False)
+        Rm = np.stack([Rotation.from_matrix(R[idx, p]).mean().as_matrix() for p in range(P)])
+        tm = t[idx].mean(0)
+        n_r = int((((np.einsum("pij,mpij->mp", Rm, R) - 1.0) / 2.0) >= cos_thr).sum())
+        n_t = int((np.linalg.norm(t - tm[None], axis=-1) <= inlier_t).sum())
+        if n_r > best_r[0]:
+            best_r = (n_r, Rm)
+        if n_t > best_t[0]:
+            best_t = (n_t, tm)
+    return best_r[1], best_t[1], best_r[0] / (M * P), best_t[0] / (M * P)
+
+
 def estimate_alignment(pred_pose: np.ndarray, gt_pose: np.ndarray, pred_axis: np.ndarray, gt_axis: np.ndarray,
-                       pred_state: np.ndarray, gt_state: np.ndarray, inlier_deg: float = 15.0) -> CanonicalAlignment:
+                       pred_state: np.ndarray, gt_state: np.ndarray, inlier_deg: float = 15.0,
+                       method: str = "ransac-offsets", unit: np.ndarray | None = None,
+                       inlier_t: float = 0.25) -> CanonicalAlignment:
     """Estimate the per-part offsets and per-joint state offsets from training-split predictions.
 
     Args:
         pred_pose, gt_pose: (M, P, 4, 4) predicted poses (matched to GT parts) and GT part poses.
         pred_axis, gt_axis: (M, J, 3) joint axes (camera frame), predicted joints matched to GT.
         pred_state, gt_state: (M, J) joint states.
+        method: "ransac-offsets" (default: RANSAC over per-sample rotation offsets within
+            ``inlier_deg``, chordal mean of the inliers, median translation of the inliers) or
+            "ransac-sample-means" (:func:`ransac_sample_means`, OP-Align's).
+        unit: (M,) metres per unit of each sample; offsets' translations are estimated in these units
+            (default: metres).
 
     Returns:
-        :class:`CanonicalAlignment`.
+        :class:`CanonicalAlignment` (translations in ``unit``).
     """
     M, P = pred_pose.shape[:2]
-    offsets, ratios = [], []
-    for p in range(P):
-        O = invert_transform(pred_pose[:, p]) @ gt_pose[:, p]  # P_gt = P_pred @ O
-        R, inl = robust_rotation_mean(O[:, :3, :3], inlier_deg)
-        t = np.median(O[inl, :3, 3], axis=0) if inl.any() else np.median(O[:, :3, 3], axis=0)
-        offsets.append(as_transform(R, t))
-        ratios.append(inl.mean())
+    O = invert_transform(pred_pose) @ gt_pose  # P_gt = P_pred @ O, (M, P, 4, 4)
+    t_units = O[..., :3, 3] / (1.0 if unit is None else np.asarray(unit, dtype=np.float64)[:, None, None])
+    if method == "ransac-sample-means":
+        Rm, tm, r_ratio, _ = ransac_sample_means(O[..., :3, :3], t_units, inlier_deg=inlier_deg, inlier_t=inlier_t)
+        offsets = np.stack([as_transform(Rm[p], tm[p]) for p in range(P)])
+        ratios = np.full(P, r_ratio)
+    else:
+        offsets, ratios = [], []
+        for p in range(P):
+            R, inl = robust_rotation_mean(O[:, p, :3, :3], inlier_deg)
+            t = np.median(t_units[inl, p], axis=0) if inl.any() else np.median(t_units[:, p], axis=0)
+            offsets.append(as_transform(R, t))
+            ratios.append(inl.mean())
+        offsets = np.stack(offsets)
     sign = axis_sign(pred_axis, gt_axis)
     diff = gt_state - sign * pred_state
     state_offset = np.median(diff, axis=0) if M else np.zeros(pred_state.shape[1])
-    return CanonicalAlignment(np.stack(offsets), state_offset, np.array(ratios))
+    return CanonicalAlignment(offsets, state_offset, np.asarray(ratios, dtype=np.float64))
 
 
 def axis_sign(pred_axis: np.ndarray, gt_axis: np.ndarray) -> np.ndarray:

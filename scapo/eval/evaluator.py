@@ -1,10 +1,11 @@
-"""The evaluator: one scoring path for every method (SPEC section 8).
+"""The evaluator: one scoring path for every method (SPEC section 8), under a named protocol.
 
-Steps: (1) match predicted part slots to GT parts by Hungarian assignment on point IoU, per
-sample (default) or once per category; joints follow their parts; (2) for methods whose
-canonical frame is arbitrary, estimate per-part offsets from training-split predictions and
-apply them to test predictions (:mod:`scapo.eval.alignment`); (3) compute the metrics of
-:mod:`scapo.eval.metrics` per sample in float64 and average them.
+Steps, each as the protocol (:mod:`scapo.eval.protocols`) says: (1) match predicted part slots to
+GT parts (Hungarian on point IoU per sample or per category, or OP-Align's fixed orders); joints
+follow their parts; (2) for methods whose canonical frame is arbitrary, estimate per-part offsets
+from training-split predictions and apply them to the evaluated split (:mod:`scapo.eval.alignment`);
+(3) compute the metrics of :mod:`scapo.eval.metrics` per sample in float64; the summary holds their
+means and the robust statistics beside them (medians, rates under 5 / 10 deg and over 90 deg).
 
 Unmatched joints (a predicted joint connecting other slots than the GT joint's parts) count as
 failures: D = 90 deg and C = 1 bbox diagonal; their state error is left out.
@@ -26,9 +27,14 @@ from scapo.eval.metrics import (
     AP_THRESHOLDS,
     SEG_THRESHOLDS,
     axis_error_deg,
+    fixed_order_match,
+    fold_rotation_error,
     iou_matrix,
     line_distance,
     match_parts,
+    mean_centroid_distance,
+    origin_offset_difference,
+    point_line_distance,
     precision_under,
     relabel,
     rotation_error_deg,
@@ -36,8 +42,9 @@ from scapo.eval.metrics import (
     translation_error,
 )
 from scapo.eval.predictions import Predictions
+from scapo.eval.protocols import PROTOCOLS, Protocol, fixed_orders, get_protocol
 
-PROTOCOLS = ("per-sample", "per-category")
+__all__ = ["PROTOCOLS", "EvalResult", "evaluate", "robust_summary"]
 
 
 @dataclass
@@ -73,10 +80,10 @@ def _rows_for(preds: Predictions, ds: ArticulationDataset, split: str) -> np.nda
     return rows
 
 
-def _match(preds: Predictions, rows: np.ndarray, gt_label: np.ndarray, P: int, protocol: str) -> np.ndarray:
-    """(M, P) slot of each GT part per sample."""
+def _match(preds: Predictions, rows: np.ndarray, gt_label: np.ndarray, P: int, proto: Protocol) -> np.ndarray:
+    """(M, P) slot of each GT part per sample, by the protocol's matching rule."""
     S = preds.part_pose.shape[1]
-    if protocol == "per-category":
+    if proto.matching == "hungarian-category":
         total = sum(iou_matrix(preds.part_label[r], g, S, P) for r, g in zip(rows, gt_label))
         from scipy.optimize import linear_sum_assignment
 
@@ -84,7 +91,20 @@ def _match(preds: Predictions, rows: np.ndarray, gt_label: np.ndarray, P: int, p
         one = np.full(P, -1, dtype=np.int64)
         one[c_idx] = r_idx
         return np.tile(one, (len(rows), 1))
+    if proto.matching == "fixed-orders":
+        if S != P:
+            raise PredictionError(f"the {proto.name} protocol matches parts by fixed orders and needs as many "
+                                  f"slots as parts ({P}), got {S}")
+        orders = fixed_orders(P)
+        return np.stack([fixed_order_match(preds.part_label[r], g, orders) for r, g in zip(rows, gt_label)])
     return np.stack([match_parts(preds.part_label[r], g, P, S) for r, g in zip(rows, gt_label)])
+
+
+def _unit(proto: Protocol, points: np.ndarray, labels: np.ndarray, bbox_diag: np.ndarray) -> np.ndarray:
+    """(M,) metres per reported unit of t and C: the bbox diagonal, or OP-Align's cloud scale."""
+    if proto.units == "centroid-0.25":
+        return mean_centroid_distance(points, labels) / 0.25
+    return np.asarray(bbox_diag, dtype=np.float64)
 
 
 def _gather(preds: Predictions, rows: np.ndarray, slots: np.ndarray, gt_joint_parts: np.ndarray):
@@ -119,25 +139,31 @@ def _gather(preds: Predictions, rows: np.ndarray, slots: np.ndarray, gt_joint_pa
 
 
 def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path | Predictions,
-             protocol: str = "per-sample", check_hash: bool = True, split: str = "test") -> EvalResult:
+             protocol: str | Protocol = "scapo", check_hash: bool = True, split: str = "test") -> EvalResult:
     """Score ``predictions`` on the test split (or the val split, where choices are made) of ``dataset``.
 
     Args:
         dataset: dataset directory (or an opened dataset of any split; its root is used).
-        predictions: predictions file or object; must cover every test sample, and every
+        predictions: predictions file or object; must cover every sample of ``split``, and every
             training sample too when ``needs_alignment`` is set.
-        protocol: "per-sample" Hungarian matching (default) or "per-category" (one assignment).
+        protocol: a name of :data:`~scapo.eval.protocols.PROTOCOLS` ("scapo", the default; "op-align";
+            "eap"; "scapo-per-category") or a :class:`~scapo.eval.protocols.Protocol`.
         check_hash: refuse predictions made on a dataset with another hash.
         split: "test" (reported results) or "val" (choices: hyperparameters, margins, checkpoints).
 
+    Returns:
+        :class:`EvalResult`; its summary holds S (%), D, R, state_deg (deg), t and C (the protocol's
+        unit: bbox diagonals, or OP-Align's), t_cm, C_cm, state_cm (cm), AP (%), and the robust
+        statistics of :func:`robust_summary`.
+
     Raises:
         PredictionError: missing samples, wrong shapes or values (see
-            :meth:`~scapo.eval.predictions.Predictions.validate`), or predictions of another dataset.
-        DatasetError: ``dataset`` is not a dataset, or its test split is empty.
+            :meth:`~scapo.eval.predictions.Predictions.validate`), predictions of another dataset, or
+            an unknown protocol.
+        DatasetError: ``dataset`` is not a dataset, or the split is empty.
     """
     t0 = time.perf_counter()
-    if protocol not in PROTOCOLS:
-        raise PredictionError(f"unknown protocol {protocol!r}; known protocols: {', '.join(PROTOCOLS)}")
+    proto = get_protocol(protocol)
     root = dataset.root if isinstance(dataset, ArticulationDataset) else Path(dataset)
     if split not in ("test", "val"):
         raise PredictionError(f"evaluate scores the 'test' or 'val' split, not {split!r}")
@@ -157,23 +183,27 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
         raise PredictionError(f"predictions have {preds.part_label.shape[1]} labels per sample, the dataset "
                               f"{gt['points'].shape[1]} points")
     gt_jp = gt["joint_parts"][0] if J else np.zeros((0, 2), dtype=np.int64)
-    slots = _match(preds, rows, gt["part_label"], P, protocol)
+    slots = _match(preds, rows, gt["part_label"], P, proto)
     pose, axis, pivot, state, matched = _gather(preds, rows, slots, gt_jp)
+    unit = _unit(proto, gt["points"], gt["part_label"], gt["bbox_diag"])  # metres per reported unit
 
     alignment = None
     if preds.needs_alignment:
         train = load(root, "train")
-        gtr = train.arrays(["part_label", "part_pose", "joint_axis", "joint_state"])
+        gtr = train.arrays(["part_label", "part_pose", "joint_axis", "joint_state", "points", "bbox_diag"])
         trows = _rows_for(preds, train, "train")
-        tslots = _match(preds, trows, gtr["part_label"], P, protocol)
+        tslots = _match(preds, trows, gtr["part_label"], P, proto)
         tpose, taxis, _, tstate, tmatched = _gather(preds, trows, tslots, gt_jp)
         good = tmatched.all(1) & (tslots >= 0).all(1)
         if not good.any():
             raise PredictionError(f"no training prediction of {preds.method!r} has all parts and joints matched; "
                                   "cannot estimate the canonical-frame alignment")
+        t_unit = None if proto.alignment == "ransac-offsets" else \
+            _unit(proto, gtr["points"], gtr["part_label"], gtr["bbox_diag"])[good]
         alignment = estimate_alignment(tpose[good], gtr["part_pose"][good], taxis[good], gtr["joint_axis"][good],
-                                       tstate[good], gtr["joint_state"][good])
-        pose = alignment.apply_poses(pose)
+                                       tstate[good], gtr["joint_state"][good], inlier_deg=proto.alignment_deg,
+                                       method=proto.alignment, unit=t_unit, inlier_t=proto.alignment_t)
+        pose = alignment.apply_poses(pose, None if t_unit is None else unit)
         state = alignment.apply_states(state, axis_sign(axis, gt["joint_axis"]))
     elif J:
         state = axis_sign(axis, gt["joint_axis"]) * state
@@ -184,23 +214,34 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     iou = np.stack([segmentation_iou(sp, g, P) for sp, g in zip(seg_pred, gt["part_label"])]) if M else \
         np.zeros((0, P))
     R_err = rotation_error_deg(pose[..., :3, :3], gt["part_pose"][..., :3, :3])
+    if proto.fold_rotation:
+        R_err = fold_rotation_error(R_err)
     t_abs = translation_error(pose[..., :3, 3], gt["part_pose"][..., :3, 3])
     D = np.where(matched, axis_error_deg(axis, gt["joint_axis"]), 90.0)
-    C_abs = np.where(matched, line_distance(pivot, np.where(matched[..., None], axis, 1.0), gt["joint_pivot"],
-                                            gt["joint_axis"]), diag[:, None])
+    safe_axis = np.where(matched[..., None], axis, gt["joint_axis"])
+    if proto.pivot == "point-line":
+        C_raw = point_line_distance(pivot, gt["joint_pivot"], gt["joint_axis"])
+    elif proto.pivot == "origin-offset":
+        obj = (gt["part_label"] >= 0)[..., None]
+        centroid = (gt["points"] * obj).sum(1) / np.maximum(obj.sum(1), 1)
+        C_raw = origin_offset_difference(centroid[:, None], pivot, safe_axis, gt["joint_pivot"], gt["joint_axis"])
+    else:
+        C_raw = line_distance(pivot, safe_axis, gt["joint_pivot"], gt["joint_axis"])
+    C_abs = np.where(matched, C_raw, diag[:, None])
     jt = gt["joint_type"]
     revolute = jt == 0
+    scored = np.ones_like(revolute) if proto.pivot_prismatic else revolute  # joints that get a pivot score
     state_err = np.abs(state - gt["joint_state"])
     rows_out = {
         "instance_id": gt["instance_id"], "view_id": gt["view_id"],
         "S": 100.0 * np.nanmean(iou, 1),
-        "R": R_err.mean(1), "t": (t_abs / diag[:, None]).mean(1), "t_cm": 100.0 * t_abs.mean(1),
+        "R": R_err.mean(1), "t": (t_abs / unit[:, None]).mean(1), "t_cm": 100.0 * t_abs.mean(1),
     }
     with np.errstate(invalid="ignore"):
         rows_out["D"] = D.mean(1) if J else np.full(M, np.nan)
-        C_rel = np.where(revolute, C_abs / diag[:, None], np.nan)
-        rows_out["C"] = np.nanmean(C_rel, 1) if revolute.any() else np.full(M, np.nan)
-        rows_out["C_cm"] = np.nanmean(np.where(revolute, 100.0 * C_abs, np.nan), 1) if revolute.any() else \
+        C_rel = np.where(scored, C_abs / unit[:, None], np.nan)
+        rows_out["C"] = np.nanmean(C_rel, 1) if scored.any() else np.full(M, np.nan)
+        rows_out["C_cm"] = np.nanmean(np.where(scored, 100.0 * C_abs, np.nan), 1) if scored.any() else \
             np.full(M, np.nan)
         sd = np.where(revolute & matched, np.degrees(state_err), np.nan)
         sc = np.where(~revolute & matched, 100.0 * state_err, np.nan)
@@ -210,17 +251,23 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     for p in range(P):
         rows_out[f"S_p{p}"] = 100.0 * iou[:, p]
         rows_out[f"R_p{p}"] = R_err[:, p]
+        rows_out[f"t_p{p}"] = t_abs[:, p] / unit
         rows_out[f"t_cm_p{p}"] = 100.0 * t_abs[:, p]
     for j in range(J):
         rows_out[f"D_j{j}"] = D[:, j]
-        rows_out[f"C_cm_j{j}"] = 100.0 * C_abs[:, j] if revolute[0, j] else np.full(M, np.nan)
+        rows_out[f"C_j{j}"] = C_abs[:, j] / unit if scored[0, j] else np.full(M, np.nan)
+        rows_out[f"C_cm_j{j}"] = 100.0 * C_abs[:, j] if scored[0, j] else np.full(M, np.nan)
+        rows_out[f"state_err_j{j}"] = np.where(matched[:, j], np.degrees(state_err[:, j]) if revolute[0, j]
+                                               else 100.0 * state_err[:, j], np.nan)
     per_sample = pd.DataFrame(rows_out)
     summary = {k: float(np.nanmean(per_sample[k])) if per_sample[k].notna().any() else float("nan")
                for k in ("S", "D", "C", "R", "t", "t_cm", "C_cm", "state_deg", "state_cm")}
-    summary.update(_average_precision(iou, R_err, 100.0 * t_abs, D, 100.0 * C_abs, jt[0] if J else np.zeros(0)))
+    summary.update(_average_precision(iou, R_err, 100.0 * t_abs, D, 100.0 * C_abs, scored[0] if J else
+                                      np.zeros(0, dtype=bool), proto.min_ap))
+    summary.update(robust_summary(per_sample, P, jt[0] if J else []))
     summary["samples"] = M
     summary["joint_match_rate"] = float(matched.mean()) if J and M else float("nan")
-    info = {"protocol": protocol, "dataset_hash": test.dataset_hash, "seconds": round(time.perf_counter() - t0, 3),
+    info = {"protocol": proto.name, "dataset_hash": test.dataset_hash, "seconds": round(time.perf_counter() - t0, 3),
             "needs_alignment": preds.needs_alignment, "supervision": preds.supervision, **preds.info}
     if alignment is not None:
         info["alignment_inlier_ratio"] = alignment.inlier_ratio.round(3).tolist()
@@ -228,19 +275,58 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     return EvalResult(preds.method, test.category, split, per_sample, summary, alignment, info)
 
 
-def _average_precision(iou, R_err, t_cm, D, C_cm, joint_type) -> dict:
-    """Table 2 metrics (%): segmentation precision at IoU > 75/50 %, joint and part AP at 5/10/15."""
+#: Robust statistics in every summary: medians of the per-part / per-joint errors, and part rates.
+ROBUST_KEYS = ("R_median", "t_median", "D_median", "C_median", "R_under5", "R_under10", "R_over90",
+               "state_deg_median", "state_cm_median")
+
+
+def robust_summary(per_sample: pd.DataFrame, P: int, joint_type) -> dict:
+    """Medians and rates over all parts (joints) of all samples, from the per-sample table.
+
+    ``R_median``, ``t_median`` (protocol unit): medians of the per-part errors; ``D_median``,
+    ``C_median``: of the per-joint errors (C of scored joints only); ``R_under5``, ``R_under10``,
+    ``R_over90``: % of part poses with a rotation error under 5 / 10 deg and over 90 deg (the flip
+    rate); ``state_deg_median`` / ``state_cm_median``: of the revolute / prismatic joints' state
+    errors. NaN where nothing is defined.
+    """
+    jt = [int(t) for t in joint_type]
+
+    def med(cols):
+        v = per_sample[cols].to_numpy(dtype=np.float64).ravel() if cols else np.zeros(0)
+        v = v[np.isfinite(v)]
+        return float(np.median(v)) if v.size else float("nan")
+
+    R = per_sample[[f"R_p{p}" for p in range(P)]].to_numpy(dtype=np.float64).ravel()
+    out = {"R_median": med([f"R_p{p}" for p in range(P)]), "t_median": med([f"t_p{p}" for p in range(P)]),
+           "D_median": med([f"D_j{j}" for j in range(len(jt))]), "C_median": med([f"C_j{j}" for j in range(len(jt))]),
+           "state_deg_median": med([f"state_err_j{j}" for j, t in enumerate(jt) if t == 0]),
+           "state_cm_median": med([f"state_err_j{j}" for j, t in enumerate(jt) if t == 1])}
+    for name, mask in (("R_under5", R < 5.0), ("R_under10", R < 10.0), ("R_over90", R > 90.0)):
+        out[name] = 100.0 * float(mask.mean()) if R.size else float("nan")
+    return out
+
+
+def _average_precision(iou, R_err, t_cm, D, C_cm, pivot_scored, min_ap: bool = False) -> dict:
+    """Table 2 metrics (%): segmentation precision at IoU > 75/50 %, joint and part AP at 5/10/15
+    (averaged over parts / joints: "mean mAP"); with ``min_ap`` also OP-Align's "min mAP" at 5 and 10
+    (a sample counts only if all its parts / joints pass; trainer_art.py ``val``). A joint without a
+    pivot score is judged by its direction alone."""
     out = {}
+    M = len(R_err)
     for thr in SEG_THRESHOLDS:
         per_part = [np.mean(iou[:, p] > thr) for p in range(iou.shape[1])]
         out[f"seg_{int(thr * 100)}"] = 100.0 * float(np.nanmean(per_part))
+        if min_ap:
+            out[f"min_seg_{int(thr * 100)}"] = 100.0 * float(np.mean((np.nan_to_num(iou, nan=0.0) > thr).all(1)))
+    dist = np.where(np.asarray(pivot_scored, dtype=bool)[None], C_cm, 0.0) if D.shape[1] else np.zeros((M, 0))
     for a, d in AP_THRESHOLDS:
         tag = f"{int(a)}"
         parts = [precision_under(R_err[:, p], t_cm[:, p], a, d) for p in range(R_err.shape[1])]
         out[f"ap_part_{tag}"] = 100.0 * float(np.mean(parts))
-        joints = []
-        for j in range(D.shape[1]):
-            dist = C_cm[:, j] if joint_type[j] == 0 else np.zeros(len(D))  # prismatic: direction only
-            joints.append(precision_under(D[:, j], dist, a, d))
+        joints = [precision_under(D[:, j], dist[:, j], a, d) for j in range(D.shape[1])]
         out[f"ap_joint_{tag}"] = 100.0 * float(np.mean(joints)) if joints else float("nan")
+        if min_ap and a in (5.0, 10.0):
+            out[f"min_ap_part_{tag}"] = 100.0 * float(np.mean(((R_err < a) & (t_cm < d)).all(1))) if M else np.nan
+            out[f"min_ap_joint_{tag}"] = 100.0 * float(np.mean(((D < a) & (dist < d)).all(1))) \
+                if M and D.shape[1] else float("nan")
     return out

@@ -186,3 +186,66 @@ def precision_under(err_a: np.ndarray, err_b: np.ndarray, thr_a: float, thr_b: f
 AP_THRESHOLDS = ((5.0, 5.0), (10.0, 10.0), (15.0, 15.0))
 #: Table 2 segmentation thresholds (IoU fractions).
 SEG_THRESHOLDS = (0.75, 0.50)
+
+
+def point_line_distance(p_pred: np.ndarray, p_gt: np.ndarray, d_gt: np.ndarray) -> np.ndarray:
+    """Distance from the point ``p_pred`` to the line ``p_gt + s d_gt`` (shapes (..., 3) -> (...,)).
+
+    The pivot error of OP-Align's released evaluation (``Art_Metric.evaluation_joint`` in
+    YC-Che/OP-Align SPConvNets/models/art_metric.py: the residual minus its component along the GT
+    direction), applied there to every joint, prismatic ones included.
+    """
+    d = np.asarray(d_gt, dtype=np.float64)
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    w = np.asarray(p_pred, dtype=np.float64) - np.asarray(p_gt, dtype=np.float64)
+    return np.linalg.norm(w - np.sum(w * d, -1, keepdims=True) * d, axis=-1)
+
+
+def origin_offset_difference(origin: np.ndarray, p_pred: np.ndarray, d_pred: np.ndarray, p_gt: np.ndarray,
+                             d_gt: np.ndarray) -> np.ndarray:
+    """``| dist(origin, predicted axis line) - dist(origin, GT axis line) |`` (shapes (..., 3) -> (...,)).
+
+    The pivot error of EAP's released evaluation (Meowuu7/equi-articulated-pose: ``part_pv_offset`` of
+    SPConvNets/datasets/MotionDataset.py, the distance of the centred cloud's origin to the axis, compared
+    by absolute difference in SPConvNets/trainer_unsup_arti_align.py); ``origin`` is the cloud's centroid.
+    """
+    o = np.asarray(origin, dtype=np.float64)
+    return np.abs(point_line_distance(o, p_pred, d_pred) - point_line_distance(o, p_gt, d_gt))
+
+
+def fold_rotation_error(theta_deg: np.ndarray) -> np.ndarray:
+    """``min(theta, 180 - theta)`` in degrees: EAP's released evaluation folds part rotation errors so
+    that a part turned by 180 degrees counts as exact (trainer_unsup_arti_align.py)."""
+    t = np.asarray(theta_deg, dtype=np.float64)
+    return np.minimum(t, 180.0 - t)
+
+
+def fixed_order_match(pred_label: np.ndarray, gt_label: np.ndarray, orders: tuple[tuple[int, ...], ...]
+                      ) -> np.ndarray:
+    """OP-Align's part matching: of the fixed slot ``orders`` (order[p] = slot of GT part p), the one
+    with the highest point accuracy over the object points (``Art_Metric.standardization_order``).
+
+    Returns:
+        (P,) int64 slot of each GT part (the first order on ties).
+    """
+    pred = np.asarray(pred_label)
+    gt = np.asarray(gt_label)
+    obj = gt >= 0
+    best, best_acc = None, -1.0
+    for o in orders:
+        o = np.asarray(o)
+        acc = float(np.mean(pred[obj] == o[gt[obj]])) if obj.any() else 0.0
+        if acc > best_acc:
+            best, best_acc = o, acc
+    return best.astype(np.int64)
+
+
+def mean_centroid_distance(points: np.ndarray, labels: np.ndarray | None = None) -> np.ndarray:
+    """Mean distance of each cloud's points to their centroid, ``points (M, N, 3) -> (M,)`` (object
+    points only when ``labels (M, N)`` are given): the scale OP-Align normalises every cloud to 0.25
+    (SPConvNets/datasets/LightDataset.py)."""
+    pts = np.asarray(points, dtype=np.float64)
+    w = np.ones(pts.shape[:2]) if labels is None else (np.asarray(labels) >= 0).astype(np.float64)
+    n = np.maximum(w.sum(1, keepdims=True), 1.0)
+    c = (pts * w[..., None]).sum(1, keepdims=True) / n[..., None]
+    return (np.linalg.norm(pts - c, axis=-1) * w).sum(1) / n[:, 0]

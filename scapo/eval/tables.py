@@ -6,6 +6,15 @@ the paper's rows come from ``scapo/eval/reference/paper_table1.csv`` (transcribe
 LaTeX, checked by a test) and are labelled "(paper)". Means are over the categories shown for
 our rows and the paper's own five-category mean for the paper's rows.
 
+Several results of one method on one category (training seeds) make one cell: the mean over seeds,
+with the standard deviation across seeds beside it (``82.1 ± 3.4``); the CSV keeps ``std`` and
+``seeds`` columns and the JSON every per-seed result.
+
+Below the paper-layout table (means), a second table gives the robust statistics of each method and
+category (:data:`ROBUST_METRICS`: medians of R, t, D, C; the rates of part rotations under 5 and 10
+deg and over 90 deg; joint-state errors), because means of bimodal errors (flipped parts) rank
+methods by their flip rate alone.
+
 Each writer produces ``<name>.csv`` (long format: one value per row), ``<name>.md``,
 ``<name>.tex`` (booktabs) and ``<name>.json`` (values + provenance).
 """
@@ -18,10 +27,11 @@ from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from scapo.eval.evaluator import EvalResult
-from scapo.eval.metrics import TABLE1_METRICS
+from scapo.eval.metrics import TABLE1_METRICS, MetricInfo
 from scapo.files import atomic_write_text, check_output_dir
 from scapo.report import latex_escape, markdown_table
 
@@ -35,6 +45,37 @@ DISPLAY_NAMES = {"icp": "ICP", "scapo": "SCAPO (ours)", "scapo-no-refine": "SCAP
                  "npcs": "NPCS-style (supervised)"}
 
 
+#: The robust-statistics table (keys of the evaluator's summary).
+ROBUST_METRICS: dict[str, MetricInfo] = {
+    "R_median": MetricInfo("R med", "median part rotation error", "deg", False, 2),
+    "R_under5": MetricInfo("R<5", "part rotations under 5 deg", "%", True, 1),
+    "R_under10": MetricInfo("R<10", "part rotations under 10 deg", "%", True, 1),
+    "R_over90": MetricInfo("R>90", "part rotations over 90 deg (flips)", "%", False, 1),
+    "t_median": MetricInfo("t med", "median part translation error", "protocol unit", False, 3),
+    "D_median": MetricInfo("D med", "median joint direction error", "deg", False, 2),
+    "C_median": MetricInfo("C med", "median joint pivot error", "protocol unit", False, 3),
+    "state_deg": MetricInfo("state", "mean revolute state error", "deg", False, 2),
+    "state_deg_median": MetricInfo("state med", "median revolute state error", "deg", False, 2),
+    "state_cm": MetricInfo("state cm", "mean prismatic state error", "cm", False, 2),
+}
+
+
+def _cells(results: Sequence[EvalResult], metrics) -> dict[tuple[str, str, str], tuple[float, float, int]]:
+    """(method, category, metric) -> (mean over seeds, std over seeds (NaN for one), number of seeds)."""
+    groups: dict[tuple[str, str], list[EvalResult]] = {}
+    for r in results:
+        groups.setdefault((r.method, r.category), []).append(r)
+    out = {}
+    for (method, cat), rs in groups.items():
+        for m in metrics:
+            v = np.array([r.summary.get(m, math.nan) for r in rs], dtype=np.float64)
+            v = v[np.isfinite(v)]
+            mean = float(v.mean()) if v.size else math.nan
+            std = float(v.std(ddof=1)) if v.size > 1 else math.nan
+            out[(method, cat, m)] = (mean, std, int(v.size))
+    return out
+
+
 def paper_table(name: str) -> pd.DataFrame:
     """The paper's numbers for ``name`` in ("table1", "table2", "table3")."""
     with resources.files("scapo.eval").joinpath(f"reference/paper_{name}.csv").open() as f:
@@ -42,42 +83,48 @@ def paper_table(name: str) -> pd.DataFrame:
 
 
 def table1_long(results: Sequence[EvalResult], include_paper: bool = True) -> pd.DataFrame:
-    """Long-format Table 1: columns metric, method, source, pose, segmentation, joint, category, value."""
+    """Long-format Table 1: columns table ("table1" or "robust"), metric, method, source, pose,
+    segmentation, joint, category, value (mean over seeds), std (over seeds; NaN for one), seeds."""
     rows = []
     cats = sorted({r.category for r in results}, key=lambda c: CATEGORY_ORDER.index(c) if c in CATEGORY_ORDER else 99)
     methods = list(dict.fromkeys(r.method for r in results))
+    cells = _cells(results, [*TABLE1_BLOCKS, *ROBUST_METRICS])
     for method in methods:
-        res = {r.category: r for r in results if r.method == method}
-        sup = next(iter(res.values())).info.get("supervision", {})
-        for metric in TABLE1_BLOCKS:
-            vals = []
-            for c in cats:
-                v = res[c].summary.get(metric, math.nan) if c in res else math.nan
-                vals.append(v)
-                rows.append(dict(metric=metric, method=DISPLAY_NAMES.get(method, method), source="ours",
-                                 pose=bool(sup.get("pose")), segmentation=bool(sup.get("segmentation")),
-                                 joint=bool(sup.get("joint")), category=c, value=v))
-            finite = [v for v in vals if not math.isnan(v)]
-            rows.append(dict(metric=metric, method=DISPLAY_NAMES.get(method, method), source="ours",
-                             pose=bool(sup.get("pose")), segmentation=bool(sup.get("segmentation")),
-                             joint=bool(sup.get("joint")), category="mean",
-                             value=sum(finite) / len(finite) if finite else math.nan))
+        sup = next(r for r in results if r.method == method).info.get("supervision", {})
+        marks = dict(pose=bool(sup.get("pose")), segmentation=bool(sup.get("segmentation")),
+                     joint=bool(sup.get("joint")))
+        for table, metrics in (("table1", TABLE1_BLOCKS), ("robust", tuple(ROBUST_METRICS))):
+            for metric in metrics:
+                vals = []
+                for c in cats:
+                    v, sd, n = cells.get((method, c, metric), (math.nan, math.nan, 0))
+                    vals.append(v)
+                    rows.append(dict(table=table, metric=metric, method=DISPLAY_NAMES.get(method, method),
+                                     source="ours", **marks, category=c, value=v, std=sd, seeds=n))
+                finite = [v for v in vals if not math.isnan(v)]
+                rows.append(dict(table=table, metric=metric, method=DISPLAY_NAMES.get(method, method), source="ours",
+                                 **marks, category="mean", value=sum(finite) / len(finite) if finite else math.nan,
+                                 std=math.nan, seeds=min((cells.get((method, c, metric), (0, 0, 0))[2] for c in cats),
+                                                         default=0)))
     if include_paper:
         paper = paper_table("table1")
         for _, r in paper.iterrows():
             for c in [*cats, "mean"]:
                 if c in paper.columns:
-                    rows.append(dict(metric=r["metric"], method=f"{r['method']} (paper)", source="paper",
-                                     pose=bool(r["pose"]), segmentation=bool(r["segmentation"]),
-                                     joint=bool(r["joint"]), category=c, value=float(r[c])))
+                    rows.append(dict(table="table1", metric=r["metric"], method=f"{r['method']} (paper)",
+                                     source="paper", pose=bool(r["pose"]), segmentation=bool(r["segmentation"]),
+                                     joint=bool(r["joint"]), category=c, value=float(r[c]), std=math.nan, seeds=0))
     return pd.DataFrame(rows)
 
 
-def _fmt(v: float, decimals: int) -> str:
-    return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{decimals}f}"
+def _fmt(v: float, decimals: int, std: float = math.nan) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "-"
+    return f"{v:.{decimals}f}" if math.isnan(std) else f"{v:.{decimals}f} ± {std:.{decimals}f}"
 
 
 def _wide(long: pd.DataFrame) -> tuple[list[str], list[tuple[str, str, list[str], list[str]]]]:
+    long = long[long["table"] == "table1"]
     cats = [c for c in dict.fromkeys(long["category"]) if c != "mean"] + ["mean"]
     blocks = []
     for metric in TABLE1_BLOCKS:
@@ -85,31 +132,68 @@ def _wide(long: pd.DataFrame) -> tuple[list[str], list[tuple[str, str, list[str]
         sub = long[long["metric"] == metric]
         for method in dict.fromkeys(sub["method"]):
             m = sub[sub["method"] == method]
-            vals = {r["category"]: r["value"] for _, r in m.iterrows()}
+            vals = {r["category"]: (r["value"], r["std"]) for _, r in m.iterrows()}
             marks = ["x" if bool(m.iloc[0][k]) else "" for k in ("pose", "segmentation", "joint")]
-            blocks.append((metric, method, marks, [_fmt(vals.get(c, math.nan), info.decimals) for c in cats]))
+            cells = [_fmt(vals.get(c, (math.nan, math.nan))[0], info.decimals, vals.get(c, (math.nan, math.nan))[1])
+                     for c in cats]
+            blocks.append((metric, method, marks, cells))
     return cats, blocks
 
 
-def write_table1(results: Sequence[EvalResult], out_dir: str | Path, provenance: dict, name: str = "table1",
-                 include_paper: bool = True) -> list[Path]:
-    """Write Table 1 (CSV, Markdown, LaTeX, JSON) into ``out_dir``; returns the paths."""
-    out_dir = check_output_dir(out_dir, "table folder")
+def _robust_rows(long: pd.DataFrame) -> list[list[str]]:
+    """Rows (method, category, one cell per robust metric) of the second table (our rows only)."""
+    sub = long[(long["table"] == "robust") & (long["category"] != "mean")]
+    rows = []
+    for method in dict.fromkeys(sub["method"]):
+        for cat in dict.fromkeys(sub["category"]):
+            m = sub[(sub["method"] == method) & (sub["category"] == cat)].set_index("metric")
+            if m.empty:
+                continue
+            rows.append([method, cat, *[_fmt(m.loc[k, "value"], ROBUST_METRICS[k].decimals, m.loc[k, "std"])
+                                        for k in ROBUST_METRICS]])
+    return rows
+
+
+def table1_markdown(results: Sequence[EvalResult], protocol: str = "scapo", include_paper: bool = True) -> str:
+    """The Markdown of Table 1 (paper layout, means) and of the medians-and-rates table below it."""
+    return write_table1(results, None, {"protocol": protocol}, include_paper=include_paper, markdown_only=True)
+
+
+def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, provenance: dict, name: str = "table1",
+                 include_paper: bool = True, markdown_only: bool = False):
+    """Write Table 1 (CSV, Markdown, LaTeX, JSON) into ``out_dir``; returns the paths (with
+    ``markdown_only``, returns the Markdown text and writes nothing)."""
+    out_dir = Path(".") if markdown_only else check_output_dir(out_dir, "table folder")
     long = table1_long(results, include_paper)
     cats, blocks = _wide(long)
     paths = {k: out_dir / f"{name}.{k}" for k in ("csv", "md", "tex", "json")}
-    atomic_write_text(paths["csv"], long.to_csv(index=False))
+    if not markdown_only:
+        atomic_write_text(paths["csv"], long.to_csv(index=False))
     arrows = {m: ("\u2191" if TABLE1_METRICS[m].higher_is_better else "\u2193") for m in TABLE1_BLOCKS}
     header = ["Metric", "Method", "Pose", "Seg.", "Joint", *[c.capitalize() for c in cats[:-1]], "Mean"]
     md_rows = [[f"**{m}** {arrows[m]}", meth, *marks, *vals] for m, meth, marks, vals in blocks]
-    legend = ("S: part segmentation IoU (%); D: joint direction error (deg); C: joint pivot error (x bbox "
-              "diagonal, revolute joints); R: mean part rotation error (deg); t: mean part translation error "
-              "(x bbox diagonal). Rows marked (paper) are the SCAPO paper's Table 1 (their datasets, not ours); "
-              "their Mean is over the paper's five categories, ours over the columns shown.")
+    protocol = provenance.get("protocol", "scapo")
+    seeds = sorted({int(r["seeds"]) for _, r in long[(long.source == "ours")].iterrows() if r["seeds"] > 1})
+    seed_note = (f" Cells of trained methods with several training seeds are mean ± standard deviation over "
+                 f"{'/'.join(map(str, seeds))} seeds." if seeds else "")
+    legend = (f"Protocol: {protocol}. S: part segmentation IoU (%); D: joint direction error (deg); C: joint pivot "
+              "error (scapo/eap protocols: x bbox diagonal, revolute joints; op-align: in units of a cloud scaled to "
+              "mean centroid distance 0.25, every joint); R: mean part rotation error (deg); t: mean part "
+              "translation error (same unit as C). Rows marked (paper) are the SCAPO paper's Table 1 (their "
+              "datasets and protocol, not ours); their Mean is over the paper's five categories, ours over the "
+              f"columns shown.{seed_note}")
+    rob_header = ["Method", "Category", *[f"{i.symbol} ({i.unit})" for i in ROBUST_METRICS.values()]]
+    rob_rows = _robust_rows(long)
+    rob_legend = ("Robust statistics (ours): medians over all parts / joints of all test samples, % of part "
+                  "rotations under 5 and 10 deg and over 90 deg (flips), revolute joint-state error. A mean "
+                  "far above its median means a few large errors (usually flipped parts).")
     prov = "; ".join(f"{k}: {v}" for k, v in provenance.items())
     md = [f"# Table 1 (synthetic): {', '.join(cats[:-1])}", "",
           markdown_table(header, md_rows, ["l", "l", "c", "c", "c", *["r"] * len(cats)]), "", legend, "",
-          f"Provenance: {prov}", ""]
+          "## Medians and rates", "", markdown_table(rob_header, rob_rows, ["l", "l", *["r"] * len(ROBUST_METRICS)]),
+          "", rob_legend, "", f"Provenance: {prov}", ""]
+    if markdown_only:
+        return "\n".join(md[:-2])
     atomic_write_text(paths["md"], "\n".join(md))
     ncol = 5 + len(cats)
     tex = ["% generated by scapo; " + latex_escape(prov), r"\begin{tabular}{ll" + "c" * 3 + "r" * len(cats) + "}",
@@ -122,13 +206,18 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path, provenance:
             tex.append(r"\midrule")
         arrow = r"$\uparrow$" if TABLE1_METRICS[m].higher_is_better else r"$\downarrow$"
         first = rf"\textbf{{{m}}} {arrow}" if m != last else ""
-        cells = [first, latex_escape(meth), *[r"\checkmark" if x else "" for x in marks], *vals]
+        cells = [first, latex_escape(meth), *[r"\checkmark" if x else "" for x in marks],
+                 *[v.replace("±", r"$\pm$") for v in vals]]
         tex.append(" & ".join(cells) + r" \\")
         last = m
-    tex += [r"\bottomrule", r"\end{tabular}", f"% {ncol} columns", ""]
+    tex += [r"\bottomrule", r"\end{tabular}", f"% {ncol} columns; protocol {latex_escape(protocol)}", "",
+            "% medians and rates", r"\begin{tabular}{ll" + "r" * len(ROBUST_METRICS) + "}", r"\toprule",
+            " & ".join(latex_escape(h) for h in rob_header) + r" \\", r"\midrule",
+            *[" & ".join(latex_escape(c).replace("±", r"$\pm$") for c in r) + r" \\" for r in rob_rows],
+            r"\bottomrule", r"\end{tabular}", ""]
     atomic_write_text(paths["tex"], "\n".join(tex))
     payload = {"provenance": provenance,
-               "results": [{"method": r.method, "category": r.category, "summary": r.summary, "info": r.info}
-                           for r in results]}
+               "results": [{"method": r.method, "category": r.category, "split": r.split,
+                            "seed": r.info.get("seed"), "summary": r.summary, "info": r.info} for r in results]}
     atomic_write_text(paths["json"], json.dumps(payload, indent=1, default=str) + "\n")
     return list(paths.values())
