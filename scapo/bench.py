@@ -21,19 +21,29 @@ def dataset_dir(work: Path, category: str, instances: int, views: int, seed: int
     return Path(work) / f"{category}_i{instances}_v{views}_s{seed}"
 
 
+#: Methods that are trained (one run, and one table row sample, per training seed).
+TRAINED_METHODS = ("scapo",)
+
+
 def run_table1(methods, categories, instances: int, views: int, seed: int = 0, work_dir: Path = Path("bench_work"),
                out_dir: Path | None = None, workers: int = 1, cache_dir: Path | None = None, name: str = "table1",
-               preset: str = "cpu"):
-    """Generate one dataset per category, run every method, evaluate, and write Table 1."""
+               preset: str = "cpu", seeds=(0,), protocol: str = "scapo"):
+    """Generate one dataset per category (``seed`` draws the data), run every method, evaluate under
+    ``protocol``, and write Table 1. Trained methods are trained once per training seed in ``seeds``;
+    their cells are mean +- std over those seeds. Resumable per cell: a finished run or predictions file
+    of the same dataset is reused."""
     from scapo.baselines import METHODS
+    from scapo.eval.protocols import get_protocol
     from scapo.models.presets import PRESETS
 
     for m in methods:  # unknown names are refused before any dataset is rendered
         METHODS.get(m)
     for cat in categories:
         make_config(cat, instances, views, seed)
-    if "scapo" in methods:
+    if any(m in TRAINED_METHODS for m in methods):
         PRESETS.get(preset)
+    protocol = get_protocol(protocol).name
+    seeds = [int(s) for s in seeds] or [0]
     if out_dir is not None:
         check_output_dir(out_dir, "table folder")
     check_output_dir(work_dir, "bench work folder")
@@ -43,24 +53,68 @@ def run_table1(methods, categories, instances: int, views: int, seed: int = 0, w
         generate(make_config(cat, instances, views, seed), data, workers=workers, cache_dir=cache_dir)
         hashes[cat] = load(data, "test").dataset_hash[:16]
         for m in methods:
-            pred_path = data / f"predictions_{m}.npz"
-            preds = None
-            if pred_path.is_file():
-                preds = Predictions.load(pred_path)
-                if preds.dataset_hash != load(data, "test").dataset_hash:
-                    preds = None
-            if preds is None:
-                opts = {}
-                if m == "scapo":
-                    opts = {"run": data / f"run_scapo_{preset}"}
-                    train(data, opts["run"], preset, progress=True)
-                preds = run_method(m, data, pred_path, progress=True, **opts)
-            res = evaluate(data, preds)
-            print(f"{m:8s} {cat:11s} " + " ".join(f"{k}={res.summary[k]:.3f}" for k in ("S", "D", "C", "R", "t")))
-            results.append(res)
+            for s in (seeds if m in TRAINED_METHODS else [None]):
+                pred_path = data / (f"predictions_{m}.npz" if s is None else f"predictions_{m}_{preset}_s{s}.npz")
+                preds = None
+                if pred_path.is_file():
+                    preds = Predictions.load(pred_path)
+                    if preds.dataset_hash != load(data, "test").dataset_hash:
+                        preds = None
+                if preds is None:
+                    opts = {}
+                    if m == "scapo":
+                        opts = {"run": data / f"run_scapo_{preset}_s{s}"}
+                        train(data, opts["run"], preset, progress=True, seed=s)
+                    preds = run_method(m, data, pred_path, progress=True, **opts)
+                res = evaluate(data, preds, protocol=protocol)
+                print(f"{m:8s} {cat:11s} seed {s} " + " ".join(f"{k}={res.summary[k]:.3f}"
+                                                               for k in ("S", "D", "C", "R", "t")))
+                results.append(res)
     if out_dir is not None:
         prov = provenance(preset=f"data: instances={instances} views={views} seed={seed}; scapo: {preset}",
-                          datasets=hashes, methods=",".join(methods))
+                          datasets=hashes, methods=",".join(methods), protocol=protocol, training_seeds=seeds)
         for p in write_table1(results, out_dir, prov, name=name):
             print(f"wrote {p}")
     return results
+
+
+#: Criteria of :func:`choose_on_val`: name -> function of an evaluation summary (lower is better).
+CRITERIA = {
+    "D+R": lambda s: s["D"] + s["R"],
+    "R": lambda s: s["R"],
+    "D": lambda s: s["D"],
+    "R_median": lambda s: s["R_median"],
+    "-S": lambda s: -s["S"],
+}
+
+
+def choose_on_val(data: str | Path, candidates: dict[str, list[Path]], criterion: str = "D+R",
+                  protocol: str = "scapo") -> tuple[str, list[dict]]:
+    """Choose among ``candidates`` (value -> predictions files, one per training seed) on the val split.
+
+    Each candidate's score is the criterion (:data:`CRITERIA`, lower is better) of its val summary,
+    averaged over its files (seeds). The test split is never read.
+
+    Returns:
+        (the chosen value, one row per candidate: value, score, per-seed scores and val means).
+
+    Raises:
+        ConfigError: an unknown criterion or no candidates. DatasetError: no val split.
+    """
+    from scapo.errors import ConfigError
+
+    if criterion not in CRITERIA:
+        raise ConfigError(f"unknown criterion {criterion!r}; known: {', '.join(CRITERIA)}")
+    if not candidates:
+        raise ConfigError("no candidates to choose from")
+    rows = []
+    for value, files in candidates.items():
+        if not files:
+            raise ConfigError(f"candidate {value!r} has no predictions files")
+        summaries = [evaluate(data, f, protocol=protocol, split="val").summary for f in files]
+        scores = [float(CRITERIA[criterion](s)) for s in summaries]
+        rows.append({"value": value, "score": sum(scores) / len(scores), "scores": scores,
+                     "files": [str(f) for f in files],
+                     **{f"val_{k}": sum(s[k] for s in summaries) / len(summaries) for k in ("S", "D", "R", "C", "t")}})
+    best = min(rows, key=lambda r: r["score"])
+    return best["value"], rows

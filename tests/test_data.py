@@ -175,3 +175,30 @@ def test_config_mismatch_and_bad_names(tmp_path, laptop_data):
         make_config("laptop", 2, 2, sensor="lidar")
     with pytest.raises(DatasetError, match="not a scapo dataset"):
         load(tmp_path / "nothing")
+
+
+def test_choices_on_val_never_read_the_test_split(tmp_path, monkeypatch):
+    from scapo.baselines import run_method
+    from scapo.bench import choose_on_val
+    from scapo.eval import evaluate
+
+    d = tmp_path / "d"
+    generate(make_config("laptop", 6, 2, seed=1, test_fraction=0.2, val_fraction=0.2), d, progress=False)
+    files = {v: [run_method("icp", d, tmp_path / f"p{v}.npz", max_iterations=int(v), refine_top=1)]
+             for v in ("1", "30")}
+    expected = {v: evaluate(d, f[0], split="val").summary for v, f in files.items()}  # brute force, by hand
+    import scapo.data.dataset as dataset_module
+
+    opened = []
+    real = dataset_module.ArticulationDataset.__init__
+
+    def record(self, root, split="train", *a, **k):
+        opened.append(split)
+        real(self, root, split, *a, **k)
+
+    monkeypatch.setattr(dataset_module.ArticulationDataset, "__init__", record)
+    chosen, rows = choose_on_val(d, files, "D+R")
+    assert "test" not in opened and "val" in opened
+    scores = {v: s["D"] + s["R"] for v, s in expected.items()}
+    assert chosen == min(scores, key=scores.get)
+    assert {r["value"]: r["score"] for r in rows} == pytest.approx(scores)

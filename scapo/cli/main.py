@@ -151,14 +151,28 @@ def cmd_evaluate(args) -> int:
     if args.out:
         prov = provenance(dataset_hash=results[0].info["dataset_hash"], dataset=str(args.data),
                           predictions=[str(p) for p in args.pred], protocol=protocol, split=args.split,
-                          methods={r.method: {k: r.info[k] for k in ("preset", "run", "trained_on") if k in r.info}
-                                   for r in results})
+                          methods=_method_provenance(results))
         paths = write_table1(results, args.out, prov, name=args.name)
         for res in results:
-            atomic_write_text(Path(args.out) / f"{args.name}_{res.method}_{res.category}_per_sample.csv",
+            seed = f"_s{res.info['seed']}" if res.info.get("seed") is not None else ""
+            atomic_write_text(Path(args.out) / f"{args.name}_{res.method}_{res.category}{seed}_per_sample.csv",
                               res.per_sample.to_csv(index=False))
         print("wrote " + ", ".join(str(p) for p in paths))
     return 0
+
+
+def _method_provenance(results) -> dict:
+    """Per method: preset, training seeds, runs, datasets trained on, and test-time settings."""
+    out: dict = {}
+    for r in results:
+        m = out.setdefault(r.method, {})
+        for k in ("preset", "trained_on", "refine_steps", "refine_margin"):
+            if k in r.info:
+                m[k] = r.info[k]
+        for k, key in (("run", "runs"), ("seed", "seeds")):
+            if r.info.get(k) is not None:
+                m.setdefault(key, []).append(r.info[k])
+    return out
 
 
 def _print_summary(results, protocol: str = "scapo") -> None:
@@ -168,7 +182,44 @@ def _print_summary(results, protocol: str = "scapo") -> None:
     print(table1_markdown(results, protocol))
 
 
+def cmd_bench_choose(args) -> int:
+    """``scapo bench choose``: pick an option value on the val split, averaged over seeds."""
+    import glob
+    import json
+
+    from scapo.bench import choose_on_val
+    from scapo.files import check_output_file, write_json
+    from scapo.provenance import provenance
+
+    if args.data is None or not args.candidate:
+        raise ConfigError("bench choose needs --data DIR and one --candidate VALUE=GLOB per value")
+    if args.out:
+        check_output_file(args.out, "choice file", "choice.json")
+    candidates = {}
+    for spec in args.candidate:
+        value, eq, pattern = spec.partition("=")
+        if not eq:
+            raise ConfigError(f"--candidate {spec!r} is not of the form VALUE=GLOB (e.g. 0.3='work/pred_*_m0.3.npz')")
+        files = sorted(glob.glob(pattern))
+        if not files:
+            raise ConfigError(f"--candidate {value}: no file matches {pattern!r}")
+        candidates[value] = [Path(f) for f in files]
+    chosen, rows = choose_on_val(args.data, candidates, args.criterion, args.protocol)
+    print(f"{'value':>8s} {'score':>9s} {'val S':>7s} {'val D':>7s} {'val R':>7s}  seeds")
+    for r in rows:
+        print(f"{r['value']:>8s} {r['score']:9.3f} {r['val_S']:7.2f} {r['val_D']:7.2f} {r['val_R']:7.2f}  "
+              f"{len(r['files'])}")
+    if args.out:
+        write_json(args.out, {"chosen": chosen, "criterion": args.criterion, "split": "val",
+                              "protocol": args.protocol, "candidates": rows,
+                              "provenance": provenance(dataset=str(args.data))})
+    print(json.dumps({"chosen": chosen}))
+    return 0
+
+
 def cmd_bench(args) -> int:
+    if args.what == "choose":
+        return cmd_bench_choose(args)
     if min(args.workers) < 1 or args.instances < 1 or args.views < 1:
         raise ConfigError("--workers, --instances and --views must be >= 1")
     if args.what == "perf":
@@ -199,7 +250,7 @@ def cmd_bench(args) -> int:
 
     run_table1(methods=args.methods, categories=args.categories, instances=args.instances, views=args.views,
                seed=args.seed, work_dir=args.work, out_dir=args.out, workers=args.workers[0], cache_dir=args.cache,
-               preset=args.preset)
+               preset=args.preset, seeds=args.seeds, protocol=args.protocol)
     return 0
 
 
@@ -300,8 +351,15 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--name", default="table1")
     sp.set_defaults(func=cmd_evaluate)
 
-    sp = sub.add_parser("bench", help="benchmarks: perf (throughput) or table1 (paper's Table 1)")
-    sp.add_argument("what", choices=["perf", "table1"])
+    sp = sub.add_parser("bench", help="benchmarks: perf (throughput), table1 (paper's Table 1), choose (an option "
+                        "value on the val split)")
+    sp.add_argument("what", choices=["perf", "table1", "choose"])
+    sp.add_argument("--data", type=Path, default=None, help="choose: the dataset (its val split is used)")
+    sp.add_argument("--candidate", action="append", default=[], help="choose: VALUE=GLOB of that value's "
+                    "predictions files (one per training seed); repeat per value")
+    sp.add_argument("--criterion", default="D+R", help="choose: what to minimise on val, averaged over seeds "
+                    "(D+R, R, D, R_median, -S)")
+    sp.add_argument("--protocol", default="scapo", help="choose and table1: evaluation protocol")
     sp.add_argument("--what", dest="target", choices=["generate", "model"], default="generate",
                     help="perf: generation throughput, or SCAPO training/inference speed")
     sp.add_argument("--preset", default="cpu", help="SCAPO preset (perf --what model, table1 with scapo)")
@@ -312,7 +370,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--instances", type=int, default=20)
     sp.add_argument("--views", type=int, default=30)
     sp.add_argument("--workers", type=_ints, default=[1, 2])
-    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--seed", type=int, default=0, help="seed of the data (assets, splits, views)")
+    sp.add_argument("--seeds", type=_ints, default=[0], help="table1: training seeds of trained methods (e.g. 0,1,2)")
     sp.add_argument("--work", type=Path, default=Path("bench_work"), help="table1: datasets and predictions")
     sp.add_argument("--out", type=Path, default=None, help="write result files here (e.g. results/)")
     common_cache(sp)

@@ -41,7 +41,7 @@ class LossConfig:
     """Cross-instance canonical alignment in stage 1 (an addition to the paper; 0 switches it off)."""
     align_in_stage2: bool = False
     """Keep the cross-instance alignment during stage 2. Off: it holds the whole-object frame and, on
-    a laptop, tilts the learned hinge axis (measured: joint direction error 16.4 -> 9.4 deg without it)."""
+    a laptop, tilts the learned hinge axis (see results/cpu_preset_history.md)."""
     consensus: float = 0.0
     """Batch-consensus frame pseudo-label in stage 1 (an addition to the paper; 0 switches it off)."""
     consensus_small_deg: float = 25.0

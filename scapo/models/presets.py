@@ -65,18 +65,13 @@ PRESETS.add("paper", TrainConfig(
     template_points=1024,
 ))
 PRESETS.add("cpu", TrainConfig(
-    # a narrow invariant code (16) makes the shared decoder favour one canonical frame across instances;
-    # stage 2 needs 16 epochs and lr 3e-4 (the paper: 1e-4) for the joint states to spread within the CPU
-    # budget (lap70, full runs: lr 1e-4 -> D 8.7, R 36.5; 3e-4 -> D 6.5, R 34.9 deg). root_motion: the
-    # stage-1 frame sits between a laptop's base and screen; letting the base turn about the hinge
-    # (full lap70 run: R 34.9 -> 32.2, t 0.090 -> 0.078, D 6.5 -> 7.9 deg, S 82.6 -> 82.8; stage 2 alone
-    # from an earlier stage-1 encoder: R 29.4, D 5.7, S 69.5). refine: test-time fit of the posed template
-    # to each view (same lap70 run, 60 steps at lr 0.02: R 32.2 -> 27.4, D 7.9 -> 3.9 deg, 124 ms per cloud
-    # at batch 1; 20 steps at lr 0.06: R 28.3, D 4.6 in 61 ms; ICP 29.7, 5.6). starts="octahedral": a
-    # second lap70 run (trained at 050cba4) had D 7.9 from a few views whose frame is 60-90 deg off;
-    # screening the 24 cube rotations and keeping one that beats the network's start by 30 % in residual:
-    # D 7.9 -> 4.1, R 25.8 -> 22.4 (first run: D 4.6 -> 3.5, R 28.3 -> 29.8), about 80 ms per cloud.
-    # Margins tried on the test split: 0.5 (D 4.6 / 6.6), 0.3, 0.15 (D 3.3 / 3.3, R 31.1 / 21.7)
+    # why each setting (the measurements behind them are in results/cpu_preset_history.md): a narrow
+    # invariant code (16) makes the shared decoder favour one canonical frame across instances; stage 2
+    # needs 16 epochs and lr 3e-4 (the paper: 1e-4) for the joint states to spread within the CPU budget;
+    # root_motion: the stage-1 frame sits between a laptop's base and screen, so the base must be able to
+    # turn about the hinge; refine: a test-time fit of the posed template to each view; starts="octahedral":
+    # some views' stage-1 frame is 60-90 deg off, which the local fit cannot undo; margin: chosen on the
+    # val split by bench/scapo_laptop_seeds.sh (results/scapo_laptop_cpu_seeds/choice_refine_margin_val.json)
     name="cpu", stage1_epochs=20, stage2_epochs=16, lr_stage2=3e-4, batch_size=16, train_points=256,
     max_steps_per_epoch=100, root_motion=True, refine=RefineConfig(steps=20, lr=0.06, starts="octahedral", margin=0.3),
     encoder=EncoderConfig(k=8, rot_channels=(16, 32, 64), trans_channels=(8, 16), code_dim=16,

@@ -21,21 +21,14 @@ started from the network's answer:
   start, and it replaces it only when its residual is lower by ``margin`` (180-degree flips of a
   laptop fit nearly as well as the truth, so the network's start keeps the benefit of the doubt).
 
-Measured on the laptop benchmark (lap70, the cpu preset run trained at 965fa32; 60 steps, 384
-points): part rotation error R 32.2 -> 27.4 deg, joint direction error D 7.9 -> 3.9 deg, segmentation
-IoU S 82.8 -> 85.6 % (ICP with the GT segmentation: R 29.7, D 5.6). 40 steps on 256 points: R 28.3,
-D 4.7; 30 steps at lr 0.04: R 27.7, D 4.2; 20 steps at lr 0.06: R 28.3, D 4.6; 100 steps at lr 0.01:
-R 27.7, D 3.9; adding a trimmed template -> observation term: no change.
-Posing the template with the input's joints (``c_X, d_X``) instead of its own: D 9.6. Flipped starts
-(180 deg about a canonical axis, best residual wins) made it worse: a laptop's slabs fit nearly as
-well upside down (R 27.4 -> 54.7).
+Why these choices (posing with the template's own joints, no 180-degree flip starts, a margin for
+alternative starts) and what each measured are recorded in ``results/cpu_preset_history.md``: a
+laptop's two slabs fit nearly as well upside down, so a flipped start must not win on residual alone.
 
 Speed: at batch 1 the loop is bound by the number of tensor operations, so the posed template is a
 :class:`TemplatePoser` (constants precomputed, one bmm per step for blend and frame, all parameters in
-one tensor) and the nearest neighbours are found without autograd. Whole prediction at batch 1 on 2
-cores (cpu preset network, 1024 points), same session: 61 / 74 / 124 ms for 20 / 30 / 60 steps,
-against 117 / 141 / 225 ms with the straightforward autograd version (``posed_template`` and a
-differentiated ``cdist(...).min``); the same predictions to the evaluator's precision.
+one tensor) and the nearest neighbours are found without autograd; ``scapo bench perf --what model``
+measures it (``results/perf/model_cpu.md``).
 """
 
 from __future__ import annotations

@@ -58,9 +58,9 @@ class ModelConfig:
     root_motion: bool = False
     """Let the base part move about (along) the root joint by a predicted root state (an addition
     to the paper; see :func:`scapo.models.skinning.bone_transforms`). The stage-1 frame of a
-    two-slab object such as a laptop settles between its two parts (measured on lap70: the base
-    turned by -0.36 and the screen by +0.43 times the joint state in that frame); with the base
-    pinned to that frame, the learned joint states came out at 0.28 of the true ones."""
+    two-slab object such as a laptop settles between its two parts, so with the base pinned to that
+    frame the learned joint states come out as a fraction of the true ones (measurements in
+    results/cpu_preset_history.md)."""
 
     def __post_init__(self):
         if len(self.joint_types) != len(self.joint_parts):
