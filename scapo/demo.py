@@ -56,8 +56,9 @@ def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12,
     print(f"   {ms:.0f} ms per test cloud -> {scapo_path}; loss curves in {run}/losses.png")
     _step("evaluating (one evaluator for every method)")
     results = [evaluate(data, preds), evaluate(data, scapo)]
-    prov = provenance(preset=f"demo (SCAPO preset {preset})", dataset_hash=results[0].info["dataset_hash"],
-                      dataset=str(data), config=f"{category} instances={instances} views={views} seed={seed}")
+    prov = provenance(preset=f"demo (SCAPO preset {preset})", protocol="scapo",
+                      dataset_hash=results[0].info["dataset_hash"], dataset=str(data),
+                      config=f"{category} instances={instances} views={views} seed={seed}")
     paths = write_table1(results, out, prov, name="table1_demo")
     print((out / "table1_demo.md").read_text())
     figs = [prediction_figure(data, preds, out / "figure_demo_icp.png", count=4, cache_dir=cache_dir),

@@ -202,3 +202,10 @@ def test_choices_on_val_never_read_the_test_split(tmp_path, monkeypatch):
     scores = {v: s["D"] + s["R"] for v, s in expected.items()}
     assert chosen == min(scores, key=scores.get)
     assert {r["value"]: r["score"] for r in rows} == pytest.approx(scores)
+    from scapo.cli.main import main
+
+    assert main(["bench", "choose", "--data", str(d), "--candidate", f"1={tmp_path}/p1.npz", "--candidate",
+                 f"30={tmp_path}/p30.npz", "--out", str(tmp_path / "choice.json")]) == 0
+    choice = json.loads((tmp_path / "choice.json").read_text())
+    assert choice["chosen"] == chosen and choice["split"] == "val" and "commit" in choice["provenance"]
+    assert main(["bench", "choose", "--data", str(d), "--candidate", f"1={tmp_path}/none*.npz"]) == 2
