@@ -153,12 +153,13 @@ def build_instance(category: str, instance_id: int, seed: int, cache_dir: Path |
         if parent.exists() and not parent.is_dir():
             raise AssetError(f"the asset cache {root} cannot be used: {parent} is a file; point SCAPO_CACHE (or "
                              "--cache) at a folder")
+    digest = None  # of the folder as it is returned, when already computed
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         clean_stale_temps(out.parent)  # folders of builds whose process died
         if (out / "asset.json").is_file():
             recorded = _recorded_digest(out)
-            actual = _digest(out)
+            actual = digest = _digest(out)
             if recorded is None:  # a cache folder of an older scapo: compare with a fresh build once
                 tmp = _build_into_temp(category, instance_id, seed, out.parent, out.name)
                 fresh = _digest(tmp)
@@ -167,9 +168,11 @@ def build_instance(category: str, instance_id: int, seed: int, cache_dir: Path |
                     atomic_write_text(out / DIGEST_FILE, actual + "\n")
                 else:
                     _replace(out, tmp, "differs from a fresh build")
+                    digest = fresh
             elif recorded != actual:
                 tmp = _build_into_temp(category, instance_id, seed, out.parent, out.name)
                 _replace(out, tmp, "was modified after it was built (its files no longer match files.sha256)")
+                digest = None
         else:
             tmp = _build_into_temp(category, instance_id, seed, out.parent, out.name)
             try:
@@ -185,7 +188,8 @@ def build_instance(category: str, instance_id: int, seed: int, cache_dir: Path |
         bbox_diag = float(meta["bbox_diag"])
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
         raise AssetError(f"cached asset {out} is unreadable ({e}); delete the folder to rebuild it") from e
-    return AssetRecord(category, int(seed), int(instance_id), out, out / "model.urdf", bbox_diag, _digest(out))
+    return AssetRecord(category, int(seed), int(instance_id), out, out / "model.urdf", bbox_diag,
+                       digest or _digest(out))
 
 
 def _replace(out: Path, fresh: Path, why: str) -> None:
