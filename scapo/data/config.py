@@ -120,3 +120,14 @@ def make_config(
     if random_rotation:
         view = dataclasses.replace(ViewConfig.from_template(load_template(category).view), random_rotation=True)
     return GenerateConfig(category, instances, views, seed, test_fraction, render, view, shard_size, val_fraction)
+
+
+def dict_diff(old, new, prefix: str = "") -> list[str]:
+    """Dotted names of the entries that differ between two nested dicts (configs, presets), e.g.
+    ``["render.num_points", "views"]``; used by every "differs in ..." message."""
+    if not (isinstance(old, dict) and isinstance(new, dict)):
+        return [prefix.rstrip(".") or "(whole config)"] if old != new else []
+    out = []
+    for k in sorted(set(old) | set(new)):
+        out += dict_diff(old.get(k), new.get(k), f"{prefix}{k}.")
+    return out

@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from scapo import __version__
-from scapo.data.config import FORMAT_VERSION, GenerateConfig
+from scapo.data.config import FORMAT_VERSION, GenerateConfig, dict_diff
 from scapo.data.storage import (
     read_shard,
     sha256_file,
@@ -268,16 +268,6 @@ def _check_out_folder(out: Path) -> None:
                               "or empty folder")
 
 
-def _dict_diff(old, new, prefix: str = "") -> list[str]:
-    """Dotted names of the entries that differ between two JSON-like dicts."""
-    if not (isinstance(old, dict) and isinstance(new, dict)):
-        return [prefix.rstrip(".") or "(whole config)"] if old != new else []
-    out = []
-    for k in sorted(set(old) | set(new)):
-        out += _dict_diff(old.get(k), new.get(k), f"{prefix}{k}.")
-    return out
-
-
 def _warn(msg: str) -> None:
     print(f"scapo generate: warning: {msg}", file=sys.stderr, flush=True)
 
@@ -334,7 +324,7 @@ def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0) 
                         "if the folder was made with these same arguments, delete that file and rerun to resume; "
                         "otherwise choose another --out")
         if old != json.loads(cfg_json):
-            diff = _dict_diff(old, json.loads(cfg_json))
+            diff = dict_diff(old, json.loads(cfg_json))
             hint = ""
             if "val_fraction" in diff:
                 hint = (f" (its --val-fraction is {old.get('val_fraction', 0)}; a dataset written before val splits "

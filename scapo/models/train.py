@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
+from scapo.data.config import dict_diff
 from scapo.data.dataset import load
 from scapo.errors import ConfigError, DatasetError, TrainingError
 from scapo.files import (
@@ -73,18 +74,6 @@ def model_config(card: dict, preset: TrainConfig) -> ModelConfig:
     return ModelConfig(num_parts=len(card["part_names"]), joint_types=tuple(card["joint_type"]),
                        joint_parts=tuple(tuple(p) for p in card["joint_parts"]), encoder=preset.encoder,
                        template_points=preset.template_points, gamma=preset.gamma, root_motion=preset.root_motion)
-
-
-def _changed_fields(old: dict, new: dict, prefix: str = "") -> list[str]:
-    """Dotted names of the entries that differ between two (nested) preset dicts."""
-    out = []
-    for k in sorted(set(old) | set(new)):
-        a, b = old.get(k), new.get(k)
-        if isinstance(a, dict) and isinstance(b, dict):
-            out += _changed_fields(a, b, f"{prefix}{k}.")
-        elif a != b:
-            out.append(f"{prefix}{k}")
-    return out
 
 
 def resolve_device(name: str) -> torch.device:
@@ -185,7 +174,7 @@ class Trainer:
             raise TrainingError(f"checkpoint {path} cannot be read ({e}); delete it to start over") from e
         if state.get("identity_hash") != _identity_hash(self.identity):
             old = state.get("identity", {})
-            changed = _changed_fields(_training_identity(old)["preset"], _training_identity(self.identity)["preset"])
+            changed = dict_diff(_training_identity(old)["preset"], _training_identity(self.identity)["preset"])
             what = f" (preset fields that differ: {', '.join(changed)})" if changed else ""
             raise TrainingError(
                 f"{path} was trained with preset {old.get('preset', {}).get('name')!r} on the {old.get('category')!r} "
