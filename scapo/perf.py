@@ -23,7 +23,7 @@ import numpy as np
 from scapo.data.config import make_config
 from scapo.data.generate import _WORKER, _init_worker, generate, plan, sample_seed_key
 from scapo.files import atomic_write_text, check_output_dir
-from scapo.geometry import sapien_camera_pose
+from scapo.ops.rigid import sapien_camera_pose
 from scapo.provenance import provenance, render_device
 from scapo.report import markdown_table
 from scapo.sim.assets import build_category, parse_urdf

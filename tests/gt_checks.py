@@ -3,7 +3,7 @@
 import numpy as np
 import trimesh
 
-from scapo.geometry import invert_transform, joint_motion, transform_points
+from scapo.ops.rigid import invert_transform, joint_motion, transform_points
 from scapo.sim.assets import load_part_mesh
 
 

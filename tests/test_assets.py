@@ -55,7 +55,7 @@ def test_instances_vary_in_shape(category, tmp_path):
 
 def test_up_axis_and_front_are_consistent_for_doors():
     # doors and lids open towards -x (front) or +z (up): check the child moves that way
-    from scapo.geometry import joint_motion, transform_points
+    from scapo.ops.rigid import joint_motion, transform_points
 
     for category in ["safe", "oven", "washer", "suitcase", "drawer", "laptop"]:
         d = design_instance(category, 0, 0)

@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 from scapo.data import load
 from scapo.errors import PredictionError
 from scapo.eval import Predictions, evaluate
-from scapo.geometry import as_transform
+from scapo.ops.rigid import as_transform
 
 
 def oracle(data, split, perm=None, offsets=None, needs_alignment=False, state_offset=0.0, flip_axis=False,

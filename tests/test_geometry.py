@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from scapo.geometry import (
+from scapo.ops.align import umeyama
+from scapo.ops.rigid import (
     R_CV_GL,
     as_transform,
     closest_point_on_line,
@@ -13,7 +14,6 @@ from scapo.geometry import (
     relative_motion_to_joint,
     rotation_about_axis,
     transform_points,
-    umeyama,
 )
 
 

@@ -10,7 +10,7 @@ from scapo.baselines.icp import ICPBaseline
 from scapo.data import load
 from scapo.eval import evaluate
 from scapo.eval.metrics import rotation_error_deg
-from scapo.geometry import as_transform, invert_transform, transform_points
+from scapo.ops.rigid import as_transform, invert_transform, transform_points
 
 
 def test_register_part_recovers_a_known_transform(laptop_data):

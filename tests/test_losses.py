@@ -7,8 +7,6 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from scapo.geometry import joint_motion
-from scapo.losses.chamfer import chamfer_distance
 from scapo.losses.scapo_losses import (
     boundary_direction,
     cross_space_loss,
@@ -33,6 +31,8 @@ from scapo.models.skinning import (
     rotation_between,
     skinning_weights,
 )
+from scapo.ops.chamfer import chamfer_distance
+from scapo.ops.rigid import joint_motion
 
 D = torch.float64
 

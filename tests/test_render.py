@@ -7,7 +7,7 @@ import pytest
 from gt_checks import check_sample
 
 from scapo.errors import RejectedViewError, RenderError
-from scapo.geometry import look_at
+from scapo.ops.rigid import look_at
 from scapo.sim.assets import build_instance, list_categories, load_template, parse_urdf
 from scapo.sim.render import RenderConfig, ViewConfig, render_many, render_sample, render_with_retries
 
@@ -91,7 +91,7 @@ def test_realistic_sensor_adds_noise_and_background(renderer):
     # object points stay within the sensor's noise level of the surface (flying pixels are few)
     from gt_checks import surface_distance
 
-    from scapo.geometry import invert_transform, transform_points
+    from scapo.ops.rigid import invert_transform, transform_points
     from scapo.sim.assets import load_part_mesh
 
     d = []

@@ -151,7 +151,7 @@ def test_stage2_starts_from_the_rigid_split_of_the_canonical_clouds(laptop_data,
 
 
 def test_root_motion_run_round_trips_and_its_poses_are_consistent(laptop_data, tmp_path):
-    from scapo.geometry import joint_motion
+    from scapo.ops.rigid import joint_motion
 
     run = tmp_path / "run"
     Trainer(laptop_data, run, dataclasses.replace(TEST, root_motion=True), progress=False).train()
@@ -170,8 +170,8 @@ def test_root_motion_run_round_trips_and_its_poses_are_consistent(laptop_data, t
 
 
 def test_refinement_is_an_inference_setting_and_keeps_poses_consistent(laptop_data, tmp_path):
-    from scapo.geometry import joint_motion
     from scapo.models.refine import RefineConfig
+    from scapo.ops.rigid import joint_motion
 
     run = tmp_path / "run"
     Trainer(laptop_data, run, dataclasses.replace(TEST, root_motion=True), progress=False).train()

@@ -40,8 +40,8 @@ from scapo.baselines.base import METHODS
 from scapo.data.dataset import ArticulationDataset
 from scapo.errors import ConfigError, DatasetError
 from scapo.eval.predictions import Predictions
-from scapo.geometry import as_transform, invert_transform, relative_motion_to_joint, transform_points
-from scapo.sim.render import farthest_point_indices
+from scapo.ops.rigid import as_transform, invert_transform, relative_motion_to_joint, transform_points
+from scapo.ops.sampling import farthest_point_indices
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from scapo.geometry import as_transform, invert_transform, project_to_so3
+from scapo.ops.rigid import as_transform, invert_transform, project_to_so3
 
 
 @dataclass(frozen=True)

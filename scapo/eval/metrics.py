@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from scapo.geometry import project_to_so3
+from scapo.ops.rigid import project_to_so3
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 import torch
 
-from scapo.losses.chamfer import chamfer_distance, pairwise_sq_dist
 from scapo.losses.scapo_losses import (
     augmentation_consistency_loss,
     candidate_rotations,
@@ -24,6 +23,7 @@ from scapo.losses.scapo_losses import (
     seg_loss,
     shape_var_loss,
 )
+from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist
 
 #: Regularisers that can be switched off (Table 3 ablations and more).
 REGULARISERS = ("kp_seg", "seg", "shape_var", "dir_align", "joint_prox", "joint_boundary")

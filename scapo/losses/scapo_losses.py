@@ -14,8 +14,8 @@ import functools
 import numpy as np
 import torch
 
-from scapo.losses.chamfer import chamfer_distance, pairwise_sq_dist
-from scapo.models.vn import random_rotation
+from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist, trimmed_one_sided_chamfer
+from scapo.ops.groups import random_rotation, rotation_group
 
 EPS = 1e-8
 
@@ -76,8 +76,7 @@ def cross_instance_alignment_loss(X: torch.Tensor, t: torch.Tensor, R: torch.Ten
     S = (X[:, :: max(1, N // n)][:, :n] - t[:, None]) @ R  # (B, n, 3)
     A = S.unsqueeze(1).expand(B, B, n, 3).reshape(B * B, n, 3)
     Bt = S.unsqueeze(0).expand(B, B, n, 3).reshape(B * B, n, 3)
-    d = pairwise_sq_dist(A, Bt).min(-1).values  # (B*B, n)
-    d = d.topk(max(1, int(keep * n)), dim=-1, largest=False).values.mean(-1).reshape(B, B)
+    d = trimmed_one_sided_chamfer(A, Bt, keep).reshape(B, B)
     off = ~torch.eye(B, dtype=torch.bool, device=X.device)
     return d[off].mean() if B > 1 else d.sum() * 0.0
 
@@ -92,10 +91,8 @@ def candidate_rotations(small_deg: float = 25.0, dtype=torch.float32) -> torch.T
 def _candidate_rotations(small_deg: float) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
-    octa = Rotation.create_group("O").as_matrix()
-    order = sorted(range(len(octa)), key=lambda i: -float(np.trace(octa[i])))  # identity first
     small = Rotation.from_rotvec(np.deg2rad(small_deg) * np.concatenate([np.eye(3), -np.eye(3)])).as_matrix()
-    out = np.concatenate([octa[order], small])
+    out = np.concatenate([rotation_group("O"), small])
     out.setflags(write=False)
     return out
 
@@ -125,8 +122,7 @@ def consensus_rotation_loss(X: torch.Tensor, t: torch.Tensor, R_raw: torch.Tenso
         SG = torch.einsum("bni,gji->bgnj", S, G)  # S_b G_g^T: (B, C, n, 3)
         A = SG.unsqueeze(2).expand(B, C, B, n, 3).reshape(-1, n, 3)
         T = S.unsqueeze(0).unsqueeze(0).expand(B, C, B, n, 3).reshape(-1, n, 3)
-        d = pairwise_sq_dist(A, T).min(-1).values
-        d = d.topk(max(1, int(keep * n)), dim=-1, largest=False).values.mean(-1).reshape(B, C, B)
+        d = trimmed_one_sided_chamfer(A, T, keep).reshape(B, C, B)
         self_pair = torch.eye(B, dtype=torch.bool, device=X.device)[:, None, :]  # (B, 1, B)
         score = d.masked_fill(self_pair, float("nan")).nanmedian(dim=-1).values  # (B, C): over the others
         best = score.argmin(dim=1)

@@ -26,27 +26,10 @@ import math
 
 import torch
 
-from scapo.losses.chamfer import pairwise_sq_dist
+from scapo.ops.align import kabsch  # noqa: F401  (re-exported: part registration uses it)
+from scapo.ops.chamfer import pairwise_sq_dist, trimmed_one_sided_chamfer
 
 EPS = 1e-9
-
-
-def kabsch(src: torch.Tensor, dst: torch.Tensor, w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Weighted least-squares rigid transform with ``R src + t ~ dst`` (Kabsch / Umeyama, no scale).
-
-    ``src, dst (Q, n, 3)`` corresponding points, ``w (Q, n)`` non-negative weights ->
-    ``R (Q, 3, 3)`` (proper rotations), ``t (Q, 3)``. Rows with zero total weight give the identity.
-    """
-    ws = w / (w.sum(1, keepdim=True) + EPS)
-    cs = (ws.unsqueeze(-1) * src).sum(1)
-    cd = (ws.unsqueeze(-1) * dst).sum(1)
-    H = torch.einsum("qn,qni,qnj->qij", ws, src - cs[:, None], dst - cd[:, None])
-    U, _, Vh = torch.linalg.svd(H + EPS * torch.eye(3, dtype=H.dtype, device=H.device))
-    V = Vh.transpose(1, 2)
-    d = torch.sign(torch.det(V @ U.transpose(1, 2)))
-    D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), torch.where(d == 0, 1.0, d)], -1))
-    R = V @ D @ U.transpose(1, 2)
-    return R, cd - (R @ cs.unsqueeze(-1)).squeeze(-1)
 
 
 def register_parts(A: torch.Tensor, B: torch.Tensor, la: torch.Tensor, lb: torch.Tensor, num_parts: int,
@@ -234,11 +217,9 @@ def medoid(clouds: torch.Tensor, keep: float = 0.7) -> int:
     distance (the ``keep`` fraction of smallest nearest-neighbour distances, which tolerates partial
     views): the cloud with the smallest mean distance to the others."""
     B, n, _ = clouds.shape
-    k = max(1, int(keep * n))
     D = torch.zeros(B, B, dtype=clouds.dtype)
     for a in range(B):
-        d = pairwise_sq_dist(clouds[a:a + 1].expand(B, n, 3), clouds).min(-1).values  # (B, n)
-        D[a] = d.topk(k, dim=-1, largest=False).values.mean(-1)
+        D[a] = trimmed_one_sided_chamfer(clouds[a:a + 1].expand(B, n, 3), clouds, keep)
     D = D + D.T
     return int(D.sum(1).argmin())
 

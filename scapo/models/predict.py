@@ -174,7 +174,7 @@ class Predictor:
                           "per-point outputs come from each point's nearest subsampled point", stacklevel=2)
             from scipy.spatial import cKDTree
 
-            from scapo.sim.render import farthest_point_indices
+            from scapo.ops.sampling import farthest_point_indices
 
             rng = np.random.default_rng(0)
             full = pts.numpy()

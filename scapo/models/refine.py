@@ -33,13 +33,12 @@ measures it (``results/perf/model_cpu.md``).
 
 from __future__ import annotations
 
-import functools
-import itertools
 from dataclasses import dataclass
 
 import torch
 
 from scapo.models.skinning import blend, bone_transforms, exp_so3, root_joint, skew
+from scapo.ops.groups import octahedral_rotations
 
 
 @dataclass(frozen=True)
@@ -78,26 +77,6 @@ class RefineConfig:
 
 
 START_SETS = ("network", "octahedral")
-
-
-def octahedral_rotations(dtype=torch.float32, device=None) -> torch.Tensor:
-    """The 24 rotations of the cube group (signed permutation matrices of determinant +1) as
-    ``(24, 3, 3)``, the identity first."""
-    return _octahedral_rotations().to(dtype=dtype, device=device, copy=True)
-
-
-@functools.lru_cache(maxsize=1)
-def _octahedral_rotations() -> torch.Tensor:
-    """float64 CPU table of :func:`octahedral_rotations`, built once (it sits on the prediction path)."""
-    mats = []
-    for perm in itertools.permutations(range(3)):
-        for signs in itertools.product((1.0, -1.0), repeat=3):
-            M = torch.zeros(3, 3, dtype=torch.float64)
-            M[range(3), perm] = torch.tensor(signs, dtype=torch.float64)
-            if torch.linalg.det(M) > 0:
-                mats.append(M)
-    mats.sort(key=lambda M: -float(torch.trace(M)))  # identity (trace 3) first
-    return torch.stack(mats)
 
 
 def rotation_from_rotvec(w: torch.Tensor) -> torch.Tensor:

@@ -302,7 +302,7 @@ class Trainer:
         sample of the union of the canonical clouds and the heads keep their fixed initialisation.
         """
         from scapo.models import part_init
-        from scapo.sim.render import farthest_point_indices
+        from scapo.ops.sampling import farthest_point_indices
 
         g = torch.Generator().manual_seed(self.preset.seed)
         idx = torch.randperm(len(data), generator=g)[: min(len(data), 64)]

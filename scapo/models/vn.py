@@ -20,6 +20,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from scapo.ops.groups import random_rotation
+
 EPS = 1e-6
 
 
@@ -216,16 +218,6 @@ def gather_neighbours(x: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
 
 
 # ------------------------------------------------------------------------------------------ checks
-def random_rotation(batch: int, dtype=torch.float64, generator: torch.Generator | None = None) -> torch.Tensor:
-    """Uniform random rotations (B, 3, 3) (QR of Gaussian matrices, sign-fixed, det +1)."""
-    A = torch.randn(batch, 3, 3, dtype=dtype, generator=generator)
-    Q, R = torch.linalg.qr(A)
-    Q = Q * torch.sign(torch.diagonal(R, dim1=-2, dim2=-1)).unsqueeze(-2)
-    det = torch.det(Q)
-    Q[:, :, 2] *= det.unsqueeze(-1)
-    return Q
-
-
 def equivariance_error(fn, x: torch.Tensor, rotate: bool = True, translate: bool = False, generator=None) -> float:
     """Largest deviation from SO(3)/SE(3) equivariance of ``fn`` on vector features ``x (B, C, 3, *S)``.
 

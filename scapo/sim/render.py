@@ -7,7 +7,7 @@ object's canonical frame (SPEC section 3) coincides with the world, and the came
 
 :func:`render_sample` draws a joint state and a viewpoint, renders ``Position`` and
 ``Segmentation``, converts positions from SAPIEN's OpenGL camera frame to OpenCV once
-(:data:`scapo.geometry.R_CV_GL`), labels points by part, resamples them by farthest-point
+(:data:`scapo.ops.rigid.R_CV_GL`), labels points by part, resamples them by farthest-point
 sampling and assembles the ground truth with the field names of SPEC section 5.
 """
 
@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from scapo.errors import AssetError, ConfigError, RejectedViewError, RenderError
-from scapo.geometry import invert_transform, look_at, normalize, sapien_camera_pose, transform_points
+from scapo.ops.rigid import invert_transform, look_at, normalize, sapien_camera_pose, transform_points
+from scapo.ops.sampling import farthest_point_indices
 from scapo.sim.assets.templates import ViewTemplate
 from scapo.sim.assets.urdf import ArticulationSpec
 from scapo.sim.sensor import SensorConfig, apply_sensor
@@ -336,23 +337,6 @@ def sample_camera_pose(view: ViewConfig, bbox_diag: float, rng: np.random.Genera
     c, s = math.cos(roll), math.sin(roll)
     T[:3, :3] = T[:3, :3] @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     return T
-
-
-def farthest_point_indices(points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Indices (n,) of a farthest-point sample of ``points (M, 3)`` (fpsample's QuickFPS).
-
-    Deterministic for equal inputs; the start point is drawn with ``rng``. Requires ``M >= n``.
-    """
-    import fpsample
-
-    m = len(points)
-    if m < n:
-        raise ValueError(f"farthest-point sampling needs at least {n} points, got {m}")
-    if m == n:
-        return np.arange(n)
-    h = 3 if m < 4096 else (5 if m < 32768 else 7)
-    idx = fpsample.bucket_fps_kdline_sampling(points, n, h=h, start_idx=int(rng.integers(m)))
-    return np.sort(np.asarray(idx, dtype=np.int64))
 
 
 def _support_altitude(spec: ArticulationSpec, part_pose_obj: np.ndarray) -> float:

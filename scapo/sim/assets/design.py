@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from scapo.geometry import closest_point_on_line, normalize
+from scapo.ops.rigid import closest_point_on_line, normalize
 from scapo.sim.assets.meshes import merge, to_obj_bytes
 
 JOINT_TYPES = {"revolute": 0, "prismatic": 1}

@@ -29,7 +29,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from scapo.errors import MissingMeshError, URDFError
-from scapo.geometry import as_transform, closest_point_on_line, joint_motion, normalize, transform_points
+from scapo.ops.rigid import as_transform, closest_point_on_line, joint_motion, normalize, transform_points
 
 MOVABLE = {"revolute": 0, "continuous": 0, "prismatic": 1}
 SUPPORTED = set(MOVABLE) | {"fixed"}

@@ -1,4 +1,5 @@
-"""Chamfer distance between point sets (batched matrix products; CPU and CUDA)."""
+"""Chamfer distances between point sets (batched matrix products; CPU and CUDA): symmetric, and the
+trimmed one-sided variant that tolerates partial views and articulation."""
 
 from __future__ import annotations
 
@@ -31,3 +32,19 @@ def chamfer_distance(a: torch.Tensor, b: torch.Tensor, squared: bool = True) -> 
     if not squared:
         d = (d + 1e-12).sqrt()
     return d.min(dim=2).values.mean(dim=1) + d.min(dim=1).values.mean(dim=1)
+
+
+def trimmed_one_sided_chamfer(a: torch.Tensor, b: torch.Tensor, keep: float = 0.7) -> torch.Tensor:
+    """Trimmed one-sided Chamfer distance ``a -> b`` per batch element: the mean of the ``keep``
+    fraction of smallest squared nearest-neighbour distances from the points of ``a`` to ``b``.
+
+    ``a (B, N, 3)``, ``b (B, M, 3)`` -> ``(B,)``. Trimming tolerates the parts of ``a`` that ``b``
+    does not show (partial views, other articulation states).
+
+    Raises:
+        ValueError: ``keep`` not in (0, 1].
+    """
+    if not 0.0 < keep <= 1.0:
+        raise ValueError(f"keep must be in (0, 1], got {keep}")
+    d = pairwise_sq_dist(a, b).min(-1).values
+    return d.topk(max(1, int(keep * a.shape[1])), dim=-1, largest=False).values.mean(-1)

@@ -1,4 +1,4 @@
-"""Rigid-body geometry shared by the simulator, baselines and evaluator (numpy, float64).
+"""Rigid transforms and joint motions (numpy, float64), shared by the simulator, methods and evaluator.
 
 Conventions: 4x4 homogeneous transforms act on column vectors, ``p' = R p + t``; a transform
 named ``T_a_b`` maps coordinates in frame ``b`` to frame ``a``. Rotations are 3x3 matrices;
@@ -158,32 +158,3 @@ def relative_motion_to_joint(M: np.ndarray, joint_type: int) -> tuple[np.ndarray
             raise ValueError("relative translation is zero: prismatic axis undefined")
         return t / dist, np.zeros(3), dist
     raise ValueError(f"joint_type must be 0 (revolute) or 1 (prismatic), got {joint_type}")
-
-
-def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple[np.ndarray, float]:
-    """Least-squares similarity/rigid transform mapping ``src (N, 3)`` onto ``dst (N, 3)``.
-
-    Umeyama, "Least-squares estimation of transformation parameters between two point
-    patterns", TPAMI 1991. Returns ``(T (4, 4), scale)`` with ``dst ~ scale * R src + t``
-    (the scale is folded into ``T[:3, :3]`` when ``with_scale`` is True).
-
-    Raises ValueError for fewer than 3 points or mismatched shapes.
-    """
-    src = np.asarray(src, dtype=np.float64)
-    dst = np.asarray(dst, dtype=np.float64)
-    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 3:
-        raise ValueError(f"umeyama needs two (N>=3, 3) arrays of equal shape, got {src.shape} and {dst.shape}")
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    xs, xd = src - mu_s, dst - mu_d
-    cov = xd.T @ xs / len(src)
-    U, S, Vt = np.linalg.svd(cov)
-    D = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        D[2, 2] = -1.0
-    R = U @ D @ Vt
-    scale = 1.0
-    if with_scale:
-        var_s = (xs**2).sum() / len(src)
-        scale = float(np.trace(np.diag(S) @ D) / max(var_s, 1e-18))
-    t = mu_d - scale * R @ mu_s
-    return as_transform(scale * R, t), scale
