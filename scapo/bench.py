@@ -8,21 +8,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from scapo.baselines import run_method
 from scapo.data import generate, load, make_config
 from scapo.eval import Predictions, evaluate
 from scapo.eval.tables import write_table1
 from scapo.files import check_output_dir
-from scapo.models.train import train
+from scapo.methods import METHODS, describe, run_method, train_method
 from scapo.provenance import provenance
 
 
 def dataset_dir(work: Path, category: str, instances: int, views: int, seed: int) -> Path:
     return Path(work) / f"{category}_i{instances}_v{views}_s{seed}"
-
-
-#: Methods that are trained (one run, and one table row sample, per training seed).
-TRAINED_METHODS = ("scapo",)
 
 
 def run_table1(methods, categories, instances: int, views: int, seed: int = 0, work_dir: Path = Path("bench_work"),
@@ -32,16 +27,15 @@ def run_table1(methods, categories, instances: int, views: int, seed: int = 0, w
     ``protocol``, and write Table 1. Trained methods are trained once per training seed in ``seeds``;
     their cells are mean +- std over those seeds. Resumable per cell: a finished run or predictions file
     of the same dataset is reused."""
-    from scapo.baselines import METHODS
+    from scapo.errors import ConfigError
     from scapo.eval.protocols import get_protocol
-    from scapo.models.presets import PRESETS
 
-    for m in methods:  # unknown names are refused before any dataset is rendered
-        METHODS.get(m)
+    for m in methods:  # unknown names and presets are refused before any dataset is rendered
+        entry = METHODS.get(m)
+        if entry.trained and preset not in entry.presets:
+            raise ConfigError(f"method {m!r} has no preset {preset!r}; its presets: {', '.join(entry.presets)}")
     for cat in categories:
         make_config(cat, instances, views, seed)
-    if any(m in TRAINED_METHODS for m in methods):
-        PRESETS.get(preset)
     protocol = get_protocol(protocol).name
     seeds = [int(s) for s in seeds] or [0]
     if out_dir is not None:
@@ -53,7 +47,7 @@ def run_table1(methods, categories, instances: int, views: int, seed: int = 0, w
         generate(make_config(cat, instances, views, seed), data, workers=workers, cache_dir=cache_dir)
         hashes[cat] = load(data, "test").dataset_hash[:16]
         for m in methods:
-            for s in (seeds if m in TRAINED_METHODS else [None]):
+            for s in (seeds if METHODS.get(m).trained else [None]):
                 pred_path = data / (f"predictions_{m}.npz" if s is None else f"predictions_{m}_{preset}_s{s}.npz")
                 preds = None
                 if pred_path.is_file():
@@ -62,9 +56,9 @@ def run_table1(methods, categories, instances: int, views: int, seed: int = 0, w
                         preds = None
                 if preds is None:
                     opts = {}
-                    if m == "scapo":
-                        opts = {"run": data / f"run_scapo_{preset}_s{s}"}
-                        train(data, opts["run"], preset, progress=True, seed=s)
+                    if METHODS.get(m).trained:
+                        opts = {"run": data / f"run_{m}_{preset}_s{s}"}
+                        train_method(m, data, opts["run"], preset, progress=True, seed=s)
                     preds = run_method(m, data, pred_path, progress=True, **opts)
                 res = evaluate(data, preds, protocol=protocol)
                 print(f"{m:8s} {cat:11s} seed {s} " + " ".join(f"{k}={res.summary[k]:.3f}"
@@ -73,7 +67,7 @@ def run_table1(methods, categories, instances: int, views: int, seed: int = 0, w
     if out_dir is not None:
         prov = provenance(preset=f"data: instances={instances} views={views} seed={seed}; scapo: {preset}",
                           datasets=hashes, methods=",".join(methods), protocol=protocol, training_seeds=seeds)
-        for p in write_table1(results, out_dir, prov, name=name):
+        for p in write_table1(results, out_dir, prov, name=name, describe=describe):
             print(f"wrote {p}")
     return results
 

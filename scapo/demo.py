@@ -19,11 +19,11 @@ def _step(msg: str) -> None:
 def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12, seed: int = 0,
              cache_dir: Path | None = None, category: str = "laptop", preset: str = "demo") -> dict:
     """Run the demo; returns a dict with the evaluation summary and the written paths."""
-    from scapo.baselines import run_method
     from scapo.data import generate, make_config
     from scapo.eval import evaluate
     from scapo.eval.tables import write_table1
     from scapo.files import check_output_dir
+    from scapo.methods import describe, run_method
     from scapo.models.presets import PRESETS
     from scapo.models.train import train
     from scapo.provenance import provenance, render_device
@@ -59,7 +59,7 @@ def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12,
     prov = provenance(preset=f"demo (SCAPO preset {preset})", protocol="scapo",
                       dataset_hash=results[0].info["dataset_hash"], dataset=str(data),
                       config=f"{category} instances={instances} views={views} seed={seed}")
-    paths = write_table1(results, out, prov, name="table1_demo")
+    paths = write_table1(results, out, prov, name="table1_demo", describe=describe)
     print((out / "table1_demo.md").read_text())
     figs = [prediction_figure(data, preds, out / "figure_demo_icp.png", count=4, cache_dir=cache_dir),
             prediction_figure(data, scapo, out / "figure_demo_scapo.png", count=4, cache_dir=cache_dir)]

@@ -227,3 +227,69 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
         row["threads"] = torch.get_num_threads()
         rows.append(row)
     return rows
+
+
+def bench_method(method: str, preset: str = "cpu", device: str | None = None, data: str | Path | None = None,
+                 iters: int = 5, num_points: int = 1024) -> list[dict]:
+    """Inference speed of any registered method: ms per cloud at batch 1 (and clouds/s at batch 32 for
+    the networks), on the given device, or on CPU and (when available) CUDA.
+
+    Learned methods are timed with freshly initialised networks of ``preset``'s size on the
+    partial-view-like box clouds of :func:`bench_model` (speed does not depend on the weights or on
+    what the points show), for a two-part, one-revolute-joint structure; ``scapo`` is
+    :func:`bench_model`. ICP needs ``data``: its template is fitted on the training split and it is timed
+    on the test clouds (the ground-truth segmentation it uses is the dataset's).
+
+    Raises:
+        UnknownNameError: unknown method or preset. ConfigError: ICP without ``data``, an unavailable
+        device, or a method without inference to time.
+    """
+    import torch
+
+    from scapo.errors import ConfigError
+    from scapo.methods import METHODS
+    from scapo.models.train import resolve_device
+
+    entry = METHODS.get(method)
+    if method == "scapo":
+        rows = bench_model(preset, device=device, iters=iters, num_points=num_points)
+        return [{"method": method, **r} for r in rows]
+    if method == "icp":
+        if data is None:
+            raise ConfigError("timing ICP needs --data DATASET: its template is fitted on the training split")
+        from scapo.data.dataset import load
+
+        m = entry.factory()
+        m.fit(load(data, "train"))
+        test = load(data, "test")
+        keep = test.manifest.index[: max(1, iters)]
+        test.manifest = test.manifest.loc[keep]
+        t = time.perf_counter()
+        m.predict(test)
+        ms = 1000 * (time.perf_counter() - t) / len(keep)
+        return [{"method": method, "preset": "-", "device": "cpu", "infer_ms_per_cloud_b1": round(ms, 2),
+                 "infer_clouds_per_s_b1": round(1000 / ms, 2), "clouds_timed": len(keep),
+                 "threads": torch.get_num_threads()}]
+    spec = getattr(entry.factory, "spec", None)
+    if spec is None:
+        raise ConfigError(f"method {method!r} has no network to time")
+    pc = spec.presets.get(preset)
+    devices = [device] if device else ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    resolved = {dev: resolve_device(dev) for dev in devices}
+    card = {"part_names": ["base", "lid"], "joint_type": [0], "joint_parts": [[0, 1]]}
+    rows = []
+    for dev in devices:
+        torch.manual_seed(0)
+        net = spec.build(card, pc).to(resolved[dev]).eval()
+        row = {"method": method, "preset": preset, "device": dev, "points": num_points}
+        for batch in (1, 32):
+            pts = torch.from_numpy(_box_clouds(batch, num_points, seed=1)).to(resolved[dev])
+            med = _median_seconds(functools.partial(net.infer, pts), iters, dev == "cuda")
+            if batch == 1:
+                row["infer_ms_per_cloud_b1"] = round(1000 * med, 2)
+                row["infer_clouds_per_s_b1"] = round(1 / med, 2)
+            else:
+                row["infer_clouds_per_s_b32"] = round(batch / med, 2)
+        row["threads"] = torch.get_num_threads()
+        rows.append(row)
+    return rows

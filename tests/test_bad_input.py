@@ -267,7 +267,7 @@ def test_predictor_subsamples_large_clouds_with_a_warning(run):
 
 
 def test_unwritable_predict_output_fails_before_any_work(laptop_data, tmp_path, monkeypatch):
-    from scapo.baselines.icp import ICPBaseline
+    from scapo.methods.icp import ICPBaseline
 
     def never(*a, **k):
         raise AssertionError("fit ran although the output cannot be written")
@@ -453,7 +453,7 @@ def test_ctrl_c_names_what_is_kept_per_command(monkeypatch, laptop_data, tmp_pat
     monkeypatch.setattr("scapo.models.train.Trainer.train", interrupt)
     code, _, err = cli("train", "--data", laptop_data, "--preset", "test", "--out", tmp_path / "r")
     assert code == 130 and "last finished epoch is kept" in err and "shards" not in err
-    monkeypatch.setattr("scapo.baselines.run_method", interrupt)
+    monkeypatch.setattr("scapo.methods.run_method", interrupt)
     code, _, err = cli("predict", "--method", "icp", "--data", laptop_data, "--out", tmp_path / "p.npz")
     assert code == 130 and "nothing was written" in err
 
@@ -462,7 +462,7 @@ def test_a_bug_is_one_line_not_a_traceback(monkeypatch, laptop_data, tmp_path):
     def bug(*a, **k):
         raise TypeError("unsupported operand")
 
-    monkeypatch.setattr("scapo.baselines.run_method", bug)
+    monkeypatch.setattr("scapo.methods.run_method", bug)
     code, _, err = cli("predict", "--method", "icp", "--data", laptop_data, "--out", tmp_path / "p.npz")
     assert code == 3 and "internal error (TypeError: unsupported operand)" in err and "Traceback" not in err
 

@@ -75,8 +75,8 @@ def test_default_generate_writes_train_val_and_test_by_instance(tmp_path):
 
 
 def test_methods_predict_the_val_split_and_the_evaluator_scores_it(tmp_path):
-    from scapo.baselines import run_method
     from scapo.eval import evaluate
+    from scapo.methods import run_method
 
     d = tmp_path / "d"
     generate(make_config("laptop", 6, 3, seed=1, test_fraction=0.2, val_fraction=0.2), d, progress=False)
@@ -178,9 +178,9 @@ def test_config_mismatch_and_bad_names(tmp_path, laptop_data):
 
 
 def test_choices_on_val_never_read_the_test_split(tmp_path, monkeypatch):
-    from scapo.baselines import run_method
     from scapo.bench import choose_on_val
     from scapo.eval import evaluate
+    from scapo.methods import run_method
 
     d = tmp_path / "d"
     generate(make_config("laptop", 6, 2, seed=1, test_fraction=0.2, val_fraction=0.2), d, progress=False)

@@ -5,11 +5,11 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from scapo.baselines import run_method
-from scapo.baselines.icp import ICPBaseline
 from scapo.data import load
 from scapo.eval import evaluate
 from scapo.eval.metrics import rotation_error_deg
+from scapo.methods import run_method
+from scapo.methods.icp import ICPBaseline
 from scapo.ops.rigid import as_transform, invert_transform, transform_points
 
 

@@ -20,7 +20,7 @@ from scapo.losses.scapo_losses import (
     seg_loss,
     shape_var_loss,
 )
-from scapo.models.skinning import (
+from scapo.nn.skinning import (
     apply,
     blend,
     bone_transforms,

@@ -9,9 +9,9 @@ from scipy.spatial.transform import Rotation
 
 from scapo.losses import LossConfig, stage2_terms
 from scapo.models import part_init as PI
-from scapo.models.encoder import EncoderConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
-from scapo.models.skinning import exp_so3
+from scapo.nn.encoder import EncoderConfig
+from scapo.nn.skinning import exp_so3
 
 HINGE = torch.tensor([0.0, 0.0, 1.0])
 

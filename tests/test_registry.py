@@ -16,7 +16,7 @@ def test_unknown_name_lists_known_names():
 
 
 def test_category_and_method_registries_fail_loudly():
-    from scapo.baselines import METHODS
+    from scapo.methods import METHODS
     from scapo.sim.assets import CATEGORIES
 
     with pytest.raises(UnknownNameError, match="laptop"):

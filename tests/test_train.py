@@ -8,9 +8,9 @@ import pytest
 import torch
 
 import scapo.losses
-from scapo.baselines import run_method
 from scapo.errors import TrainingError
 from scapo.eval import evaluate
+from scapo.methods import run_method
 from scapo.models import load as load_model
 from scapo.models.presets import PRESETS
 from scapo.models.train import Trainer, train

@@ -3,8 +3,8 @@
 import pytest
 import torch
 
-from scapo.models.encoder import EncoderConfig, SE3Encoder
-from scapo.models.vn import (
+from scapo.nn.encoder import EncoderConfig, SE3Encoder
+from scapo.nn.vn import (
     VNBatchNorm,
     VNInvariant,
     VNLeakyReLU,

@@ -33,14 +33,18 @@ def cmd_doctor(args) -> int:
 
 
 def cmd_list(args) -> int:
-    from scapo.baselines import list_methods
+    from scapo.methods import METHODS
     from scapo.sim.assets import list_categories, load_template
 
     print("categories:")
     for c in list_categories():
         t = load_template(c)
         print(f"  {c:11s} parts={','.join(t.parts)}  joints={','.join(j.type for j in t.joints)}")
-    print("methods: " + ", ".join(list_methods()))
+    print("methods (supervision: P pose, S segmentation, J joint; - none):")
+    for name in METHODS:
+        e = METHODS.get(name)
+        how = f"trained (presets: {', '.join(e.presets)})" if e.trained else "fitted at predict time"
+        print(f"  {name:9s} {e.marks()}  {e.display:28s} {how}; {e.summary}")
     return 0
 
 
@@ -104,15 +108,16 @@ def cmd_preview(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from scapo.models.train import train
+    from scapo.methods import train_method
 
-    ck = train(args.data, args.out, args.preset, progress=not args.no_progress, device=args.device, seed=args.seed)
+    ck = train_method(args.method, args.data, args.out, args.preset, progress=not args.no_progress,
+                      device=args.device, seed=args.seed)
     print(f"trained: {ck} (loss curves in {Path(args.out) / 'losses.png'})")
     return 0
 
 
 def cmd_predict(args) -> int:
-    from scapo.baselines import run_method
+    from scapo.methods import method_of_run, run_method
 
     opts = {}
     for kv in args.option or []:
@@ -122,14 +127,15 @@ def cmd_predict(args) -> int:
         opts[k.strip()] = v  # converted to the option's type by the method's options dataclass
     method = args.method
     if args.run is not None:
-        if method not in (None, "scapo"):
-            raise ScapoError(f"--run is for the scapo method, not {method!r}")
-        method = "scapo"
+        trained_for = method_of_run(args.run)
+        if method not in (None, trained_for):
+            raise ScapoError(f"--run {args.run} is a run of method {trained_for!r}, not {method!r}")
+        method = trained_for
         opts["run"] = args.run
-        if args.device:
-            opts["device"] = args.device
+    if args.device:
+        opts["device"] = args.device
     if method is None:
-        raise ScapoError("give --method NAME (see 'scapo list') or --run RUN (a trained SCAPO run)")
+        raise ScapoError("give --method NAME (see 'scapo list') or --run RUN (a folder written by 'scapo train')")
     preds = run_method(method, args.data, args.out, **opts)
     print(f"wrote {args.out}: {len(preds)} predictions of {preds.method} "
           f"({preds.info.get('ms_per_cloud_test', float('nan')):.1f} ms per test cloud)")
@@ -141,6 +147,7 @@ def cmd_evaluate(args) -> int:
     from scapo.eval.protocols import get_protocol
     from scapo.eval.tables import write_table1
     from scapo.files import atomic_write_text, check_output_dir
+    from scapo.methods import describe
     from scapo.provenance import provenance
 
     protocol = get_protocol(args.protocol).name  # an unknown name is refused before any work
@@ -152,7 +159,7 @@ def cmd_evaluate(args) -> int:
         prov = provenance(dataset_hash=results[0].info["dataset_hash"], dataset=str(args.data),
                           predictions=[str(p) for p in args.pred], protocol=protocol, split=args.split,
                           methods=_method_provenance(results))
-        paths = write_table1(results, args.out, prov, name=args.name)
+        paths = write_table1(results, args.out, prov, name=args.name, describe=describe)
         for res in results:
             seed = f"_s{res.info['seed']}" if res.info.get("seed") is not None else ""
             atomic_write_text(Path(args.out) / f"{args.name}_{res.method}_{res.category}{seed}_per_sample.csv",
@@ -178,8 +185,9 @@ def _method_provenance(results) -> dict:
 def _print_summary(results, protocol: str = "scapo") -> None:
     """Print Table 1 in the paper's layout (our rows and the paper's), then the medians and rates."""
     from scapo.eval.tables import table1_markdown
+    from scapo.methods import describe
 
-    print(table1_markdown(results, protocol))
+    print(table1_markdown(results, protocol, describe=describe))
 
 
 def cmd_bench_choose(args) -> int:
@@ -235,11 +243,16 @@ def cmd_bench(args) -> int:
             rows = bench_generate(args.category, args.instances, args.views, tuple(args.workers), args.seed,
                                   args.cache)
             name = f"generate_{args.category}"
-        else:
+        elif args.method is None:
             from scapo.perf import bench_model
 
             rows = bench_model(args.preset, device=args.device)
             name = f"model_{args.preset}"
+        else:
+            from scapo.perf import bench_method
+
+            rows = bench_method(args.method, args.preset, device=args.device, data=args.data)
+            name = f"model_{args.method}_{args.preset}"
         for r in rows:
             print(r)
         if args.out:
@@ -319,10 +332,12 @@ def build_parser() -> argparse.ArgumentParser:
     common_cache(sp)
     sp.set_defaults(func=cmd_preview)
 
-    sp = sub.add_parser("train", help="train SCAPO (both stages) on a dataset's training clouds (no labels)")
+    sp = sub.add_parser("train", help="train a method (default SCAPO, both stages) on a dataset's training split")
+    sp.add_argument("--method", default="scapo", help="a trained method (see 'scapo list'): scapo, op-align, eap, "
+                    "npcs")
     sp.add_argument("--data", type=Path, required=True)
-    sp.add_argument("--preset", default=None, help="paper | cpu | demo | test (default: an existing run's own "
-                    "preset, else cpu)")
+    sp.add_argument("--preset", default=None, help="paper | cpu | test (scapo also demo; default: an existing run's "
+                    "own preset, else cpu)")
     sp.add_argument("--out", type=Path, required=True, help="run folder (resumes from its checkpoint)")
     sp.add_argument("--device", default=None, help="cpu | cuda (default: the preset's, auto)")
     sp.add_argument("--seed", type=int, default=None, help="training seed (default: the preset's, 0); one run "
@@ -332,7 +347,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("predict", help="fit a method on the training split (or load a SCAPO run) and predict")
     sp.add_argument("--method", default=None, help="method name (see 'scapo list')")
-    sp.add_argument("--run", type=Path, default=None, help="trained SCAPO run folder (implies --method scapo)")
+    sp.add_argument("--run", type=Path, default=None, help="a run folder written by 'scapo train' (implies its "
+                    "method)")
     sp.add_argument("--device", default=None)
     sp.add_argument("--data", type=Path, required=True)
     sp.add_argument("--out", type=Path, required=True)
@@ -362,7 +378,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--protocol", default="scapo", help="choose and table1: evaluation protocol")
     sp.add_argument("--what", dest="target", choices=["generate", "model"], default="generate",
                     help="perf: generation throughput, or SCAPO training/inference speed")
-    sp.add_argument("--preset", default="cpu", help="SCAPO preset (perf --what model, table1 with scapo)")
+    sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1)")
+    sp.add_argument("--method", default=None, help="perf --what model: time this method's inference (default: "
+                    "SCAPO training and inference; icp also needs --data)")
     sp.add_argument("--device", default=None, help="perf --what model: cpu | cuda")
     sp.add_argument("--category", default="laptop", help="perf: category")
     sp.add_argument("--categories", type=_names, default=["laptop", "safe", "eyeglasses", "oven", "washer"])

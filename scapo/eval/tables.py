@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from importlib import resources
 from pathlib import Path
 
@@ -39,10 +39,9 @@ from scapo.report import latex_escape, markdown_table
 CATEGORY_ORDER = ("laptop", "safe", "eyeglasses", "oven", "washer", "basket", "drawer", "scissors", "suitcase")
 TABLE1_BLOCKS = ("S", "D", "C", "R", "t")
 
-#: Display names of methods in tables (the paper's names for its own rows).
-DISPLAY_NAMES = {"icp": "ICP", "scapo": "SCAPO (ours)", "scapo-no-refine": "SCAPO (ours, no refinement)",
-                 "opalign": "OP-Align-style", "eap": "EAP-style",
-                 "npcs": "NPCS-style (supervised)"}
+#: ``describe(label) -> (display name, supervision marks) | None``: how a table names a method's row
+#: (``scapo.methods.describe`` reads the method registry; the tables stage cannot import it).
+Describe = Callable[[str], "tuple[str, dict] | None"]
 
 
 #: The robust-statistics table (keys of the evaluator's summary).
@@ -82,15 +81,21 @@ def paper_table(name: str) -> pd.DataFrame:
         return pd.read_csv(f)
 
 
-def table1_long(results: Sequence[EvalResult], include_paper: bool = True) -> pd.DataFrame:
+def table1_long(results: Sequence[EvalResult], include_paper: bool = True, describe: Describe | None = None
+                ) -> pd.DataFrame:
     """Long-format Table 1: columns table ("table1" or "robust"), metric, method, source, pose,
-    segmentation, joint, category, value (mean over seeds), std (over seeds; NaN for one), seeds."""
+    segmentation, joint, category, value (mean over seeds), std (over seeds; NaN for one), seeds.
+
+    Row names and supervision marks come from ``describe`` (the method registry); a label it does not
+    know keeps its name and the supervision its predictions file declares."""
     rows = []
     cats = sorted({r.category for r in results}, key=lambda c: CATEGORY_ORDER.index(c) if c in CATEGORY_ORDER else 99)
     methods = list(dict.fromkeys(r.method for r in results))
     cells = _cells(results, [*TABLE1_BLOCKS, *ROBUST_METRICS])
     for method in methods:
-        sup = next(r for r in results if r.method == method).info.get("supervision", {})
+        known = describe(method) if describe is not None else None
+        display, sup = known if known else (method, next(r for r in results if r.method == method).info.get(
+            "supervision", {}))
         marks = dict(pose=bool(sup.get("pose")), segmentation=bool(sup.get("segmentation")),
                      joint=bool(sup.get("joint")))
         for table, metrics in (("table1", TABLE1_BLOCKS), ("robust", tuple(ROBUST_METRICS))):
@@ -99,10 +104,10 @@ def table1_long(results: Sequence[EvalResult], include_paper: bool = True) -> pd
                 for c in cats:
                     v, sd, n = cells.get((method, c, metric), (math.nan, math.nan, 0))
                     vals.append(v)
-                    rows.append(dict(table=table, metric=metric, method=DISPLAY_NAMES.get(method, method),
+                    rows.append(dict(table=table, metric=metric, method=display,
                                      source="ours", **marks, category=c, value=v, std=sd, seeds=n))
                 finite = [v for v in vals if not math.isnan(v)]
-                rows.append(dict(table=table, metric=metric, method=DISPLAY_NAMES.get(method, method), source="ours",
+                rows.append(dict(table=table, metric=metric, method=display, source="ours",
                                  **marks, category="mean", value=sum(finite) / len(finite) if finite else math.nan,
                                  std=math.nan, seeds=min((cells.get((method, c, metric), (0, 0, 0))[2] for c in cats),
                                                          default=0)))
@@ -154,17 +159,19 @@ def _robust_rows(long: pd.DataFrame) -> list[list[str]]:
     return rows
 
 
-def table1_markdown(results: Sequence[EvalResult], protocol: str = "scapo", include_paper: bool = True) -> str:
+def table1_markdown(results: Sequence[EvalResult], protocol: str = "scapo", include_paper: bool = True,
+                    describe: Describe | None = None) -> str:
     """The Markdown of Table 1 (paper layout, means) and of the medians-and-rates table below it."""
-    return write_table1(results, None, {"protocol": protocol}, include_paper=include_paper, markdown_only=True)
+    return write_table1(results, None, {"protocol": protocol}, include_paper=include_paper, markdown_only=True,
+                        describe=describe)
 
 
 def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, provenance: dict, name: str = "table1",
-                 include_paper: bool = True, markdown_only: bool = False):
+                 include_paper: bool = True, markdown_only: bool = False, describe: Describe | None = None):
     """Write Table 1 (CSV, Markdown, LaTeX, JSON) into ``out_dir``; returns the paths (with
-    ``markdown_only``, returns the Markdown text and writes nothing)."""
+    ``markdown_only``, returns the Markdown text and writes nothing). ``describe``: see :func:`table1_long`."""
     out_dir = Path(".") if markdown_only else check_output_dir(out_dir, "table folder")
-    long = table1_long(results, include_paper)
+    long = table1_long(results, include_paper, describe)
     cats, blocks = _wide(long)
     paths = {k: out_dir / f"{name}.{k}" for k in ("csv", "md", "tex", "json")}
     if not markdown_only:

@@ -116,7 +116,7 @@ def stage2_terms(model, X: torch.Tensor, out: dict, cfg: LossConfig) -> dict[str
                            + kp_seg_loss(out["S_star"], out["w_star"], out["K_star"], cfg.kp_min_support))
     if "seg" in on:
         if cfg.seg_fixed_centres:
-            from scapo.models.skinning import skinning_weights
+            from scapo.nn.skinning import skinning_weights
 
             V, ls, g = out["V"], out["log_scale"], mc.gamma
             w = skinning_weights(out["S_obj"].detach(), out["K"].detach(), V, ls, g)[0]

@@ -40,7 +40,7 @@ def augmentation_consistency_loss(model, X: torch.Tensor, s1: dict, keep: float 
     ``max_batch`` limits the term to the first clouds of the batch (cost)."""
     if max_batch is not None and max_batch < X.shape[0]:
         enc = s1["enc"]
-        from scapo.models.encoder import EncoderOutput
+        from scapo.nn.encoder import EncoderOutput
 
         s1 = {"enc": EncoderOutput(enc.t[:max_batch], enc.R_raw[:max_batch], enc.R[:max_batch],
                                    enc.code[:max_batch]), "S_dec": s1["S_dec"][:max_batch]}

@@ -1,25 +1,20 @@
-"""Inference with a trained SCAPO run: the Python API and the ``scapo`` method of the registry."""
+"""Inference with a trained SCAPO run (the Python API; :mod:`scapo.methods.scapo` puts it in the registry)."""
 
 from __future__ import annotations
 
 import dataclasses
-import time
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from scapo.baselines.base import METHODS
-from scapo.data.dataset import ArticulationDataset
 from scapo.errors import ConfigError, InputError, TrainingError
-from scapo.eval.predictions import Predictions
-from scapo.models.encoder import EncoderConfig
 from scapo.models.presets import PRESETS
 from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.models.train import preset_from_dict, resolve_device
+from scapo.nn.encoder import EncoderConfig
 
 
 def _model_config(d: dict) -> ModelConfig:
@@ -197,111 +192,3 @@ class Predictor:
             for name in ("part_label", "weights", "canonical_shape"):
                 res[name] = np.take_along_axis(res[name], nearest.reshape(B, N, *[1] * (res[name].ndim - 2)), axis=1)
         return res
-
-
-@dataclass(frozen=True)
-class SCAPOOptions:
-    """Options of the ``scapo`` method (``scapo predict --run RUN --option k=v``)."""
-
-    run: Path | None = None
-    """Trained run folder (written by ``scapo train``); required. Prediction never trains."""
-    device: str | None = None
-    """cpu | cuda | cuda:N (default: CUDA when available)."""
-    batch_size: int = 32
-    """Clouds per inference batch."""
-    refine_steps: int | None = None
-    """Steps of the test-time refinement (default: the run's preset; 0 turns it off)."""
-    refine_margin: float | None = None
-    """Residual margin of the refinement's multi-start (default: the run's preset); choose it on val."""
-    label: str = "scapo"
-    """Method name written into the predictions (e.g. ``scapo-no-refine`` for a second row of one run)."""
-    cross_category: bool = False
-    """Allow predicting on a dataset of another category with the same kinematic structure."""
-    progress: bool = False
-    """Show a progress bar over inference batches."""
-
-    def __post_init__(self):
-        if self.batch_size < 1:
-            raise ConfigError(f"batch_size must be >= 1, got {self.batch_size}")
-        if self.refine_steps is not None and self.refine_steps < 0:
-            raise ConfigError(f"refine_steps must be >= 0, got {self.refine_steps}")
-        if not str(self.label).strip():
-            raise ConfigError("label must not be empty")
-
-
-def _structure(d: dict) -> str:
-    kinds = ", ".join("revolute" if t == 0 else "prismatic" for t in d["joint_type"]) or "none"
-    return f"{len(d['part_names'])} parts ({', '.join(d['part_names'])}), joints: {kinds}"
-
-
-class SCAPOMethod:
-    """SCAPO in the method registry: loads a trained run (never trains; that is ``scapo train``)."""
-
-    name = "scapo"
-    needs_alignment = True
-    supervision = {"pose": False, "segmentation": False, "joint": False}
-
-    def __init__(self, options: SCAPOOptions | None = None, **overrides):
-        self.options = dataclasses.replace(options or SCAPOOptions(), **overrides)
-        if self.options.run is None:
-            raise ConfigError("the scapo method needs a trained run: --run RUN (a folder written by 'scapo train')")
-        self.run = Path(self.options.run)
-        self.label = str(self.options.label)
-        self.predictor: Predictor | None = None
-
-    def fit(self, train: ArticulationDataset) -> None:
-        """Load the run and check that it was trained on this dataset's category and kinematic structure.
-
-        Raises:
-            TrainingError: see :meth:`Predictor.load`.
-            ConfigError: the run's parts or joints differ from the dataset's, or its category differs
-                (allowed with ``cross_category`` when the structure is the same); names both.
-        """
-        o = self.options
-        self.predictor = Predictor.load(self.run, o.device, o.refine_steps, o.refine_margin)
-        ident, card = self.predictor.identity, train.card
-        same = (len(ident["part_names"]) == len(card["part_names"])
-                and np.array_equal(np.asarray(ident["joint_type"]), np.asarray(card["joint_type"]))
-                and np.array_equal(np.asarray(ident["joint_parts"]), np.asarray(card["joint_parts"])))
-        what = (f"run {self.run} was trained on {ident['category']!r} ({_structure(ident)}), but {train.root} is "
-                f"{card['category']!r} ({_structure(card)})")
-        if not same:
-            raise ConfigError(f"{what}: a SCAPO model predicts only the structure it was trained on; train a run on "
-                              f"this dataset first ('scapo train --data {train.root} --out RUN')")
-        if ident["category"] != card["category"] and not o.cross_category:
-            raise ConfigError(f"{what}; train a run on this category, or pass --option cross_category=true to "
-                              "predict across categories anyway")
-        self.trained_on = ident["dataset_hash"]
-
-    def predict(self, dataset: ArticulationDataset) -> Predictions:
-        a = dataset.arrays(["points"])
-        t0 = time.perf_counter()
-        o = self.predictor.predict(a["points"], self.options.batch_size, self.options.progress)
-        seconds = time.perf_counter() - t0
-        M = len(a["points"])
-        mc = self.predictor.model.cfg
-        return Predictions(
-            method=self.label, instance_id=a["instance_id"], view_id=a["view_id"], split=np.full(M, dataset.split),
-            part_label=o["part_label"], part_pose=o["part_pose"].astype(np.float64),
-            joint_parts=np.tile(np.array(mc.joint_parts), (M, 1, 1)), joint_type=np.tile(np.array(mc.joint_types),
-                                                                                         (M, 1)),
-            joint_axis=o["joint_axis"].astype(np.float64), joint_pivot=o["joint_pivot"].astype(np.float64),
-            joint_state=o["joint_state"].astype(np.float64), T_cam_obj=o["T_cam_obj"].astype(np.float64),
-            needs_alignment=True, supervision=dict(self.supervision),
-            info={"run": str(self.run), "preset": self.predictor.identity["preset"]["name"],
-                  "trained_on": self.predictor.identity["dataset_hash"],
-                  "trained_category": self.predictor.identity["category"],
-                  "seed": self.predictor.identity["preset"].get("seed"),
-                  "refine_steps": self.predictor.refine.steps,
-                  "refine_margin": self.predictor.refine.margin,
-                  "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2)},
-        )
-
-
-@METHODS.register("scapo")
-def make_scapo(**options) -> SCAPOMethod:
-    """SCAPO (ours) from a trained run; options are :class:`SCAPOOptions` fields."""
-    return SCAPOMethod(**options)
-
-
-make_scapo.options = SCAPOOptions

@@ -6,8 +6,8 @@ from dataclasses import dataclass, field
 
 from scapo.errors import ConfigError
 from scapo.losses import LossConfig
-from scapo.models.encoder import EncoderConfig
 from scapo.models.refine import RefineConfig
+from scapo.nn.encoder import EncoderConfig
 from scapo.registry import Registry
 
 

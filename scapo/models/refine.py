@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import torch
 
-from scapo.models.skinning import blend, bone_transforms, exp_so3, root_joint, skew
+from scapo.nn.skinning import blend, bone_transforms, exp_so3, root_joint, skew
 from scapo.ops.groups import octahedral_rotations
 
 

@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
-from scapo.models.encoder import EncoderConfig, SE3Encoder, ShapeDecoder
 from scapo.models.refine import RefineConfig, refine_articulation
-from scapo.models.skinning import (
+from scapo.nn.encoder import EncoderConfig, SE3Encoder, ShapeDecoder
+from scapo.nn.skinning import (
     apply_per_part,
     blend,
     bone_transforms,
@@ -33,7 +33,7 @@ from scapo.models.skinning import (
     invert,
     skinning_weights,
 )
-from scapo.models.vn import gram_schmidt
+from scapo.nn.vn import gram_schmidt
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,7 @@ class ModelConfig:
     """Hidden width of the keypoint and residual heads."""
     root_motion: bool = False
     """Let the base part move about (along) the root joint by a predicted root state (an addition
-    to the paper; see :func:`scapo.models.skinning.bone_transforms`). The stage-1 frame of a
+    to the paper; see :func:`scapo.nn.skinning.bone_transforms`). The stage-1 frame of a
     two-slab object such as a laptop settles between its two parts, so with the base pinned to that
     frame the learned joint states come out as a fraction of the true ones (measurements in
     results/cpu_preset_history.md)."""

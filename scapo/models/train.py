@@ -34,10 +34,10 @@ from scapo.files import (
     write_json,
 )
 from scapo.losses import LossConfig, stage1_terms, stage2_terms, weighted_total
-from scapo.models.encoder import EncoderConfig
 from scapo.models.presets import PRESETS, TrainConfig
 from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
+from scapo.nn.encoder import EncoderConfig
 
 
 def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses) -> tuple[dict[str, torch.Tensor], torch.Tensor]:

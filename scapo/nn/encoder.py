@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from scapo.models.vn import (
+from scapo.nn.vn import (
     VNLinear,
     VNLinearLeakyReLU,
     VNTLinear,

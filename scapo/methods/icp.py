@@ -36,11 +36,13 @@ import small_gicp
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from scapo.baselines.base import METHODS
 from scapo.data.dataset import ArticulationDataset
 from scapo.errors import ConfigError, DatasetError
 from scapo.eval.predictions import Predictions
-from scapo.ops.rigid import as_transform, invert_transform, relative_motion_to_joint, transform_points
+from scapo.methods.joints import joint_from_part_poses, rest_joints
+from scapo.methods.registry import register_method
+from scapo.ops.groups import rotation_group
+from scapo.ops.rigid import as_transform, invert_transform, transform_points
 from scapo.ops.sampling import farthest_point_indices
 
 
@@ -126,21 +128,14 @@ class ICPBaseline:
             idx = farthest_point_indices(pts.astype(np.float32), min(self.config.template_points, len(pts)), rng)
             self.templates.append(pts[idx] * self.scale)
         # rest-state joints in the object frame (pooled GT of training samples, median)
-        jp = a["joint_parts"][0]
-        self.joint_parts = jp
-        self.joint_type = a["joint_type"][0]
-        parent_inv = invert_transform(a["part_pose"][:, jp[:, 0]])
-        axis_obj = np.einsum("mjik,mjk->mji", parent_inv[..., :3, :3], a["joint_axis"])
-        pivot_obj = np.einsum("mjik,mjk->mji", parent_inv[..., :3, :3], a["joint_pivot"]) + parent_inv[..., :3, 3]
-        self.rest_axis = np.median(axis_obj, 0)
-        self.rest_axis /= np.linalg.norm(self.rest_axis, axis=-1, keepdims=True)
-        self.rest_pivot = np.median(pivot_obj / a["bbox_diag"][:, None, None], 0) * self.scale
+        self.joint_parts, self.joint_type, self.rest_axis, rest_pivot = rest_joints(a)
+        self.rest_pivot = rest_pivot * self.scale
         self._object_template = np.concatenate(self.templates)
         self._index = {}
         for key, pts in [("object", self._object_template), *enumerate(self.templates)]:
             cloud = small_gicp.PointCloud(pts)
             self._index[key] = (cloud, small_gicp.KdTree(cloud), cKDTree(pts))
-        self._hyp = Rotation.create_group(self.config.hypotheses).as_matrix()
+        self._hyp = rotation_group(self.config.hypotheses)
         local = [np.eye(3)]
         for ax in np.eye(3):
             for deg in (-45, 45):
@@ -244,7 +239,9 @@ class ICPBaseline:
                              for p in range(P)], 1)
             labels[m] = dist.argmin(1)
             for j, (pa, ch) in enumerate(self.joint_parts):
-                axis[m, j], pivot[m, j], state[m, j] = self._joint(poses[m, pa], poses[m, ch], j)
+                axis[m, j], pivot[m, j], state[m, j] = joint_from_part_poses(
+                    poses[m, pa], poses[m, ch], int(self.joint_type[j]), self.rest_axis[j], self.rest_pivot[j],
+                    self.config.min_joint_angle_deg)
         return Predictions(
             method=self.name, instance_id=a["instance_id"], view_id=a["view_id"],
             split=np.full(M, dataset.split), part_label=labels, part_pose=poses,
@@ -254,32 +251,9 @@ class ICPBaseline:
             info={"config": self.config.__dict__},
         )
 
-    def _joint(self, T_parent: np.ndarray, T_child: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray, float]:
-        """Joint axis and pivot (camera frame) and state from the relative motion of two part poses."""
-        jt = int(self.joint_type[j])
-        M_rel = invert_transform(T_parent) @ T_child  # child motion in the (template) object frame
-        rest_axis, rest_pivot = self.rest_axis[j], self.rest_pivot[j]
-        try:
-            ax, pv, st = relative_motion_to_joint(M_rel, jt)
-            if jt == 0 and np.degrees(st) < self.config.min_joint_angle_deg:
-                raise ValueError("small motion")
-        except ValueError:
-            ax, pv = rest_axis, rest_pivot
-            st = 0.0 if jt == 1 else float(Rotation.from_matrix(M_rel[:3, :3]).as_rotvec() @ rest_axis)
-            if jt == 1:
-                st = float(M_rel[:3, 3] @ rest_axis)
-        if ax @ rest_axis < 0:
-            ax, st = -ax, -st
-        if jt == 1:
-            pv = rest_pivot
-        R, t = T_parent[:3, :3], T_parent[:3, 3]
-        return R @ ax, R @ pv + t, float(st)
 
-
-@METHODS.register("icp")
+@register_method("icp", options=ICPConfig, display="ICP", supervision=ICPBaseline.supervision, needs_alignment=False,
+                 summary="per-part rigid ICP to a category template (GT segmentation at test time)")
 def make_icp(**options) -> ICPBaseline:
     """ICP baseline; options are :class:`ICPConfig` fields."""
     return ICPBaseline(**options)
-
-
-make_icp.options = ICPConfig

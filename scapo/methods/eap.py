@@ -1,0 +1,278 @@
+"""EAP-style self-supervised baseline: part-level SE(3)-equivariant features, per-part latent rigid
+transforms and canonical part shapes learned by reconstruction; joints derived afterwards.
+
+Follows EAP (Liu, Chen, Shen, Yi, Chen and Guibas, "Self-Supervised Category-Level Articulated
+Object Pose Estimation with Part-Level SE(3) Equivariance", ICLR 2023; public code
+Meowuu7/equi-articulated-pose): a network with part-level equivariance groups the points into
+parts, predicts for every part a rigid transform from its canonical (pose-free) shape to the
+observation and decodes that canonical shape from part-level invariant features; the only training
+signal is that the posed canonical parts reconstruct the input. It has no joint heads: as in that
+paper's evaluation, joint axes, pivots and states are computed from the predicted part transforms.
+
+Here:
+
+- Features: vector-neuron layers (:mod:`scapo.nn.vn`; edge features over k nearest neighbours,
+  a VN-DGCNN layer) give per-point SO(3)-equivariant features of the centred cloud, and a VN
+  invariant layer their invariant coordinates.
+- Parts: a soft segmentation head on the invariant features (P slots, the category's part count);
+  each slot pools the equivariant features with its weights, a VN linear map gives two vectors whose
+  Gram-Schmidt frame is the part rotation, and the weighted centroid plus an equivariant offset its
+  translation (so the part poses are SE(3)-equivariant by construction).
+- Canonical part shapes: an MLP decodes each slot's invariant code (pooled features in the part's
+  frame) to ``shape_points`` points.
+- Losses: Chamfer between the input and the union of posed parts, a segmentation-weighted term (each
+  point explained by its own part's shape, each part's shape lying on its own points), and a balance
+  term that keeps every slot populated.
+- Joints: for a joint (parent, child) the child's transform relative to the parent,
+  ``T_rel = T_parent^-1 T_child``, differs across clouds by a motion about the joint, so the axis and
+  pivot in the child's canonical frame are estimated once after training from pairs of training
+  clouds (medians over pairs whose relative motion is large enough; unlabelled, the method's own
+  predictions), with a reference relative pose at the median state. At test time the axis and pivot
+  are mapped to the camera by the child's pose and the state is the motion from the reference.
+
+What differs from EAP: its pose-aware equivariant point convolution and slot attention are replaced
+by the VN layers and a segmentation head above (pure PyTorch, CPU-sized); no part-shape symmetry
+handling or multi-stage schedule; Chamfer distances are plain.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from scapo.methods.joints import joint_from_part_poses
+from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned, train_learned
+from scapo.methods.nets import mlp
+from scapo.nn.vn import VNInvariant, VNLinear, VNLinearLeakyReLU, gather_neighbours, gram_schmidt, knn_indices
+from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist
+from scapo.ops.rigid import invert_transform, relative_motion_to_joint
+from scapo.registry import Registry
+
+
+@dataclass(frozen=True)
+class EAPPreset(LearnedPreset):
+    """Preset of the EAP-style baseline."""
+
+    k: int = 16
+    """Neighbours of the edge features."""
+    channels: int = 48
+    """VN channels."""
+    shape_points: int = 256
+    """Points of each decoded canonical part shape."""
+    seg_margin: float = 0.1
+    """Segmentation cost of the part term (normalised units squared)."""
+    min_part: float = 0.1
+    pairs: int = 2000
+    """Pairs of training clouds used to estimate the joints after training."""
+    min_motion_deg: float = 10.0
+    """Pairs whose relative motion is below this angle (prismatic: 0.05 cloud scales) are skipped."""
+
+
+PRESETS: Registry[EAPPreset] = Registry("eap preset")
+PRESETS.add("cpu", EAPPreset(name="cpu", epochs=30, batch_size=16, lr=1e-3, points=256, k=10, channels=32,
+                             shape_points=128))
+PRESETS.add("paper", EAPPreset(name="paper", epochs=200, batch_size=24, lr=1e-3, points=1024, channels=96,
+                               shape_points=512, k=20))
+PRESETS.add("test", EAPPreset(name="test", epochs=2, batch_size=4, points=128, channels=8, shape_points=32, k=8,
+                              max_steps_per_epoch=2, pairs=50))
+
+
+class EAPNet(nn.Module):
+    """Part-level equivariant auto-encoder (see the module docstring). Points are rows."""
+
+    def __init__(self, num_parts: int, joint_types, joint_parts, preset: EAPPreset):
+        super().__init__()
+        self.P, self.pc = num_parts, preset
+        self.joint_types = [int(t) for t in joint_types]
+        self.joint_parts = [tuple(int(x) for x in p) for p in joint_parts]
+        C = preset.channels
+        self.edge = VNLinearLeakyReLU(2, C)
+        self.point = VNLinearLeakyReLU(2 * C, C)
+        self.inv = VNInvariant(C)
+        self.seg = mlp([3 * C, 64, num_parts])
+        self.frame = VNLinear(C, 3)  # two frame vectors and a translation offset per part
+        self.decoder = mlp([3 * C, 128, 256, 3 * preset.shape_points])
+        J = len(self.joint_types)
+        # joints in the child's canonical frame and the reference relative pose (set after training)
+        self.register_buffer("joint_axis", torch.zeros(J, 3, dtype=torch.float64))
+        self.register_buffer("joint_pivot", torch.zeros(J, 3, dtype=torch.float64))
+        self.register_buffer("joint_ref", torch.eye(4, dtype=torch.float64).repeat(J, 1, 1))
+        self.register_buffer("joint_ok", torch.zeros(J, dtype=torch.bool))
+
+    def forward(self, X: torch.Tensor) -> dict:
+        """``X (B, N, 3)`` normalised -> part weights ``w (B, N, P)``, poses ``R (B, P, 3, 3)``,
+        ``t (B, P, 3)`` and canonical part shapes ``Y (B, P, M, 3)``."""
+        B, N, _ = X.shape
+        c = X.mean(1, keepdim=True)
+        x = (X - c).transpose(1, 2).unsqueeze(1)  # (B, 1, 3, N)
+        idx = knn_indices(X, self.pc.k)
+        nb = gather_neighbours(x, idx)  # (B, 1, 3, N, k)
+        e = torch.cat([nb - x.unsqueeze(-1), x.unsqueeze(-1).expand_as(nb)], 1)  # (B, 2, 3, N, k)
+        f = self.edge(e).mean(-1)  # (B, C, 3, N)
+        f = self.point(torch.cat([f, f.mean(-1, keepdim=True).expand_as(f)], 1))
+        inv, _ = self.inv(f)  # (B, C, 3, N)
+        w = torch.softmax(self.seg(inv.flatten(1, 2).transpose(1, 2)), -1)  # (B, N, P)
+        wn = w / w.sum(1, keepdim=True).clamp_min(1e-6)
+        pooled = torch.einsum("bcin,bnp->bpci", f, wn)  # (B, P, C, 3)
+        v = self.frame(pooled.reshape(B * self.P, -1, 3)).view(B, self.P, 3, 3)
+        R = gram_schmidt(v[:, :, 0].reshape(-1, 3), v[:, :, 1].reshape(-1, 3)).view(B, self.P, 3, 3)
+        t = torch.einsum("bnp,bni->bpi", wn, X) + 0.1 * v[:, :, 2]
+        code = torch.einsum("bpci,bpij->bpcj", pooled, R).flatten(2)  # invariant: pooled features in the part frame
+        Y = self.decoder(code).view(B, self.P, -1, 3)
+        return {"w": w, "R": R, "t": t, "Y": Y}
+
+    def posed(self, o: dict) -> torch.Tensor:
+        """Posed canonical parts ``(B, P, M, 3)``: ``Y R^T + t``."""
+        return o["Y"] @ o["R"].transpose(-1, -2) + o["t"][:, :, None]
+
+    def losses(self, batch: dict, progress: float) -> tuple[dict, torch.Tensor]:
+        X, _, _ = normalize_clouds(batch["points"].float())
+        o = self(X)
+        B, N, _ = X.shape
+        Xp = self.posed(o)  # (B, P, M, 3)
+        M = Xp.shape[2]
+        rec = chamfer_distance(X, Xp.reshape(B, -1, 3)).mean()
+        d = pairwise_sq_dist(X.repeat_interleave(self.P, 0), Xp.reshape(B * self.P, M, 3)).view(B, self.P, N, M)
+        w = o["w"].permute(0, 2, 1)  # (B, P, N)
+        fwd = (d.min(-1).values * w).sum(-1) / w.sum(-1).clamp_min(1e-6)
+        bwd = (d + self.pc.seg_margin * (1 - w)[..., None]).min(2).values.mean(-1)
+        part = (fwd + bwd).mean()
+        balance = F.relu(self.pc.min_part - o["w"].mean(1)).sum(-1).mean()
+        terms = {"rec": rec, "part": part, "balance": balance}
+        return terms, 10 * rec + 10 * part + 10 * balance
+
+    # ---------------------------------------------------------------- joints after training
+    def part_poses(self, points: torch.Tensor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(part labels (B, N), part poses (B, P, 4, 4) canonical (metres) -> camera, cloud scale (B,))."""
+        X, c, sc = normalize_clouds(points.float())
+        o = self(X)
+        B = X.shape[0]
+        T = torch.eye(4, dtype=torch.float64).repeat(B, self.P, 1, 1)
+        T[:, :, :3, :3] = o["R"].double().cpu()
+        T[:, :, :3, 3] = (sc[:, None, None] * o["t"] + c[:, None]).double().cpu()
+        return o["w"].argmax(-1).cpu().numpy(), T.numpy(), sc.double().cpu().numpy()
+
+    def set_extras(self, extras: dict) -> None:
+        for k in ("joint_axis", "joint_pivot", "joint_ref", "joint_ok"):
+            getattr(self, k).copy_(torch.as_tensor(np.asarray(extras[k])))
+
+    @torch.no_grad()
+    def infer(self, points: torch.Tensor) -> dict:
+        """Predictions for ``points (B, N, 3)`` metres (camera frame); numpy arrays (see Predictions)."""
+        lab, T, sc = self.part_poses(points)
+        B, J = len(T), len(self.joint_types)
+        axis, pivot, state = np.zeros((B, J, 3)), np.zeros((B, J, 3)), np.zeros((B, J))
+        ax_c, pv_c = self.joint_axis.cpu().numpy(), self.joint_pivot.cpu().numpy()
+        ref, ok = self.joint_ref.cpu().numpy(), self.joint_ok.cpu().numpy()
+        for b in range(B):
+            for j, (pa, ch) in enumerate(self.joint_parts):
+                jt = self.joint_types[j]
+                if not ok[j]:  # no joint estimate: the relative motion of this cloud alone
+                    axis[b, j], pivot[b, j], state[b, j] = joint_from_part_poses(
+                        T[b, pa], T[b, ch], jt, np.array([0.0, 0.0, 1.0]), np.zeros(3))
+                    continue
+                rel = invert_transform(T[b, pa]) @ T[b, ch]
+                axis[b, j] = T[b, ch, :3, :3] @ ax_c[j]
+                pivot[b, j] = T[b, ch, :3, :3] @ (pv_c[j] * sc[b]) + T[b, ch, :3, 3]
+                state[b, j] = _motion_along(invert_transform(ref[j]) @ rel, jt, ax_c[j], sc[b])
+        return {"part_label": lab, "part_pose": T, "joint_axis": axis, "joint_pivot": pivot, "joint_state": state,
+                "T_cam_obj": T[:, 0].copy()}
+
+
+def _motion_along(M: np.ndarray, joint_type: int, axis: np.ndarray, scale: float = 1.0) -> float:
+    """Signed angle (rad) of ``M``'s rotation about ``axis``, or its translation along it (m)."""
+    from scipy.spatial.transform import Rotation
+
+    if joint_type == 1:
+        return float(M[:3, 3] @ axis)
+    return float(Rotation.from_matrix(M[:3, :3]).as_rotvec() @ axis)
+
+
+def joints_from_pairs(T: np.ndarray, scale: np.ndarray, joint_types, joint_parts, pairs: int,
+                      min_motion_deg: float, seed: int = 0) -> dict:
+    """Joints of a category in each child part's canonical frame from part poses of many clouds.
+
+    ``T (K, P, 4, 4)`` part poses (canonical -> camera; canonical units are the cloud's scale
+    ``scale (K,)`` times the network's), for K clouds. For a pair of clouds (k, l), the child's motion
+    ``T_rel_k^-1 T_rel_l`` (``T_rel = T_parent^-1 T_child``) is a motion about the joint expressed in the
+    child's canonical frame: :func:`~scapo.ops.rigid.relative_motion_to_joint` gives its axis and pivot.
+    Axes (sign-aligned) and pivots (divided by the scale) are pooled by the median over ``pairs`` random
+    pairs whose motion exceeds ``min_motion_deg`` (prismatic: 0.05 scales). The reference relative pose is
+    the first cloud's, moved to the median state.
+
+    Returns a dict of ``joint_axis (J, 3)``, ``joint_pivot (J, 3)`` (per unit scale), ``joint_ref (J, 4, 4)``
+    and ``joint_ok (J,)`` (False where too few pairs moved).
+    """
+    rng = np.random.default_rng(seed)
+    K, J = len(T), len(joint_types)
+    out = {"joint_axis": np.zeros((J, 3)), "joint_pivot": np.zeros((J, 3)), "joint_ref": np.tile(np.eye(4), (J, 1, 1)),
+           "joint_ok": np.zeros(J, dtype=bool)}
+    if K < 2:
+        return out
+    for j, (pa, ch) in enumerate(joint_parts):
+        jt = int(joint_types[j])
+        rel = np.einsum("kij,kjl->kil", invert_transform(T[:, pa]), T[:, ch])
+        axes, pivots = [], []
+        for _ in range(pairs):
+            k, m = rng.choice(K, 2, replace=False)
+            Mkl = invert_transform(rel[k]) @ rel[m]
+            try:
+                ax, pv, amount = relative_motion_to_joint(Mkl, jt)
+            except ValueError:
+                continue
+            if (jt == 0 and np.degrees(amount) < min_motion_deg) or (jt == 1 and amount < 0.05 * scale[k]):
+                continue
+            axes.append(ax)
+            pivots.append(pv / scale[k])
+        if len(axes) < 5:
+            continue
+        axes = np.array(axes)
+        u, _, _ = np.linalg.svd(axes.T @ axes)
+        ref_dir = u[:, 0]
+        axes *= np.sign(axes @ ref_dir)[:, None]
+        axis = np.median(axes, 0)
+        axis /= np.linalg.norm(axis)
+        states = np.array([_motion_along(invert_transform(rel[0]) @ rel[k], jt, axis) for k in range(K)])
+        med = float(np.median(states))
+        from scapo.ops.rigid import joint_motion
+
+        pivot = np.median(np.array(pivots), 0)
+        out["joint_axis"][j] = axis
+        out["joint_pivot"][j] = pivot
+        out["joint_ref"][j] = rel[0] @ joint_motion(jt, axis, pivot * scale[0], med)
+        out["joint_ok"][j] = True
+    return out
+
+
+def _build(card: dict, preset: EAPPreset) -> EAPNet:
+    return EAPNet(len(card["part_names"]), card["joint_type"], card["joint_parts"], preset)
+
+
+@torch.no_grad()
+def _extras(net: EAPNet, a: dict) -> dict:
+    """Joints from pairs of training clouds (the method's own part poses; no labels are read)."""
+    dev = next(net.parameters()).device
+    Ts, scs = [], []
+    for i in range(0, len(a["points"]), 32):
+        _, T, sc = net.part_poses(torch.from_numpy(np.ascontiguousarray(a["points"][i:i + 32])).float().to(dev))
+        Ts.append(T)
+        scs.append(sc)
+    out = joints_from_pairs(np.concatenate(Ts), np.concatenate(scs), net.joint_types, net.joint_parts, net.pc.pairs,
+                            net.pc.min_motion_deg, seed=net.pc.seed)
+    return {k: v.tolist() for k, v in out.items()}
+
+
+SPEC = LearnedSpec(method="eap", presets=PRESETS, fields=("points",), build=_build, extras=_extras)
+make_eap = register_learned(SPEC, display="EAP-style", supervision={"pose": False, "segmentation": False,
+                                                                    "joint": False},
+                            needs_alignment=True, summary="self-supervised part-level equivariant poses and "
+                            "canonical part shapes; joints from part transforms (Liu et al., ICLR 2023)")
+
+
+def train(data, run, preset=None, progress=True, device=None, seed=None):
+    """``scapo train --method eap``; see :func:`~scapo.methods.learned.train_learned`."""
+    return train_learned(SPEC, data, run, preset, progress=progress, device=device, seed=seed)

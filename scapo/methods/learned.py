@@ -1,0 +1,451 @@
+"""Training and inference harness shared by the learned baselines (OP-Align-style, EAP-style, NPCS-style).
+
+A learned baseline module provides a :class:`LearnedSpec`: its preset registry, the dataset fields its
+training reads (``points`` only for the self-supervised ones), and a network class with ``losses``
+(one training step's loss terms and weighted total) and ``infer`` (outputs for a batch of clouds).
+This harness does the rest, the same way for every such method, as ``scapo train`` does for SCAPO:
+
+- ``scapo train --method NAME --preset P --out RUN [--seed S]`` trains into a run folder holding
+  ``run.json`` (method, preset, dataset, structure), ``checkpoint.pt`` (written atomically after every
+  epoch with optimiser, schedule and RNG seeds, so a resumed run continues where it stopped),
+  ``log.csv`` (one row per step), ``losses.png`` and ``timing.json``;
+- a run folder of another method, preset, seed or dataset is refused before anything is written; a
+  file, a foreign folder, another process training into it, an unreadable checkpoint and a NaN loss
+  are clear errors (the last good checkpoint is kept);
+- ``scapo predict --run RUN`` loads a finished run (never trains) and checks that it was trained on
+  the dataset's category and kinematic structure.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import hashlib
+import io
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from scapo.data.config import dict_diff
+from scapo.data.dataset import ArticulationDataset, load
+from scapo.errors import ConfigError, DatasetError, TrainingError
+from scapo.eval.predictions import Predictions
+from scapo.files import (
+    FolderLock,
+    atomic_write_bytes,
+    atomic_write_text,
+    check_output_dir,
+    clean_stale_temps,
+    write_json,
+)
+from scapo.models.train import plot_losses, resolve_device, truncate_log
+from scapo.registry import Registry
+
+
+@dataclass(frozen=True)
+class LearnedPreset:
+    """Training settings every learned baseline has (a method's preset class adds its own fields)."""
+
+    name: str = "cpu"
+    epochs: int = 40
+    """Passes over the training clouds."""
+    batch_size: int = 16
+    lr: float = 1e-3
+    """Adam learning rate, annealed to ``min_lr`` by a cosine schedule."""
+    min_lr: float = 1e-5
+    weight_decay: float = 1e-6
+    points: int = 512
+    """Points per training cloud (a random subset each step)."""
+    max_steps_per_epoch: int = 0
+    """0: every batch; otherwise at most this many steps per epoch."""
+    grad_clip: float = 1.0
+    seed: int = 0
+    device: str = "auto"
+
+    def __post_init__(self):
+        bad = [k for k, ok in {"epochs": self.epochs >= 1, "batch_size": self.batch_size >= 1, "lr": self.lr > 0,
+                                "points": self.points >= 64, "seed": self.seed >= 0,
+                                "max_steps_per_epoch": self.max_steps_per_epoch >= 0}.items() if not ok]
+        if bad:
+            raise ConfigError(f"invalid preset value(s) {', '.join(f'{k}={getattr(self, k)!r}' for k in bad)}: need "
+                              "epochs >= 1, batch_size >= 1, lr > 0, points >= 64, seed >= 0, max_steps_per_epoch >= 0")
+
+
+@dataclass(frozen=True)
+class LearnedSpec:
+    """What a learned baseline module gives the harness.
+
+    Attributes:
+        method: registry name. presets: name -> preset (a :class:`LearnedPreset` subclass).
+        fields: dataset array fields read for training (``("points",)`` for self-supervised methods).
+        build: ``build(card, preset) -> network`` (an ``nn.Module`` with ``losses(batch, progress)
+            -> (terms: dict[str, Tensor], total: Tensor)``, ``progress`` in [0, 1] the fraction of
+            training done, and ``infer(points (B, N, 3) metres) -> dict`` of numpy outputs).
+        extras: optional ``extras(network, train_arrays) -> dict`` computed once after training from the
+            training split's ``extras_fields`` (e.g. rest-state statistics) and stored in the checkpoint;
+            the network gets it back through ``network.set_extras(dict)`` at load time.
+        extras_fields: dataset fields ``extras`` reads (default: ``fields``).
+        options: the method's prediction options (a :class:`LearnedOptions` subclass); a network with a
+            ``configure(options)`` method gets them after loading.
+    """
+
+    method: str
+    presets: Registry
+    fields: tuple[str, ...]
+    build: Callable[[dict, Any], torch.nn.Module]
+    extras: Callable[[torch.nn.Module, dict], dict] | None = None
+    extras_fields: tuple[str, ...] | None = None
+    options: type | None = None
+
+
+def _preset_from_dict(cls: type, d: dict):
+    return cls(**{f.name: (tuple(d[f.name]) if isinstance(d[f.name], list) else d[f.name])
+                  for f in dataclasses.fields(cls) if f.name in d})
+
+
+def _identity(spec: LearnedSpec, preset, card: dict) -> dict:
+    return {"method": spec.method, "preset": dataclasses.asdict(preset), "dataset_hash": card["dataset_hash"],
+            "category": card["category"], "part_names": list(card["part_names"]),
+            "joint_type": list(card["joint_type"]), "joint_parts": [list(p) for p in card["joint_parts"]]}
+
+
+def _hash(identity: dict) -> str:
+    return hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def run_identity(run: str | Path) -> dict | None:
+    """``run.json`` of a run folder, or None when it has none (or an unreadable one)."""
+    try:
+        d = json.loads((Path(run) / "run.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return d if isinstance(d, dict) else None
+
+
+def train_learned(spec: LearnedSpec, data: str | Path, run: str | Path, preset=None, progress: bool = True,
+                  device: str | None = None, seed: int | None = None) -> Path:
+    """Train (or resume) a learned baseline into the run folder ``run``; returns the checkpoint path.
+
+    ``preset``: a name of ``spec.presets`` or a preset object; None resumes an existing run with its own
+    preset and starts a new one with ``cpu``. ``seed`` replaces the preset's seed (a different run).
+
+    Raises:
+        UnknownNameError: unknown preset. ConfigError: bad seed, device, or run folder (a file or a
+        foreign non-empty folder). OutputError: run folder not writable. DatasetError: empty training
+        split or missing fields. TrainingError: a checkpoint or run.json of another method, preset, seed
+        or dataset; an unreadable checkpoint; a NaN/inf loss (the last good checkpoint is kept).
+    """
+    run = Path(run)
+    cls = type(spec.presets.get(spec.presets.names()[0]))
+    if preset is None:
+        old = run_identity(run)
+        if old is not None and old.get("method") == spec.method and isinstance(old.get("preset"), dict):
+            preset = _preset_from_dict(cls, old["preset"])
+        else:
+            preset = "cpu"
+    pc = spec.presets.get(preset) if isinstance(preset, str) else preset
+    if seed is not None:
+        if int(seed) < 0:
+            raise ConfigError(f"seed must be >= 0, got {seed}")
+        pc = dataclasses.replace(pc, seed=int(seed))
+    dev = resolve_device(device or pc.device)
+    train = load(data, "train")
+    if len(train) == 0:
+        raise DatasetError(f"{data}: the training split is empty")
+    card = train.card
+    identity = json.loads(json.dumps(_identity(spec, pc, card), default=str))
+    if run.exists() and not run.is_dir():
+        raise ConfigError(f"--out {run} is an existing file; give a folder for the run")
+    if run.is_dir() and not ((run / "checkpoint.pt").exists() or (run / "run.json").exists()):
+        foreign = sorted(p.name for p in run.iterdir() if p.name != FolderLock.NAME)
+        if foreign:
+            raise ConfigError(f"--out {run} is a non-empty folder without a scapo run (holds {', '.join(foreign[:4])}"
+                              f"{', ...' if len(foreign) > 4 else ''}); give a new or empty folder")
+    check_output_dir(run, "run folder")
+    with FolderLock(run, "train"):
+        clean_stale_temps(run, any_pid=True)
+        return _train_locked(spec, pc, identity, train, run, dev, progress)
+
+
+def _refuse_other(path: Path, old: dict, new: dict) -> None:
+    if _hash(old) == _hash(new):
+        return
+    what = dict_diff(old.get("preset", {}), new.get("preset", {}))
+    detail = f" (preset fields that differ: {', '.join(what)})" if what else ""
+    oldp = old.get("preset", {}).get("name") if isinstance(old.get("preset"), dict) else None
+    raise TrainingError(f"{path} holds a {old.get('method', 'scapo')!r} run with preset {oldp!r} on the "
+                        f"{old.get('category')!r} dataset {str(old.get('dataset_hash'))[:12]}..., not a "
+                        f"{new['method']!r} run with preset {new['preset']['name']!r} on {new['category']!r} dataset "
+                        f"{new['dataset_hash'][:12]}...{detail}; use another --out folder")
+
+
+def _load_checkpoint(path: Path, device) -> dict | None:
+    if not path.is_file():
+        return None
+    try:
+        return torch.load(path, map_location=device, weights_only=False)
+    except Exception as e:  # noqa: BLE001 - torch raises many kinds for a broken file
+        raise TrainingError(f"checkpoint {path} cannot be read ({e}); delete it to start over") from e
+
+
+def _train_locked(spec: LearnedSpec, pc, identity: dict, train: ArticulationDataset, run: Path, dev, progress) -> Path:
+    ck_path = run / "checkpoint.pt"
+    state = _load_checkpoint(ck_path, dev)
+    if state is not None:
+        _refuse_other(ck_path, state.get("identity", {}), identity)
+        if state.get("done"):
+            return ck_path
+    else:
+        old = run_identity(run)
+        if old is not None:
+            _refuse_other(run / "run.json", old, identity)
+    write_json(run / "run.json", identity)
+    torch.set_num_threads(max(1, os.cpu_count() or 1))
+    arrays = train.arrays(list(spec.fields))
+    tensors = {k: torch.from_numpy(np.ascontiguousarray(arrays[k])) for k in spec.fields}
+    torch.manual_seed(pc.seed)  # parameter initialisation is part of the run's identity
+    net = spec.build(train.card, pc).to(dev)
+    M = len(tensors["points"])
+    steps = max(1, M // pc.batch_size)
+    if pc.max_steps_per_epoch:
+        steps = min(steps, pc.max_steps_per_epoch)
+    opt = torch.optim.Adam(net.parameters(), lr=pc.lr, weight_decay=pc.weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, pc.epochs * steps), eta_min=pc.min_lr)
+    start = 0
+    seconds = 0.0
+    if state is not None:
+        net.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+        start, seconds = int(state["epoch"]), float(state.get("seconds", 0.0))
+    log_path = run / "log.csv"
+    truncate_log(log_path, 1, start)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=pc.epochs * steps, initial=start * steps, desc=f"train {spec.method} "
+                   f"{train.card['category']} ({pc.name})", unit="it", dynamic_ncols=True)
+    try:
+        for epoch in range(start, pc.epochs):
+            t0 = time.perf_counter()
+            _epoch(net, pc, tensors, epoch, steps, opt, sched, log_path, bar, dev)
+            seconds += time.perf_counter() - t0
+            done = epoch == pc.epochs - 1
+            extras = None
+            if done and spec.extras is not None:
+                net.eval()
+                extras = spec.extras(net, train.arrays(list(spec.extras_fields or spec.fields)))
+            buf = io.BytesIO()
+            torch.save({"model": net.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+                        "epoch": epoch + 1, "done": done, "identity": identity, "identity_hash": _hash(identity),
+                        "seconds": seconds, "extras": extras}, buf)
+            atomic_write_bytes(ck_path, buf.getvalue())
+            plot_losses(log_path, run / "losses.png")
+    finally:
+        if bar is not None:
+            bar.close()
+    atomic_write_text(run / "timing.json", json.dumps({"seconds": round(seconds, 1), "device": str(dev)}) + "\n")
+    return ck_path
+
+
+def _epoch(net, pc, tensors: dict, epoch: int, steps: int, opt, sched, log_path: Path, bar, dev) -> None:
+    seed = pc.seed * 1_000_003 + 10_007 + epoch
+    g = torch.Generator().manual_seed(seed)
+    torch.manual_seed(seed)
+    M = len(tensors["points"])
+    N = tensors["points"].shape[1]
+    order = torch.randperm(M, generator=g)
+    net.train()
+    new_file = not log_path.is_file()
+    with open(log_path, "a", newline="") as f:
+        writer = None
+        for step in range(steps):
+            idx = order[(step * pc.batch_size) % M:][: pc.batch_size]
+            if len(idx) < min(pc.batch_size, M):
+                idx = torch.cat([idx, order[: min(pc.batch_size, M) - len(idx)]])
+            pts = torch.stack([torch.randperm(N, generator=g)[: min(pc.points, N)] for _ in idx])
+            batch = {}
+            for k, v in tensors.items():
+                v = v[idx]
+                if v.dim() >= 2 and v.shape[1] == N and k in ("points", "part_label", "npcs"):
+                    v = torch.gather(v, 1, pts.view(len(idx), -1, *([1] * (v.dim() - 2))).expand(
+                        -1, -1, *v.shape[2:]))
+                batch[k] = v.to(dev)
+            terms, total = net.losses(batch, (epoch * steps + step) / max(1, pc.epochs * steps))
+            for name, value in terms.items():
+                if not torch.isfinite(value):
+                    raise TrainingError(f"loss {name!r} became {float(value.detach())} at epoch {epoch}, step {step}; "
+                                        "training stopped (last good checkpoint kept)")
+            opt.zero_grad(set_to_none=True)
+            total.backward()
+            if pc.grad_clip:
+                torch.nn.utils.clip_grad_norm_(net.parameters(), pc.grad_clip)
+            opt.step()
+            sched.step()
+            row = {"stage": 1, "epoch": epoch, "step": step, "lr": sched.get_last_lr()[0],
+                   "total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
+            if writer is None:
+                writer = csv.DictWriter(f, fieldnames=list(row), extrasaction="ignore")
+                if new_file:
+                    writer.writeheader()
+            writer.writerow(row)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{float(total.detach()):.4f}")
+
+
+# ---------------------------------------------------------------------------------------------- predict
+@dataclass(frozen=True)
+class LearnedOptions:
+    """Options of a learned baseline at prediction time (``scapo predict --run RUN --option k=v``)."""
+
+    run: Path | None = None
+    """Run folder written by ``scapo train --method NAME``; required. Prediction never trains."""
+    device: str | None = None
+    """cpu | cuda | cuda:N (default: CUDA when available)."""
+    batch_size: int = 32
+    """Clouds per inference batch."""
+    label: str = ""
+    """Method name written into the predictions (default: the method's name)."""
+    cross_category: bool = False
+    """Allow predicting on a dataset of another category with the same kinematic structure."""
+    progress: bool = False
+
+    def __post_init__(self):
+        if self.batch_size < 1:
+            raise ConfigError(f"batch_size must be >= 1, got {self.batch_size}")
+
+
+def structure_text(d: dict) -> str:
+    """``"2 parts (base, lid), joints: revolute"`` for a dataset card or a run identity."""
+    kinds = ", ".join("revolute" if t == 0 else "prismatic" for t in d["joint_type"]) or "none"
+    return f"{len(d['part_names'])} parts ({', '.join(d['part_names'])}), joints: {kinds}"
+
+
+class LearnedMethod:
+    """A learned baseline in the method registry: loads a finished run and predicts (never trains).
+
+    Raises (from :meth:`fit`):
+        ConfigError: no ``run`` given; a run of another method, kinematic structure, or (without
+            ``cross_category``) category. TrainingError: no finished run in the folder, or an
+            unreadable checkpoint.
+    """
+
+    def __init__(self, spec: LearnedSpec, supervision: dict, needs_alignment: bool, options: LearnedOptions):
+        self.spec = spec
+        self.name = spec.method
+        self.supervision = dict(supervision)
+        self.needs_alignment = needs_alignment
+        self.options = options
+        if options.run is None:
+            raise ConfigError(f"the {spec.method} method needs a trained run: --run RUN (a folder written by "
+                              f"'scapo train --method {spec.method}')")
+        self.run = Path(options.run)
+        self.label = options.label or spec.method
+        self.net = None
+
+    def fit(self, train: ArticulationDataset) -> None:
+        """Load the finished run and check it against ``train``'s category and structure."""
+        o = self.options
+        ck = self.run / "checkpoint.pt"
+        hint = f"train it first: scapo train --method {self.spec.method} --data {train.root} --out {self.run}"
+        if not ck.is_file():
+            raise TrainingError(f"{self.run} holds no checkpoint; {hint}")
+        dev = resolve_device(o.device or "auto")
+        state = _load_checkpoint(ck, dev)
+        ident = state.get("identity", {})
+        if ident.get("method") != self.spec.method:
+            raise ConfigError(f"{self.run} is a run of method {ident.get('method', 'scapo')!r}, not "
+                              f"{self.spec.method!r}")
+        if not state.get("done"):
+            raise TrainingError(f"{self.run} is an unfinished run (epoch {state.get('epoch')}); resume it: "
+                                f"scapo train --method {self.spec.method} --out {self.run} --data ...")
+        card = train.card
+        same = (len(ident["part_names"]) == len(card["part_names"])
+                and list(ident["joint_type"]) == [int(t) for t in card["joint_type"]]
+                and [list(p) for p in ident["joint_parts"]] == [list(map(int, p)) for p in card["joint_parts"]])
+        what = (f"run {self.run} was trained on {ident['category']!r} ({structure_text(ident)}), but {train.root} is "
+                f"{card['category']!r} ({structure_text(card)})")
+        if not same:
+            raise ConfigError(f"{what}: train a run on this dataset first ('scapo train --method {self.spec.method} "
+                              f"--data {train.root} --out RUN')")
+        if ident["category"] != card["category"] and not o.cross_category:
+            raise ConfigError(f"{what}; train a run on this category, or pass --option cross_category=true")
+        cls = type(self.spec.presets.get(self.spec.presets.names()[0]))
+        self.preset = _preset_from_dict(cls, ident["preset"])
+        self.net = self.spec.build(ident, self.preset).to(dev)
+        self.net.load_state_dict(state["model"])
+        if state.get("extras") is not None:
+            self.net.set_extras(state["extras"])
+        if hasattr(self.net, "configure"):
+            self.net.configure(o)
+        self.net.eval()
+        self.device = dev
+        self.identity = ident
+
+    @torch.no_grad()
+    def predict(self, dataset: ArticulationDataset) -> Predictions:
+        a = dataset.arrays(["points"])
+        M = len(a["points"])
+        t0 = time.perf_counter()
+        outs = []
+        it = range(0, M, self.options.batch_size)
+        if self.options.progress:
+            from tqdm import tqdm
+
+            it = tqdm(it, desc=f"{self.spec.method} {dataset.split}", unit="batch")
+        for i in it:
+            X = torch.from_numpy(np.ascontiguousarray(a["points"][i:i + self.options.batch_size])).float()
+            outs.append(self.net.infer(X.to(self.device)))
+        o = {k: np.concatenate([d[k] for d in outs]) for k in outs[0]} if outs else {}
+        seconds = time.perf_counter() - t0
+        jt = np.array(self.identity["joint_type"], dtype=np.int64)
+        jp = np.array(self.identity["joint_parts"], dtype=np.int64).reshape(-1, 2)
+        return Predictions(
+            method=self.label, instance_id=a["instance_id"], view_id=a["view_id"], split=np.full(M, dataset.split),
+            part_label=o["part_label"].astype(np.int64), part_pose=o["part_pose"].astype(np.float64),
+            joint_parts=np.tile(jp, (M, 1, 1)), joint_type=np.tile(jt, (M, 1)),
+            joint_axis=o["joint_axis"].astype(np.float64), joint_pivot=o["joint_pivot"].astype(np.float64),
+            joint_state=o["joint_state"].astype(np.float64), T_cam_obj=o["T_cam_obj"].astype(np.float64),
+            needs_alignment=self.needs_alignment, supervision=dict(self.supervision),
+            info={"run": str(self.run), "preset": self.preset.name, "seed": self.preset.seed,
+                  "trained_on": self.identity["dataset_hash"], "trained_category": self.identity["category"],
+                  "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2)},
+        )
+
+
+def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, needs_alignment: bool, summary: str):
+    """Register a learned baseline (its factory takes :class:`LearnedOptions` fields; trained by
+    :func:`train_learned`)."""
+    from scapo.methods.registry import register_method
+
+    options_cls = spec.options or LearnedOptions
+
+    def factory(**options) -> LearnedMethod:
+        return LearnedMethod(spec, supervision, needs_alignment, options_cls(**options))
+
+    def trainer(data, run, preset=None, progress=True, device=None, seed=None) -> Path:
+        return train_learned(spec, data, run, preset, progress=progress, device=device, seed=seed)
+
+    register_method(spec.method, options=options_cls, display=display, supervision=supervision,
+                    needs_alignment=needs_alignment, summary=summary, train=trainer,
+                    presets=tuple(spec.presets.names()))(factory)
+    factory.spec = spec
+    return factory
+
+
+def normalize_clouds(points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Centre and scale clouds for a network: ``points (B, N, 3)`` metres -> (``(points - c) / s``,
+    centre ``c (B, 3)``, scale ``s (B,)`` = 2 x RMS radius, as SCAPO normalises)."""
+    c = points.mean(1)
+    x = points - c[:, None]
+    s = 2.0 * (x ** 2).sum(-1).mean(-1).sqrt().clamp_min(1e-6)
+    return x / s[:, None, None], c, s

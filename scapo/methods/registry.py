@@ -1,0 +1,255 @@
+"""The neutral method registry: one :class:`MethodEntry` per method, one module per method.
+
+An entry carries the method's factory (``entry.factory(**options) -> Method``), its options dataclass
+(``scapo predict --option k=v`` is validated against it), its display name and supervision marks for
+the tables (Pose / Segmentation / Joint, as in the paper's tables), whether its canonical frame needs
+alignment before scoring, and for trained methods the training entry point and preset names
+(``scapo train --method NAME --preset P``). A new method is one module that calls
+:func:`register_method` and is imported by :mod:`scapo.methods`.
+
+:func:`run_method` fits a method on the training split (or loads its trained run), predicts and writes
+the predictions file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+import types
+import typing
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+from scapo.data.dataset import ArticulationDataset, load
+from scapo.errors import ConfigError, DatasetError
+from scapo.eval.predictions import Predictions
+from scapo.files import check_output_file
+from scapo.registry import Registry
+
+
+class Method(Protocol):
+    """What the evaluator needs from a method."""
+
+    name: str
+    needs_alignment: bool
+    supervision: dict
+
+    def fit(self, train: ArticulationDataset) -> None:
+        """Learn from the training split (labels may be used only as ``supervision`` declares), or load
+        a trained run and check that it fits the dataset."""
+
+    def predict(self, dataset: ArticulationDataset) -> Predictions:
+        """Predictions for every sample of ``dataset`` (rows carry ``dataset.split``)."""
+
+
+#: The supervision marks of the paper's tables, in column order.
+SUPERVISION_KEYS = ("pose", "segmentation", "joint")
+
+
+@dataclass(frozen=True)
+class MethodEntry:
+    """One registered method.
+
+    Attributes:
+        name: registry name (``scapo predict --method NAME``).
+        factory: ``factory(**options) -> Method``; options are fields of ``options``.
+        options: the options dataclass (typed fields with defaults; validated in ``__post_init__``).
+        display: row name in tables (re-implementations of other papers end in "-style").
+        supervision: which ground truth the method uses in training or at test time
+            ({"pose", "segmentation", "joint"} -> bool), the marks of the paper's tables.
+        needs_alignment: its canonical frame is arbitrary (self-supervised), so the evaluator aligns it
+            to the ground-truth canonical frame from training-split predictions.
+        summary: one line for ``scapo list``.
+        train: for trained methods, ``train(data, run, preset, progress, device, seed) -> checkpoint``.
+        presets: preset names of a trained method (``scapo train --method NAME --preset P``).
+        variants: other labels its predictions may carry (e.g. a second row of one run) -> display name.
+    """
+
+    name: str
+    factory: Callable[..., Method]
+    options: type
+    display: str
+    supervision: Mapping[str, bool]
+    needs_alignment: bool
+    summary: str = ""
+    train: Callable[..., Path] | None = None
+    presets: tuple[str, ...] = ()
+    variants: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def trained(self) -> bool:
+        return self.train is not None
+
+    def marks(self) -> str:
+        """Supervision marks as three characters, e.g. ``"-S-"`` (Pose, Segmentation, Joint)."""
+        return "".join(k[0].upper() if self.supervision.get(k) else "-" for k in SUPERVISION_KEYS)
+
+
+#: name -> MethodEntry
+METHODS: Registry[MethodEntry] = Registry("method")
+
+
+def register_method(name: str, *, options: type, display: str, supervision: Mapping[str, bool],
+                    needs_alignment: bool, summary: str = "", train: Callable[..., Path] | None = None,
+                    presets: tuple[str, ...] = (), variants: Mapping[str, str] | None = None):
+    """Decorator registering a method factory under ``name`` (see :class:`MethodEntry`).
+
+    Raises:
+        ValueError: ``name`` registered twice, ``options`` not a dataclass, or supervision keys other
+            than pose, segmentation, joint.
+    """
+    if not dataclasses.is_dataclass(options):
+        raise ValueError(f"method {name!r}: options must be a dataclass, got {options!r}")
+    if set(supervision) != set(SUPERVISION_KEYS):
+        raise ValueError(f"method {name!r}: supervision must have exactly the keys {SUPERVISION_KEYS}")
+
+    def deco(factory):
+        METHODS.add(name, MethodEntry(name, factory, options, display, dict(supervision), needs_alignment, summary,
+                                      train, tuple(presets), dict(variants or {})))
+        factory.options = options
+        return factory
+
+    return deco
+
+
+def describe(label: str) -> tuple[str, dict] | None:
+    """(display name, supervision marks) for a predictions label: a registered name, or one of an
+    entry's variants (``scapo-no-refine``); None for a label no entry knows."""
+    if label in METHODS:
+        e = METHODS.get(label)
+        return e.display, dict(e.supervision)
+    for name in METHODS:
+        e = METHODS.get(name)
+        if label in e.variants:
+            return e.variants[label], dict(e.supervision)
+    return None
+
+
+def list_methods() -> list[str]:
+    return METHODS.names()
+
+
+def options_class(name: str) -> type:
+    """The options dataclass of method ``name``."""
+    return METHODS.get(name).options
+
+
+def _parse_text(method: str, key: str, text: str, tp) -> Any:
+    """Convert the command-line text of option ``key`` to the field type ``tp``."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if text.strip().lower() in ("none", "null") and len(args) < len(typing.get_args(tp)):
+            return None
+        tp = args[0]
+    bad = ConfigError(f"option {key}={text!r} of method {method!r} is not a valid {getattr(tp, '__name__', tp)}")
+    if tp is bool:
+        low = text.strip().lower()
+        if low in ("true", "1", "yes", "on"):
+            return True
+        if low in ("false", "0", "no", "off"):
+            return False
+        raise bad
+    if tp in (int, float):
+        try:
+            return tp(text)
+        except ValueError:
+            raise bad from None
+    if tp is Path:
+        return Path(text)
+    return text
+
+
+def validate_options(name: str, options: dict[str, Any]) -> dict[str, Any]:
+    """Check ``options`` against method ``name``'s options dataclass; strings are converted to the
+    field types (``"30"`` -> 30 for an int field, ``"true"`` -> True for a bool).
+
+    Raises:
+        UnknownNameError: unknown method.
+        ConfigError: an unknown option (the message lists the valid ones) or a value that does not
+            convert to the field's type.
+    """
+    cls = options_class(name)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    hints = typing.get_type_hints(cls)
+    out = {}
+    for k, v in options.items():
+        if k not in fields:
+            raise ConfigError(f"unknown option {k!r} for method {name!r}; valid options: {', '.join(fields)}")
+        out[k] = _parse_text(name, k, v, hints[k]) if isinstance(v, str) else v
+    return out
+
+
+def run_method(name: str, data: str | Path, out: str | Path | None = None, **options) -> Predictions:
+    """Fit method ``name`` on the training split of ``data``, predict the test split, the val split
+    when the dataset has one (so choices can be made on it with the same file), and the training split
+    when the method needs canonical-frame alignment, and save to ``out``.
+
+    Options are validated (:func:`validate_options`) and ``out`` is checked to be writable before
+    any work; the file is written atomically.
+
+    Raises:
+        UnknownNameError: unknown method (lists the known ones).
+        ConfigError: unknown or invalid options.
+        OutputError: ``out`` cannot be written.
+        DatasetError: ``data`` is not a dataset, or its test split is empty.
+    """
+    method = METHODS.get(name).factory(**validate_options(name, options))
+    if out is not None:
+        check_output_file(out, "predictions file", "predictions.npz")
+    train = load(data, "train")
+    test = load(data, "test")
+    if len(test) == 0:
+        raise DatasetError(f"the test split of {data} is empty (generated with --test-fraction "
+                           f"{train.card.get('config', {}).get('test_fraction')} and "
+                           f"{train.card.get('config', {}).get('instances')} instances); regenerate it with test "
+                           "instances")
+    t0 = time.perf_counter()
+    method.fit(train)
+    t_fit = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    parts = [method.predict(test)]
+    t_pred = time.perf_counter() - t1
+    if "val" in train.card.get("splits", {}):
+        val = load(data, "val")
+        if len(val):
+            parts.append(method.predict(val))
+    if method.needs_alignment:
+        parts.append(method.predict(train))
+    preds = Predictions.concatenate(parts)
+    preds.dataset_hash = test.dataset_hash
+    preds.info = {**preds.info, "fit_seconds": round(t_fit, 3), "predict_seconds_test": round(t_pred, 3),
+                  "ms_per_cloud_test": round(1000 * t_pred / max(len(test), 1), 3)}
+    if out is not None:
+        preds.save(out)
+    return preds
+
+
+def method_of_run(run: str | Path) -> str:
+    """The method a run folder was trained for: ``run.json``'s ``method`` (runs written before the
+    registry held other trained methods are SCAPO runs). A folder without a readable ``run.json`` (a
+    typo, an unfinished or damaged run) is taken for a SCAPO run, whose loader then says what is wrong.
+    """
+    try:
+        ident = json.loads((Path(run) / "run.json").read_text())
+    except (OSError, ValueError):
+        return "scapo"
+    return str(ident.get("method", "scapo")) if isinstance(ident, dict) else "scapo"
+
+
+def train_method(name: str, data: str | Path, run: str | Path, preset: str | None = None, progress: bool = True,
+                 device: str | None = None, seed: int | None = None) -> Path:
+    """Train (or resume) method ``name`` on ``data`` into the run folder ``run``; returns the checkpoint.
+
+    Raises:
+        UnknownNameError: unknown method or preset. ConfigError: a method that is not trained (its
+        ``fit`` is all it needs). Otherwise as the method's trainer.
+    """
+    entry = METHODS.get(name)
+    if entry.train is None:
+        trained = [n for n in METHODS if METHODS.get(n).trained]
+        raise ConfigError(f"method {name!r} is not trained ('scapo predict --method {name}' fits it); trained "
+                          f"methods: {', '.join(trained)}")
+    return entry.train(data, run, preset, progress=progress, device=device, seed=seed)

@@ -1,0 +1,92 @@
+"""The import direction of scapo's stages: a module imports only from its own stage or lower ones
+(also inside functions), so the import graph between stages has no cycles."""
+
+import ast
+from pathlib import Path
+
+import scapo
+
+#: Stages bottom-up; a module belongs to the stage of its longest listed prefix.
+STAGES = [
+    ("scapo", "scapo.errors", "scapo.registry", "scapo.files", "scapo.report", "scapo.provenance"),
+    ("scapo.ops",),
+    ("scapo.sim",),
+    ("scapo.data",),
+    ("scapo.eval",),
+    ("scapo.nn",),
+    ("scapo.losses",),
+    ("scapo.models",),
+    ("scapo.methods",),
+    ("scapo.bench", "scapo.perf", "scapo.viz", "scapo.demo"),
+    ("scapo.cli",),
+]
+
+
+def stage_of(module: str) -> int:
+    best, stage = -1, None
+    for i, prefixes in enumerate(STAGES):
+        for p in prefixes:
+            if (module == p or module.startswith(p + ".")) and len(p) > best:
+                best, stage = len(p), i
+    assert stage is not None, f"{module} is in no stage; add it to STAGES"
+    return stage
+
+
+def imports() -> dict[str, set[str]]:
+    root = Path(scapo.__file__).parent
+    out = {}
+    for path in root.rglob("*.py"):
+        parts = path.relative_to(root.parent).with_suffix("").parts
+        mod = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0 and node.module.startswith("scapo"):
+                deps.add(node.module)
+                deps.update(f"{node.module}.{a.name}" for a in node.names
+                            if (root.parent / node.module.replace(".", "/") / a.name).exists()
+                            or (root.parent / (node.module.replace(".", "/") + "/" + a.name + ".py")).exists())
+            elif isinstance(node, ast.Import):
+                deps.update(a.name for a in node.names if a.name.startswith("scapo"))
+        out[mod] = deps
+    return out
+
+
+def test_every_module_imports_only_its_own_or_lower_stages():
+    graph = imports()
+    assert {"scapo.ops.rigid", "scapo.methods.registry", "scapo.methods.op_align"} <= set(graph)
+    upward = sorted(f"{m} (stage {stage_of(m)}) imports {d} (stage {stage_of(d)})"
+                    for m, deps in graph.items() for d in deps if stage_of(d) > stage_of(m))
+    assert not upward, "imports that point up a stage:\n" + "\n".join(upward)
+
+
+def test_shared_geometry_lives_below_its_users():
+    graph = imports()
+    for m, deps in graph.items():
+        if m.startswith("scapo.ops"):
+            assert all(d.startswith(("scapo.ops", "scapo.errors")) for d in deps), (m, deps)
+    users = {m for m, deps in graph.items() if any(d.startswith("scapo.ops") for d in deps)}
+    for stage in ("scapo.sim", "scapo.losses", "scapo.models", "scapo.methods", "scapo.eval"):
+        assert any(u.startswith(stage) for u in users), f"{stage} does not use scapo.ops"
+
+
+def test_stage_packages_form_no_cycle():
+    graph = imports()
+    pkg = {}
+    for m, deps in graph.items():
+        a = ".".join(m.split(".")[:2])
+        pkg.setdefault(a, set()).update(".".join(d.split(".")[:2]) for d in deps if ".".join(d.split(".")[:2]) != a)
+    seen, stack = set(), []
+
+    def visit(n):
+        assert n not in stack, "import cycle: " + " -> ".join([*stack[stack.index(n):], n])
+        if n in seen:
+            return
+        stack.append(n)
+        for d in pkg.get(n, ()):
+            if d != "scapo":
+                visit(d)
+        stack.pop()
+        seen.add(n)
+
+    for n in pkg:
+        visit(n)

@@ -1,0 +1,298 @@
+"""Every registered method end to end, the registry, the learned-baseline harness, and the geometry
+each method rests on."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from scapo.cli.main import main
+from scapo.errors import ConfigError, TrainingError
+from scapo.eval import evaluate
+from scapo.methods import METHODS, describe, method_of_run, run_method, train_method, validate_options
+from scapo.ops.align import ransac_umeyama
+from scapo.ops.chamfer import trimmed_one_sided_chamfer
+from scapo.ops.groups import GROUP_ORDERS, octahedral_rotations, rotation_group
+from scapo.ops.rigid import as_transform, joint_motion
+from scapo.ops.sampling import farthest_point_sample
+
+ALL = ["icp", "npcs", "eap", "op-align", "scapo"]
+
+
+def test_registry_has_the_five_methods_with_their_marks(capsys):
+    assert sorted(METHODS.names()) == sorted(ALL)
+    marks = {n: METHODS.get(n).marks() for n in ALL}
+    assert marks == {"icp": "-S-", "npcs": "PSJ", "eap": "---", "op-align": "---", "scapo": "---"}
+    assert {n for n in ALL if METHODS.get(n).needs_alignment} == {"eap", "op-align", "scapo"}
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    for n in ALL:
+        line = next(ln for ln in out.splitlines() if ln.split()[:1] == [n])
+        assert METHODS.get(n).marks() in line and METHODS.get(n).display in line
+    assert describe("scapo-no-refine") == ("SCAPO (ours, no refinement)", dict(METHODS.get("scapo").supervision))
+    assert describe("op-align")[0] == "OP-Align-style" and describe("someone-else") is None
+
+
+def test_options_are_validated_against_each_methods_dataclass():
+    with pytest.raises(ConfigError, match="unknown option 'iters' for method 'npcs'; valid options: run, device"):
+        validate_options("npcs", {"iters": "3"})
+    assert validate_options("eap", {"batch_size": "8", "cross_category": "yes"}) == {"batch_size": 8,
+                                                                                    "cross_category": True}
+    with pytest.raises(ConfigError, match="batch_size must be >= 1"):
+        METHODS.get("op-align").factory(run="x", batch_size=0)
+    with pytest.raises(ConfigError, match="needs a trained run"):
+        METHODS.get("eap").factory()
+    with pytest.raises(ConfigError, match="not trained"):
+        train_method("icp", "d", "r")
+
+
+@pytest.fixture(scope="module")
+def trained_runs(laptop_data, tmp_path_factory):
+    """One run of every trained method (its ``test`` preset) on the small laptop dataset."""
+    root = tmp_path_factory.mktemp("runs")
+    runs = {}
+    for name in ALL:
+        if METHODS.get(name).trained:
+            runs[name] = root / name
+            train_method(name, laptop_data, runs[name], "test", progress=False)
+    return runs
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_every_method_trains_predicts_and_is_scored(name, laptop_data, trained_runs, tmp_path):
+    opts = {"run": trained_runs[name]} if name in trained_runs else {"max_iterations": 3, "hypotheses": "T",
+                                                                       "refine_top": 1, "template_points": 64}
+    preds = run_method(name, laptop_data, tmp_path / "p.npz", **opts)
+    assert preds.needs_alignment == METHODS.get(name).needs_alignment
+    assert preds.supervision == dict(METHODS.get(name).supervision)
+    splits = set(preds.split.tolist())
+    assert splits == ({"test", "train"} if preds.needs_alignment else {"test"})
+    res = evaluate(laptop_data, tmp_path / "p.npz")
+    for k in ("S", "R", "t", "D", "C", "R_median"):
+        assert math.isfinite(res.summary[k]), (name, k, res.summary[k])
+    assert 0 <= res.summary["S"] <= 100 and 0 <= res.summary["R"] <= 180 and 0 <= res.summary["D"] <= 90
+    if name in trained_runs:
+        assert method_of_run(trained_runs[name]) == name
+
+
+@pytest.mark.parametrize("name", ["npcs", "eap", "op-align"])
+def test_learned_runs_resume_refuse_other_configs_and_other_methods(name, laptop_data, trained_runs, tmp_path):
+    run = trained_runs[name]
+    ck = run / "checkpoint.pt"
+    before = ck.read_bytes()
+    assert train_method(name, laptop_data, run, None, progress=False) == ck  # a finished run is not retrained
+    assert ck.read_bytes() == before
+    with pytest.raises(TrainingError, match="preset fields that differ: seed"):
+        train_method(name, laptop_data, run, "test", progress=False, seed=5)
+    other = next(n for n in trained_runs if n != name)
+    with pytest.raises(TrainingError, match=f"holds a '{name}' run"):
+        train_method(other, laptop_data, run, "test", progress=False)
+    with pytest.raises(ConfigError, match=f"is a run of method '{name}'"):
+        run_method(other, laptop_data, None, run=run)
+    (tmp_path / "foreign").mkdir()
+    (tmp_path / "foreign" / "notes.txt").write_text("x")
+    with pytest.raises(ConfigError, match="non-empty folder without a scapo run"):
+        train_method(name, laptop_data, tmp_path / "foreign", "test", progress=False)
+
+
+def test_an_interrupted_learned_run_resumes_to_the_same_weights(laptop_data, tmp_path, monkeypatch):
+    from scapo.methods import learned, npcs
+
+    preset = dataclasses.replace(npcs.PRESETS.get("test"), epochs=3)
+    train_method_direct = learned.train_learned
+    full = tmp_path / "full"
+    train_method_direct(npcs.SPEC, laptop_data, full, preset, progress=False)
+
+    calls = {"n": 0}
+    real_epoch = learned._epoch
+
+    def stop_after_two(*a, **k):
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        calls["n"] += 1
+        return real_epoch(*a, **k)
+
+    part = tmp_path / "part"
+    monkeypatch.setattr(learned, "_epoch", stop_after_two)
+    with pytest.raises(KeyboardInterrupt):
+        train_method_direct(npcs.SPEC, laptop_data, part, preset, progress=False)
+    monkeypatch.setattr(learned, "_epoch", real_epoch)
+    state = torch.load(part / "checkpoint.pt", weights_only=False)
+    assert state["epoch"] == 2 and not state["done"]
+    train_method_direct(npcs.SPEC, laptop_data, part, preset, progress=False)
+    a = torch.load(full / "checkpoint.pt", weights_only=False)["model"]
+    b = torch.load(part / "checkpoint.pt", weights_only=False)["model"]
+    for k in a:
+        torch.testing.assert_close(a[k], b[k])
+
+
+def test_an_unfinished_learned_run_is_refused_by_predict(laptop_data, tmp_path, monkeypatch):
+    from scapo.methods import learned
+
+    def stop(*a, **k):
+        raise KeyboardInterrupt
+
+    with pytest.raises(TrainingError, match="holds no checkpoint"):
+        run_method("eap", laptop_data, None, run=tmp_path / "empty")
+    real = learned._epoch
+    calls = {"n": 0}
+
+    def one(*a, **k):
+        if calls["n"]:
+            raise KeyboardInterrupt
+        calls["n"] += 1
+        return real(*a, **k)
+
+    monkeypatch.setattr(learned, "_epoch", one)
+    with pytest.raises(KeyboardInterrupt):
+        train_method("eap", laptop_data, tmp_path / "r", "test", progress=False)
+    with pytest.raises(TrainingError, match="unfinished run"):
+        run_method("eap", laptop_data, None, run=tmp_path / "r")
+
+
+def test_perf_reports_each_learned_methods_inference_time():
+    from scapo.perf import bench_method
+
+    for name in ("npcs", "eap", "op-align"):
+        (row,) = bench_method(name, "test", device="cpu", iters=1, num_points=256)
+        assert row["method"] == name and row["infer_ms_per_cloud_b1"] > 0 and row["infer_clouds_per_s_b32"] > 0
+    with pytest.raises(ConfigError, match="needs --data"):
+        bench_method("icp")
+
+
+# ------------------------------------------------------------------------------------------ geometry
+def test_ransac_umeyama_survives_30_percent_outliers():
+    rng = np.random.default_rng(0)
+    src = rng.uniform(-0.5, 0.5, (400, 3))
+    R = Rotation.from_rotvec([0.3, -1.1, 0.7]).as_matrix()
+    dst = 0.8 * src @ R.T + [0.1, -0.2, 1.5]
+    bad = rng.choice(400, 120, replace=False)
+    dst[bad] += rng.uniform(-0.5, 0.5, (120, 3))
+    T, s, inliers = ransac_umeyama(src, dst, threshold=0.02, rng=rng)
+    assert s == pytest.approx(0.8, rel=1e-3)
+    np.testing.assert_allclose(T[:3, :3] / s, R, atol=1e-3)
+    np.testing.assert_allclose(T[:3, 3], [0.1, -0.2, 1.5], atol=1e-3)
+    assert inliers.sum() >= 270 and inliers[bad].mean() < 0.05
+    with pytest.raises(ValueError, match="threshold"):
+        ransac_umeyama(src, dst, threshold=0.0)
+
+
+@pytest.mark.parametrize("name", list(GROUP_ORDERS))
+def test_candidate_rotations_form_a_group(name):
+    G = rotation_group(name)
+    assert G.shape == (GROUP_ORDERS[name], 3, 3)
+    np.testing.assert_allclose(G[0], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(np.einsum("gij,gkj->gik", G, G), np.broadcast_to(np.eye(3), G.shape), atol=1e-9)
+    flat = G.reshape(len(G), 9)
+    for a in G:  # closed under composition and inverse
+        prods = np.einsum("ij,gjk->gik", a, G).reshape(len(G), 9)
+        assert np.abs(prods[:, None] - flat[None]).sum(-1).min(1).max() < 1e-9
+        assert np.abs(flat - a.T.reshape(9)).sum(-1).min() < 1e-9
+    with pytest.raises(ValueError, match="unknown rotation group"):
+        rotation_group("X")
+
+
+def test_octahedral_rotations_are_the_cube_group_as_integers():
+    C = octahedral_rotations(torch.float64)
+    assert C.shape == (24, 3, 3) and torch.equal(C[0], torch.eye(3, dtype=torch.float64))
+    assert torch.equal(C, C.round()) and torch.allclose(torch.det(C), torch.ones(24, dtype=torch.float64))
+
+
+def test_torch_farthest_point_sample_and_trimmed_chamfer():
+    g = torch.Generator().manual_seed(0)
+    pts = torch.rand(2, 300, 3, generator=g)
+    pts[:, :100] = 10.0 + pts[:, :100] * 0.01  # a far cluster must be sampled
+    idx = farthest_point_sample(pts, 8)
+    assert idx.shape == (2, 8) and (idx < 100).any(1).all() and (idx >= 100).any(1).all()
+    b = torch.rand(1, 100, 3, generator=g)
+    a = torch.cat([b[:, :70], b[:, 70:] + 5.0], 1)  # 30 % of a lies far from every point of b
+    assert float(trimmed_one_sided_chamfer(a, b, keep=0.7)) == pytest.approx(0.0, abs=1e-6)
+    assert float(trimmed_one_sided_chamfer(a, b, keep=1.0)) > 1.0
+
+
+def _moved_object(states, joint_type=0):
+    """Part poses (K, 2, 4, 4) of a two-part object under random rigid motions and joint states;
+    each part's canonical frame is offset from the object frame by a fixed pose."""
+    rng = np.random.default_rng(1)
+    axis = np.array([0.0, 0.6, 0.8])
+    pivot = np.array([0.1, -0.2, 0.05])
+    off = [as_transform(Rotation.from_rotvec(rng.normal(size=3)).as_matrix(), rng.normal(size=3)) for _ in range(2)]
+    T = []
+    for s in states:
+        obj = as_transform(Rotation.from_rotvec(rng.normal(size=3)).as_matrix(), rng.normal(size=3))
+        T.append([obj @ off[0], obj @ joint_motion(joint_type, axis, pivot, s) @ off[1]])
+    return np.array(T), axis, pivot, off
+
+
+def test_part_transforms_of_a_moved_object_give_back_its_joint():
+    from scapo.methods.eap import joints_from_pairs
+    from scapo.ops.rigid import closest_point_on_line, invert_transform
+
+    states = np.linspace(0.0, 1.5, 12)
+    T, axis, pivot, off = _moved_object(states)
+    out = joints_from_pairs(T, np.ones(len(T)), [0], [(0, 1)], pairs=200, min_motion_deg=5.0)
+    assert out["joint_ok"][0]
+    # the joint in the child's canonical frame, mapped to the object frame
+    ax_obj = off[1][:3, :3] @ out["joint_axis"][0]
+    pv_obj = off[1][:3, :3] @ out["joint_pivot"][0] + off[1][:3, 3]
+    assert abs(abs(ax_obj @ axis) - 1.0) < 1e-6
+    np.testing.assert_allclose(closest_point_on_line(pv_obj, ax_obj), closest_point_on_line(pivot, axis), atol=1e-6)
+    # states relative to the reference differ by the true state differences
+    from scapo.methods.eap import _motion_along
+
+    est = [_motion_along(invert_transform(out["joint_ref"][0]) @ invert_transform(t[0]) @ t[1], 0,
+                         out["joint_axis"][0]) for t in T]
+    np.testing.assert_allclose(np.diff(est) * np.sign(ax_obj @ axis), np.diff(states), atol=1e-6)
+
+
+def test_joint_from_part_poses_recovers_a_revolute_and_a_prismatic_joint():
+    from scapo.methods.joints import joint_from_part_poses
+    from scapo.ops.rigid import closest_point_on_line
+
+    axis, pivot = np.array([0.0, 0.6, 0.8]), np.array([0.1, -0.2, 0.05])
+    parent = as_transform(Rotation.from_rotvec([0.2, 0.4, -0.3]).as_matrix(), [0.3, 0.1, 1.2])
+    child = parent @ joint_motion(0, axis, pivot, 0.7)
+    ax, pv, st = joint_from_part_poses(parent, child, 0, axis, pivot)
+    np.testing.assert_allclose(ax, parent[:3, :3] @ axis, atol=1e-9)
+    np.testing.assert_allclose(closest_point_on_line(pv, ax), closest_point_on_line(parent[:3, :3] @ pivot
+                                                                                    + parent[:3, 3], ax), atol=1e-9)
+    assert st == pytest.approx(0.7)
+    child = parent @ joint_motion(1, axis, pivot, -0.25)
+    ax, pv, st = joint_from_part_poses(parent, child, 1, axis, pivot)
+    np.testing.assert_allclose(ax, parent[:3, :3] @ axis, atol=1e-9)
+    assert st == pytest.approx(-0.25)
+
+
+def test_op_align_part_motion_moves_a_part_onto_its_canonical_state():
+    from scapo.methods import op_align
+
+    net = op_align.OPAlignNet(2, [0], [(0, 1)], op_align.PRESETS.get("test"))
+    d_s = torch.tensor([[[0.0, 0.0, 1.0]]])
+    d_y = torch.nn.functional.normalize(torch.tensor([[[0.0, 1.0, 1.0]]]), dim=-1)
+    src = {"drct": d_s, "pivot": torch.tensor([[[0.1, 0.0, 0.0]]]), "state": torch.tensor([[[0.0, 0.3]]])}
+    dst = {"drct": d_y, "pivot": torch.tensor([[[0.0, 0.2, 0.0]]]), "state": torch.tensor([[[0.0, -0.4]]])}
+    R, t = net.side_motion(src, dst, 0, 1)
+    torch.testing.assert_close(R[0] @ d_s[0, 0], d_y[0, 0])  # direction onto direction
+    torch.testing.assert_close(R[0] @ src["pivot"][0, 0] + t[0], dst["pivot"][0, 0])  # pivot onto pivot
+    e = torch.tensor([1.0, 0.0, 0.0])  # a direction normal to both axes turns by the state difference
+    Rd = op_align.direction_rotation(d_s[0], d_y[0])[0]
+    cos = float((R[0] @ e) @ (Rd @ e))
+    assert cos == pytest.approx(math.cos(-0.7), abs=1e-5)
+
+
+def test_eap_part_poses_are_rotation_equivariant():
+    from scapo.methods import eap
+
+    torch.manual_seed(0)
+    net = eap.EAPNet(2, [0], [(0, 1)], eap.PRESETS.get("test")).double().eval()
+    X = torch.rand(2, 64, 3, dtype=torch.float64)
+    Q = torch.from_numpy(Rotation.from_rotvec([0.4, -1.0, 2.0]).as_matrix())
+    a, b = net(X), net(X @ Q.T + 0.3)
+    torch.testing.assert_close(b["R"], Q @ a["R"], atol=1e-6, rtol=1e-6)
+    torch.testing.assert_close(b["t"], a["t"] @ Q.T + 0.3, atol=1e-6, rtol=1e-6)
+    torch.testing.assert_close(b["Y"], a["Y"], atol=1e-6, rtol=1e-6)
