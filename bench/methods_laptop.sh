@@ -7,6 +7,7 @@
 # or the parent's pose) is chosen on the val split; its default in scapo/methods/npcs.py follows.
 # Resumable per cell: generation resumes, a finished run is not retrained (an interrupted one resumes
 # from its last epoch), an existing predictions file (written atomically) is not recomputed.
+# TABLE_ONLY=1 trains nothing and makes the tables from the runs that finished.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 S=.venv/bin/scapo
@@ -20,8 +21,12 @@ $S generate --category laptop --instances 80 --views 16 --seed 1 --val-fraction 
 for s in $SEEDS; do
   for m in $METHODS; do
     run="$WORK/run_${m}_${PRESET}_s$s"
-    $S train --method "$m" --data "$WORK/data" --preset "$PRESET" --seed "$s" --out "$run" --no-progress
     f="$WORK/pred_${m}_${PRESET}_s$s.npz"
+    if [ "${TABLE_ONLY:-0}" = 1 ]; then  # tables from the finished runs only (timing.json marks a finished run)
+      [ -f "$f" ] || [ ! -f "$run/timing.json" ] || $S predict --run "$run" --data "$WORK/data" --out "$f"
+      continue
+    fi
+    $S train --method "$m" --data "$WORK/data" --preset "$PRESET" --seed "$s" --out "$run" --no-progress
     [ -f "$f" ] || $S predict --run "$run" --data "$WORK/data" --out "$f"
   done
 done
@@ -31,6 +36,7 @@ cands=()
 for j in motion parent; do
   for s in $SEEDS; do
     f="$WORK/pred_npcs_${PRESET}_s${s}_joints_$j.npz"
+    [ -f "$WORK/run_npcs_${PRESET}_s$s/timing.json" ] || continue
     [ -f "$f" ] || $S predict --run "$WORK/run_npcs_${PRESET}_s$s" --data "$WORK/data" --out "$f" --option joints=$j
   done
   cands+=(--candidate "$j=$WORK/pred_npcs_${PRESET}_s*_joints_$j.npz")

@@ -235,7 +235,10 @@ def test_part_transforms_of_a_moved_object_give_back_its_joint():
 
     states = np.linspace(0.0, 1.5, 12)
     T, axis, pivot, off = _moved_object(states)
-    out = joints_from_pairs(T, np.ones(len(T)), [0], [(0, 1)], pairs=200, min_motion_deg=5.0)
+    scale = np.random.default_rng(2).uniform(0.5, 2.0, len(T))  # each cloud's canonical units in metres
+    Tm = T.copy()
+    Tm[:, :, :3, 3] *= scale[:, None, None]
+    out = joints_from_pairs(Tm, scale, [0], [(0, 1)], pairs=200, min_motion_deg=5.0)
     assert out["joint_ok"][0]
     # the joint in the child's canonical frame, mapped to the object frame
     ax_obj = off[1][:3, :3] @ out["joint_axis"][0]

@@ -175,15 +175,15 @@ class EAPNet(nn.Module):
                     axis[b, j], pivot[b, j], state[b, j] = joint_from_part_poses(
                         T[b, pa], T[b, ch], jt, np.array([0.0, 0.0, 1.0]), np.zeros(3))
                     continue
-                rel = invert_transform(T[b, pa]) @ T[b, ch]
+                rel = unit_relative_poses(T[b:b + 1], sc[b:b + 1], pa, ch)[0]
                 axis[b, j] = T[b, ch, :3, :3] @ ax_c[j]
                 pivot[b, j] = T[b, ch, :3, :3] @ (pv_c[j] * sc[b]) + T[b, ch, :3, 3]
-                state[b, j] = _motion_along(invert_transform(ref[j]) @ rel, jt, ax_c[j], sc[b])
+                state[b, j] = _motion_along(invert_transform(ref[j]) @ rel, jt, ax_c[j]) * (sc[b] if jt == 1 else 1.0)
         return {"part_label": lab, "part_pose": T, "joint_axis": axis, "joint_pivot": pivot, "joint_state": state,
                 "T_cam_obj": T[:, 0].copy()}
 
 
-def _motion_along(M: np.ndarray, joint_type: int, axis: np.ndarray, scale: float = 1.0) -> float:
+def _motion_along(M: np.ndarray, joint_type: int, axis: np.ndarray) -> float:
     """Signed angle (rad) of ``M``'s rotation about ``axis``, or its translation along it (m)."""
     from scipy.spatial.transform import Rotation
 
@@ -192,20 +192,29 @@ def _motion_along(M: np.ndarray, joint_type: int, axis: np.ndarray, scale: float
     return float(Rotation.from_matrix(M[:3, :3]).as_rotvec() @ axis)
 
 
+def unit_relative_poses(T: np.ndarray, scale: np.ndarray, parent: int, child: int) -> np.ndarray:
+    """``T_parent^-1 T_child (K, 4, 4)`` with the translation divided by each cloud's scale ``(K,)``."""
+    rel = np.einsum("kij,kjl->kil", invert_transform(T[:, parent]), T[:, child])
+    rel[:, :3, 3] /= np.asarray(scale, dtype=np.float64)[:, None]
+    return rel
+
+
 def joints_from_pairs(T: np.ndarray, scale: np.ndarray, joint_types, joint_parts, pairs: int,
                       min_motion_deg: float, seed: int = 0) -> dict:
     """Joints of a category in each child part's canonical frame from part poses of many clouds.
 
-    ``T (K, P, 4, 4)`` part poses (canonical -> camera; canonical units are the cloud's scale
-    ``scale (K,)`` times the network's), for K clouds. For a pair of clouds (k, l), the child's motion
-    ``T_rel_k^-1 T_rel_l`` (``T_rel = T_parent^-1 T_child``) is a motion about the joint expressed in the
-    child's canonical frame: :func:`~scapo.ops.rigid.relative_motion_to_joint` gives its axis and pivot.
-    Axes (sign-aligned) and pivots (divided by the scale) are pooled by the median over ``pairs`` random
-    pairs whose motion exceeds ``min_motion_deg`` (prismatic: 0.05 scales). The reference relative pose is
-    the first cloud's, moved to the median state.
+    ``T (K, P, 4, 4)`` part poses (canonical -> camera, metres; canonical units are the cloud's scale
+    ``scale (K,)`` times the network's), for K clouds. The child's pose relative to its parent,
+    ``T_rel = T_parent^-1 T_child``, is taken in the network's units (translation / scale), where all
+    clouds agree. For a pair of clouds (k, l), ``T_rel_k^-1 T_rel_l`` is a motion about the joint
+    expressed in the child's canonical frame: :func:`~scapo.ops.rigid.relative_motion_to_joint` gives
+    its axis and pivot. Axes (sign-aligned) and pivots are pooled by the median over ``pairs`` random
+    pairs whose motion exceeds ``min_motion_deg`` (prismatic: 0.05 units). The reference relative pose
+    is the first cloud's, moved to the median state.
 
-    Returns a dict of ``joint_axis (J, 3)``, ``joint_pivot (J, 3)`` (per unit scale), ``joint_ref (J, 4, 4)``
-    and ``joint_ok (J,)`` (False where too few pairs moved).
+    Returns a dict of ``joint_axis (J, 3)``, ``joint_pivot (J, 3)`` and ``joint_ref (J, 4, 4)`` in the
+    network's units (multiply lengths by a cloud's scale), and ``joint_ok (J,)`` (False where too few
+    pairs moved).
     """
     rng = np.random.default_rng(seed)
     K, J = len(T), len(joint_types)
@@ -215,7 +224,7 @@ def joints_from_pairs(T: np.ndarray, scale: np.ndarray, joint_types, joint_parts
         return out
     for j, (pa, ch) in enumerate(joint_parts):
         jt = int(joint_types[j])
-        rel = np.einsum("kij,kjl->kil", invert_transform(T[:, pa]), T[:, ch])
+        rel = unit_relative_poses(T, scale, pa, ch)
         axes, pivots = [], []
         for _ in range(pairs):
             k, m = rng.choice(K, 2, replace=False)
@@ -224,10 +233,10 @@ def joints_from_pairs(T: np.ndarray, scale: np.ndarray, joint_types, joint_parts
                 ax, pv, amount = relative_motion_to_joint(Mkl, jt)
             except ValueError:
                 continue
-            if (jt == 0 and np.degrees(amount) < min_motion_deg) or (jt == 1 and amount < 0.05 * scale[k]):
+            if (jt == 0 and np.degrees(amount) < min_motion_deg) or (jt == 1 and amount < 0.05):
                 continue
             axes.append(ax)
-            pivots.append(pv / scale[k])
+            pivots.append(pv)
         if len(axes) < 5:
             continue
         axes = np.array(axes)
@@ -243,7 +252,7 @@ def joints_from_pairs(T: np.ndarray, scale: np.ndarray, joint_types, joint_parts
         pivot = np.median(np.array(pivots), 0)
         out["joint_axis"][j] = axis
         out["joint_pivot"][j] = pivot
-        out["joint_ref"][j] = rel[0] @ joint_motion(jt, axis, pivot * scale[0], med)
+        out["joint_ref"][j] = rel[0] @ joint_motion(jt, axis, pivot, med)
         out["joint_ok"][j] = True
     return out
 
