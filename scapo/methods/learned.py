@@ -324,6 +324,26 @@ class LearnedOptions:
             raise ConfigError(f"batch_size must be >= 1, got {self.batch_size}")
 
 
+def check_run_fits(run: Path, ident: dict, data: ArticulationDataset, cross_category: bool, todo: str) -> None:
+    """Refuse to predict ``data`` with a run (identity ``ident``: category, part_names, joint_type,
+    joint_parts) of another kinematic structure, or of another category unless ``cross_category``.
+
+    Raises:
+        ConfigError: naming the run's and the dataset's category and structure, and ``todo``.
+    """
+    card = data.card
+    same = (len(ident["part_names"]) == len(card["part_names"])
+            and [int(t) for t in ident["joint_type"]] == [int(t) for t in card["joint_type"]]
+            and [list(map(int, p)) for p in ident["joint_parts"]] == [list(map(int, p)) for p in card["joint_parts"]])
+    what = (f"run {run} was trained on {ident['category']!r} ({structure_text(ident)}), but {data.root} is "
+            f"{card['category']!r} ({structure_text(card)})")
+    if not same:
+        raise ConfigError(f"{what}: a model predicts only the structure it was trained on; {todo}")
+    if ident["category"] != card["category"] and not cross_category:
+        raise ConfigError(f"{what}; train a run on this category, or pass --option cross_category=true to predict "
+                          "across categories anyway")
+
+
 def structure_text(d: dict) -> str:
     """``"2 parts (base, lid), joints: revolute"`` for a dataset card or a run identity."""
     kinds = ", ".join("revolute" if t == 0 else "prismatic" for t in d["joint_type"]) or "none"
@@ -368,17 +388,8 @@ class LearnedMethod:
         if not state.get("done"):
             raise TrainingError(f"{self.run} is an unfinished run (epoch {state.get('epoch')}); resume it: "
                                 f"scapo train --method {self.spec.method} --out {self.run} --data ...")
-        card = train.card
-        same = (len(ident["part_names"]) == len(card["part_names"])
-                and list(ident["joint_type"]) == [int(t) for t in card["joint_type"]]
-                and [list(p) for p in ident["joint_parts"]] == [list(map(int, p)) for p in card["joint_parts"]])
-        what = (f"run {self.run} was trained on {ident['category']!r} ({structure_text(ident)}), but {train.root} is "
-                f"{card['category']!r} ({structure_text(card)})")
-        if not same:
-            raise ConfigError(f"{what}: train a run on this dataset first ('scapo train --method {self.spec.method} "
-                              f"--data {train.root} --out RUN')")
-        if ident["category"] != card["category"] and not o.cross_category:
-            raise ConfigError(f"{what}; train a run on this category, or pass --option cross_category=true")
+        check_run_fits(self.run, ident, train, o.cross_category, f"train a run on this dataset first ('scapo train "
+                       f"--method {self.spec.method} --data {train.root} --out RUN')")
         cls = type(self.spec.presets.get(self.spec.presets.names()[0]))
         self.preset = _preset_from_dict(cls, ident["preset"])
         self.net = self.spec.build(ident, self.preset).to(dev)
@@ -393,6 +404,8 @@ class LearnedMethod:
 
     @torch.no_grad()
     def predict(self, dataset: ArticulationDataset) -> Predictions:
+        """Predictions for every sample of ``dataset`` (batches of ``batch_size`` clouds, no gradient);
+        only the ``points`` are read."""
         a = dataset.arrays(["points"])
         M = len(a["points"])
         t0 = time.perf_counter()

@@ -81,6 +81,7 @@ class MethodEntry:
 
     @property
     def trained(self) -> bool:
+        """Whether the method is trained by ``scapo train`` (else its ``fit`` is all it needs)."""
         return self.train is not None
 
     def marks(self) -> str:

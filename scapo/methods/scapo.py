@@ -16,7 +16,7 @@ import numpy as np
 from scapo.data.dataset import ArticulationDataset
 from scapo.errors import ConfigError
 from scapo.eval.predictions import Predictions
-from scapo.methods.learned import LearnedOptions, structure_text
+from scapo.methods.learned import LearnedOptions, check_run_fits
 from scapo.methods.registry import register_method
 from scapo.models.predict import Predictor
 from scapo.models.presets import PRESETS
@@ -64,18 +64,9 @@ class SCAPOMethod:
         """
         o = self.options
         self.predictor = Predictor.load(self.run, o.device, o.refine_steps, o.refine_margin)
-        ident, card = self.predictor.identity, train.card
-        same = (len(ident["part_names"]) == len(card["part_names"])
-                and np.array_equal(np.asarray(ident["joint_type"]), np.asarray(card["joint_type"]))
-                and np.array_equal(np.asarray(ident["joint_parts"]), np.asarray(card["joint_parts"])))
-        what = (f"run {self.run} was trained on {ident['category']!r} ({structure_text(ident)}), but {train.root} is "
-                f"{card['category']!r} ({structure_text(card)})")
-        if not same:
-            raise ConfigError(f"{what}: a SCAPO model predicts only the structure it was trained on; train a run on "
-                              f"this dataset first ('scapo train --data {train.root} --out RUN')")
-        if ident["category"] != card["category"] and not o.cross_category:
-            raise ConfigError(f"{what}; train a run on this category, or pass --option cross_category=true to "
-                              "predict across categories anyway")
+        ident = self.predictor.identity
+        check_run_fits(self.run, ident, train, o.cross_category,
+                       f"train a run on this dataset first ('scapo train --data {train.root} --out RUN')")
         self.trained_on = ident["dataset_hash"]
 
     def predict(self, dataset: ArticulationDataset) -> Predictions:
