@@ -1,4 +1,4 @@
-"""The SCAPO model: vector-neuron layers, SE(3) auto-encoder, blend skinning, training and inference.
+"""The SCAPO model (built from :mod:`scapo.nn`): the two-stage network, presets, training and inference.
 
 ``scapo.models.load(run_dir).predict(points)`` runs a trained model on ``(B, N, 3)`` float32
 camera-frame points (metres) on CPU or CUDA.
