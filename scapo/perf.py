@@ -160,6 +160,23 @@ def _median_seconds(fn, iters: int, cuda: bool) -> float:
     return float(np.median(times))
 
 
+def _inference_speed(fn, device, num_points: int, iters: int) -> dict:
+    """``fn(points (B, N, 3))`` timed on box clouds on ``device``: ms per cloud and clouds/s at batch 1,
+    clouds/s at batch 32 (medians over ``iters`` calls after a warm-up)."""
+    import torch
+
+    out = {}
+    for batch in (1, 32):
+        pts = torch.from_numpy(_box_clouds(batch, num_points, seed=1)).to(device)
+        med = _median_seconds(functools.partial(fn, pts), iters, device.type == "cuda")
+        if batch == 1:
+            out["infer_ms_per_cloud_b1"] = round(1000 * med, 2)
+            out["infer_clouds_per_s_b1"] = round(1 / med, 2)
+        else:
+            out["infer_clouds_per_s_b32"] = round(batch / med, 2)
+    return out
+
+
 def _train_step(model, opt, points, stage: int, losses) -> None:
     """One optimiser step of ``stage`` on camera-frame ``points (B, N, 3)``, as the trainer takes it."""
     from scapo.models.scapo_model import SCAPOModel
@@ -205,14 +222,9 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
                                   dev == "cuda")
             row[f"train_stage{stage}_samples_per_s"] = round(pc.batch_size / med, 2)
         model.eval()
+        row.update(_inference_speed(model.predict, d, num_points, iters))
         for batch in (1, 32):
             pts = torch.from_numpy(_box_clouds(batch, num_points, seed=1)).to(d)
-            med = _median_seconds(functools.partial(model.predict, pts), iters, dev == "cuda")
-            if batch == 1:
-                row["infer_ms_per_cloud_b1"] = round(1000 * med, 2)
-                row["infer_clouds_per_s_b1"] = round(1 / med, 2)
-            else:
-                row["infer_clouds_per_s_b32"] = round(batch / med, 2)
             if pc.refine.steps > 0:  # the preset's test-time refinement on top (scapo.models.refine)
                 med = _median_seconds(functools.partial(model.predict, pts, pc.refine), iters, dev == "cuda")
                 key = "refined_ms_per_cloud_b1" if batch == 1 else "refined_clouds_per_s_b32"
@@ -281,15 +293,8 @@ def bench_method(method: str, preset: str = "cpu", device: str | None = None, da
     for dev in devices:
         torch.manual_seed(0)
         net = spec.build(card, pc).to(resolved[dev]).eval()
-        row = {"method": method, "preset": preset, "device": dev, "points": num_points}
-        for batch in (1, 32):
-            pts = torch.from_numpy(_box_clouds(batch, num_points, seed=1)).to(resolved[dev])
-            med = _median_seconds(functools.partial(net.infer, pts), iters, dev == "cuda")
-            if batch == 1:
-                row["infer_ms_per_cloud_b1"] = round(1000 * med, 2)
-                row["infer_clouds_per_s_b1"] = round(1 / med, 2)
-            else:
-                row["infer_clouds_per_s_b32"] = round(batch / med, 2)
+        row = {"method": method, "preset": preset, "device": dev, "points": num_points,
+               **_inference_speed(net.infer, resolved[dev], num_points, iters)}
         row["threads"] = torch.get_num_threads()
         rows.append(row)
     return rows
