@@ -91,3 +91,150 @@ def prediction_figure(data: str | Path, predictions: Predictions, path: str | Pa
     atomic_savefig(fig, path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _matched_labels(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """Predicted part labels renamed to the ground-truth part each overlaps most (Hungarian on the
+    point counts of one cloud), so that colours compare across methods; unmatched slots become -1."""
+    from scipy.optimize import linear_sum_assignment
+
+    S, P = int(max(pred.max(), 0)) + 1, int(max(gt.max(), 0)) + 1
+    counts = np.zeros((S, P))
+    ok = (pred >= 0) & (gt >= 0)
+    np.add.at(counts, (pred[ok], gt[ok]), 1)
+    rows, cols = linear_sum_assignment(-counts)
+    table = np.full(S, -1, dtype=np.int64)
+    table[rows] = cols
+    return np.where(pred >= 0, table[np.maximum(pred, 0)], -1)
+
+
+def _draw_axes(ax, pts: np.ndarray, types, axes, pivots, diag: float) -> None:
+    for t, a, p in zip(types, axes, pivots):
+        p = p if t == 0 else pts.mean(0)  # a prismatic joint has no pivot: drawn through the centroid
+        seg = np.stack([p - 0.3 * diag * a, p + 0.3 * diag * a])
+        ax.plot(seg[:, 0], seg[:, 2], -seg[:, 1], "-", color="k" if t == 0 else "m", lw=2)
+
+
+def methods_figure(data: str | Path, predictions: dict, path: str | Path, count: int = 3,
+                   names: dict | None = None) -> Path:
+    """Ground truth and every method's output on the same test views.
+
+    Args:
+        data: dataset folder. predictions: row label -> :class:`~scapo.eval.predictions.Predictions`
+            covering its test split. path: PNG to write. count: test views, spread over the split.
+        names: row label -> display name.
+
+    One column per view; the first row is the ground truth (part labels and joint axes), then one row
+    per method: its segmentation, each predicted part coloured as the ground-truth part it overlaps
+    most in that cloud (a display choice; the evaluator's matching is the protocol's), and its joint
+    axes (black: revolute, through the pivot; magenta: prismatic, through the centroid). Camera frame.
+
+    Raises:
+        DatasetError: no test split. PredictionError: predictions that miss a shown view.
+        OutputError: unwritable ``path``.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from scapo.errors import PredictionError
+
+    ds = load(data, "test")
+    if len(ds) == 0:
+        raise DatasetError(f"the test split of {data} is empty")
+    check_output_file(path, "figure", "figure.png")
+    names = dict(names or {})
+    idx = np.linspace(0, len(ds) - 1, min(count, len(ds))).round().astype(int)
+    items = [ds[int(i)] for i in idx]
+    rows = [("ground truth", None), *predictions.items()]
+    fig = plt.figure(figsize=(3.0 * len(items), 2.9 * len(rows)))
+    for r, (label, preds) in enumerate(rows):
+        index = None if preds is None else {(int(i), int(v)): k for k, (i, v, s) in enumerate(
+            zip(preds.instance_id, preds.view_id, preds.split)) if s == "test"}
+        for c, item in enumerate(items):
+            ax = fig.add_subplot(len(rows), len(items), r * len(items) + c + 1, projection="3d")
+            pts, diag = item["points"], float(item["bbox_diag"])
+            if preds is None:
+                lab, jt, ja, jp = item["part_label"], item["joint_type"], item["joint_axis"], item["joint_pivot"]
+                title = f"GT #{item['instance_id']} view {item['view_id']}"
+            else:
+                k = index.get((int(item["instance_id"]), int(item["view_id"])))
+                if k is None:
+                    raise PredictionError(f"predictions {label!r} miss test sample {item['instance_id']}/"
+                                          f"{item['view_id']} of {data}")
+                lab = _matched_labels(preds.part_label[k], item["part_label"])
+                jt, ja, jp = preds.joint_type[k], preds.joint_axis[k], preds.joint_pivot[k]
+                title = names.get(label, label)
+            ax.scatter(pts[:, 0], pts[:, 2], -pts[:, 1], c=part_colors(lab), s=1.2, depthshade=False)
+            _draw_axes(ax, pts, jt, ja, jp, diag)
+            ax.set_title(title, fontsize=8)
+            frame_cloud_axes(ax, pts, diag)
+    handles = [Line2D([], [], marker="o", ls="", color=PART_COLORS[i], label=nm) for i, nm in enumerate(ds.part_names)]
+    handles += [Line2D([], [], color="k", lw=2, label="revolute axis"),
+                Line2D([], [], color="m", lw=2, label="prismatic axis")]
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8)
+    fig.suptitle(f"{ds.card.get('category', '')}: test views, ground truth and each method (parts coloured as the "
+                 "GT part they overlap most)", fontsize=9)
+    fig.tight_layout(rect=(0, 0.03, 1, 0.97))
+    atomic_savefig(fig, Path(path), dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def error_distribution_figure(results, path: str | Path, names: dict | None = None) -> Path:
+    """Cumulative distributions of the part rotation error R (top row; every part of every test
+    sample) and the joint direction error D (bottom row; every joint), one column per category and one
+    curve per method, its training seeds pooled; log error axis, so medians and flip rates (R > 90 deg)
+    both show.
+
+    Args:
+        results: :class:`~scapo.eval.EvalResult` list (test split; per-sample columns ``R_p*``, ``D_j*``).
+        path: PNG to write. names: method label -> display name.
+
+    Raises:
+        OutputError: unwritable ``path``. ValueError: no results.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not results:
+        raise ValueError("no results to plot")
+    check_output_file(path, "figure", "errors.png")
+    names = dict(names or {})
+    cats = list(dict.fromkeys(r.category for r in results))
+    methods = list(dict.fromkeys(r.method for r in results))
+    fig, axes = plt.subplots(2, len(cats), figsize=(3.4 * len(cats), 6.0), squeeze=False)
+    for c, cat in enumerate(cats):
+        for row, (prefix, what) in enumerate((("R_p", "part rotation error R (deg)"),
+                                              ("D_j", "joint direction error D (deg)"))):
+            ax = axes[row, c]
+            for i, m in enumerate(methods):
+                rs = [r for r in results if r.category == cat and r.method == m]
+                vals = np.concatenate([r.per_sample[[k for k in r.per_sample.columns if k.startswith(prefix)]]
+                                       .to_numpy(dtype=np.float64).ravel() for r in rs]) if rs else np.zeros(0)
+                vals = np.sort(vals[np.isfinite(vals)])
+                if vals.size == 0:
+                    continue
+                y = np.arange(1, vals.size + 1) / vals.size
+                ax.step(np.maximum(vals, 0.1), y, where="post", color=PART_COLORS[i % len(PART_COLORS)],
+                        label=f"{names.get(m, m)} (n={len(rs)})" if c == 0 and row == 0 else None)
+            ax.set_xscale("log")
+            ax.set_xlim(0.1, 180)
+            ax.set_ylim(0, 1)
+            ax.axvline(5, color="0.8", lw=0.8)
+            ax.axvline(90, color="0.8", lw=0.8)
+            ax.set_xlabel(what, fontsize=8)
+            ax.set_ylabel("fraction <= x", fontsize=8)
+            ax.tick_params(labelsize=7)
+            ax.set_title(cat, fontsize=9)
+    fig.legend(loc="lower center", ncol=min(len(methods), 5), fontsize=8)
+    fig.suptitle("Error distributions on the test split (seeds pooled; n: training seeds); grey lines at 5 and "
+                 "90 deg", fontsize=9)
+    fig.tight_layout(rect=(0, 0.06, 1, 0.96))
+    atomic_savefig(fig, Path(path), dpi=90)
+    plt.close(fig)
+    return Path(path)

@@ -228,42 +228,61 @@ def cmd_bench_choose(args) -> int:
 def cmd_bench(args) -> int:
     if args.what == "choose":
         return cmd_bench_choose(args)
-    if min(args.workers) < 1 or args.instances < 1 or args.views < 1:
+    if args.what in ("table1", "table3"):
+        return cmd_bench_table(args)
+    instances, views = args.instances or 20, args.views or 30
+    if min(args.workers) < 1 or instances < 1 or views < 1:
         raise ConfigError("--workers, --instances and --views must be >= 1")
-    if args.what == "perf":
-        from scapo.files import check_output_dir
+    from scapo.files import check_output_dir
 
-        if args.out:
-            check_output_dir(args.out, "benchmark output folder")
-        from scapo.perf import write_perf
+    if args.out:
+        check_output_dir(args.out, "benchmark output folder")
+    from scapo.perf import write_perf
 
-        if args.target == "generate":
-            from scapo.perf import bench_generate
+    if args.target == "generate":
+        from scapo.perf import bench_generate
 
-            rows = bench_generate(args.category, args.instances, args.views, tuple(args.workers), args.seed,
-                                  args.cache)
-            name = f"generate_{args.category}"
-        elif args.method is None:
-            from scapo.perf import bench_model
+        rows = bench_generate(args.category, instances, views, tuple(args.workers), args.seed, args.cache)
+        name = f"generate_{args.category}"
+    elif args.method is None:
+        from scapo.perf import bench_model
 
-            rows = bench_model(args.preset, device=args.device)
-            name = f"model_{args.preset}"
-        else:
-            from scapo.perf import bench_method
+        rows = bench_model(args.preset, device=args.device)
+        name = f"model_{args.preset}"
+    else:
+        from scapo.perf import bench_method
 
-            rows = bench_method(args.method, args.preset, device=args.device, data=args.data)
-            name = f"model_{args.method}_{args.preset}"
-        for r in rows:
-            print(r)
-        if args.out:
-            paths = write_perf(rows, args.out, name)
-            print("wrote " + ", ".join(str(p) for p in paths))
-        return 0
-    from scapo.bench import run_table1
+        rows = bench_method(args.method, args.preset, device=args.device, data=args.data)
+        name = f"model_{args.method}_{args.preset}"
+    for r in rows:
+        print(r)
+    if args.out:
+        paths = write_perf(rows, args.out, name)
+        print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
 
-    run_table1(methods=args.methods, categories=args.categories, instances=args.instances, views=args.views,
-               seed=args.seed, work_dir=args.work, out_dir=args.out, workers=args.workers[0], cache_dir=args.cache,
-               preset=args.preset, seeds=args.seeds, protocol=args.protocol)
+
+def cmd_bench_table(args) -> int:
+    """``scapo bench table1|table3``: the paper's tables, resumable per cell (``--dry-run`` lists the cells)."""
+    from scapo.bench import TABLE1_CATEGORIES, parse_category_seeds, run_table1, run_table3
+    from scapo.methods import METHODS
+
+    instances, views = args.instances or 80, args.views or 16
+    if min(args.workers) < 1 or instances < 1 or views < 1:
+        raise ConfigError("--workers, --instances and --views must be >= 1")
+    common = dict(instances=instances, views=views, data_seed=args.seed, work_dir=args.work,
+                  out_dir=args.out or Path("results"), preset=args.preset, seeds=args.seeds,
+                  category_seeds=parse_category_seeds(args.category_seeds), protocol=args.protocol,
+                  workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run,
+                  progress=not args.no_progress, device=args.device)
+    if args.what == "table1":
+        run_table1(methods=args.methods or list(METHODS), categories=args.categories or list(TABLE1_CATEGORIES),
+                   name=args.name or "table1_synthetic", **common)
+    else:
+        if args.methods and args.methods != ["scapo"]:
+            raise ConfigError("bench table3 is SCAPO's ablation; it takes no --methods")
+        run_table3(categories=args.categories or ["laptop", "eyeglasses"], name=args.name or "table3_ablation",
+                   **common)
     return 0
 
 
@@ -367,31 +386,40 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--name", default="table1")
     sp.set_defaults(func=cmd_evaluate)
 
-    sp = sub.add_parser("bench", help="benchmarks: perf (throughput), table1 (paper's Table 1), choose (an option "
-                        "value on the val split)")
-    sp.add_argument("what", choices=["perf", "table1", "choose"])
+    sp = sub.add_parser("bench", help="benchmarks: perf (throughput), table1 / table3 (the paper's tables, resumable "
+                        "per cell), choose (an option value on the val split)")
+    sp.add_argument("what", choices=["perf", "table1", "table3", "choose"])
     sp.add_argument("--data", type=Path, default=None, help="choose: the dataset (its val split is used)")
     sp.add_argument("--candidate", action="append", default=[], help="choose: VALUE=GLOB of that value's "
                     "predictions files (one per training seed); repeat per value")
     sp.add_argument("--criterion", default="D+R", help="choose: what to minimise on val, averaged over seeds "
                     "(D+R, R, D, R_median, -S)")
-    sp.add_argument("--protocol", default="scapo", help="choose and table1: evaluation protocol")
+    sp.add_argument("--protocol", default="scapo", help="choose, table1, table3: evaluation protocol")
     sp.add_argument("--what", dest="target", choices=["generate", "model"], default="generate",
                     help="perf: generation throughput, or SCAPO training/inference speed")
-    sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1)")
+    sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3; a "
+                    "method's per-category preset PRESET-CATEGORY is used where it has one)")
     sp.add_argument("--method", default=None, help="perf --what model: time this method's inference (default: "
                     "SCAPO training and inference; icp also needs --data)")
-    sp.add_argument("--device", default=None, help="perf --what model: cpu | cuda")
+    sp.add_argument("--device", default=None, help="perf --what model, table1, table3: cpu | cuda")
     sp.add_argument("--category", default="laptop", help="perf: category")
-    sp.add_argument("--categories", type=_names, default=["laptop", "safe", "eyeglasses", "oven", "washer"])
-    sp.add_argument("--methods", type=_names, default=["icp"])
-    sp.add_argument("--instances", type=int, default=20)
-    sp.add_argument("--views", type=int, default=30)
+    sp.add_argument("--categories", type=_names, default=None,
+                    help="table1: default laptop,safe,eyeglasses,oven,washer; table3: default laptop,eyeglasses")
+    sp.add_argument("--methods", type=_names, default=None, help="table1: default every registered method")
+    sp.add_argument("--instances", type=int, default=None, help="instances per category (table1/3: 80; perf: 20)")
+    sp.add_argument("--views", type=int, default=None, help="views per instance (table1/3: 16; perf: 30)")
     sp.add_argument("--workers", type=_ints, default=[1, 2])
     sp.add_argument("--seed", type=int, default=0, help="seed of the data (assets, splits, views)")
-    sp.add_argument("--seeds", type=_ints, default=[0], help="table1: training seeds of trained methods (e.g. 0,1,2)")
-    sp.add_argument("--work", type=Path, default=Path("bench_work"), help="table1: datasets and predictions")
-    sp.add_argument("--out", type=Path, default=None, help="write result files here (e.g. results/)")
+    sp.add_argument("--seeds", type=_ints, default=[0], help="table1/3: training seeds of trained methods (e.g. 0,1,2)")
+    sp.add_argument("--category-seeds", action="append", default=[], metavar="CAT=SEEDS",
+                    help="table1/3: training seeds for one category instead of --seeds (e.g. safe=0); repeatable")
+    sp.add_argument("--work", type=Path, default=Path("bench_work"), help="table1/3: datasets, runs, predictions, "
+                    "cell records")
+    sp.add_argument("--dry-run", action="store_true", help="table1/3: list the cells and which are done; compute "
+                    "nothing")
+    sp.add_argument("--name", default=None, help="table1/3: file name stem (table1_synthetic, table3_ablation)")
+    sp.add_argument("--no-progress", action="store_true")
+    sp.add_argument("--out", type=Path, default=None, help="write result files here (table1/3: default results/)")
     common_cache(sp)
     sp.set_defaults(func=cmd_bench)
 

@@ -222,7 +222,8 @@ def run_method(name: str, data: str | Path, out: str | Path | None = None, **opt
     preds = Predictions.concatenate(parts)
     preds.dataset_hash = test.dataset_hash
     preds.info = {**preds.info, "fit_seconds": round(t_fit, 3), "predict_seconds_test": round(t_pred, 3),
-                  "ms_per_cloud_test": round(1000 * t_pred / max(len(test), 1), 3)}
+                  "ms_per_cloud_test": round(1000 * t_pred / max(len(test), 1), 3),
+                  "predict_seconds_total": round(time.perf_counter() - t0, 3)}  # fit and every split
     if out is not None:
         preds.save(out)
     return preds

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from scapo.errors import ConfigError, InputError, TrainingError
-from scapo.models.presets import PRESETS
+from scapo.models.presets import PRESETS, get_preset
 from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.models.train import preset_from_dict, resolve_device
@@ -132,8 +132,8 @@ class Predictor:
             raise TrainingError(f"{path} is from an unfinished run (stage {state.get('stage')}, epoch "
                                 f"{state.get('epoch')}); resume it with 'scapo train --out {run}' first")
         # an inference setting follows the preset's current definition when the preset is registered
-        registered = stored.get("name") in PRESETS.names()
-        refine = (PRESETS.get(stored["name"]) if registered else preset_from_dict(stored)).refine
+        registered = str(stored.get("name", "")).split("/")[0] in PRESETS.names()
+        refine = (get_preset(stored["name"]) if registered else preset_from_dict(stored)).refine
         try:
             if refine_steps is not None:
                 refine = dataclasses.replace(refine, steps=int(refine_steps))

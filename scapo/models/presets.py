@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from scapo.errors import ConfigError
 from scapo.losses import LossConfig
@@ -92,6 +92,38 @@ PRESETS.add("test", TrainConfig(
                           decoder_hidden=(64, 64)),
     template_points=128, part_init=False,  # the rigid-split search is tested on its own (tests/test_part_init.py)
 ))
+
+
+#: The ablations of the paper's Table 3: the regularisers switched off one at a time.
+ABLATIONS = ("shape_var", "dir_align", "joint_prox", "joint_boundary")
+
+
+def get_preset(name: str) -> TrainConfig:
+    """A registered preset, or an ablation of one: ``"BASE/no-TERM[/no-TERM...]"`` is preset ``BASE``
+    with the regulariser ``TERM`` (a name of :data:`scapo.losses.REGULARISERS`, e.g. ``shape_var``)
+    switched off (``LossConfig.disabled``); its ``name`` is the full string, so runs and tables name the
+    ablation. The paper's Table 3 rows are ``cpu/no-shape_var``, ``cpu/no-dir_align``,
+    ``cpu/no-joint_prox`` and ``cpu/no-joint_boundary`` (or with ``paper``).
+
+    Raises:
+        UnknownNameError: an unknown base preset or regulariser (the message lists the known ones).
+    """
+    from scapo.errors import UnknownNameError
+    from scapo.losses import REGULARISERS
+
+    base, *parts = str(name).split("/")
+    cfg = PRESETS.get(base)
+    if not parts:
+        return cfg
+    disabled = list(cfg.losses.disabled)
+    for part in parts:
+        term = part[3:] if part.startswith("no-") else None
+        if term not in REGULARISERS:
+            raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "
+                                   f"{', '.join(REGULARISERS)} (e.g. {base}/no-shape_var)")
+        if term not in disabled:
+            disabled.append(term)
+    return replace(cfg, name=str(name), losses=replace(cfg.losses, disabled=tuple(disabled)))
 
 
 def list_presets() -> list[str]:

@@ -34,7 +34,7 @@ from scapo.files import (
     write_json,
 )
 from scapo.losses import LossConfig, stage1_terms, stage2_terms, weighted_total
-from scapo.models.presets import PRESETS, TrainConfig
+from scapo.models.presets import TrainConfig, get_preset
 from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.nn.encoder import EncoderConfig
@@ -145,7 +145,7 @@ class Trainer:
                  device: str | None = None):
         self.data = Path(data)
         self.run = Path(run)
-        self.preset = PRESETS.get(preset) if isinstance(preset, str) else preset
+        self.preset = get_preset(preset) if isinstance(preset, str) else preset
         self.progress = progress
         train = load(self.data, "train")
         self.card = train.card
@@ -253,6 +253,7 @@ class Trainer:
                        dynamic_ncols=True)
         log_path = self.run / "log.csv"
         t0 = time.perf_counter()
+        before = float(state.get("seconds", 0.0)) if state is not None else 0.0  # training time of earlier sessions
         try:
             for stage in (1, 2):
                 if stage < start_stage:
@@ -278,12 +279,14 @@ class Trainer:
                     self._save({"model": self.model.state_dict(), "optimizer": opt.state_dict(),
                                 "scheduler": sched.state_dict(), "stage": nxt[0], "epoch": nxt[1], "done": done,
                                 "identity": self.identity, "identity_hash": _identity_hash(self.identity),
-                                "model_config": dataclasses.asdict(self.mcfg)})
+                                "model_config": dataclasses.asdict(self.mcfg),
+                                "seconds": before + time.perf_counter() - t0})
                     plot_losses(log_path, self.run / "losses.png")
         finally:
             if bar is not None:
                 bar.close()
-        atomic_write_text(self.run / "timing.json", json.dumps({"seconds": round(time.perf_counter() - t0, 1),
+        # the training time over every session that trained this run (resumes included)
+        atomic_write_text(self.run / "timing.json", json.dumps({"seconds": round(before + time.perf_counter() - t0, 1),
                                                                 "device": str(self.device)}) + "\n")
         return self._ckpt_path()
 
@@ -470,7 +473,7 @@ def train(data: str | Path, run: str | Path, preset: str | TrainConfig | None = 
     if seed is not None:
         if int(seed) < 0:
             raise ConfigError(f"seed must be >= 0, got {seed}")
-        preset = dataclasses.replace(PRESETS.get(preset) if isinstance(preset, str) else preset, seed=int(seed))
+        preset = dataclasses.replace(get_preset(preset) if isinstance(preset, str) else preset, seed=int(seed))
     return Trainer(data, run, preset, progress, device).train()
 
 

@@ -1,0 +1,233 @@
+"""Cells of a benchmark table: one method x category x training seed (x ablation), computed once.
+
+A cell lives in its dataset's folder of the bench work folder::
+
+    <work>/<category>_i<I>_v<V>_s<data seed>/
+        run_<key>/                      training run (trained methods; resumable per epoch)
+        predictions_<key>.npz           predictions of the test, val (and, when needed, train) splits
+        cells/<key>.<protocol>.json     the cell's record: evaluation summary, wall times, provenance
+        cells/<key>.<protocol>.parquet  its per-sample metrics (test split)
+
+with ``key`` = the method's label for a fitted method (``icp``) and ``<label>_<preset>_s<seed>`` for a
+trained one (``scapo_cpu_s0``; an ablation's ``/`` is written ``+``: ``scapo-no-shape_var_cpu+no-shape_var_s0``).
+
+A record is valid while its dataset hash, its predictions file (sha256) and the evaluator's source
+(:func:`evaluator_fingerprint`) are unchanged; a valid record is never recomputed, so a finished bench
+reruns in seconds and writes identical tables. Each step resumes on its own: a finished run is not
+retrained, existing predictions of the same dataset and run are not recomputed, and only the (cheap)
+evaluation is redone when the evaluator changed. Training, prediction and evaluation wall times are
+recorded per cell (training: summed over every session that trained the run, from its ``timing.json``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from dataclasses import asdict, dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import pandas as pd
+
+from scapo.data import load
+from scapo.errors import ConfigError
+from scapo.eval import EvalResult, Predictions, evaluate
+from scapo.files import atomic_write_bytes, write_json
+from scapo.methods import METHODS, run_method, train_method
+from scapo.provenance import provenance
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One cell of a benchmark table.
+
+    Attributes:
+        method: registry name (``scapo list``). category: dataset category.
+        seed: training seed of a trained method; None for a fitted one (ICP).
+        preset: the training preset actually used (a method's preset, a per-category preset
+            ``<preset>-<category>`` when the method registers one, or a SCAPO ablation
+            ``cpu/no-shape_var``); None for a fitted method.
+        label: the predictions' method label (the table row): the method name, or e.g.
+            ``scapo-no-shape_var`` for an ablation.
+    """
+
+    method: str
+    category: str
+    seed: int | None = None
+    preset: str | None = None
+    label: str = ""
+
+    def __post_init__(self):
+        if not self.label:
+            object.__setattr__(self, "label", self.method)
+        if (self.seed is None) != (self.preset is None):
+            raise ConfigError(f"cell {self.method}/{self.category}: a trained cell needs both a seed and a preset")
+
+    @property
+    def trained(self) -> bool:
+        return self.seed is not None
+
+    @property
+    def key(self) -> str:
+        """File-name key of the cell within its dataset folder (see the module docstring)."""
+        if not self.trained:
+            return self.label
+        return f"{self.label}_{self.preset.replace('/', '+')}_s{self.seed}"
+
+
+def method_preset(method: str, preset: str, category: str) -> str:
+    """The preset ``method`` trains with on ``category`` when the bench asks for ``preset``: the
+    per-category preset ``<preset>-<category>`` when the method registers one (chosen on the
+    validation split; see the method's preset definitions), else ``preset`` itself.
+
+    Raises:
+        UnknownNameError: unknown method. ConfigError: a trained method without that preset.
+    """
+    entry = METHODS.get(method)
+    if f"{preset}-{category}" in entry.presets:
+        return f"{preset}-{category}"
+    if preset not in entry.presets:
+        raise ConfigError(f"method {method!r} has no preset {preset!r}; its presets: {', '.join(entry.presets)}")
+    return preset
+
+
+@lru_cache(maxsize=1)
+def evaluator_fingerprint() -> str:
+    """sha256 (16 hex digits) of the evaluator's source (``scapo/eval/*.py``, reference tables
+    excluded): a change of metrics, matching, alignment or protocols invalidates every cached score."""
+    import scapo.eval
+
+    root = Path(scapo.eval.__file__).parent
+    h = hashlib.sha256()
+    for p in sorted(root.glob("*.py")):
+        if p.name == "tables.py":  # presentation only; the scores do not depend on it
+            continue
+        h.update(p.name.encode() + b"\0" + p.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+@dataclass
+class CellPaths:
+    run: Path
+    predictions: Path
+    record: Path
+    per_sample: Path
+
+
+def cell_paths(data: Path, cell: Cell, protocol: str) -> CellPaths:
+    data = Path(data)
+    return CellPaths(run=data / f"run_{cell.key}", predictions=data / f"predictions_{cell.key}.npz",
+                     record=data / "cells" / f"{cell.key}.{protocol}.json",
+                     per_sample=data / "cells" / f"{cell.key}.{protocol}.parquet")
+
+
+def _read_record(paths: CellPaths, dataset_hash: str) -> dict | None:
+    """The cell's record when it is still valid (same dataset, predictions and evaluator), else None."""
+    try:
+        rec = json.loads(paths.record.read_text())
+    except (OSError, ValueError):
+        return None
+    if (rec.get("dataset_hash") != dataset_hash or rec.get("evaluator") != evaluator_fingerprint()
+            or not paths.predictions.is_file() or not paths.per_sample.is_file()
+            or rec.get("predictions_sha256") != _sha256(paths.predictions)):
+        return None
+    return rec
+
+
+def _result_of(rec: dict, paths: CellPaths) -> EvalResult:
+    per_sample = pd.read_parquet(paths.per_sample)
+    return EvalResult(method=rec["label"], category=rec["category"], split="test", per_sample=per_sample,
+                      summary=rec["summary"], info=rec["info"])
+
+
+def _run_finished(run: Path) -> bool:
+    return (run / "timing.json").is_file()
+
+
+def cell_status(data: Path, cell: Cell, protocol: str, dataset_hash: str | None) -> str:
+    """What is left of a cell: ``done``, ``evaluate`` (predictions exist), ``predict`` (run trained),
+    ``resume training`` (a partial run) or ``todo`` (nothing yet; also when the dataset is not built)."""
+    paths = cell_paths(data, cell, protocol)
+    if dataset_hash is None:
+        return "todo"
+    if _read_record(paths, dataset_hash) is not None:
+        return "done"
+    if paths.predictions.is_file():
+        return "evaluate"
+    if cell.trained and _run_finished(paths.run):
+        return "predict"
+    if cell.trained and (paths.run / "checkpoint.pt").is_file():
+        return "resume training"
+    return "todo"
+
+
+def _predictions_fit(path: Path, dataset_hash: str, cell: Cell, run: Path) -> bool:
+    """Existing predictions belong to this dataset and (trained methods) to this run."""
+    try:
+        p = Predictions.load(path)
+    except Exception:  # noqa: BLE001 - a damaged or foreign file is recomputed, never trusted
+        return False
+    if p.dataset_hash != dataset_hash or p.method != cell.label:
+        return False
+    return not cell.trained or Path(p.info.get("run", "")).resolve() == run.resolve()
+
+
+def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
+                 device: str | None = None) -> tuple[EvalResult, dict, bool]:
+    """Compute (or load) one cell: train, predict, evaluate on the test split of ``data``.
+
+    Returns:
+        (the test-split :class:`EvalResult`, the cell's record, whether anything was computed).
+
+    Raises:
+        As :func:`~scapo.methods.train_method`, :func:`~scapo.methods.run_method` and
+        :func:`~scapo.eval.evaluate` (every input is checked there); OutputError when the record
+        cannot be written.
+    """
+    data = Path(data)
+    paths = cell_paths(data, cell, protocol)
+    dataset_hash = load(data, "test").dataset_hash
+    rec = _read_record(paths, dataset_hash)
+    if rec is not None:
+        return _result_of(rec, paths), rec, False
+    wall: dict = {}
+    if cell.trained:
+        train_method(cell.method, data, paths.run, cell.preset, progress=progress, device=device, seed=cell.seed)
+        timing = json.loads((paths.run / "timing.json").read_text())
+        wall.update(train_s=float(timing["seconds"]), train_device=timing.get("device"))
+    t0 = time.perf_counter()
+    if paths.predictions.is_file() and _predictions_fit(paths.predictions, dataset_hash, cell, paths.run):
+        preds = Predictions.load(paths.predictions)
+        # predictions written before the bench timed them: the method's own timing of the splits
+        wall["predict_s"] = float(preds.info.get("predict_seconds_total", preds.info.get("fit_seconds", 0.0)
+                                                 + preds.info.get("predict_seconds_test", 0.0)))
+    else:
+        opts = {"run": paths.run, "label": cell.label} if cell.trained else {}
+        if device is not None and cell.trained:
+            opts["device"] = device
+        preds = run_method(cell.method, data, paths.predictions, progress=progress, **opts)
+        wall["predict_s"] = round(time.perf_counter() - t0, 3)
+    t1 = time.perf_counter()
+    res = evaluate(data, preds, protocol=protocol)
+    wall["evaluate_s"] = round(time.perf_counter() - t1, 3)
+    rec = {"cell": asdict(cell), "key": cell.key, "label": cell.label, "category": cell.category,
+           "protocol": protocol, "dataset": str(data), "dataset_hash": dataset_hash,
+           "predictions": paths.predictions.name, "predictions_sha256": _sha256(paths.predictions),
+           "run": paths.run.name if cell.trained else None, "evaluator": evaluator_fingerprint(),
+           "summary": res.summary, "info": json.loads(json.dumps(res.info, default=str)), "wall": wall,
+           "provenance": provenance(torch_device=wall.get("train_device") or None)}
+    paths.record.parent.mkdir(parents=True, exist_ok=True)
+    buf = res.per_sample.to_parquet(index=False)
+    atomic_write_bytes(paths.per_sample, buf)
+    write_json(paths.record, rec)
+    rec = json.loads(paths.record.read_text())  # as a rerun will read it (same key order, same floats)
+    return _result_of(rec, paths), rec, True

@@ -1,0 +1,287 @@
+"""The paper's tables regenerated with our methods: ``scapo bench table1`` and ``scapo bench table3``.
+
+Both are lists of :class:`~scapo.bench.cells.Cell` computed one by one (:func:`~scapo.bench.cells.compute_cell`:
+resumable per cell, a finished cell is never recomputed), then written as tables and figures from the
+cells' records alone, so a rerun of a finished bench recomputes nothing and writes identical files.
+
+- Table 1 (:func:`run_table1`): every method x category x training seed, in the paper's Table 1
+  layout with the robust statistics below it (:func:`scapo.eval.tables.write_table1`), per category a
+  figure of test views (ground truth and each method's segmentation and joint axes) and one figure of
+  the error distributions (R and D per method and category).
+- Table 3 (:func:`run_table3`): SCAPO with each regulariser of the paper's ablation switched off
+  (presets ``<preset>/no-<term>``, :func:`scapo.models.presets.get_preset`) beside the full model,
+  whose cells are Table 1's SCAPO cells when both benches share the work folder.
+
+The tables' provenance is a function of the cells (their commits, devices, presets, dataset hashes
+and wall times), not of the moment the tables were written.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+from scapo.bench.cells import Cell, cell_paths, cell_status, compute_cell, method_preset
+from scapo.data import generate, load, make_config
+from scapo.errors import ConfigError
+from scapo.files import check_output_dir
+from scapo.methods import METHODS, describe
+
+#: Categories of the paper's Table 1 (and of our Table 3), in its column order.
+TABLE1_CATEGORIES = ("laptop", "safe", "eyeglasses", "oven", "washer")
+
+
+def dataset_dir(work: Path, category: str, instances: int, views: int, seed: int) -> Path:
+    """``<work>/<category>_i<instances>_v<views>_s<seed>`` (the generator refuses a folder of another config)."""
+    return Path(work) / f"{category}_i{instances}_v{views}_s{seed}"
+
+
+def parse_category_seeds(specs: Sequence[str]) -> dict[str, list[int]]:
+    """``["safe=0", "laptop=0,1,2"]`` -> ``{"safe": [0], "laptop": [0, 1, 2]}``.
+
+    Raises:
+        ConfigError: a spec that is not ``CATEGORY=SEED[,SEED...]`` with seeds >= 0.
+    """
+    out: dict[str, list[int]] = {}
+    for spec in specs:
+        cat, eq, seeds = str(spec).partition("=")
+        try:
+            vals = [int(s) for s in seeds.split(",") if s.strip()]
+        except ValueError:
+            vals = []
+        if not eq or not cat or not vals or min(vals) < 0:
+            raise ConfigError(f"--category-seeds {spec!r} is not CATEGORY=SEED[,SEED...] (e.g. safe=0 or "
+                              "laptop=0,1,2)")
+        out[cat] = vals
+    return out
+
+
+def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str, seeds: Sequence[int],
+                 category_seeds: dict[str, list[int]] | None = None) -> list[Cell]:
+    """Every cell of Table 1: per category, per method, per training seed of a trained method
+    (``category_seeds[cat]`` overrides ``seeds`` for that category).
+
+    Raises:
+        UnknownNameError: unknown method. ConfigError: a preset a trained method does not have, a
+        category in ``category_seeds`` that is not in ``categories``, or no seeds.
+    """
+    category_seeds = dict(category_seeds or {})
+    extra = set(category_seeds) - set(categories)
+    if extra:
+        raise ConfigError(f"--category-seeds names {', '.join(sorted(extra))}, which is not among the categories "
+                          f"({', '.join(categories)})")
+    cells = []
+    for cat in categories:
+        cat_seeds = [int(s) for s in category_seeds.get(cat, seeds)]
+        if not cat_seeds:
+            raise ConfigError("no training seeds given (--seeds 0,1,2)")
+        for m in methods:
+            entry = METHODS.get(m)
+            if not entry.trained:
+                cells.append(Cell(m, cat))
+                continue
+            p = method_preset(m, preset, cat)
+            cells += [Cell(m, cat, s, p) for s in cat_seeds]
+    return cells
+
+
+def table3_cells(categories: Sequence[str], preset: str, seeds: Sequence[int],
+                 category_seeds: dict[str, list[int]] | None = None,
+                 ablations: Sequence[str] | None = None) -> list[Cell]:
+    """The SCAPO ablation's cells: per category and seed, the full model and one run per ablated
+    regulariser (:data:`scapo.models.presets.ABLATIONS`), labelled ``scapo-no-<term>``."""
+    from scapo.models.presets import ABLATIONS, get_preset
+
+    category_seeds = dict(category_seeds or {})
+    cells = []
+    for cat in categories:
+        full = method_preset("scapo", preset, cat)
+        for s in category_seeds.get(cat, seeds):
+            cells.append(Cell("scapo", cat, int(s), full))
+            for term in (ablations or ABLATIONS):
+                get_preset(f"{full}/no-{term}")  # an unknown term is refused before any work
+                cells.append(Cell("scapo", cat, int(s), f"{full}/no-{term}", label=f"scapo-no-{term}"))
+    return cells
+
+
+def _dataset_hash(data: Path) -> str | None:
+    if not (data / "card.json").is_file():
+        return None
+    try:
+        return load(data, "test").dataset_hash
+    except Exception:  # noqa: BLE001 - a partial or damaged folder: the bench regenerates or reports it
+        return None
+
+
+def plan(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str) -> list[dict]:
+    """One row per cell: category, key, method, seed, preset, status (:func:`cell_status`; ``todo``
+    also when its dataset is not generated yet), and the recorded wall seconds of a done cell."""
+    import json
+
+    rows, hashes = [], {}
+    for c in cells:
+        data = dataset_dir(work, c.category, instances, views, data_seed)
+        if data not in hashes:
+            hashes[data] = _dataset_hash(data)
+        status = cell_status(data, c, protocol, hashes[data])
+        seconds = math.nan
+        if status == "done":
+            wall = json.loads(cell_paths(data, c, protocol).record.read_text())["wall"]
+            seconds = sum(v for k, v in wall.items() if k.endswith("_s"))
+        rows.append({"category": c.category, "key": c.key, "method": c.method, "seed": c.seed, "preset": c.preset,
+                     "status": status, "dataset": "generated" if hashes[data] else "to generate",
+                     "seconds": seconds})
+    return rows
+
+
+def print_plan(rows: list[dict]) -> None:
+    """The dry run's listing: one line per cell and a count per status."""
+    for r in rows:
+        secs = "" if math.isnan(r["seconds"]) else f"{r['seconds'] / 60:7.1f} min"
+        print(f"{r['category']:11s} {r['key']:44s} {r['status']:16s} {secs}"
+              + ("" if r["dataset"] == "generated" else "  (dataset to generate)"))
+    counts: dict[str, int] = {}
+    for r in rows:
+        counts[r["status"]] = counts.get(r["status"], 0) + 1
+    done = sum(r["seconds"] for r in rows if not math.isnan(r["seconds"]))
+    print(f"{len(rows)} cells: " + ", ".join(f"{n} {s}" for s, n in counts.items())
+          + f"; recorded compute of the done cells: {done / 3600:.2f} h")
+
+
+def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str,
+             workers: int, cache_dir, progress: bool, device: str | None):
+    """Generate each dataset once (resumes), then compute every cell in order."""
+    results, records, hashes = [], [], {}
+    for c in cells:
+        data = dataset_dir(work, c.category, instances, views, data_seed)
+        if c.category not in hashes:
+            generate(make_config(c.category, instances, views, data_seed), data, workers=workers,
+                     progress=progress, cache_dir=cache_dir)
+            hashes[c.category] = load(data, "test").dataset_hash
+        res, rec, computed = compute_cell(data, c, protocol, progress=progress, device=device)
+        s = res.summary
+        print(f"{'computed' if computed else 'cached  '} {c.category:11s} {c.key:44s} "
+              + " ".join(f"{k}={s[k]:.3f}" for k in ("S", "D", "C", "R", "R_median")), flush=True)
+        results.append(res)
+        records.append(rec)
+    return results, records, hashes
+
+
+def _provenance(name: str, cells, records, hashes, instances, views, data_seed, protocol, preset) -> dict:
+    """Provenance from the cells' records only (deterministic for a finished bench)."""
+    per_cell = []
+    for c, r in zip(cells, records):
+        w = r["wall"]
+        per_cell.append({"category": c.category, "cell": c.key, "method": c.method, "preset": c.preset, "seed": c.seed,
+                         "commit": r["provenance"]["commit"], "device": r["provenance"]["device"],
+                         **{k: w[k] for k in ("train_s", "predict_s", "evaluate_s") if k in w}})
+    seeds: dict[str, list[int]] = {}
+    for c in cells:
+        if c.seed is not None and c.seed not in seeds.setdefault(c.category, []):
+            seeds[c.category].append(c.seed)
+    total = sum(sum(v for k, v in p.items() if k.endswith("_s")) for p in per_cell)
+    return {"bench": name, "preset": preset, "protocol": protocol,
+            "data": {"instances": instances, "views": views, "seed": data_seed},
+            "datasets": {k: v[:16] for k, v in hashes.items()}, "training_seeds": seeds,
+            "commits": sorted({p["commit"] for p in per_cell}), "devices": sorted({p["device"] for p in per_cell}),
+            "compute_hours": round(total / 3600, 2), "cells": per_cell}
+
+
+def _check(methods, categories, preset, protocol, work, out_dir):
+    from scapo.eval.protocols import get_protocol
+
+    for cat in categories:
+        make_config(cat, 1, 1, 0)  # an unknown category is refused before any work
+    if not methods:
+        raise ConfigError("no methods given (--methods icp,npcs,eap,op-align,scapo)")
+    protocol = get_protocol(protocol).name
+    check_output_dir(work, "bench work folder")
+    if out_dir is not None:
+        check_output_dir(out_dir, "table folder")
+    return protocol
+
+
+def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGORIES, instances: int = 80,
+               views: int = 16, data_seed: int = 0, work_dir: Path = Path("bench_work"), out_dir: Path | None = None,
+               preset: str = "cpu", seeds: Sequence[int] = (0,), category_seeds: dict | None = None,
+               protocol: str = "scapo", workers: int = 1, cache_dir: Path | None = None, name: str = "table1_synthetic",
+               dry_run: bool = False, progress: bool = True, device: str | None = None, figures: bool = True):
+    """Table 1 on our synthetic data: generate (or reuse) one dataset per category (``data_seed`` draws
+    assets, splits and views), train every trained method once per training seed, predict, evaluate
+    under ``protocol`` and write ``<name>.{csv,md,tex,json}`` (our rows: mean +- std over seeds; the
+    paper's rows beside them), ``<name>_<category>.png`` and ``<name>_errors.png`` into ``out_dir``.
+
+    Returns:
+        The plan rows with ``dry_run`` (nothing is computed or written), else the test-split
+        :class:`~scapo.eval.EvalResult` of every cell.
+
+    Raises:
+        ConfigError / UnknownNameError: unknown method, category, preset or protocol, bad seeds
+        (all refused before any dataset is rendered). OutputError: unwritable work or table folder.
+    """
+    cells = table1_cells(methods, categories, preset, seeds, category_seeds)
+    protocol = _check(methods, categories, preset, protocol, work_dir, out_dir if not dry_run else None)
+    if dry_run:
+        rows = plan(cells, work_dir, instances, views, data_seed, protocol)
+        print_plan(rows)
+        return rows
+    results, records, hashes = _compute(cells, work_dir, instances, views, data_seed, protocol, workers, cache_dir,
+                                        progress, device)
+    if out_dir is not None:
+        from scapo.eval.tables import write_table1
+
+        prov = _provenance("scapo bench table1", cells, records, hashes, instances, views, data_seed, protocol, preset)
+        paths = write_table1(results, out_dir, prov, name=name, describe=describe)
+        if figures:
+            paths += _figures(cells, results, work_dir, instances, views, data_seed, protocol, out_dir, name)
+        for p in paths:
+            print(f"wrote {p}")
+    return results
+
+
+def _figures(cells, results, work, instances, views, data_seed, protocol, out_dir, name) -> list[Path]:
+    """Per category: test views with ground truth and each method's output (its lowest training seed);
+    one figure of the error distributions of every cell."""
+    from scapo.eval import Predictions
+    from scapo.viz import error_distribution_figure, methods_figure
+
+    paths = []
+    for cat in dict.fromkeys(c.category for c in cells):
+        data = dataset_dir(work, cat, instances, views, data_seed)
+        preds = {}
+        for c in sorted((c for c in cells if c.category == cat), key=lambda c: -1 if c.seed is None else c.seed):
+            if c.label not in preds:
+                preds[c.label] = Predictions.load(cell_paths(data, c, protocol).predictions)
+        paths.append(methods_figure(data, preds, Path(out_dir) / f"{name}_{cat}.png",
+                                    names={k: (describe(k) or (k,))[0] for k in preds}))
+    paths.append(error_distribution_figure(results, Path(out_dir) / f"{name}_errors.png",
+                                           names={r.method: (describe(r.method) or (r.method,))[0] for r in results}))
+    return paths
+
+
+def run_table3(categories: Sequence[str] = ("laptop", "eyeglasses"), instances: int = 80, views: int = 16,
+               data_seed: int = 0, work_dir: Path = Path("bench_work"), out_dir: Path | None = None,
+               preset: str = "cpu", seeds: Sequence[int] = (0,), category_seeds: dict | None = None,
+               protocol: str = "scapo", workers: int = 1, cache_dir: Path | None = None,
+               name: str = "table3_ablation", dry_run: bool = False, progress: bool = True,
+               device: str | None = None, ablations: Sequence[str] | None = None):
+    """The paper's Table 3 on our data: SCAPO full and without each of L_shape-var, L_dir-align,
+    L_joint-prox, L_joint-boundary, per category and training seed; writes
+    ``<name>.{csv,md,tex,json}`` (:func:`scapo.eval.tables.write_table3`). Same machinery, work folder
+    layout and errors as :func:`run_table1` (sharing its work folder reuses its SCAPO cells)."""
+    cells = table3_cells(categories, preset, seeds, category_seeds, ablations)
+    protocol = _check(["scapo"], categories, preset, protocol, work_dir, out_dir if not dry_run else None)
+    if dry_run:
+        rows = plan(cells, work_dir, instances, views, data_seed, protocol)
+        print_plan(rows)
+        return rows
+    results, records, hashes = _compute(cells, work_dir, instances, views, data_seed, protocol, workers, cache_dir,
+                                        progress, device)
+    if out_dir is not None:
+        from scapo.eval.tables import write_table3
+
+        prov = _provenance("scapo bench table3", cells, records, hashes, instances, views, data_seed, protocol, preset)
+        for p in write_table3(results, out_dir, prov, name=name):
+            print(f"wrote {p}")
+    return results

@@ -1,0 +1,129 @@
+"""``scapo bench table1 / table3``: cells computed once, resumable, dry run, identical tables on rerun."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from scapo.bench import Cell, parse_category_seeds, run_table1, run_table3, table1_cells, table3_cells
+from scapo.errors import ConfigError, UnknownNameError
+
+SMALL = dict(instances=10, views=2, preset="test", progress=False)
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    """Table 1 with NPCS-style and SCAPO (test presets, one seed) on a tiny laptop dataset."""
+    root = tmp_path_factory.mktemp("bench")
+    work, out = root / "work", root / "results"
+    plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=work, out_dir=out, seeds=[0], dry_run=True, **SMALL)
+    results = run_table1(["npcs", "scapo"], ["laptop"], work_dir=work, out_dir=out, seeds=[0], **SMALL)
+    return work, out, plan, results
+
+
+def _same(a, b) -> bool:
+    """Equal summaries (NaN equal to NaN, as the tables print them)."""
+    return [json.dumps(r.summary, sort_keys=True) for r in a] == [json.dumps(r.summary, sort_keys=True) for r in b]
+
+
+def _forbid(monkeypatch, *names):
+    import scapo.bench.cells as cells
+
+    def boom(*a, **k):
+        raise AssertionError("a finished cell was recomputed")
+
+    for n in names:
+        monkeypatch.setattr(cells, n, boom)
+
+
+def test_dry_run_lists_every_cell_and_computes_nothing(bench):
+    work, out, plan, _ = bench
+    assert [(r["key"], r["status"]) for r in plan] == [("npcs_test_s0", "todo"), ("scapo_test_s0", "todo")]
+    assert all(r["dataset"] == "to generate" for r in plan)
+    after = run_table1(["npcs", "scapo"], ["laptop"], work_dir=work, out_dir=out, seeds=[0, 1], dry_run=True, **SMALL)
+    assert {r["key"]: r["status"] for r in after} == {"npcs_test_s0": "done", "npcs_test_s1": "todo",
+                                                     "scapo_test_s0": "done", "scapo_test_s1": "todo"}
+    assert all(r["seconds"] > 0 for r in after if r["status"] == "done")
+
+
+def test_tables_figures_and_per_cell_provenance(bench):
+    work, out, _, results = bench
+    assert [r.method for r in results] == ["npcs", "scapo"]
+    for suffix in ("csv", "md", "tex", "json"):
+        assert (out / f"table1_synthetic.{suffix}").stat().st_size > 0
+    assert (out / "table1_synthetic_laptop.png").stat().st_size > 10_000
+    assert (out / "table1_synthetic_errors.png").stat().st_size > 10_000
+    prov = json.loads((out / "table1_synthetic.json").read_text())["provenance"]
+    assert prov["preset"] == "test" and prov["protocol"] == "scapo" and prov["training_seeds"] == {"laptop": [0]}
+    assert len(prov["datasets"]["laptop"]) == 16
+    cells = {c["cell"]: c for c in prov["cells"]}
+    assert set(cells) == {"npcs_test_s0", "scapo_test_s0"}
+    for c in cells.values():
+        assert c["train_s"] > 0 and c["predict_s"] > 0 and c["evaluate_s"] > 0 and c["commit"] and c["device"]
+    md = (out / "table1_synthetic.md").read_text()
+    assert "## Cells (wall time, minutes)" in md and "scapo_test_s0" in md and "SCAPO (paper)" in md
+
+
+def test_rerun_recomputes_nothing_and_rewrites_identical_tables(bench, monkeypatch):
+    work, out, _, results = bench
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    _forbid(monkeypatch, "train_method", "run_method", "evaluate")
+    again = run_table1(["npcs", "scapo"], ["laptop"], work_dir=work, out_dir=out, seeds=[0], **SMALL)
+    assert _same(again, results)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_a_changed_evaluator_re_evaluates_without_retraining_or_predicting(bench, monkeypatch):
+    import scapo.bench.cells as cells
+
+    work, out, _, results = bench
+    _forbid(monkeypatch, "run_method")
+    monkeypatch.setattr(cells, "evaluator_fingerprint", lambda: "changed")
+    again = run_table1(["npcs"], ["laptop"], work_dir=work, out_dir=None, seeds=[0], **SMALL)
+    assert _same(again[:1], results[:1])  # same predictions, same evaluator code: same scores
+    rec = json.loads((work / "laptop_i10_v2_s0" / "cells" / "npcs_test_s0.scapo.json").read_text())
+    assert rec["evaluator"] == "changed"
+
+
+def test_table3_reuses_table1s_scapo_cell_and_names_the_ablations(bench, monkeypatch):
+    work, out, _, results = bench
+    res = run_table3(["laptop"], work_dir=work, out_dir=out, seeds=[0], ablations=["shape_var"], **SMALL)
+    assert [r.method for r in res] == ["scapo", "scapo-no-shape_var"]
+    assert _same(res[:1], results[1:])  # the full model is Table 1's SCAPO cell
+    run = work / "laptop_i10_v2_s0" / "run_scapo-no-shape_var_test+no-shape_var_s0"
+    assert json.loads((run / "run.json").read_text())["preset"]["losses"]["disabled"] == ["shape_var"]
+    md = (out / "table3_ablation.md").read_text()
+    assert "| Full |" in md and "| w/o L_shape-var |" in md and "w/o L_joint-prox (paper)" in md
+
+
+def test_cells_and_their_errors():
+    cells = table1_cells(["icp", "scapo"], ["laptop", "safe"], "cpu", [0, 1, 2], {"safe": [0]})
+    assert [c.key for c in cells] == ["icp", "scapo_cpu_s0", "scapo_cpu_s1", "scapo_cpu_s2", "icp", "scapo_cpu_s0"]
+    assert [c.category for c in cells] == ["laptop"] * 4 + ["safe"] * 2
+    t3 = table3_cells(["laptop"], "cpu", [0])
+    assert [c.label for c in t3] == ["scapo", "scapo-no-shape_var", "scapo-no-dir_align", "scapo-no-joint_prox",
+                                     "scapo-no-joint_boundary"]
+    assert t3[1].preset == "cpu/no-shape_var" and t3[1].key == "scapo-no-shape_var_cpu+no-shape_var_s0"
+    assert parse_category_seeds(["safe=0", "laptop=0,1,2"]) == {"safe": [0], "laptop": [0, 1, 2]}
+    for bad in ("safe", "safe=", "=0", "safe=a", "safe=-1"):
+        with pytest.raises(ConfigError, match="CATEGORY=SEED"):
+            parse_category_seeds([bad])
+    with pytest.raises(ConfigError, match="not among the categories"):
+        table1_cells(["icp"], ["laptop"], "cpu", [0], {"oven": [0]})
+    with pytest.raises(ConfigError, match="has no preset 'huge'"):
+        table1_cells(["scapo"], ["laptop"], "huge", [0])
+    with pytest.raises(UnknownNameError, match="not 'no-TERM'"):
+        table3_cells(["laptop"], "cpu", [0], ablations=["colour"])
+    with pytest.raises(ConfigError, match="needs both a seed and a preset"):
+        Cell("scapo", "laptop", seed=0)
+
+
+def test_ablation_presets():
+    from scapo.models.presets import get_preset
+
+    p = get_preset("cpu/no-shape_var/no-dir_align")
+    assert p.name == "cpu/no-shape_var/no-dir_align" and p.losses.disabled == ("shape_var", "dir_align")
+    assert get_preset("cpu").losses.disabled == () and get_preset("cpu/no-seg").losses.weight("seg") == 0.0
+    with pytest.raises(UnknownNameError, match="unknown preset"):
+        get_preset("huge/no-seg")
