@@ -32,6 +32,14 @@ from scapo.methods import METHODS, describe
 TABLE1_CATEGORIES = ("laptop", "safe", "eyeglasses", "oven", "washer")
 
 
+def table_methods() -> list[str]:
+    """Every registered method in the paper's row order: supervised methods first (most labels first),
+    then the others in registration order, SCAPO (ours) last."""
+    names = list(METHODS)
+    return sorted(names, key=lambda m: (-sum(bool(v) for v in METHODS.get(m).supervision.values()), m == "scapo",
+                                        names.index(m)))
+
+
 def dataset_dir(work: Path, category: str, instances: int, views: int, seed: int) -> Path:
     """``<work>/<category>_i<instances>_v<views>_s<seed>`` (the generator refuses a folder of another config)."""
     return Path(work) / f"{category}_i{instances}_v{views}_s{seed}"

@@ -265,7 +265,7 @@ def cmd_bench(args) -> int:
 def cmd_bench_table(args) -> int:
     """``scapo bench table1|table3``: the paper's tables, resumable per cell (``--dry-run`` lists the cells)."""
     from scapo.bench import TABLE1_CATEGORIES, parse_category_seeds, run_table1, run_table3
-    from scapo.methods import METHODS
+    from scapo.bench.experiments import table_methods
 
     instances, views = args.instances or 80, args.views or 16
     if min(args.workers) < 1 or instances < 1 or views < 1:
@@ -276,7 +276,7 @@ def cmd_bench_table(args) -> int:
                   workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run,
                   progress=not args.no_progress, device=args.device)
     if args.what == "table1":
-        run_table1(methods=args.methods or list(METHODS), categories=args.categories or list(TABLE1_CATEGORIES),
+        run_table1(methods=args.methods or table_methods(), categories=args.categories or list(TABLE1_CATEGORIES),
                    name=args.name or "table1_synthetic", **common)
     else:
         if args.methods and args.methods != ["scapo"]:
