@@ -18,6 +18,7 @@ def bench(tmp_path_factory):
     root = tmp_path_factory.mktemp("bench")
     work, out = root / "work", root / "results"
     plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=work, out_dir=out, seeds=[0], dry_run=True, **SMALL)
+    assert not work.exists() and not out.exists()
     results = run_table1(["npcs", "scapo"], ["laptop"], work_dir=work, out_dir=out, seeds=[0], **SMALL)
     return work, out, plan, results
 

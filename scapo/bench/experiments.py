@@ -204,7 +204,8 @@ def _check(methods, categories, preset, protocol, work, out_dir):
     if not methods:
         raise ConfigError("no methods given (--methods icp,npcs,eap,op-align,scapo)")
     protocol = get_protocol(protocol).name
-    check_output_dir(work, "bench work folder")
+    if work is not None:
+        check_output_dir(work, "bench work folder")
     if out_dir is not None:
         check_output_dir(out_dir, "table folder")
     return protocol
@@ -229,7 +230,8 @@ def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGO
         (all refused before any dataset is rendered). OutputError: unwritable work or table folder.
     """
     cells = table1_cells(methods, categories, preset, seeds, category_seeds)
-    protocol = _check(methods, categories, preset, protocol, work_dir, out_dir if not dry_run else None)
+    protocol = _check(methods, categories, preset, protocol, None if dry_run else work_dir,
+                      None if dry_run else out_dir)
     if dry_run:
         rows = plan(cells, work_dir, instances, views, data_seed, protocol)
         print_plan(rows)
@@ -279,7 +281,8 @@ def run_table3(categories: Sequence[str] = ("laptop", "eyeglasses"), instances: 
     ``<name>.{csv,md,tex,json}`` (:func:`scapo.eval.tables.write_table3`). Same machinery, work folder
     layout and errors as :func:`run_table1` (sharing its work folder reuses its SCAPO cells)."""
     cells = table3_cells(categories, preset, seeds, category_seeds, ablations)
-    protocol = _check(["scapo"], categories, preset, protocol, work_dir, out_dir if not dry_run else None)
+    protocol = _check(["scapo"], categories, preset, protocol, None if dry_run else work_dir,
+                      None if dry_run else out_dir)
     if dry_run:
         rows = plan(cells, work_dir, instances, views, data_seed, protocol)
         print_plan(rows)
