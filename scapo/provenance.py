@@ -24,6 +24,16 @@ def git_commit() -> str:
         return "unknown"
 
 
+def usable_cores() -> int:
+    """CPU cores this process may run on (its affinity mask, e.g. under ``taskset`` or a batch
+    scheduler; the machine's count where the mask is unknown); at least 1. Training uses this many
+    torch threads, so two jobs pinned to different cores do not oversubscribe them."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
 @lru_cache(maxsize=1)
 def cpu_name() -> str:
     try:

@@ -23,7 +23,6 @@ import dataclasses
 import hashlib
 import io
 import json
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -46,6 +45,7 @@ from scapo.files import (
     write_json,
 )
 from scapo.models.train import plot_losses, resolve_device, truncate_log
+from scapo.provenance import usable_cores
 from scapo.registry import Registry
 
 
@@ -207,7 +207,7 @@ def _train_locked(spec: LearnedSpec, pc, identity: dict, train: ArticulationData
         if old is not None:
             _refuse_other(run / "run.json", old, identity)
     write_json(run / "run.json", identity)
-    torch.set_num_threads(max(1, os.cpu_count() or 1))
+    torch.set_num_threads(usable_cores())
     arrays = train.arrays(list(spec.fields))
     tensors = {k: torch.from_numpy(np.ascontiguousarray(arrays[k])) for k in spec.fields}
     torch.manual_seed(pc.seed)  # parameter initialisation is part of the run's identity

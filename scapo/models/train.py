@@ -13,7 +13,6 @@ import dataclasses
 import hashlib
 import io
 import json
-import os
 import time
 from pathlib import Path
 
@@ -38,6 +37,7 @@ from scapo.models.presets import TrainConfig, get_preset
 from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.nn.encoder import EncoderConfig
+from scapo.provenance import usable_cores
 
 
 def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
@@ -233,7 +233,7 @@ class Trainer:
         elif state.get("done"):
             return self._ckpt_path()
         write_json(self.run / "run.json", json.loads(json.dumps(self.identity, default=str)))
-        torch.set_num_threads(max(1, os.cpu_count() or 1))
+        torch.set_num_threads(usable_cores())
         data = TrainingClouds(self.data, pc.train_points)
         steps_per_epoch = len(data) // pc.batch_size if len(data) >= pc.batch_size else 1
         if pc.max_steps_per_epoch:
