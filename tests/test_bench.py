@@ -62,6 +62,10 @@ def test_tables_figures_and_per_cell_provenance(bench):
     assert set(cells) == {"npcs_test_s0", "scapo_test_s0"}
     for c in cells.values():
         assert c["train_s"] > 0 and c["predict_s"] > 0 and c["evaluate_s"] > 0 and c["commit"] and c["device"]
+    from scapo.methods import METHODS
+
+    rec = json.loads((work / "laptop_i10_v2_s0" / "cells" / "scapo_test_s0.scapo.json").read_text())
+    assert rec["info"]["inference"] == METHODS.get("scapo").inference(work / "laptop_i10_v2_s0" / "run_scapo_test_s0")
     md = (out / "table1_synthetic.md").read_text()
     assert "## Cells (wall time, minutes)" in md and "scapo_test_s0" in md and "SCAPO (paper)" in md
 

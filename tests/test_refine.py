@@ -202,3 +202,30 @@ def test_unknown_refinement_starts_are_refused():
         RefineConfig(steps=5, starts="cube")
     with pytest.raises(ValueError, match="margin"):
         RefineConfig(steps=5, starts="octahedral", margin=1.5)
+
+
+def test_upright_direction_finds_the_majority_branch_of_a_two_fold_ambiguity():
+    """Frames of views taken around a vertical axis keep one camera direction fixed in the canonical
+    frame; 40 % of the frames took the half-turned branch (a symmetric shape), the mode is the other."""
+    from scapo.models.refine import camera_direction_in_frame, upright_direction
+    from scapo.ops.groups import random_rotation
+
+    g = torch.Generator().manual_seed(0)
+    A = random_rotation(1, generator=g)[0].double()  # canonical -> camera of the first view
+    phi = torch.linspace(0, 2 * torch.pi, 50, dtype=torch.float64)
+    c, s = torch.cos(phi), torch.sin(phi)
+    Rz = torch.zeros(50, 3, 3, dtype=torch.float64)
+    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0
+    R = A @ Rz  # turning about the canonical z axis: camera direction A e_z stays e_z in every frame
+    F = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))  # half turn about x
+    R[30:] = R[30:] @ F
+    up, support = upright_direction(R)
+    d, v = up[0], up[1]
+    sign = torch.sign(d[2])
+    assert torch.allclose(sign * d, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), atol=1e-4)
+    assert torch.allclose(sign * v, A[:, 2], atol=1e-4)
+    assert abs(support - 0.6) < 1e-9
+    u = camera_direction_in_frame(R, v)
+    assert ((u @ d) > 0.99).sum() == 30 and ((u @ d) < -0.99).sum() == 20
+    with pytest.raises(ValueError):
+        upright_direction(torch.zeros(0, 3, 3))

@@ -11,11 +11,13 @@ A cell lives in its dataset's folder of the bench work folder::
 with ``key`` = the method's label for a fitted method (``icp``) and ``<label>_<preset>_s<seed>`` for a
 trained one (``scapo_cpu_s0``; an ablation's ``/`` is written ``+``: ``scapo-no-shape_var_cpu+no-shape_var_s0``).
 
-A record is valid while its dataset hash, its predictions file (sha256) and the evaluator's source
-(:func:`evaluator_fingerprint`) are unchanged; a valid record is never recomputed, so a finished bench
-reruns in seconds and writes identical tables. Each step resumes on its own: a finished run is not
-retrained, existing predictions of the same dataset and run are not recomputed, and only the (cheap)
-evaluation is redone when the evaluator changed. Training, prediction and evaluation wall times are
+A record is valid while its dataset hash, its predictions file (sha256), the evaluator's source
+(:func:`evaluator_fingerprint`) and, for a method with inference settings outside its run (SCAPO's
+refinement; ``MethodEntry.inference``), those settings are unchanged; a valid record is never
+recomputed, so a finished bench reruns in seconds and writes identical tables. Each step resumes on
+its own: a finished run is not retrained, existing predictions of the same dataset, run and
+inference settings are not recomputed, and only the (cheap) evaluation is redone when the evaluator
+changed. Training, prediction and evaluation wall times are
 recorded per cell (training: summed over every session that trained the run, from its ``timing.json``).
 """
 
@@ -140,6 +142,11 @@ def _read_record(paths: CellPaths, dataset_hash: str) -> dict | None:
             or not paths.predictions.is_file() or not paths.per_sample.is_file()
             or rec.get("predictions_sha256") != _sha256(paths.predictions)):
         return None
+    cell = rec.get("cell", {})
+    entry = METHODS.get(cell.get("method", "")) if cell.get("method") in METHODS else None
+    if entry is not None and entry.inference is not None and cell.get("seed") is not None:
+        if rec.get("info", {}).get("inference") != json.loads(json.dumps(entry.inference(paths.run))):
+            return None
     return rec
 
 
@@ -178,7 +185,12 @@ def _predictions_fit(path: Path, dataset_hash: str, cell: Cell, run: Path) -> bo
         return False
     if p.dataset_hash != dataset_hash or p.method != cell.label:
         return False
-    return not cell.trained or Path(p.info.get("run", "")).resolve() == run.resolve()
+    if not cell.trained:
+        return True
+    inference = METHODS.get(cell.method).inference
+    if inference is not None and p.info.get("inference") != inference(run):
+        return False  # made under other inference settings (e.g. a preset's refinement changed since)
+    return Path(p.info.get("run", "")).resolve() == run.resolve()
 
 
 def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,

@@ -66,6 +66,10 @@ class MethodEntry:
         train: for trained methods, ``train(data, run, preset, progress, device, seed) -> checkpoint``.
         presets: preset names of a trained method (``scapo train --method NAME --preset P``).
         variants: other labels its predictions may carry (e.g. a second row of one run) -> display name.
+        inference: for trained methods whose predictions depend on settings that are not part of the
+            run (SCAPO's test-time refinement), ``inference(run) -> dict`` of the settings a prediction
+            from ``run`` would use now; its predictions record them as ``info["inference"]``, so that
+            predictions made under other settings are recognised as stale (``scapo.bench``).
     """
 
     name: str
@@ -78,6 +82,7 @@ class MethodEntry:
     train: Callable[..., Path] | None = None
     presets: tuple[str, ...] = ()
     variants: Mapping[str, str] = field(default_factory=dict)
+    inference: Callable[[Path], dict] | None = None
 
     @property
     def trained(self) -> bool:
@@ -95,7 +100,8 @@ METHODS: Registry[MethodEntry] = Registry("method")
 
 def register_method(name: str, *, options: type, display: str, supervision: Mapping[str, bool],
                     needs_alignment: bool, summary: str = "", train: Callable[..., Path] | None = None,
-                    presets: tuple[str, ...] = (), variants: Mapping[str, str] | None = None):
+                    presets: tuple[str, ...] = (), variants: Mapping[str, str] | None = None,
+                    inference: Callable[[Path], dict] | None = None):
     """Decorator registering a method factory under ``name`` (see :class:`MethodEntry`).
 
     Raises:
@@ -109,7 +115,7 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
 
     def deco(factory):
         METHODS.add(name, MethodEntry(name, factory, options, display, dict(supervision), needs_alignment, summary,
-                                      train, tuple(presets), dict(variants or {})))
+                                      train, tuple(presets), dict(variants or {}), inference))
         factory.options = options
         return factory
 

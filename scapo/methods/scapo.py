@@ -32,6 +32,9 @@ class SCAPOOptions(LearnedOptions):
     """Steps of the test-time refinement (default: the run's preset; 0 turns it off)."""
     refine_margin: float | None = None
     """Residual margin of the refinement's multi-start (default: the run's preset); choose it on val."""
+    refine_upright_deg: float | None = None
+    """Cone of the refinement's upright prior in degrees (default: the run's preset; 0 turns it off;
+    :class:`~scapo.models.refine.RefineConfig`); its direction is fitted on the training split."""
 
     def __post_init__(self):
         super().__post_init__()
@@ -64,10 +67,19 @@ class SCAPOMethod:
         """
         o = self.options
         self.predictor = Predictor.load(self.run, o.device, o.refine_steps, o.refine_margin)
+        if o.refine_upright_deg is not None:
+            try:
+                self.predictor.refine = dataclasses.replace(self.predictor.refine,
+                                                            upright_deg=float(o.refine_upright_deg))
+            except ValueError as e:
+                raise ConfigError(str(e)) from None
         ident = self.predictor.identity
         check_run_fits(self.run, ident, train, o.cross_category,
                        f"train a run on this dataset first ('scapo train --data {train.root} --out RUN')")
         self.trained_on = ident["dataset_hash"]
+        rc = self.predictor.refine
+        if rc.steps > 0 and rc.starts == "octahedral" and rc.upright_deg > 0:
+            self.predictor.fit_upright(train.arrays(["points"])["points"])
 
     def predict(self, dataset: ArticulationDataset) -> Predictions:
         a = dataset.arrays(["points"])
@@ -90,8 +102,29 @@ class SCAPOMethod:
                   "seed": self.predictor.identity["preset"].get("seed"),
                   "refine_steps": self.predictor.refine.steps,
                   "refine_margin": self.predictor.refine.margin,
+                  "inference": dataclasses.asdict(self.predictor.refine),
+                  "upright": None if self.predictor.upright is None else
+                  np.round(self.predictor.upright.cpu().double().numpy(), 6).tolist(),
+                  "upright_support": self.predictor.upright_support,
                   "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2)},
         )
+
+
+def inference_settings(run) -> dict:
+    """The test-time refinement settings a prediction from ``run`` uses now (the current definition of
+    its preset, as :meth:`Predictor.load` resolves it), as predictions record them in
+    ``info["inference"]``; empty for a folder without a readable ``run.json``."""
+    import json
+
+    from scapo.models.presets import get_preset
+    from scapo.models.train import preset_from_dict
+
+    try:
+        stored = json.loads((Path(run) / "run.json").read_text())["preset"]
+        registered = str(stored.get("name", "")).split("/")[0] in PRESETS.names()
+        return dataclasses.asdict(get_preset(stored["name"]).refine if registered else preset_from_dict(stored).refine)
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
 
 
 def _train(data, run, preset=None, progress=True, device=None, seed=None):
@@ -103,7 +136,7 @@ def _train(data, run, preset=None, progress=True, device=None, seed=None):
 @register_method("scapo", options=SCAPOOptions, display="SCAPO (ours)", supervision=SCAPOMethod.supervision,
                  needs_alignment=True, summary="self-supervised SE(3)-equivariant skinning (the paper's method)",
                  train=_train, presets=tuple(PRESETS.names()),
-                 variants={"scapo-no-refine": "SCAPO (ours, no refinement)"})
+                 variants={"scapo-no-refine": "SCAPO (ours, no refinement)"}, inference=inference_settings)
 def make_scapo(**options) -> SCAPOMethod:
     """SCAPO (ours) from a trained run; options are :class:`SCAPOOptions` fields."""
     return SCAPOMethod(**options)

@@ -89,6 +89,29 @@ class Predictor:
         self.device = device
         self.refine = refine if refine is not None else RefineConfig()
         self.max_points = int(max_points)
+        self.upright: torch.Tensor | None = None
+        """``(2, 3)`` the run's upright prior (:meth:`fit_upright`); None: the upright prior is off."""
+        self.upright_support = float("nan")
+
+    def fit_upright(self, points, max_views: int = 512, batch_size: int = 64) -> tuple[np.ndarray, float]:
+        """Set the refinement's upright prior (``RefineConfig.upright_deg``) from training clouds
+        ``(M, N, 3)`` (camera frame, metres; no labels): :func:`scapo.models.refine.upright_direction`
+        of the network's canonical frames of up to ``max_views`` evenly spaced clouds. Returns
+        (``(2, 3)`` canonical direction and camera direction, fraction of views near it).
+
+        Raises:
+            InputError: see :func:`check_points`.
+        """
+        from scapo.models.refine import upright_direction
+
+        pts = check_points(points)
+        idx = np.linspace(0, len(pts) - 1, min(len(pts), int(max_views))).round().astype(int)
+        pts = pts[idx]
+        frames = torch.cat([self.model.frames(pts[k:k + batch_size].to(self.device))
+                            for k in range(0, len(pts), batch_size)])
+        d, support = upright_direction(frames)
+        self.upright, self.upright_support = d, support
+        return d.cpu().numpy(), support
 
     @classmethod
     def load(cls, run: str | Path, device: str | None = None, refine_steps: int | None = None,
@@ -185,7 +208,7 @@ class Predictor:
             starts = tqdm(starts, desc="scapo predict", unit="batch")
         outs = []
         for k in starts:
-            o = self.model.predict(pts[k:k + step].to(self.device), self.refine)
+            o = self.model.predict(pts[k:k + step].to(self.device), self.refine, self.upright)
             outs.append({name: v.cpu().numpy() for name, v in o.items()})
         res = {name: np.concatenate([o[name] for o in outs]) for name in outs[0]}
         if nearest is not None:

@@ -64,6 +64,15 @@ class RefineConfig:
     """Observed points per view in the screening fit."""
     margin: float = 0.3
     """Relative residual margin an alternative start needs to replace the network's (0: the best wins)."""
+    upright_deg: float = 0.0
+    """Upright prior (``starts = "octahedral"``; 0 turns it off): a start is eligible only when the
+    run's upright camera direction ``v``, expressed in its canonical frame, lies within this angle of
+    the run's upright direction ``d`` (:func:`upright_direction`, from the training views). A network start
+    outside that cone is replaced by the best eligible start without the margin. It resolves the
+    two-fold ambiguity of shapes whose largest part is near-symmetric (a laptop's base and screen
+    swapped by a half turn about their bisector, eyeglasses turned upside down), which the residual
+    cannot: the capture setup (objects standing on a support, cameras above them with little roll) is
+    the cue, no label is used. An addition to the paper."""
 
     def __post_init__(self):
         if self.steps < 0 or self.lr <= 0 or self.points < 8:
@@ -71,12 +80,62 @@ class RefineConfig:
                              f"points {self.points} (>= 8)")
         if self.starts not in START_SETS:
             raise ValueError(f"unknown refinement starts {self.starts!r}; known: {', '.join(START_SETS)}")
+        if not 0.0 <= self.upright_deg <= 180.0:
+            raise ValueError(f"upright_deg must be in [0, 180], got {self.upright_deg}")
         if self.screen_steps < 1 or self.screen_points < 8 or not 0.0 <= self.margin < 1.0:
             raise ValueError(f"invalid refinement screening: screen_steps {self.screen_steps} (>= 1), "
                              f"screen_points {self.screen_points} (>= 8), margin {self.margin} (in [0, 1))")
 
 
 START_SETS = ("network", "octahedral")
+
+def camera_direction_in_frame(R: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """A camera-frame direction ``v (3,)`` in canonical frames ``R (..., 3, 3)`` (canonical -> camera): ``R^T v``."""
+    return torch.einsum("...ji,j->...i", R, v.to(R.dtype).to(R.device))
+
+
+def upright_direction(R: torch.Tensor, radius_deg: float = 45.0, iterations: int = 100) -> tuple[torch.Tensor, float]:
+    """The upright prior of a run from the canonical frames ``R (M, 3, 3)`` of its training views.
+
+    The capture setup holds one direction nearly fixed in both the camera and the object frames (the
+    world's up: objects stand on a support, cameras look down at them with little roll). It is found
+    without labels as the pair (camera direction ``v``, canonical direction ``d``) maximising the
+    axial agreement ``mean_i (d . R_i^T v)^2`` (alternating top eigenvectors, from ``v`` = the camera's
+    up, ``-y``); axial, so the views whose frame took the other, half-turned branch of a symmetric
+    shape (``R_i^T v`` near ``-d``) support the same axis instead of cancelling it. The sign of ``d`` is
+    that of the majority branch, then ``d`` is the mean of the ``R_i^T v`` within ``radius_deg`` of it.
+
+    Returns:
+        (``(2, 3)`` rows ``d`` (canonical frame) and ``v`` (camera frame), fraction of views whose
+        ``R_i^T v`` lies within ``radius_deg`` of ``d``).
+
+    Raises:
+        ValueError: no frames.
+    """
+    if R.shape[0] == 0:
+        raise ValueError("upright_direction needs at least one frame")
+    Rd = R.reshape(-1, 3, 3).double()
+    v = torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64)  # the camera's up (OpenCV camera frame)
+    for _ in range(iterations):
+        u = camera_direction_in_frame(Rd, v)
+        d = torch.linalg.eigh(u.T @ u)[1][:, -1]
+        w = Rd @ d  # d in each camera frame
+        v_new = torch.linalg.eigh(w.T @ w)[1][:, -1]
+        v_new = v_new if float(v_new @ v) >= 0 else -v_new
+        if torch.allclose(v_new, v, atol=1e-10):
+            break
+        v = v_new
+    u = camera_direction_in_frame(Rd, v)
+    d = torch.linalg.eigh(u.T @ u)[1][:, -1]
+    if float(((u @ d) >= 0).double().mean()) < 0.5:
+        d = -d
+    cos = torch.cos(torch.deg2rad(torch.tensor(float(radius_deg), dtype=u.dtype)))
+    near = (u @ d) >= cos
+    if near.any():
+        d = u[near].mean(0)
+        d = d / d.norm().clamp_min(1e-12)
+    support = float(((u @ d) >= cos).double().mean())
+    return torch.stack([d, v]).to(R.dtype), support
 
 
 def rotation_from_rotvec(w: torch.Tensor) -> torch.Tensor:
@@ -170,7 +229,7 @@ class TemplatePoser:
         return model, T, R, t
 
 
-def refine_articulation(cfg, X: torch.Tensor, out: dict, rc: RefineConfig) -> dict:
+def refine_articulation(cfg, X: torch.Tensor, out: dict, rc: RefineConfig, upright: torch.Tensor | None = None) -> dict:
     """Fit the posed template of a SCAPO forward pass to the observed cloud (see module docstring).
 
     Args:
@@ -178,6 +237,8 @@ def refine_articulation(cfg, X: torch.Tensor, out: dict, rc: RefineConfig) -> di
         X: (B, N, 3) float observed points, normalised units (``SCAPOModel.normalize``), camera frame.
         out: the outputs of ``SCAPOModel.forward(X, stage=2)``.
         rc: the settings; ``rc.steps`` must be positive.
+        upright: ``(2, 3)`` the run's upright prior (:func:`upright_direction`), used when
+            ``rc.upright_deg > 0`` and ``rc.starts == "octahedral"``; None: no upright prior.
 
     Returns:
         dict of detached tensors: ``R (B, 3, 3)``, ``t (B, 3)`` (the refined frame), ``state (B, J)``,
@@ -212,13 +273,24 @@ def refine_articulation(cfg, X: torch.Tensor, out: dict, rc: RefineConfig) -> di
     screen = _fit(cfg, X, rep(rest, K), rep(weights, K), rep(pivot, K), rep(axis, K),
                   rep(R0, K) @ C.repeat(B, 1, 1), rep(t0, K), rep(state0, K), rep(root0, K), rc.screen_steps,
                   rc.lr, rc.screen_points, rc.seed, repeat_obs=K, segment=False)["residual"].reshape(B, K)
-    alt = 1 + screen[:, 1:].argmin(dim=1)  # (B,) the best start other than the network's
+    eligible = torch.ones(B, K, dtype=torch.bool, device=X.device)
+    if upright is not None and rc.upright_deg > 0:
+        up = upright.to(X.dtype).to(X.device)
+        u = camera_direction_in_frame(R0.unsqueeze(1) @ C.unsqueeze(0), up[1])  # (B, K, 3) in each start's frame
+        cos = torch.cos(torch.deg2rad(torch.tensor(float(rc.upright_deg), dtype=X.dtype)))
+        eligible = (u @ up[0]) >= cos
+        # views with no eligible start at all keep the plain rule
+        eligible = torch.where(eligible.any(1, keepdim=True), eligible, torch.ones_like(eligible))
+    masked = torch.where(eligible[:, 1:], screen[:, 1:], torch.full_like(screen[:, 1:], float("inf")))
+    alt = 1 + masked.argmin(dim=1)  # (B,) the best (eligible) start other than the network's
     # refine the network's start and the best alternative fully; the alternative must win by the margin
     Rs = torch.stack([R0, R0 @ C[alt]], 1).reshape(2 * B, 3, 3)
     r = _fit(cfg, X, rep(rest, 2), rep(weights, 2), rep(pivot, 2), rep(axis, 2), Rs, rep(t0, 2), rep(state0, 2),
              rep(root0, 2), rc.steps, rc.lr, rc.points, rc.seed, repeat_obs=2)
     res = r["residual"].reshape(B, 2)
-    pick = (res[:, 1] < (1.0 - rc.margin) * res[:, 0]).long()  # 1: the alternative start
+    alt_ok = eligible.gather(1, alt[:, None])[:, 0]
+    wins = res[:, 1] < (1.0 - rc.margin) * res[:, 0]
+    pick = ((wins | ~eligible[:, 0]) & alt_ok).long()  # 1: the alternative start
     sel = torch.arange(B, device=X.device) * 2 + pick
     r = {k: (v[sel] if torch.is_tensor(v) else v) for k, v in r.items()}
     r["start"] = torch.where(pick.bool(), alt, torch.zeros_like(alt))

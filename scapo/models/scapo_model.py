@@ -162,6 +162,16 @@ class SCAPOModel(nn.Module):
         scale = 2.0 * ((points - c) ** 2).sum(-1).mean(-1).sqrt().clamp_min(1e-6)
         return points / scale[:, None, None], scale
 
+    @torch.no_grad()
+    def frames(self, points: torch.Tensor) -> torch.Tensor:
+        """The stage-1 canonical frames ``(B, 3, 3)`` (canonical -> camera) of camera-frame clouds ``(B, N, 3)``."""
+        was_training = self.training
+        self.eval()
+        try:
+            return self.encoder(self.normalize(points)[0]).R
+        finally:
+            self.train(was_training)
+
     def stage1(self, X: torch.Tensor) -> dict:
         """Canonicalisation on normalised points ``X (B, N, 3)``."""
         enc = self.encoder(X)
@@ -219,13 +229,15 @@ class SCAPOModel(nn.Module):
 
     # ------------------------------------------------------------------ inference
     @torch.no_grad()
-    def predict(self, points: torch.Tensor, refine: RefineConfig | None = None) -> dict:
+    def predict(self, points: torch.Tensor, refine: RefineConfig | None = None,
+                upright: torch.Tensor | None = None) -> dict:
         """Inference on camera-frame points ``(B, N, 3)`` float32, metres (SPEC section 6 outputs).
 
         With ``refine`` (``steps > 0``) the pose, joint states and joints come from the test-time
         articulated refinement (:mod:`scapo.models.refine`, an addition to the paper): the frame and
         states are fitted to the observed points, the joints are the template's (``c_Y, d_Y``) and each
-        point's weights are those of its nearest point of the fitted template.
+        point's weights are those of its nearest point of the fitted template. ``upright (3,)``: the
+        run's upright direction for the refinement's upright prior (``RefineConfig.upright_deg``).
 
         Returns float32 tensors on the input's device: ``T_cam_obj (B, 4, 4)`` (the base part's pose:
         the stage-1 frame, moved by the root state when ``cfg.root_motion``); ``part_label (B, N)``
@@ -245,7 +257,7 @@ class SCAPOModel(nn.Module):
         R, t, T, pivot, axis, state = enc.R, enc.t, out["T_x"], out["pivot_x"], out["axis_x"], out["state_x"]
         weights = out["w"]
         if refine is not None and refine.steps > 0:
-            r = refine_articulation(self.cfg, X, out, refine)
+            r = refine_articulation(self.cfg, X, out, refine, upright)
             R, t, T, pivot, axis, state = r["R"], r["t"], r["T"], r["pivot"], r["axis"], r["state"]
             weights = r["weights"]
         B = points.shape[0]
