@@ -89,6 +89,8 @@ def test_a_changed_evaluator_re_evaluates_without_retraining_or_predicting(bench
     assert _same(again[:1], results[:1])  # same predictions, same evaluator code: same scores
     rec = json.loads((work / "laptop_i10_v2_s0" / "cells" / "npcs_test_s0.scapo.json").read_text())
     assert rec["evaluator"] == "changed"
+    monkeypatch.undo()
+    run_table1(["npcs"], ["laptop"], work_dir=work, out_dir=None, seeds=[0], **SMALL)  # back to the real evaluator
 
 
 def test_table3_reuses_table1s_scapo_cell_and_names_the_ablations(bench, monkeypatch):
@@ -132,3 +134,16 @@ def test_ablation_presets():
     assert get_preset("cpu").losses.disabled == () and get_preset("cpu/no-seg").losses.weight("seg") == 0.0
     with pytest.raises(UnknownNameError, match="unknown preset"):
         get_preset("huge/no-seg")
+
+
+def test_finished_only_writes_the_done_cells_and_lists_the_missing(bench, monkeypatch, tmp_path):
+    work, _, _, results = bench
+    _forbid(monkeypatch, "train_method", "run_method")
+    part = run_table1(["npcs", "scapo"], ["laptop"], work_dir=work, out_dir=tmp_path, seeds=[0, 1], finished_only=True,
+                      **SMALL)
+    assert _same(part, results)
+    prov = json.loads((tmp_path / "table1_synthetic.json").read_text())["provenance"]
+    assert prov["missing_cells"] == ["laptop/npcs_test_s1", "laptop/scapo_test_s1"]
+    with pytest.raises(ConfigError, match="no cell of this bench is done"):
+        run_table1(["npcs"], ["laptop"], work_dir=tmp_path / "empty", out_dir=tmp_path, seeds=[0], finished_only=True,
+                   **SMALL)

@@ -158,12 +158,19 @@ def print_plan(rows: list[dict]) -> None:
 
 
 def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str,
-             workers: int, cache_dir, progress: bool, device: str | None):
-    """Generate each dataset once (resumes), then compute every cell in order."""
-    results, records, hashes = [], [], {}
+             workers: int, cache_dir, progress: bool, device: str | None, finished_only: bool = False):
+    """Generate each dataset once (resumes), then compute every cell in order; with ``finished_only``
+    nothing is computed and only the cells that are done are returned (the others in ``missing``)."""
+    results, records, hashes, done, missing = [], [], {}, [], []
     for c in cells:
         data = dataset_dir(work, c.category, instances, views, data_seed)
-        if c.category not in hashes:
+        if finished_only:
+            if c.category not in hashes:
+                hashes[c.category] = _dataset_hash(data)
+            if hashes[c.category] is None or cell_status(data, c, protocol, hashes[c.category]) != "done":
+                missing.append(c)
+                continue
+        elif c.category not in hashes:
             generate(make_config(c.category, instances, views, data_seed), data, workers=workers,
                      progress=progress, cache_dir=cache_dir)
             hashes[c.category] = load(data, "test").dataset_hash
@@ -173,11 +180,16 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
               + " ".join(f"{k}={s[k]:.3f}" for k in ("S", "D", "C", "R", "R_median")), flush=True)
         results.append(res)
         records.append(rec)
-    return results, records, hashes
+        done.append(c)
+    if finished_only and not done:
+        raise ConfigError("no cell of this bench is done yet; run it without --finished-only first")
+    return results, records, {k: v for k, v in hashes.items() if v}, done, missing
 
 
-def _provenance(name: str, cells, records, hashes, instances, views, data_seed, protocol, preset) -> dict:
-    """Provenance from the cells' records only (deterministic for a finished bench)."""
+def _provenance(name: str, cells, records, hashes, instances, views, data_seed, protocol, preset,
+                missing=()) -> dict:
+    """Provenance from the cells' records only (deterministic for a finished bench); ``missing``: cells
+    of the bench left out because they are not done (``--finished-only``)."""
     per_cell = []
     for c, r in zip(cells, records):
         w = r["wall"]
@@ -193,7 +205,8 @@ def _provenance(name: str, cells, records, hashes, instances, views, data_seed, 
             "data": {"instances": instances, "views": views, "seed": data_seed},
             "datasets": {k: v[:16] for k, v in hashes.items()}, "training_seeds": seeds,
             "commits": sorted({p["commit"] for p in per_cell}), "devices": sorted({p["device"] for p in per_cell}),
-            "compute_hours": round(total / 3600, 2), "cells": per_cell}
+            "compute_hours": round(total / 3600, 2), "cells": per_cell,
+            **({"missing_cells": [f"{c.category}/{c.key}" for c in missing]} if missing else {})}
 
 
 def _check(methods, categories, preset, protocol, work, out_dir):
@@ -215,15 +228,19 @@ def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGO
                views: int = 16, data_seed: int = 0, work_dir: Path = Path("bench_work"), out_dir: Path | None = None,
                preset: str = "cpu", seeds: Sequence[int] = (0,), category_seeds: dict | None = None,
                protocol: str = "scapo", workers: int = 1, cache_dir: Path | None = None, name: str = "table1_synthetic",
-               dry_run: bool = False, progress: bool = True, device: str | None = None, figures: bool = True):
+               dry_run: bool = False, progress: bool = True, device: str | None = None, figures: bool = True,
+               finished_only: bool = False):
     """Table 1 on our synthetic data: generate (or reuse) one dataset per category (``data_seed`` draws
     assets, splits and views), train every trained method once per training seed, predict, evaluate
     under ``protocol`` and write ``<name>.{csv,md,tex,json}`` (our rows: mean +- std over seeds; the
     paper's rows beside them), ``<name>_<category>.png`` and ``<name>_errors.png`` into ``out_dir``.
 
+    ``finished_only``: compute nothing and write the tables of the cells that are done (the others are
+    listed under ``missing_cells`` in the provenance), e.g. to commit a bench that outlives a session.
+
     Returns:
         The plan rows with ``dry_run`` (nothing is computed or written), else the test-split
-        :class:`~scapo.eval.EvalResult` of every cell.
+        :class:`~scapo.eval.EvalResult` of every cell (of every done cell with ``finished_only``).
 
     Raises:
         ConfigError / UnknownNameError: unknown method, category, preset or protocol, bad seeds
@@ -236,15 +253,16 @@ def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGO
         rows = plan(cells, work_dir, instances, views, data_seed, protocol)
         print_plan(rows)
         return rows
-    results, records, hashes = _compute(cells, work_dir, instances, views, data_seed, protocol, workers, cache_dir,
-                                        progress, device)
+    results, records, hashes, done, missing = _compute(cells, work_dir, instances, views, data_seed, protocol,
+                                                       workers, cache_dir, progress, device, finished_only)
     if out_dir is not None:
         from scapo.eval.tables import write_table1
 
-        prov = _provenance("scapo bench table1", cells, records, hashes, instances, views, data_seed, protocol, preset)
+        prov = _provenance("scapo bench table1", done, records, hashes, instances, views, data_seed, protocol, preset,
+                           missing)
         paths = write_table1(results, out_dir, prov, name=name, describe=describe)
         if figures:
-            paths += _figures(cells, results, work_dir, instances, views, data_seed, protocol, out_dir, name)
+            paths += _figures(done, results, work_dir, instances, views, data_seed, protocol, out_dir, name)
         for p in paths:
             print(f"wrote {p}")
     return results
@@ -275,7 +293,7 @@ def run_table3(categories: Sequence[str] = ("laptop", "eyeglasses"), instances: 
                preset: str = "cpu", seeds: Sequence[int] = (0,), category_seeds: dict | None = None,
                protocol: str = "scapo", workers: int = 1, cache_dir: Path | None = None,
                name: str = "table3_ablation", dry_run: bool = False, progress: bool = True,
-               device: str | None = None, ablations: Sequence[str] | None = None):
+               device: str | None = None, ablations: Sequence[str] | None = None, finished_only: bool = False):
     """The paper's Table 3 on our data: SCAPO full and without each of L_shape-var, L_dir-align,
     L_joint-prox, L_joint-boundary, per category and training seed; writes
     ``<name>.{csv,md,tex,json}`` (:func:`scapo.eval.tables.write_table3`). Same machinery, work folder
@@ -287,12 +305,13 @@ def run_table3(categories: Sequence[str] = ("laptop", "eyeglasses"), instances: 
         rows = plan(cells, work_dir, instances, views, data_seed, protocol)
         print_plan(rows)
         return rows
-    results, records, hashes = _compute(cells, work_dir, instances, views, data_seed, protocol, workers, cache_dir,
-                                        progress, device)
+    results, records, hashes, done, missing = _compute(cells, work_dir, instances, views, data_seed, protocol,
+                                                       workers, cache_dir, progress, device, finished_only)
     if out_dir is not None:
         from scapo.eval.tables import write_table3
 
-        prov = _provenance("scapo bench table3", cells, records, hashes, instances, views, data_seed, protocol, preset)
+        prov = _provenance("scapo bench table3", done, records, hashes, instances, views, data_seed, protocol, preset,
+                           missing)
         for p in write_table3(results, out_dir, prov, name=name):
             print(f"wrote {p}")
     return results

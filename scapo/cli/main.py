@@ -274,7 +274,7 @@ def cmd_bench_table(args) -> int:
                   out_dir=args.out or Path("results"), preset=args.preset, seeds=args.seeds,
                   category_seeds=parse_category_seeds(args.category_seeds), protocol=args.protocol,
                   workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run,
-                  progress=not args.no_progress, device=args.device)
+                  progress=not args.no_progress, device=args.device, finished_only=args.finished_only)
     if args.what == "table1":
         run_table1(methods=args.methods or table_methods(), categories=args.categories or list(TABLE1_CATEGORIES),
                    name=args.name or "table1_synthetic", **common)
@@ -417,6 +417,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "cell records")
     sp.add_argument("--dry-run", action="store_true", help="table1/3: list the cells and which are done; compute "
                     "nothing")
+    sp.add_argument("--finished-only", action="store_true", help="table1/3: compute nothing; write the tables of the "
+                    "cells that are done (the others are listed in the provenance)")
     sp.add_argument("--name", default=None, help="table1/3: file name stem (table1_synthetic, table3_ablation)")
     sp.add_argument("--no-progress", action="store_true")
     sp.add_argument("--out", type=Path, default=None, help="write result files here (table1/3: default results/)")
