@@ -146,6 +146,7 @@ def test_finished_only_writes_the_done_cells_and_lists_the_missing(bench, monkey
     assert _same(part, results)
     prov = json.loads((tmp_path / "table1_synthetic.json").read_text())["provenance"]
     assert prov["missing_cells"] == ["laptop/npcs_test_s1", "laptop/scapo_test_s1"]
+    assert "**Partial table:** 2 cells" in (tmp_path / "table1_synthetic.md").read_text()
     with pytest.raises(ConfigError, match="no cell of this bench is done"):
         run_table1(["npcs"], ["laptop"], work_dir=tmp_path / "empty", out_dir=tmp_path, seeds=[0], finished_only=True,
                    **SMALL)

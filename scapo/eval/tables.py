@@ -211,7 +211,10 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
                   "rotations under 5 and 10 deg and over 90 deg (flips), revolute joint-state error. A mean "
                   "far above its median means a few large errors (usually flipped parts).")
     prov = "; ".join(f"{k}: {v}" for k, v in provenance.items() if k != "cells")
-    md = [f"# Table 1 (synthetic): {', '.join(cats[:-1])}", "",
+    missing = provenance.get("missing_cells") or []
+    partial = ([f"**Partial table:** {len(missing)} cells of this bench are not done yet ("
+                + ", ".join(missing) + "); rerun the bench to complete it.", ""] if missing else [])
+    md = [f"# Table 1 (synthetic): {', '.join(cats[:-1])}", "", *partial,
           markdown_table(header, md_rows, ["l", "l", "c", "c", "c", *["r"] * len(cats)]), "", legend, "",
           "## Medians and rates", "", markdown_table(rob_header, rob_rows, ["l", "l", *["r"] * len(ROBUST_METRICS)]),
           "", rob_legend, "", f"Provenance: {prov}", "", *cells_markdown(provenance.get("cells"))]
@@ -322,7 +325,10 @@ def write_table3(results: Sequence[EvalResult], out_dir: str | Path, provenance:
     prov = "; ".join(f"{k}: {v}" for k, v in provenance.items() if k != "cells")
     paths = {k: Path(out_dir) / f"{name}.{k}" for k in ("csv", "md", "tex", "json")}
     atomic_write_text(paths["csv"], long.to_csv(index=False))
-    md = [f"# Table 3 (ablation of SCAPO's regularisers): {', '.join(cats[:-1])}", "",
+    missing = provenance.get("missing_cells") or []
+    partial = ([f"**Partial table:** {len(missing)} cells of this bench are not done yet ("
+                + ", ".join(missing) + "); rerun the bench to complete it.", ""] if missing else [])
+    md = [f"# Table 3 (ablation of SCAPO's regularisers): {', '.join(cats[:-1])}", "", *partial,
           markdown_table(header, rows, ["l", *["r"] * (len(header) - 1)]), "", legend, "", f"Provenance: {prov}", "",
           *cells_markdown(provenance.get("cells"))]
     atomic_write_text(paths["md"], "\n".join(md))
