@@ -33,6 +33,7 @@ from pathlib import Path
 import pandas as pd
 
 from scapo.data import load
+from scapo.data.storage import sha256_file
 from scapo.errors import ConfigError
 from scapo.eval import EvalResult, Predictions, evaluate
 from scapo.files import atomic_write_bytes, write_json
@@ -109,14 +110,6 @@ def evaluator_fingerprint() -> str:
     return h.hexdigest()[:16]
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 @dataclass
 class CellPaths:
     run: Path
@@ -140,7 +133,7 @@ def _read_record(paths: CellPaths, dataset_hash: str) -> dict | None:
         return None
     if (rec.get("dataset_hash") != dataset_hash or rec.get("evaluator") != evaluator_fingerprint()
             or not paths.predictions.is_file() or not paths.per_sample.is_file()
-            or rec.get("predictions_sha256") != _sha256(paths.predictions)):
+            or rec.get("predictions_sha256") != sha256_file(paths.predictions)):
         return None
     cell = rec.get("cell", {})
     entry = METHODS.get(cell.get("method", "")) if cell.get("method") in METHODS else None
@@ -233,7 +226,7 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
     wall["evaluate_s"] = round(time.perf_counter() - t1, 3)
     rec = {"cell": asdict(cell), "key": cell.key, "label": cell.label, "category": cell.category,
            "protocol": protocol, "dataset": str(data), "dataset_hash": dataset_hash,
-           "predictions": paths.predictions.name, "predictions_sha256": _sha256(paths.predictions),
+           "predictions": paths.predictions.name, "predictions_sha256": sha256_file(paths.predictions),
            "run": paths.run.name if cell.trained else None, "evaluator": evaluator_fingerprint(),
            "summary": res.summary, "info": json.loads(json.dumps(res.info, default=str)), "wall": wall,
            "provenance": provenance(torch_device=wall.get("train_device") or None)}

@@ -209,7 +209,7 @@ def _provenance(name: str, cells, records, hashes, instances, views, data_seed, 
             **({"missing_cells": [f"{c.category}/{c.key}" for c in missing]} if missing else {})}
 
 
-def _check(methods, categories, preset, protocol, work, out_dir):
+def _check(methods, categories, protocol, work, out_dir):
     from scapo.eval.protocols import get_protocol
 
     for cat in categories:
@@ -247,7 +247,24 @@ def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGO
         (all refused before any dataset is rendered). OutputError: unwritable work or table folder.
     """
     cells = table1_cells(methods, categories, preset, seeds, category_seeds)
-    protocol = _check(methods, categories, preset, protocol, None if dry_run else work_dir,
+
+    def write(results, done, prov):
+        from scapo.eval.tables import write_table1
+
+        paths = write_table1(results, out_dir, prov, name=name, describe=describe)
+        if figures:
+            paths += _figures(done, results, work_dir, instances, views, data_seed, prov["protocol"], out_dir, name)
+        return paths
+
+    return _bench("scapo bench table1", cells, methods, categories, write, instances, views, data_seed, work_dir,
+                  out_dir, preset, protocol, workers, cache_dir, dry_run, progress, device, finished_only)
+
+
+def _bench(title, cells, methods, categories, write, instances, views, data_seed, work_dir, out_dir, preset, protocol,
+           workers, cache_dir, dry_run, progress, device, finished_only):
+    """What both tables do: check names and outputs, list the cells (dry run) or compute them, and
+    ``write(results, done cells, provenance) -> paths`` into ``out_dir``."""
+    protocol = _check(methods, categories, protocol, None if dry_run else work_dir,
                       None if dry_run else out_dir)
     if dry_run:
         rows = plan(cells, work_dir, instances, views, data_seed, protocol)
@@ -256,14 +273,8 @@ def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGO
     results, records, hashes, done, missing = _compute(cells, work_dir, instances, views, data_seed, protocol,
                                                        workers, cache_dir, progress, device, finished_only)
     if out_dir is not None:
-        from scapo.eval.tables import write_table1
-
-        prov = _provenance("scapo bench table1", done, records, hashes, instances, views, data_seed, protocol, preset,
-                           missing)
-        paths = write_table1(results, out_dir, prov, name=name, describe=describe)
-        if figures:
-            paths += _figures(done, results, work_dir, instances, views, data_seed, protocol, out_dir, name)
-        for p in paths:
+        prov = _provenance(title, done, records, hashes, instances, views, data_seed, protocol, preset, missing)
+        for p in write(results, done, prov):
             print(f"wrote {p}")
     return results
 
@@ -298,20 +309,10 @@ def run_table3(categories: Sequence[str] = ("laptop", "eyeglasses"), instances: 
     L_joint-prox, L_joint-boundary, per category and training seed; writes
     ``<name>.{csv,md,tex,json}`` (:func:`scapo.eval.tables.write_table3`). Same machinery, work folder
     layout and errors as :func:`run_table1` (sharing its work folder reuses its SCAPO cells)."""
-    cells = table3_cells(categories, preset, seeds, category_seeds, ablations)
-    protocol = _check(["scapo"], categories, preset, protocol, None if dry_run else work_dir,
-                      None if dry_run else out_dir)
-    if dry_run:
-        rows = plan(cells, work_dir, instances, views, data_seed, protocol)
-        print_plan(rows)
-        return rows
-    results, records, hashes, done, missing = _compute(cells, work_dir, instances, views, data_seed, protocol,
-                                                       workers, cache_dir, progress, device, finished_only)
-    if out_dir is not None:
-        from scapo.eval.tables import write_table3
+    from scapo.eval.tables import write_table3
 
-        prov = _provenance("scapo bench table3", done, records, hashes, instances, views, data_seed, protocol, preset,
-                           missing)
-        for p in write_table3(results, out_dir, prov, name=name):
-            print(f"wrote {p}")
-    return results
+    cells = table3_cells(categories, preset, seeds, category_seeds, ablations)
+    return _bench("scapo bench table3", cells, ["scapo"], categories,
+                  lambda results, done, prov: write_table3(results, out_dir, prov, name=name), instances, views,
+                  data_seed, work_dir, out_dir, preset, protocol, workers, cache_dir, dry_run, progress, device,
+                  finished_only)

@@ -159,6 +159,15 @@ def _robust_rows(long: pd.DataFrame) -> list[list[str]]:
     return rows
 
 
+def _partial_note(provenance: dict) -> list[str]:
+    """Markdown lines saying that a bench's table lacks cells (``missing_cells``; ``--finished-only``)."""
+    missing = provenance.get("missing_cells") or []
+    if not missing:
+        return []
+    return [f"**Partial table:** {len(missing)} cells of this bench are not done yet ({', '.join(missing)}); rerun "
+            "the bench to complete it.", ""]
+
+
 def cells_markdown(cells: Sequence[dict] | None) -> list[str]:
     """Markdown lines of a bench's per-cell provenance (``scapo.bench``: category, cell, commit,
     device, training / prediction / evaluation wall time); nothing when there is none."""
@@ -211,9 +220,7 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
                   "rotations under 5 and 10 deg and over 90 deg (flips), revolute joint-state error. A mean "
                   "far above its median means a few large errors (usually flipped parts).")
     prov = "; ".join(f"{k}: {v}" for k, v in provenance.items() if k != "cells")
-    missing = provenance.get("missing_cells") or []
-    partial = ([f"**Partial table:** {len(missing)} cells of this bench are not done yet ("
-                + ", ".join(missing) + "); rerun the bench to complete it.", ""] if missing else [])
+    partial = _partial_note(provenance)
     md = [f"# Table 1 (synthetic): {', '.join(cats[:-1])}", "", *partial,
           markdown_table(header, md_rows, ["l", "l", "c", "c", "c", *["r"] * len(cats)]), "", legend, "",
           "## Medians and rates", "", markdown_table(rob_header, rob_rows, ["l", "l", *["r"] * len(ROBUST_METRICS)]),
@@ -325,9 +332,7 @@ def write_table3(results: Sequence[EvalResult], out_dir: str | Path, provenance:
     prov = "; ".join(f"{k}: {v}" for k, v in provenance.items() if k != "cells")
     paths = {k: Path(out_dir) / f"{name}.{k}" for k in ("csv", "md", "tex", "json")}
     atomic_write_text(paths["csv"], long.to_csv(index=False))
-    missing = provenance.get("missing_cells") or []
-    partial = ([f"**Partial table:** {len(missing)} cells of this bench are not done yet ("
-                + ", ".join(missing) + "); rerun the bench to complete it.", ""] if missing else [])
+    partial = _partial_note(provenance)
     md = [f"# Table 3 (ablation of SCAPO's regularisers): {', '.join(cats[:-1])}", "", *partial,
           markdown_table(header, rows, ["l", *["r"] * (len(header) - 1)]), "", legend, "", f"Provenance: {prov}", "",
           *cells_markdown(provenance.get("cells"))]

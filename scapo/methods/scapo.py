@@ -111,18 +111,15 @@ class SCAPOMethod:
 
 
 def inference_settings(run) -> dict:
-    """The test-time refinement settings a prediction from ``run`` uses now (the current definition of
-    its preset, as :meth:`Predictor.load` resolves it), as predictions record them in
-    ``info["inference"]``; empty for a folder without a readable ``run.json``."""
+    """The test-time refinement settings a prediction from ``run`` uses now
+    (:func:`~scapo.models.predict.stored_refine`), as predictions record them in ``info["inference"]``;
+    empty for a folder without a readable ``run.json``."""
     import json
 
-    from scapo.models.presets import get_preset
-    from scapo.models.train import preset_from_dict
+    from scapo.models.predict import stored_refine
 
     try:
-        stored = json.loads((Path(run) / "run.json").read_text())["preset"]
-        registered = str(stored.get("name", "")).split("/")[0] in PRESETS.names()
-        return dataclasses.asdict(get_preset(stored["name"]).refine if registered else preset_from_dict(stored).refine)
+        return dataclasses.asdict(stored_refine(json.loads((Path(run) / "run.json").read_text())["preset"]))
     except (OSError, ValueError, KeyError, TypeError):
         return {}
 

@@ -79,6 +79,14 @@ def check_points(points) -> torch.Tensor:
     return pts
 
 
+def stored_refine(stored: dict) -> RefineConfig:
+    """The refinement settings of a run whose preset is ``stored`` (``run.json``'s ``preset``): an
+    inference setting, so it follows the preset's current definition when the preset is registered
+    (or is an ablation of one), and the stored settings otherwise."""
+    registered = str(stored.get("name", "")).split("/")[0] in PRESETS.names()
+    return (get_preset(stored["name"]) if registered else preset_from_dict(stored)).refine
+
+
 class Predictor:
     """A trained SCAPO model ready for inference (``scapo.models.load(run)``)."""
 
@@ -154,9 +162,7 @@ class Predictor:
         if not done:
             raise TrainingError(f"{path} is from an unfinished run (stage {state.get('stage')}, epoch "
                                 f"{state.get('epoch')}); resume it with 'scapo train --out {run}' first")
-        # an inference setting follows the preset's current definition when the preset is registered
-        registered = str(stored.get("name", "")).split("/")[0] in PRESETS.names()
-        refine = (get_preset(stored["name"]) if registered else preset_from_dict(stored)).refine
+        refine = stored_refine(stored)
         try:
             if refine_steps is not None:
                 refine = dataclasses.replace(refine, steps=int(refine_steps))
