@@ -116,13 +116,13 @@ def _draw_axes(ax, pts: np.ndarray, types, axes, pivots, diag: float) -> None:
 
 
 def methods_figure(data: str | Path, predictions: dict, path: str | Path, count: int = 3,
-                   names: dict | None = None) -> Path:
+                   names: dict | None = None, split: str = "test") -> Path:
     """Ground truth and every method's output on the same test views.
 
     Args:
         data: dataset folder. predictions: row label -> :class:`~scapo.eval.predictions.Predictions`
             covering its test split. path: PNG to write. count: test views, spread over the split.
-        names: row label -> display name.
+        names: row label -> display name. split: "test" (the tables' figures) or "val" (for choices).
 
     One column per view; the first row is the ground truth (part labels and joint axes), then one row
     per method: its segmentation, each predicted part coloured as the ground-truth part it overlaps
@@ -141,9 +141,9 @@ def methods_figure(data: str | Path, predictions: dict, path: str | Path, count:
 
     from scapo.errors import PredictionError
 
-    ds = load(data, "test")
+    ds = load(data, split)
     if len(ds) == 0:
-        raise DatasetError(f"the test split of {data} is empty")
+        raise DatasetError(f"the {split} split of {data} is empty")
     check_output_file(path, "figure", "figure.png")
     names = dict(names or {})
     idx = np.linspace(0, len(ds) - 1, min(count, len(ds))).round().astype(int)
@@ -152,7 +152,7 @@ def methods_figure(data: str | Path, predictions: dict, path: str | Path, count:
     fig = plt.figure(figsize=(3.0 * len(items), 2.9 * len(rows)))
     for r, (label, preds) in enumerate(rows):
         index = None if preds is None else {(int(i), int(v)): k for k, (i, v, s) in enumerate(
-            zip(preds.instance_id, preds.view_id, preds.split)) if s == "test"}
+            zip(preds.instance_id, preds.view_id, preds.split)) if s == split}
         for c, item in enumerate(items):
             ax = fig.add_subplot(len(rows), len(items), r * len(items) + c + 1, projection="3d")
             pts, diag = item["points"], float(item["bbox_diag"])
@@ -162,7 +162,7 @@ def methods_figure(data: str | Path, predictions: dict, path: str | Path, count:
             else:
                 k = index.get((int(item["instance_id"]), int(item["view_id"])))
                 if k is None:
-                    raise PredictionError(f"predictions {label!r} miss test sample {item['instance_id']}/"
+                    raise PredictionError(f"predictions {label!r} miss {split} sample {item['instance_id']}/"
                                           f"{item['view_id']} of {data}")
                 lab = _matched_labels(preds.part_label[k], item["part_label"])
                 jt, ja, jp = preds.joint_type[k], preds.joint_axis[k], preds.joint_pivot[k]
@@ -175,7 +175,7 @@ def methods_figure(data: str | Path, predictions: dict, path: str | Path, count:
     handles += [Line2D([], [], color="k", lw=2, label="revolute axis"),
                 Line2D([], [], color="m", lw=2, label="prismatic axis")]
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8)
-    fig.suptitle(f"{ds.card.get('category', '')}: test views, ground truth and each method (parts coloured as the "
+    fig.suptitle(f"{ds.card.get('category', '')}: {split} views, ground truth and each method (parts coloured as the "
                  "GT part they overlap most)", fontsize=9)
     fig.tight_layout(rect=(0, 0.03, 1, 0.97))
     atomic_savefig(fig, Path(path), dpi=90)

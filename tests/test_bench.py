@@ -136,6 +136,11 @@ def test_ablation_presets():
     assert get_preset("cpu").losses.disabled == () and get_preset("cpu/no-seg").losses.weight("seg") == 0.0
     with pytest.raises(UnknownNameError, match="unknown preset"):
         get_preset("huge/no-seg")
+    with pytest.raises(UnknownNameError, match="branch_flip"):
+        get_preset("cpu/no-such_thing")
+    q = get_preset("cpu/no-branch_flip/no-part_init")  # our additions to the paper switch off the same way
+    assert q.name == "cpu/no-branch_flip/no-part_init" and not q.branch_flip and not q.part_init
+    assert q.losses.disabled == () and q.root_motion == get_preset("cpu").root_motion
 
 
 def test_finished_only_writes_the_done_cells_and_lists_the_missing(bench, monkeypatch, tmp_path):
@@ -150,3 +155,34 @@ def test_finished_only_writes_the_done_cells_and_lists_the_missing(bench, monkey
     with pytest.raises(ConfigError, match="no cell of this bench is done"):
         run_table1(["npcs"], ["laptop"], work_dir=tmp_path / "empty", out_dir=tmp_path, seeds=[0], finished_only=True,
                    **SMALL)
+
+
+def test_a_run_of_a_changed_preset_is_stale_set_aside_and_retrained(bench, monkeypatch, tmp_path):
+    """A preset whose training fields changed after its cells were computed: the dry run says so, the
+    records are no longer valid, and the old run, predictions and record are moved aside (kept)."""
+    import dataclasses
+    import shutil
+
+    import scapo.bench.cells as cells
+    from scapo.methods.npcs import SPEC
+    from scapo.models.presets import PRESETS
+
+    work, _, _, _ = bench
+    copy = tmp_path / "work"
+    shutil.copytree(work, copy)
+    data = copy / "laptop_i10_v2_s0"
+    monkeypatch.setitem(SPEC.presets._entries, "test", dataclasses.replace(SPEC.presets.get("test"), epochs=3))
+    monkeypatch.setitem(PRESETS._entries, "test", dataclasses.replace(PRESETS.get("test"), branch_flip=True))
+    plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True, **SMALL)
+    assert {r["key"]: r["status"] for r in plan} == {"npcs_test_s0": "retrain (stale)", "scapo_test_s0": "retrain (stale)"}
+    cell = Cell("npcs", "laptop", seed=0, preset="test")
+    paths = cells.cell_paths(data, cell, "scapo")
+    assert cells._read_record(paths, json.loads(paths.record.read_text())["dataset_hash"]) is None
+    moved = cells.set_aside_stale(paths, cell)
+    assert moved is not None and moved.parent == data / "stale"
+    assert {p.name for p in moved.iterdir()} == {"run_npcs_test_s0", "predictions_npcs_test_s0.npz",
+                                                 "npcs_test_s0.scapo.json", "npcs_test_s0.scapo.parquet"}
+    assert not paths.run.exists() and not paths.predictions.exists() and not paths.record.exists()
+    monkeypatch.undo()  # the registered presets again: the untouched SCAPO cell is done, as before
+    plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True, **SMALL)
+    assert {r["key"]: r["status"] for r in plan} == {"npcs_test_s0": "todo", "scapo_test_s0": "done"}

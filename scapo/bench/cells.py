@@ -13,12 +13,17 @@ trained one (``scapo_cpu_s0``; an ablation's ``/`` is written ``+``: ``scapo-no-
 
 A record is valid while its dataset hash, its predictions file (sha256), the evaluator's source
 (:func:`evaluator_fingerprint`) and, for a method with inference settings outside its run (SCAPO's
-refinement; ``MethodEntry.inference``), those settings are unchanged; a valid record is never
+refinement; ``MethodEntry.inference``), those settings are unchanged, and, for a trained method, its
+run is the one its preset would train today (``MethodEntry.run_is_current``); a valid record is never
 recomputed, so a finished bench reruns in seconds and writes identical tables. Each step resumes on
 its own: a finished run is not retrained, existing predictions of the same dataset, run and
 inference settings are not recomputed, and only the (cheap) evaluation is redone when the evaluator
 changed. Training, prediction and evaluation wall times are
 recorded per cell (training: summed over every session that trained the run, from its ``timing.json``).
+
+A run whose preset's training fields changed since it was trained is stale: the cell is retrained,
+after its old run, predictions and record are moved (never deleted) to
+``<dataset>/stale/<key>-<UTC time>/``.
 """
 
 from __future__ import annotations
@@ -136,11 +141,42 @@ def _read_record(paths: CellPaths, dataset_hash: str) -> dict | None:
             or rec.get("predictions_sha256") != sha256_file(paths.predictions)):
         return None
     cell = rec.get("cell", {})
+    if cell.get("seed") is not None and not _run_current(paths.run, cell.get("method", ""), cell.get("preset"),
+                                                        cell.get("seed")):
+        return None
     entry = METHODS.get(cell.get("method", "")) if cell.get("method") in METHODS else None
     if entry is not None and entry.inference is not None and cell.get("seed") is not None:
         if rec.get("info", {}).get("inference") != json.loads(json.dumps(entry.inference(paths.run))):
             return None
     return rec
+
+
+def _run_current(run: Path, method: str, preset: str | None, seed: int | None) -> bool:
+    """The run folder holds the run that ``method``'s ``preset`` (at ``seed``) would train today; True
+    for a method without the check. The dataset is the run folder's parent (the cell layout)."""
+    entry = METHODS.get(method) if method in METHODS else None
+    if entry is None or entry.run_is_current is None or preset is None:
+        return True
+    return bool(entry.run_is_current(run, run.parent, preset, seed))
+
+
+def _stale_run(paths: CellPaths, cell: Cell) -> bool:
+    """A started run (``run.json``) that its preset would no longer train (its fields changed since)."""
+    return (cell.trained and (paths.run / "run.json").is_file()
+            and not _run_current(paths.run, cell.method, cell.preset, cell.seed))
+
+
+def set_aside_stale(paths: CellPaths, cell: Cell) -> Path | None:
+    """Move a stale cell's run, predictions and records to ``<dataset>/stale/<key>-<UTC time>/`` (kept,
+    never deleted) so the cell is recomputed; returns that folder, or None when the run is current."""
+    if not _stale_run(paths, cell):
+        return None
+    dest = paths.run.parent / "stale" / f"{cell.key}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}"
+    dest.mkdir(parents=True, exist_ok=False)
+    for p in (paths.run, paths.predictions, paths.record, paths.per_sample):
+        if p.exists():
+            p.rename(dest / p.name)
+    return dest
 
 
 def _result_of(rec: dict, paths: CellPaths) -> EvalResult:
@@ -155,10 +191,13 @@ def _run_finished(run: Path) -> bool:
 
 def cell_status(data: Path, cell: Cell, protocol: str, dataset_hash: str | None) -> str:
     """What is left of a cell: ``done``, ``evaluate`` (predictions exist), ``predict`` (run trained),
-    ``resume training`` (a partial run) or ``todo`` (nothing yet; also when the dataset is not built)."""
+    ``resume training`` (a partial run), ``retrain (stale)`` (its preset's training fields changed
+    since the run was trained) or ``todo`` (nothing yet; also when the dataset is not built)."""
     paths = cell_paths(data, cell, protocol)
     if dataset_hash is None:
         return "todo"
+    if _stale_run(paths, cell):
+        return "retrain (stale)"
     if _read_record(paths, dataset_hash) is not None:
         return "done"
     if paths.predictions.is_file():
@@ -204,6 +243,10 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
     rec = _read_record(paths, dataset_hash)
     if rec is not None:
         return _result_of(rec, paths), rec, False
+    moved = set_aside_stale(paths, cell)
+    if moved is not None:
+        print(f"scapo: {cell.key}: the run was trained with an older {cell.preset!r} preset; moved it to {moved} "
+              "and training again")
     wall: dict = {}
     if cell.trained:
         train_method(cell.method, data, paths.run, cell.preset, progress=progress, device=device, seed=cell.seed)

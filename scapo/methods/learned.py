@@ -174,6 +174,20 @@ def train_learned(spec: LearnedSpec, data: str | Path, run: str | Path, preset=N
         return _train_locked(spec, pc, identity, train, run, dev, progress)
 
 
+def run_is_current(spec: LearnedSpec, run: str | Path, data: str | Path, preset: str, seed: int | None = None) -> bool:
+    """Whether ``run`` holds the run ``train_learned(spec, data, run, preset, seed=seed)`` would start
+    now (same ``run.json`` identity: method, the registered preset's fields today, dataset, structure);
+    False without a readable ``run.json`` or when the preset's fields changed since (stale results)."""
+    old = run_identity(run)
+    if old is None:
+        return False
+    pc = spec.presets.get(preset)
+    if seed is not None:
+        pc = dataclasses.replace(pc, seed=int(seed))
+    card = load(data, "train").card
+    return _hash(old) == _hash(json.loads(json.dumps(_identity(spec, pc, card), default=str)))
+
+
 def _refuse_other(path: Path, old: dict, new: dict) -> None:
     if _hash(old) == _hash(new):
         return
@@ -448,9 +462,12 @@ def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, need
     def trainer(data, run, preset=None, progress=True, device=None, seed=None) -> Path:
         return train_learned(spec, data, run, preset, progress=progress, device=device, seed=seed)
 
+    def current(run, data, preset, seed=None) -> bool:
+        return run_is_current(spec, run, data, preset, seed)
+
     register_method(spec.method, options=options_cls, display=display, supervision=supervision,
                     needs_alignment=needs_alignment, summary=summary, train=trainer,
-                    presets=tuple(spec.presets.names()))(factory)
+                    presets=tuple(spec.presets.names()), run_is_current=current)(factory)
     factory.spec = spec
     return factory
 

@@ -70,6 +70,9 @@ class MethodEntry:
             run (SCAPO's test-time refinement), ``inference(run) -> dict`` of the settings a prediction
             from ``run`` would use now; its predictions record them as ``info["inference"]``, so that
             predictions made under other settings are recognised as stale (``scapo.bench``).
+        run_is_current: for trained methods, ``run_is_current(run, data, preset, seed) -> bool``: the run
+            folder holds the run ``train(data, run, preset, seed=seed)`` would start now (False when
+            the preset's training fields changed since), so the bench never reports a stale run.
     """
 
     name: str
@@ -83,6 +86,7 @@ class MethodEntry:
     presets: tuple[str, ...] = ()
     variants: Mapping[str, str] = field(default_factory=dict)
     inference: Callable[[Path], dict] | None = None
+    run_is_current: Callable[..., bool] | None = None
 
     @property
     def trained(self) -> bool:
@@ -101,7 +105,8 @@ METHODS: Registry[MethodEntry] = Registry("method")
 def register_method(name: str, *, options: type, display: str, supervision: Mapping[str, bool],
                     needs_alignment: bool, summary: str = "", train: Callable[..., Path] | None = None,
                     presets: tuple[str, ...] = (), variants: Mapping[str, str] | None = None,
-                    inference: Callable[[Path], dict] | None = None):
+                    inference: Callable[[Path], dict] | None = None,
+                    run_is_current: Callable[..., bool] | None = None):
     """Decorator registering a method factory under ``name`` (see :class:`MethodEntry`).
 
     Raises:
@@ -115,7 +120,7 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
 
     def deco(factory):
         METHODS.add(name, MethodEntry(name, factory, options, display, dict(supervision), needs_alignment, summary,
-                                      train, tuple(presets), dict(variants or {}), inference))
+                                      train, tuple(presets), dict(variants or {}), inference, run_is_current))
         factory.options = options
         return factory
 

@@ -124,6 +124,12 @@ def inference_settings(run) -> dict:
         return {}
 
 
+def _run_is_current(run, data, preset, seed=None) -> bool:
+    from scapo.models.train import run_is_current
+
+    return run_is_current(run, data, preset, seed)
+
+
 def _train(data, run, preset=None, progress=True, device=None, seed=None):
     from scapo.models.train import train
 
@@ -133,7 +139,8 @@ def _train(data, run, preset=None, progress=True, device=None, seed=None):
 @register_method("scapo", options=SCAPOOptions, display="SCAPO (ours)", supervision=SCAPOMethod.supervision,
                  needs_alignment=True, summary="self-supervised SE(3)-equivariant skinning (the paper's method)",
                  train=_train, presets=tuple(PRESETS.names()),
-                 variants={"scapo-no-refine": "SCAPO (ours, no refinement)"}, inference=inference_settings)
+                 variants={"scapo-no-refine": "SCAPO (ours, no refinement)"}, inference=inference_settings,
+                 run_is_current=_run_is_current)
 def make_scapo(**options) -> SCAPOMethod:
     """SCAPO (ours) from a trained run; options are :class:`SCAPOOptions` fields."""
     return SCAPOMethod(**options)

@@ -152,7 +152,7 @@ class Predictor:
         try:
             state = torch.load(path, map_location=dev, weights_only=False)
             model = SCAPOModel(_model_config(state["model_config"]))
-            model.load_state_dict(state["model"])
+            model.load_checkpoint_state(state["model"])
             identity, done = state["identity"], state.get("done")
             stored = identity["preset"]
         except Exception as e:  # noqa: BLE001 - torch.load raises many kinds for a damaged file

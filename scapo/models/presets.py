@@ -42,6 +42,10 @@ class TrainConfig:
     (:mod:`scapo.models.part_init`, an addition to the paper); False: the fixed initialisation."""
     root_motion: bool = False
     """The base part may turn about the root joint (``ModelConfig.root_motion``, an addition to the paper)."""
+    branch_flip: bool = False
+    """At the start of stage 2, fit a correction of the stage-1 frames' minority branch (the half-turned
+    frames of near-symmetric shapes) from the training views without labels, and use the corrected
+    frames in stage 2 and at inference (:mod:`scapo.models.branch`, an addition to the paper)."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)
@@ -100,13 +104,16 @@ PRESETS.add("test", TrainConfig(
 
 #: The ablations of the paper's Table 3: the regularisers switched off one at a time.
 ABLATIONS = ("shape_var", "dir_align", "joint_prox", "joint_boundary")
+#: Our additions to the paper that a preset can switch off the same way (``cpu/no-branch_flip``).
+ADDITIONS = ("branch_flip", "part_init", "root_motion")
 
 
 def get_preset(name: str) -> TrainConfig:
     """A registered preset, or an ablation of one: ``"BASE/no-TERM[/no-TERM...]"`` is preset ``BASE``
     with the regulariser ``TERM`` (a name of :data:`scapo.losses.REGULARISERS`, e.g. ``shape_var``)
-    switched off (``LossConfig.disabled``); its ``name`` is the full string, so runs and tables name the
-    ablation. The paper's Table 3 rows are ``cpu/no-shape_var``, ``cpu/no-dir_align``,
+    switched off (``LossConfig.disabled``), or with one of our additions to the paper
+    (:data:`ADDITIONS`, e.g. ``branch_flip``) set to False; its ``name`` is the full string, so runs
+    and tables name the ablation. The paper's Table 3 rows are ``cpu/no-shape_var``, ``cpu/no-dir_align``,
     ``cpu/no-joint_prox`` and ``cpu/no-joint_boundary`` (or with ``paper``).
 
     Raises:
@@ -120,14 +127,18 @@ def get_preset(name: str) -> TrainConfig:
     if not parts:
         return cfg
     disabled = list(cfg.losses.disabled)
+    off = {}
     for part in parts:
         term = part[3:] if part.startswith("no-") else None
+        if term in ADDITIONS:
+            off[term] = False
+            continue
         if term not in REGULARISERS:
             raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "
-                                   f"{', '.join(REGULARISERS)} (e.g. {base}/no-shape_var)")
+                                   f"{', '.join(REGULARISERS + ADDITIONS)} (e.g. {base}/no-shape_var)")
         if term not in disabled:
             disabled.append(term)
-    return replace(cfg, name=str(name), losses=replace(cfg.losses, disabled=tuple(disabled)))
+    return replace(cfg, name=str(name), losses=replace(cfg.losses, disabled=tuple(disabled)), **off)
 
 
 def list_presets() -> list[str]:

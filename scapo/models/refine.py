@@ -254,7 +254,7 @@ def refine_articulation(cfg, X: torch.Tensor, out: dict, rc: RefineConfig, uprig
     if rc.steps <= 0:
         raise ValueError("refine_articulation needs rc.steps > 0")
     enc = out["enc"]
-    R0, t0 = enc.R.detach(), enc.t.detach()
+    R0, t0 = out.get("R", enc.R).detach(), enc.t.detach()  # the stage-2 frame (branch-corrected)
     state0 = out["state_x"].detach()
     root0 = out["root_x"].detach() if out.get("root_x") is not None else None
     rest, weights = out["Y_star"].detach(), out["w_ystar"].detach()

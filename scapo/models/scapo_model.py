@@ -9,7 +9,8 @@ Stage 1 (Sec. 3.1): ``t_g, R_g, Z_x = Theta_E(X)``; ``S_dec, F_x = Theta_D(Z_x)`
 ``X ~ R_g S_dec + t_g`` with ``R_g`` the Gram-Schmidt rotation of the raw equivariant estimate.
 
 Stage 2 (Sec. 3.2-3.3):
-``S_obj = R_g^T (X - t_g)`` (aligned input); keypoints ``K`` and bone shapes from ``Theta_K(Z_x)``;
+``S_obj = R_g^T (X - t_g)`` (aligned input; ``R_g`` branch-corrected when the run fitted a correction,
+:mod:`scapo.models.branch`, an addition to the paper); keypoints ``K`` and bone shapes from ``Theta_K(Z_x)``;
 template ``Y_X = Y_base + Theta_Delta(F_x)``; joints ``(c, d, a)_x = Theta_J(S_obj)`` and
 ``(c, d, a)_y = Theta_J(Y_X)``; bone transforms ``T^p`` (canonical -> aligned); backward
 ``S* = D^{o->c}(S_obj)``, forward ``S_obj^ = D^{c->o}(S*)``, ``X^ = R_g S_obj^ + t_g``; the same
@@ -23,6 +24,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from scapo.models.branch import apply_branch
 from scapo.models.refine import RefineConfig, refine_articulation
 from scapo.nn.encoder import EncoderConfig, SE3Encoder, ShapeDecoder
 from scapo.nn.skinning import (
@@ -153,8 +155,20 @@ class SCAPOModel(nn.Module):
         g = torch.Generator().manual_seed(0)
         # replaced at the start of stage 2 by canonicalised training points (see the trainer)
         self.y_base = nn.Parameter(0.3 * torch.randn(cfg.template_points, 3, generator=g))
+        # stage-2 branch correction of the stage-1 frames (scapo.models.branch; zeros: off), set by the
+        # trainer at the start of stage 2 when TrainConfig.branch_flip is on
+        self.register_buffer("branch", torch.zeros(3, 3))
+        self.register_buffer("branch_flip", torch.eye(3))
 
     # ------------------------------------------------------------------ helpers
+    def load_checkpoint_state(self, state: dict) -> None:
+        """``load_state_dict`` that accepts checkpoints from before the branch correction existed
+        (their missing ``branch``/``branch_flip`` buffers keep the "off" values)."""
+        state = dict(state)
+        for name in ("branch", "branch_flip"):
+            state.setdefault(name, getattr(self, name).detach().clone())
+        self.load_state_dict(state)
+
     @staticmethod
     def normalize(points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``points (B, N, 3)`` m -> (normalised points, scale (B,)) with ``scale = 2 RMS radius``."""
@@ -164,11 +178,12 @@ class SCAPOModel(nn.Module):
 
     @torch.no_grad()
     def frames(self, points: torch.Tensor) -> torch.Tensor:
-        """The stage-1 canonical frames ``(B, 3, 3)`` (canonical -> camera) of camera-frame clouds ``(B, N, 3)``."""
+        """The canonical frames ``(B, 3, 3)`` (canonical -> camera) of camera-frame clouds ``(B, N, 3)``:
+        the stage-1 frames, branch-corrected (:mod:`scapo.models.branch`) when the run fitted a correction."""
         was_training = self.training
         self.eval()
         try:
-            return self.encoder(self.normalize(points)[0]).R
+            return apply_branch(self.encoder(self.normalize(points)[0]).R, self.branch, self.branch_flip)
         finally:
             self.train(was_training)
 
@@ -183,7 +198,7 @@ class SCAPOModel(nn.Module):
         """Joint-aware deformation given the stage-1 outputs (see module docstring)."""
         cfg = self.cfg
         enc = s1["enc"]
-        R, t = enc.R, enc.t
+        R, t = apply_branch(enc.R, self.branch, self.branch_flip), enc.t
         S_obj = (X - t[:, None]) @ R  # R^T (x - t) for row vectors
         K, V, log_s = self.keypoints(enc.code)
         delta = self.residual(s1["F_x"]).reshape(-1, cfg.template_points, 3)
@@ -212,7 +227,7 @@ class SCAPOModel(nn.Module):
         S_x2y = blend(S_obj, w, T_xy)
         S_y2x = blend(Y, w_y, invert(T_xy))
         return {
-            "S_obj": S_obj, "K": K, "V": V, "log_scale": log_s, "w": w, "W": W,
+            "R": R, "S_obj": S_obj, "K": K, "V": V, "log_scale": log_s, "w": w, "W": W,
             "Y": Y, "delta": delta, "pivot_x": c_x, "axis_x": d_x, "state_x": a_x,
             "pivot_y": c_y, "axis_y": d_y, "state_y": a_y, "root_x": b_x, "root_y": b_y,
             "T_x": T_x, "T_y": T_y, "T_xy": T_xy,
@@ -254,7 +269,7 @@ class SCAPOModel(nn.Module):
         finally:
             self.train(was_training)
         enc = out["enc"]
-        R, t, T, pivot, axis, state = enc.R, enc.t, out["T_x"], out["pivot_x"], out["axis_x"], out["state_x"]
+        R, t, T, pivot, axis, state = out["R"], enc.t, out["T_x"], out["pivot_x"], out["axis_x"], out["state_x"]
         weights = out["w"]
         if refine is not None and refine.steps > 0:
             r = refine_articulation(self.cfg, X, out, refine, upright)

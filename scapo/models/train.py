@@ -22,6 +22,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from scapo.data.config import dict_diff
 from scapo.data.dataset import load
+from scapo.models.branch import apply_branch
 from scapo.errors import ConfigError, DatasetError, TrainingError
 from scapo.files import (
     FolderLock,
@@ -101,6 +102,9 @@ def resolve_device(name: str) -> torch.device:
 
 #: preset fields that only affect inference; a checkpoint is not refused when they differ
 INFERENCE_FIELDS = ("refine",)
+#: preset fields added after runs were trained, with the value those runs had: at that value a field is
+#: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
+ADDED_FIELDS = {"branch_flip": False}
 
 
 def _run_identity(preset: TrainConfig, card: dict) -> dict:
@@ -110,7 +114,8 @@ def _run_identity(preset: TrainConfig, card: dict) -> dict:
 
 def _training_identity(identity: dict) -> dict:
     """``identity`` without the preset's inference-only fields (what decides whether a checkpoint fits)."""
-    return {**identity, "preset": {k: v for k, v in identity.get("preset", {}).items() if k not in INFERENCE_FIELDS}}
+    return {**identity, "preset": {k: v for k, v in identity.get("preset", {}).items()
+                                   if k not in INFERENCE_FIELDS and not (k in ADDED_FIELDS and v == ADDED_FIELDS[k])}}
 
 
 def _identity_hash(obj: dict) -> str:
@@ -240,7 +245,7 @@ class Trainer:
             steps_per_epoch = min(steps_per_epoch, pc.max_steps_per_epoch)
         start_stage, start_epoch = 1, 0
         if state is not None:
-            self.model.load_state_dict(state["model"])
+            self.model.load_checkpoint_state(state["model"])
             start_stage, start_epoch = state["stage"], state["epoch"]
         truncate_log(self.run / "log.csv", start_stage, start_epoch)
         total = steps_per_epoch * (pc.stage1_epochs + pc.stage2_epochs)
@@ -303,17 +308,22 @@ class Trainer:
         cloud (one instance in one articulation state), and the keypoint and joint heads start from
         the most rigid part split (:meth:`_init_parts`). Without it: ``Y_base`` is a farthest-point
         sample of the union of the canonical clouds and the heads keep their fixed initialisation.
+        With ``branch_flip``, the branch correction is fitted first (:meth:`_init_branch`) and the
+        canonical clouds are taken in the corrected frames.
         """
         from scapo.models import part_init
         from scapo.ops.sampling import farthest_point_indices
 
         g = torch.Generator().manual_seed(self.preset.seed)
         idx = torch.randperm(len(data), generator=g)[: min(len(data), 64)]
+        if self.preset.branch_flip:
+            self._init_branch(data)
         X, _ = SCAPOModel.normalize(data.clouds[idx].to(self.device))
         self.model.eval()
         enc = self.model.encoder(X)
+        R = apply_branch(enc.R, self.model.branch, self.model.branch_flip)
         self.model.train()
-        clouds = ((X - enc.t[:, None]) @ enc.R).cpu()
+        clouds = ((X - enc.t[:, None]) @ R).cpu()
         sub = clouds[:, :: max(1, clouds.shape[1] // 128)]
         M = self.mcfg.template_points
         rng = np.random.default_rng(self.preset.seed)
@@ -324,6 +334,29 @@ class Trainer:
         self.model.y_base.copy_(torch.from_numpy(S[farthest_point_indices(S, M, rng)]).to(self.model.y_base))
         if self.preset.part_init and len(clouds) >= 2:
             self._init_parts(sub, clouds.reshape(-1, 3), self.model.y_base.detach().cpu())
+
+    @torch.no_grad()
+    def _init_branch(self, data: TrainingClouds, views: int = 512, points: int = 128) -> None:
+        """Fit the stage-2 branch correction (:func:`scapo.models.branch.fit_branch`) on the stage-1
+        frames of up to ``views`` training clouds (evenly spaced) and store it in the model's buffers;
+        what was found goes to ``branch.json`` in the run folder."""
+        from scapo.models.branch import fit_branch
+
+        idx = torch.linspace(0, len(data) - 1, min(views, len(data))).round().long()
+        n = data.clouds.shape[1]
+        sel = torch.linspace(0, n - 1, min(points, n)).round().long()
+        self.model.eval()
+        Rs, Ss = [], []
+        for k in range(0, len(idx), 64):
+            X, _ = SCAPOModel.normalize(data.clouds[idx[k:k + 64]].to(self.device))
+            enc = self.model.encoder(X)
+            Rs.append(enc.R.cpu())
+            Ss.append(((X - enc.t[:, None]) @ enc.R).cpu()[:, sel])
+        self.model.train()
+        branch, flip, info = fit_branch(torch.cat(Rs), torch.cat(Ss), seed=self.preset.seed)
+        self.model.branch.copy_(branch.to(self.model.branch))
+        self.model.branch_flip.copy_(flip.to(self.model.branch_flip))
+        write_json(self.run / "branch.json", {**info, "views": len(idx), "branch": branch.tolist(), "flip": flip.tolist()})
 
     @torch.no_grad()
     def _init_parts(self, clouds: torch.Tensor, union: torch.Tensor, template: torch.Tensor) -> None:
@@ -477,4 +510,24 @@ def train(data: str | Path, run: str | Path, preset: str | TrainConfig | None = 
     return Trainer(data, run, preset, progress, device).train()
 
 
-__all__ = ["Trainer", "TrainingClouds", "model_config", "plot_losses", "preset_from_dict", "run_preset", "train"]
+def run_is_current(run: str | Path, data: str | Path, preset: str, seed: int | None = None) -> bool:
+    """Whether the run folder ``run`` was started as ``train(data, run, preset, seed=seed)`` would start
+    it now: its ``run.json`` has the training identity (preset fields other than the inference-only
+    ones, dataset, category structure) of the registered ``preset`` today. False for a folder without
+    a readable ``run.json`` and for a run of a preset whose training fields have changed since (its
+    results are stale). Raises UnknownNameError for an unknown preset."""
+    try:
+        old = json.loads((Path(run) / "run.json").read_text())
+    except (OSError, ValueError):
+        return False
+    if not isinstance(old, dict):
+        return False
+    cfg = get_preset(preset)
+    if seed is not None:
+        cfg = dataclasses.replace(cfg, seed=int(seed))
+    card = load(data, "train").card
+    return _identity_hash(old) == _identity_hash(json.loads(json.dumps(_run_identity(cfg, card), default=str)))
+
+
+__all__ = ["Trainer", "TrainingClouds", "model_config", "plot_losses", "preset_from_dict", "run_is_current",
+           "run_preset", "train"]
