@@ -63,3 +63,56 @@ def test_table1_files_have_paper_rows_and_provenance(laptop_data, tmp_path):
     md = (tmp_path / "table1.md").read_text()
     assert "commit: abc123" in md and "SCAPO (paper)" in md and "| 99.28 |" in md
     assert "abc123" in (tmp_path / "table1.tex").read_text()
+
+
+def _synthetic_result(method, category, seed, S, R, rng, instances=12, views=3):
+    """An EvalResult with per-sample metrics drawn around ``S`` and ``R`` (two parts, one joint)."""
+    import numpy as np
+
+    from scapo.eval.evaluator import EvalResult
+
+    n = instances * views
+    ps = pd.DataFrame({"instance_id": np.repeat(np.arange(instances), views), "view_id": np.tile(np.arange(views), instances),
+                       "S": S + rng.normal(0, 3, n), "D": 10 - S / 10 + rng.normal(0, 1, n),
+                       "C": 0.2 - S / 1000 + rng.normal(0, 0.01, n),
+                       "R_p0": R + rng.normal(0, 2, n), "R_p1": R + rng.normal(0, 2, n)})
+    summary = {"S": float(ps.S.mean()), "D": float(ps.D.mean()), "C": float(ps.C.mean()),
+               "R_median": float(np.nanmedian(ps[["R_p0", "R_p1"]].to_numpy()))}
+    return EvalResult(method=method, category=category, split="test", per_sample=ps, summary=summary,
+                      info={"seed": seed, "supervision": {"pose": False, "segmentation": method == "sup",
+                                                          "joint": False}})
+
+
+def test_self_supervised_ordering_checks_samples_and_seeds():
+    """A clearly better self-supervised method is best on every metric, in every resample and with
+    separate seeds; a supervised row is left out; values are the table's Mean column."""
+    import numpy as np
+
+    from scapo.eval.tables import ordering_markdown, self_supervised_ordering
+
+    rng = np.random.default_rng(0)
+    res = []
+    for cat in ("laptop", "eyeglasses"):
+        for s in range(3):
+            res.append(_synthetic_result("good", cat, s, 80 + s, 5 + s, rng))
+            res.append(_synthetic_result("weak", cat, s, 50 + s, 40 + s, rng))
+        res.append(_synthetic_result("sup", cat, 0, 99, 1, rng))
+    res.append(_synthetic_result("good", "safe", 0, 70, 8, rng))  # a category only one method has: left out
+    order = self_supervised_ordering(res, draws=200)
+    assert order["methods"] == ["good", "weak"] and order["categories"] == ["laptop", "eyeglasses"]
+    for metric in ("S", "D", "C", "R_median"):
+        m = order["metrics"][metric]
+        assert m["best"] == "good"
+        assert m["against"]["weak"] == {"p_better": 1.0, "seeds_separate": True}
+    expected = np.mean([np.mean([r.summary["S"] for r in res if r.method == "good" and r.category == c])
+                        for c in ("laptop", "eyeglasses")])
+    assert order["metrics"]["S"]["values"]["good"] == pytest.approx(expected)
+    assert order == self_supervised_ordering(res, draws=200)  # deterministic
+    md = "\n".join(ordering_markdown(order))
+    assert "## Self-supervised ordering" in md and "better in 100.0 % of resamples, seeds separate" in md
+    # two methods within noise: neither wins every resample, and the seeds overlap
+    close = [_synthetic_result(m, "laptop", s, 60 + s * 5, 20, rng) for m in ("a", "b") for s in range(3)]
+    o = self_supervised_ordering(close, draws=200)
+    other = "b" if o["metrics"]["S"]["best"] == "a" else "a"
+    assert o["metrics"]["S"]["against"][other]["seeds_separate"] is False
+    assert self_supervised_ordering([r for r in res if r.method == "good"])["methods"] == []

@@ -13,7 +13,9 @@ with the standard deviation across seeds beside it (``82.1 ± 3.4``); the CSV ke
 Below the paper-layout table (means), a second table gives the robust statistics of each method and
 category (:data:`ROBUST_METRICS`: medians of R, t, D, C; the rates of part rotations under 5 and 10
 deg and over 90 deg; joint-state errors), because means of bimodal errors (flipped parts) rank
-methods by their flip rate alone.
+methods by their flip rate alone. A third section checks whether one self-supervised method is best
+on mean S, D, C and median R (:func:`self_supervised_ordering`: a paired bootstrap over test instances
+and a comparison of training seeds).
 
 Each writer produces ``<name>.csv`` (long format: one value per row), ``<name>.md``,
 ``<name>.tex`` (booktabs) and ``<name>.json`` (values + provenance).
@@ -184,6 +186,129 @@ def cells_markdown(cells: Sequence[dict] | None) -> list[str]:
                            ["l", "l", "l", "l", "r", "r", "r"]), ""]
 
 
+#: The ordering check of the self-supervised rows: metric -> (the statistic of a cell, higher is better).
+ORDERING_METRICS = {"S": ("mean S", True), "D": ("mean D", False), "C": ("mean C", False),
+                    "R_median": ("median R", False)}
+
+
+def _weighted_stat(values: np.ndarray, weights: np.ndarray, median: bool) -> np.ndarray:
+    """Per bootstrap draw: weighted mean or (lower) weighted median of ``values (n,)`` under
+    ``weights (B, n)`` (NaN values ignored) -> ``(B,)``."""
+    ok = np.isfinite(values)
+    v, w = values[ok], weights[:, ok]
+    if v.size == 0:
+        return np.full(weights.shape[0], math.nan)
+    if not median:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return (w @ v) / w.sum(1)
+    order = np.argsort(v, kind="stable")
+    cw = np.cumsum(w[:, order], axis=1)
+    k = np.argmax(cw >= 0.5 * cw[:, -1:], axis=1)
+    return v[order][k]
+
+
+def self_supervised_ordering(results: Sequence[EvalResult], describe: Describe | None = None, draws: int = 1000,
+                             seed: int = 0) -> dict:
+    """Is one self-supervised method best on mean S, D, C and median R, averaged over the categories?
+
+    The rows compared are the methods without any supervision mark (``describe``; else the marks their
+    predictions declare), on the categories every one of them has. A method's value on a metric is the
+    table's: per category the mean over training seeds of the cell statistic (mean S, D, C; median R
+    over all parts), then the mean over categories. Two checks of the best method against each other:
+
+    - test samples: a paired bootstrap over test instances (``draws`` resamples of each category's
+      instances, shared by all methods, seeds pooled as in the table), giving the share of resamples
+      in which the best stays better (``p_better``);
+    - training seeds: on the categories where both methods have several seeds, whether the best
+      method's worst seed beats the other's best seed on every such category (``seeds_separate``;
+      None without such categories).
+
+    Returns ``{"methods": [...], "categories": [...], "metrics": {metric: {"values": {method: v},
+    "best": method, "against": {method: {"p_better": float, "seeds_separate": bool | None}}}}}``;
+    empty ``methods`` when fewer than two self-supervised methods share a category. Deterministic.
+    """
+    def unsupervised(label: str) -> bool:
+        known = describe(label) if describe is not None else None
+        sup = known[1] if known else next(r for r in results if r.method == label).info.get("supervision", {})
+        return not any(bool(sup.get(k)) for k in ("pose", "segmentation", "joint"))
+
+    methods = [m for m in dict.fromkeys(r.method for r in results) if unsupervised(m)]
+    cats = [c for c in sorted({r.category for r in results},
+                              key=lambda c: CATEGORY_ORDER.index(c) if c in CATEGORY_ORDER else 99)
+            if all(any(r.method == m and r.category == c for r in results) for m in methods)]
+    out = {"methods": methods, "categories": cats, "draws": draws, "metrics": {}}
+    if len(methods) < 2 or not cats:
+        return {**out, "methods": []}
+    rng = np.random.default_rng(seed)
+    weights = {}
+    for c in cats:
+        inst = np.unique(np.concatenate([r.per_sample["instance_id"].to_numpy() for r in results if r.category == c]))
+        weights[c] = (inst, rng.multinomial(len(inst), np.full(len(inst), 1.0 / len(inst)), size=draws))
+    for metric, (_, higher) in ORDERING_METRICS.items():
+        boot = {m: np.zeros(draws) for m in methods}
+        value, per_seed = {}, {}
+        for m in methods:
+            cat_vals = []
+            for c in cats:
+                inst, counts = weights[c]
+                seeds_b, seeds_v = [], []
+                for r in (r for r in results if r.method == m and r.category == c):
+                    ps = r.per_sample
+                    if metric == "R_median":
+                        cols = [k for k in ps.columns if k.startswith("R_p")]
+                        vals = ps[cols].to_numpy(np.float64).ravel()
+                        rows = np.repeat(ps["instance_id"].to_numpy(), len(cols))
+                    else:
+                        vals, rows = ps[metric].to_numpy(np.float64), ps["instance_id"].to_numpy()
+                    w = counts[:, np.searchsorted(inst, rows)].astype(np.float64)
+                    seeds_b.append(_weighted_stat(vals, w, metric == "R_median"))
+                    seeds_v.append(float(r.summary.get(metric, math.nan)))
+                boot[m] += np.nanmean(np.stack(seeds_b), 0) / len(cats)
+                cat_vals.append(float(np.nanmean(seeds_v)))
+                per_seed[(m, c)] = [v for v in seeds_v if math.isfinite(v)]
+            value[m] = float(np.mean(cat_vals))
+        finite = [m for m in methods if math.isfinite(value[m])]
+        if not finite:
+            continue
+        best = (max if higher else min)(finite, key=lambda m: value[m])
+        against = {}
+        for m in methods:
+            if m == best:
+                continue
+            diff = boot[best] - boot[m] if higher else boot[m] - boot[best]
+            sep = None
+            for c in cats:
+                a, b = per_seed[(best, c)], per_seed[(m, c)]
+                if len(a) > 1 and len(b) > 1:
+                    ok = (min(a) > max(b)) if higher else (max(a) < min(b))
+                    sep = ok if sep is None else (sep and ok)
+            against[m] = {"p_better": float(np.mean(diff > 0)), "seeds_separate": sep}
+        out["metrics"][metric] = {"values": value, "best": best, "against": against}
+    return out
+
+
+def ordering_markdown(order: dict, display: Callable[[str], str] = str) -> list[str]:
+    """The "Self-supervised ordering" section of a table (:func:`self_supervised_ordering`)."""
+    if not order.get("methods"):
+        return []
+    rows = []
+    for metric, res in order["metrics"].items():
+        name = ORDERING_METRICS[metric][0]
+        vals = ", ".join(f"{display(m)} {v:.3g}" for m, v in res["values"].items())
+        checks = "; ".join(
+            f"vs {display(m)}: better in {100 * a['p_better']:.1f} % of resamples"
+            + ("" if a["seeds_separate"] is None else
+               f", seeds {'separate' if a['seeds_separate'] else 'overlap'}") for m, a in res["against"].items())
+        rows.append([name, display(res["best"]), vals, checks])
+    legend = (f"Self-supervised rows on the categories all of them have ({', '.join(order['categories'])}); values "
+              "as in the table's Mean column. Resamples: a paired bootstrap over test instances "
+              f"({order['draws']} draws, seeds pooled); seeds separate: on every category where both have several "
+              "training seeds, the best method's worst seed beats the other's best seed.")
+    return ["## Self-supervised ordering", "",
+            markdown_table(["Metric", "Best", "Values (mean over categories)", "Checks of the best"], rows,
+                           ["l", "l", "l", "l"]), "", legend, ""]
+
+
 def table1_markdown(results: Sequence[EvalResult], protocol: str = "scapo", include_paper: bool = True,
                     describe: Describe | None = None) -> str:
     """The Markdown of Table 1 (paper layout, means) and of the medians-and-rates table below it."""
@@ -221,10 +346,17 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
                   "far above its median means a few large errors (usually flipped parts).")
     prov = "; ".join(f"{k}: {v}" for k, v in provenance.items() if k != "cells")
     partial = _partial_note(provenance)
+    order = self_supervised_ordering(results, describe)
+
+    def display(label: str) -> str:
+        known = describe(label) if describe is not None else None
+        return known[0] if known else label
+
     md = [f"# Table 1 (synthetic): {', '.join(cats[:-1])}", "", *partial,
           markdown_table(header, md_rows, ["l", "l", "c", "c", "c", *["r"] * len(cats)]), "", legend, "",
           "## Medians and rates", "", markdown_table(rob_header, rob_rows, ["l", "l", *["r"] * len(ROBUST_METRICS)]),
-          "", rob_legend, "", f"Provenance: {prov}", "", *cells_markdown(provenance.get("cells"))]
+          "", rob_legend, "", *ordering_markdown(order, display), f"Provenance: {prov}", "",
+          *cells_markdown(provenance.get("cells"))]
     if markdown_only:
         return "\n".join(md[:md.index(f"Provenance: {prov}")])
     atomic_write_text(paths["md"], "\n".join(md))
@@ -249,7 +381,7 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
             *[" & ".join(latex_escape(c).replace("±", r"$\pm$") for c in r) + r" \\" for r in rob_rows],
             r"\bottomrule", r"\end{tabular}", ""]
     atomic_write_text(paths["tex"], "\n".join(tex))
-    payload = {"provenance": provenance,
+    payload = {"provenance": provenance, "self_supervised_ordering": order,
                "results": [{"method": r.method, "category": r.category, "split": r.split,
                             "seed": r.info.get("seed"), "summary": r.summary, "info": r.info} for r in results]}
     atomic_write_text(paths["json"], json.dumps(payload, indent=1, default=str) + "\n")
