@@ -196,10 +196,10 @@ def cell_status(data: Path, cell: Cell, protocol: str, dataset_hash: str | None)
     paths = cell_paths(data, cell, protocol)
     if dataset_hash is None:
         return "todo"
+    if _read_record(paths, dataset_hash) is not None:  # a valid record implies a current run
+        return "done"
     if _stale_run(paths, cell):
         return "retrain (stale)"
-    if _read_record(paths, dataset_hash) is not None:
-        return "done"
     if paths.predictions.is_file():
         return "evaluate"
     if cell.trained and _run_finished(paths.run):

@@ -35,6 +35,7 @@ import math
 import torch
 
 from scapo.models.part_init import fibonacci_hemisphere
+from scapo.nn.skinning import exp_so3
 from scapo.ops.chamfer import trimmed_one_sided_chamfer
 
 EPS = 1e-12
@@ -45,22 +46,18 @@ def rotation_between(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     antiparallel vectors a half turn about an axis perpendicular to ``a``."""
     a = a / a.norm().clamp_min(EPS)
     b = b / b.norm().clamp_min(EPS)
-    c = float(a @ b)
-    if c < -1.0 + 1e-9:
-        trial = torch.eye(3, dtype=a.dtype)[int(torch.argmin(a.abs()))]
-        k = torch.linalg.cross(a, trial)
-        k = k / k.norm()
-        return 2.0 * torch.outer(k, k) - torch.eye(3, dtype=a.dtype)
     k = torch.linalg.cross(a, b)
-    K = torch.tensor([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]], dtype=a.dtype)
-    return torch.eye(3, dtype=a.dtype) + K + K @ K / (1.0 + c)
+    if float(k.norm()) < 1e-9 and float(a @ b) < 0:  # antiparallel: any perpendicular axis
+        k = torch.linalg.cross(a, torch.eye(3, dtype=a.dtype)[int(torch.argmin(a.abs()))])
+    elif float(k.norm()) < 1e-9:
+        return torch.eye(3, dtype=a.dtype)
+    angle = torch.atan2(torch.linalg.cross(a, b).norm(), a @ b)
+    return exp_so3(k / k.norm(), angle)
 
 
 def axis_rotation(axis: torch.Tensor, angle: float) -> torch.Tensor:
-    """Rotation ``(3, 3)`` by ``angle`` (rad) about unit ``axis (3,)`` (Rodrigues)."""
-    k = axis / axis.norm().clamp_min(EPS)
-    K = torch.tensor([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]], dtype=axis.dtype)
-    return torch.eye(3, dtype=axis.dtype) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+    """Rotation ``(3, 3)`` by ``angle`` (rad) about ``axis (3,)`` (any length; Rodrigues, ``exp_so3``)."""
+    return exp_so3(axis / axis.norm().clamp_min(EPS), torch.tensor(float(angle), dtype=axis.dtype))
 
 
 def branch_of(R: torch.Tensor, branch: torch.Tensor) -> torch.Tensor:
