@@ -16,7 +16,7 @@ PRESET=${PRESET:-cpu}
 SEEDS=${SEEDS:-0 1}
 METHODS=${METHODS:-npcs eap op-align scapo}
 OUT=${OUT:-results/methods_laptop_${PRESET}}
-$S generate --category laptop --instances 80 --views 16 --seed 1 --val-fraction 0.1 --out "$WORK/data" --no-progress
+$S generate --category laptop --instances 80 --views 16 --seed 1 --val-fraction 0.1 --cropped keep --out "$WORK/data" --no-progress
 [ -f "$WORK/pred_icp.npz" ] || $S predict --method icp --data "$WORK/data" --out "$WORK/pred_icp.npz"
 for s in $SEEDS; do
   for m in $METHODS; do

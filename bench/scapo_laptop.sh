@@ -9,7 +9,7 @@ S=.venv/bin/scapo
 WORK=${WORK:-bench_work/scapo_laptop}
 PRESET=${PRESET:-cpu}
 OUT=${OUT:-results/scapo_laptop_${PRESET}}
-$S generate --category laptop --instances 70 --views 20 --seed 0 --out "$WORK/data"
+$S generate --category laptop --instances 70 --views 20 --seed 0 --cropped keep --out "$WORK/data"
 $S train --data "$WORK/data" --preset "$PRESET" --out "$WORK/run_$PRESET"
 $S predict --run "$WORK/run_$PRESET" --data "$WORK/data" --out "$WORK/pred_scapo_$PRESET.npz"
 # the same run without the test-time refinement (the paper's one-pass prediction), as a second row

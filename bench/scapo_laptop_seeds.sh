@@ -13,7 +13,7 @@ PRESET=${PRESET:-cpu}
 SEEDS=${SEEDS:-0 1 2}
 MARGINS=${MARGINS:-0.15 0.3 0.5}
 OUT=${OUT:-results/scapo_laptop_${PRESET}_seeds}
-$S generate --category laptop --instances 70 --views 20 --seed 0 --val-fraction 0.1 --out "$WORK/data" --no-progress
+$S generate --category laptop --instances 70 --views 20 --seed 0 --val-fraction 0.1 --cropped keep --out "$WORK/data" --no-progress
 [ -f "$WORK/pred_icp.npz" ] || $S predict --method icp --data "$WORK/data" --out "$WORK/pred_icp.npz"
 for s in $SEEDS; do
   run="$WORK/run_${PRESET}_s$s"

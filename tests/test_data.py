@@ -209,3 +209,31 @@ def test_choices_on_val_never_read_the_test_split(tmp_path, monkeypatch):
     choice = json.loads((tmp_path / "choice.json").read_text())
     assert choice["chosen"] == chosen and choice["split"] == "val" and "commit" in choice["provenance"]
     assert main(["bench", "choose", "--data", str(d), "--candidate", f"1={tmp_path}/none*.npz"]) == 2
+
+
+def test_a_config_written_before_the_crop_rule_and_sensor_fields_keeps_its_hash():
+    """Table 1's datasets (config.json written before ``cropped`` and the sensor's range, depth crop, flying and
+    ground fields existed) read back to the same JSON, so they resume and keep their hash."""
+    from pathlib import Path
+
+    from scapo.data import GenerateConfig
+
+    text = (Path(__file__).parent / "data" / "config_before_crop_rule.json").read_text()
+    old = json.loads(text)
+    cfg = GenerateConfig.from_dict(old)
+    assert cfg.render.cropped == "keep" and json.loads(cfg.to_json()) == old
+    assert json.loads(make_config("laptop", 80, 16, 1, cropped="keep").to_json()) == old
+    assert "cropped" in json.loads(make_config("laptop", 80, 16, 1).to_json())["render"]  # new default: reject
+    real = json.loads(make_config("laptop", 80, 16, 1, sensor="realistic").to_json())["render"]["sensor"]
+    assert {"max_range", "depth_margin", "flying", "ground"} <= set(real)
+
+
+def test_cropped_views_flagged_in_the_manifest(tmp_path):
+    cfg = make_config("safe", 2, 6, seed=2, test_fraction=0.5, val_fraction=0.0, cropped="flag")
+    generate(cfg, tmp_path / "d", progress=False)
+    m = pd.read_parquet(tmp_path / "d" / "manifest.parquet")
+    assert m["cropped"].dtype == bool and len(m) == 12 and 0 < m["cropped"].sum() < 12  # safe doors leave the image
+    keep = make_config("safe", 2, 6, seed=2, test_fraction=0.5, val_fraction=0.0, cropped="keep")
+    generate(keep, tmp_path / "k", progress=False)
+    np.testing.assert_array_equal(_arrays(tmp_path / "d")["points"], _arrays(tmp_path / "k")["points"])
+    assert "cropped" not in pd.read_parquet(tmp_path / "k" / "manifest.parquet")

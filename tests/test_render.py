@@ -103,3 +103,26 @@ def test_realistic_sensor_adds_noise_and_background(renderer):
     sigma = sensor.sigma_base + sensor.sigma_quad * (np.median(s["points"][:, 2]) - 0.4) ** 2
     assert np.median(d) < 2 * sigma and np.mean(d < 3 * sigma) > 0.8
     assert (d > 1e-4).mean() > 0.5  # and they are noisy
+    # a point labelled with a part is on that part (flying pixels are background): all of them, not a median
+    lab = s["part_label"]
+    for p in range(spec.num_parts):
+        rest = transform_points(invert_transform(s["part_pose"][p]), s["points"][lab == p])
+        assert surface_distance(load_part_mesh(spec, p), rest).max() < 6 * sigma
+    # background (support plane, flying pixels) only near the object, never metres behind it
+    centre = s["T_cam_obj"][:3, 3]
+    assert np.linalg.norm(s["points"][lab < 0] - centre, axis=1).max() < 1.5 * s["bbox_diag"]
+    assert 0.0 < (lab < 0).mean() < 0.3
+
+
+def test_cropped_views_are_rejected_flagged_or_kept(renderer):
+    spec = parse_urdf(build_instance("laptop", 0, seed=0).urdf)
+    view = ViewConfig.from_template(load_template("laptop").view)
+    close = look_at(np.array([-0.45 * spec.bbox_diag, 0.0, 0.2 * spec.bbox_diag]), np.zeros(3), np.array([0, 0, 1.0]))
+    far = look_at(np.array([-2.0 * spec.bbox_diag, 0.0, 0.8 * spec.bbox_diag]), np.zeros(3), np.array([0, 0, 1.0]))
+    state = np.array([1.2])
+    with pytest.raises(RejectedViewError, match="cropped"):
+        render_sample(renderer, spec, RenderConfig(cropped="reject"), view, np.random.default_rng(0), state, close)
+    flag = RenderConfig(cropped="flag")
+    assert render_sample(renderer, spec, flag, view, np.random.default_rng(0), state, close)["cropped"]
+    assert not render_sample(renderer, spec, flag, view, np.random.default_rng(0), state, far)["cropped"]
+    assert "cropped" not in render_sample(renderer, spec, RenderConfig(), view, np.random.default_rng(0), state, close)

@@ -79,7 +79,7 @@ def cmd_generate(args) -> int:
                       sensor=args.sensor, random_rotation=args.random_rotation, width=args.width,
                       height=args.height, test_fraction=args.test_fraction, val_fraction=args.val_fraction,
                       min_part_fraction=args.min_part_fraction,
-                      shard_size=args.shard_size)
+                      shard_size=args.shard_size, cropped=args.cropped)
     rep = generate(cfg, args.out, workers=args.workers, progress=not args.no_progress, cache_dir=args.cache)
     print(f"{rep.out}: {rep.samples} samples ({rep.rendered} rendered now, {rep.skipped_shards} shards already "
           f"done); {sum(rep.rejections.values())} rejected views {dict(rep.rejections)}; "
@@ -330,7 +330,12 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", type=Path, required=True)
     sp.add_argument("--workers", type=int, default=1, help="worker processes, one SAPIEN scene each")
     sp.add_argument("--points", type=int, default=1024, help="points per sample (FPS)")
-    sp.add_argument("--sensor", default="clean", help="clean | realistic")
+    sp.add_argument("--sensor", default="clean", help="clean (exact object points) | realistic (depth noise, flying "
+                    "pixels, detector-style mask with nearby background labelled -1, support plane; see "
+                    "scapo.sim.sensor)")
+    sp.add_argument("--cropped", default="reject", choices=["reject", "flag", "keep"],
+                    help="views whose object touches the image border: reject them (default), flag them (kept, with "
+                    "a 'cropped' column in the manifest), or keep them (as the Table 1 datasets do)")
     sp.add_argument("--random-rotation", action="store_true", help="uniform SO(3) object rotation")
     sp.add_argument("--width", type=int, default=None)
     sp.add_argument("--height", type=int, default=None)

@@ -13,6 +13,8 @@ from scapo.sim.sensor import SENSORS, SensorConfig
 
 #: Version of the on-disk dataset layout (bump on incompatible changes).
 FORMAT_VERSION = 1
+#: Sensor fields added after datasets were first written (left out of a clean-sensor config at their defaults).
+SENSOR_ADDED_FIELDS = ("max_range", "depth_margin", "flying", "ground")
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,15 @@ class GenerateConfig:
         d = dataclasses.asdict(self)
         d["view"] = dataclasses.asdict(self.view_config)
         d["format_version"] = FORMAT_VERSION
+        # fields added later are left out at the value that reproduces the datasets written before them, so those
+        # datasets keep their config hash and resume
+        if d["render"]["cropped"] == "keep":
+            del d["render"]["cropped"]
+        if d["render"]["sensor"]["kind"] == "clean":  # the clean sensor ignores them
+            default = dataclasses.asdict(SensorConfig())
+            for k in SENSOR_ADDED_FIELDS:
+                if d["render"]["sensor"][k] == default[k]:
+                    del d["render"]["sensor"][k]
         if not self.val_fraction:  # identical to a config written before val splits existed
             del d["val_fraction"]
         return d
@@ -106,16 +117,19 @@ def make_config(
     category: str, instances: int, views: int, seed: int = 0, *, num_points: int = 1024,
     sensor: str = "clean", random_rotation: bool = False, width: int | None = None, height: int | None = None,
     test_fraction: float = 0.1, min_part_fraction: float = 0.05, shard_size: int = 64, shader: str = "trivial",
-    val_fraction: float = 0.1,
+    val_fraction: float = 0.1, cropped: str = "reject",
 ) -> GenerateConfig:
-    """Convenience constructor used by the CLI (named sensor, optional SO(3) rotation, image size)."""
+    """Convenience constructor used by the CLI (named sensor, optional SO(3) rotation, image size).
+
+    ``cropped``: what to do with views whose object touches the image border ("reject", "flag", or "keep" as
+    the Table 1 datasets do; see :class:`~scapo.sim.render.RenderConfig`)."""
     if sensor not in SENSORS:
         raise ConfigError(f"unknown sensor {sensor!r}; known sensors: {', '.join(SENSORS)}")
     cam = CameraConfig()
     cam = dataclasses.replace(cam, width=cam.width if width is None else width,
                               height=cam.height if height is None else height)
     render = RenderConfig(camera=cam, num_points=num_points, min_part_fraction=min_part_fraction,
-                          shader=shader, sensor=SENSORS[sensor])
+                          shader=shader, sensor=SENSORS[sensor], cropped=cropped)
     view = None
     if random_rotation:
         view = dataclasses.replace(ViewConfig.from_template(load_template(category).view), random_rotation=True)

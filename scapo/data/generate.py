@@ -169,6 +169,8 @@ def _render_shard(task: ShardTask, shard_dir: str) -> dict:
         "view_id": np.array([i[2] for i in task.items]),
         "attempts": np.array([s["attempts"] for s in samples]),
     }
+    if cfg.render.cropped == "flag":
+        meta["cropped"] = np.array([s["cropped"] for s in samples], dtype=bool)
     digest = write_shard(Path(shard_dir) / f"{task.name}.npz", samples, meta, dict(reasons))
     return {"name": task.name, "sha256": digest, "reasons": dict(reasons), "t0": t0, "t1": time.time(),
             "samples": len(samples)}
@@ -461,6 +463,7 @@ def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records, r
                 "seed": int(cfg.seed),
                 "attempts": int(arrays["attempts"][r]),
                 "joint_state": [float(x) for x in arrays["joint_state"][r]],
+                **({"cropped": bool(arrays["cropped"][r])} if "cropped" in arrays else {}),
             })
     manifest = pd.DataFrame(rows)
     buf = io.BytesIO()

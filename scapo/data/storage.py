@@ -48,6 +48,10 @@ META_FIELDS: dict[str, np.dtype] = {
     "attempts": np.dtype(np.int16),
 }
 
+#: Per-sample metadata written only by some configs (``cropped``: the object touches the image border, with
+#: ``--cropped flag``).
+OPTIONAL_META_FIELDS: dict[str, np.dtype] = {"cropped": np.dtype(np.bool_)}
+
 
 def sha256_file(path: Path) -> str:
     h = hashlib.sha256()
@@ -66,6 +70,9 @@ def write_shard(path: Path, samples: list[dict], meta: dict[str, np.ndarray], re
     arrays = {k: np.stack([np.asarray(s[k]) for s in samples]).astype(dt, copy=False) for k, dt in ARRAY_FIELDS.items()}
     for k, dt in META_FIELDS.items():
         arrays[k] = np.asarray(meta[k]).astype(dt)
+    for k, dt in OPTIONAL_META_FIELDS.items():
+        if k in meta:
+            arrays[k] = np.asarray(meta[k]).astype(dt)
     arrays["rejections"] = np.array(json.dumps(dict(sorted((rejections or {}).items()))))
     buf = io.BytesIO()
     np.savez(buf, **arrays)

@@ -82,6 +82,9 @@ class ViewConfig:
         return cls(view.azimuth_deg, view.elevation_deg, view.distance, view.roll_deg, random_rotation)
 
 
+CROPPED = ("keep", "reject", "flag")
+
+
 @dataclass(frozen=True)
 class RenderConfig:
     """How one sample is rendered and resampled."""
@@ -101,8 +104,14 @@ class RenderConfig:
     at least this many; 0 uses every pixel. Keep it well above num_points: with fewer than ~8x N
     candidates FPS becomes biased towards sparsely sampled (oblique) surfaces."""
     sensor: SensorConfig = field(default_factory=SensorConfig)
+    cropped: str = "keep"
+    """Views whose object touches the image border: "keep" them (the default of datasets made before this
+    rule existed, e.g. Table 1's), "reject" them (counted like other rejections) or "flag" them (kept, with a
+    per-sample ``cropped`` flag in the shards and the manifest)."""
 
     def __post_init__(self):
+        if self.cropped not in CROPPED:
+            raise ConfigError(f"cropped must be one of {CROPPED}, got {self.cropped!r}")
         if self.num_points < 16:
             raise ConfigError(f"the number of points per sample (--points) must be >= 16, got {self.num_points}")
         if not 0.0 <= self.min_part_fraction < 1.0:
@@ -395,11 +404,14 @@ def process_frame(frame: Frame, cfg: RenderConfig, K: np.ndarray, keep_images: b
     else:
         part_map = _part_map(seg, lut)
         obj_mask = part_map >= 0
-        img_points, keep = apply_sensor(gl_to_cv(frame.position), seg > 0, obj_mask, cfg.sensor, rng)
-        n_obj = int(np.count_nonzero(obj_mask & keep))
+        img_points, keep, label = apply_sensor(gl_to_cv(frame.position), seg > 0, part_map, cfg.sensor, rng)
+        n_obj = int(np.count_nonzero((label >= 0) & keep))
         if n_obj < N:
             raise RejectedViewError(f"too few object pixels ({n_obj} < {N})")
-        points_all, labels_all = img_points[keep], part_map[keep]
+        points_all, labels_all = img_points[keep], label[keep]
+    cropped = bool(obj_mask[0].any() or obj_mask[-1].any() or obj_mask[:, 0].any() or obj_mask[:, -1].any())
+    if cropped and cfg.cropped == "reject":
+        raise RejectedViewError("object cropped by the image border")
     if not np.isfinite(points_all).all():
         raise RenderError("SAPIEN returned non-finite positions")
     idx = farthest_point_indices(points_all, N, rng)
@@ -408,8 +420,11 @@ def process_frame(frame: Frame, cfg: RenderConfig, K: np.ndarray, keep_images: b
     counts = np.bincount(part_label[part_label >= 0], minlength=spec.num_parts)
     if counts.min() < cfg.min_part_points:
         p = int(counts.argmin())
-        raise RejectedViewError(f"part {spec.part_names[p]!r} keeps {int(counts[p])} < {cfg.min_part_points} points")
+        raise RejectedViewError(f"part {p} {spec.part_names[p]!r} keeps {int(counts[p])} < {cfg.min_part_points} "
+                                "points")
     sample = ground_truth(spec, frame.state, frame.T_world_cam, frame.part_motion, points, part_label, K)
+    if cfg.cropped == "flag":
+        sample["cropped"] = cropped
     if keep_images:
         img = np.full(seg.shape, -2, dtype=np.int64)
         img[seg > 0] = -1
@@ -462,7 +477,7 @@ def _submit_attempt(renderer: Renderer, spec: ArticulationSpec, cfg: RenderConfi
         state = sample_state(spec, rng)
     if T_world_cam is None:
         T_world_cam = sample_camera_pose(view, spec.bbox_diag, rng)
-    ground = cfg.sensor.kind == "realistic" and not view.random_rotation
+    ground = cfg.sensor.kind == "realistic" and cfg.sensor.ground and not view.random_rotation
     return renderer.submit(spec, state, T_world_cam, rng, ground=ground)
 
 
@@ -496,6 +511,9 @@ def _rejection_hint(reasons: Counter, cfg: RenderConfig) -> str:
     if top.startswith("too few object pixels"):
         return (f"the object covers fewer than {cfg.num_points} pixels of the {c.width} x {c.height} image: raise "
                 "--width/--height, lower --points, or bring the camera closer (view distance range)")
+    if top.startswith("object cropped"):
+        return ("the object leaves the image in these views: raise the view distance range, or keep such views with "
+                "--cropped flag (or keep)")
     if top.startswith("part"):
         return ("a part is hidden or too small in these views: lower --min-part-fraction (now "
                 f"{cfg.min_part_fraction}) or change the view ranges so that every part is visible")
