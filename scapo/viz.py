@@ -13,7 +13,7 @@ from scapo.errors import DatasetError
 from scapo.eval.predictions import Predictions
 from scapo.files import atomic_savefig, check_output_file, read_json
 from scapo.sim.assets import build_instance, parse_urdf
-from scapo.sim.preview import PART_COLORS, draw_sample, frame_cloud_axes, part_colors
+from scapo.sim.preview import PART_COLORS, axis_anchor, draw_sample, frame_cloud_axes, palette, part_colors
 from scapo.sim.render import Renderer, render_with_retries
 
 
@@ -76,14 +76,14 @@ def prediction_figure(data: str | Path, predictions: Predictions, path: str | Pa
             lab = predictions.part_label[r]
             ax.scatter(pts[:, 0], pts[:, 2], -pts[:, 1], c=part_colors(lab), s=1.5, depthshade=False)
             diag = float(item["bbox_diag"])
-            for t, a, p in zip(predictions.joint_type[r], predictions.joint_axis[r], predictions.joint_pivot[r]):
-                p = p if t == 0 else pts.mean(0)
-                seg = np.stack([p - 0.3 * diag * a, p + 0.3 * diag * a])
-                ax.plot(seg[:, 0], seg[:, 2], -seg[:, 1], "-", color="k" if t == 0 else "m", lw=2)
+            _draw_axes(ax, pts[lab >= 0], predictions.joint_type[r], predictions.joint_axis[r],
+                       predictions.joint_pivot[r], diag)
             ax.set_title(f"{predictions.method}: segmentation + joint axes", fontsize=8)
         frame_cloud_axes(ax, pts, float(item["bbox_diag"]))
-    handles = [Line2D([], [], marker="o", ls="", color=PART_COLORS[i], label=nm) for i, nm in enumerate(names[0])]
-    handles.append(Line2D([], [], color="k", lw=2, label="revolute axis"))
+    handles = [Line2D([], [], marker="o", ls="", color=c, label=nm)
+               for c, nm in zip(palette(len(names[0])), names[0])]
+    handles += [Line2D([], [], color="k", lw=2, label="revolute axis"),
+                Line2D([], [], color="m", lw=2, label="prismatic axis")]
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     path = Path(path)
@@ -110,7 +110,7 @@ def _matched_labels(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
 
 def _draw_axes(ax, pts: np.ndarray, types, axes, pivots, diag: float) -> None:
     for t, a, p in zip(types, axes, pivots):
-        p = p if t == 0 else pts.mean(0)  # a prismatic joint has no pivot: drawn through the centroid
+        p = axis_anchor(t, a, p, pts)
         seg = np.stack([p - 0.3 * diag * a, p + 0.3 * diag * a])
         ax.plot(seg[:, 0], seg[:, 2], -seg[:, 1], "-", color="k" if t == 0 else "m", lw=2)
 
@@ -168,10 +168,11 @@ def methods_figure(data: str | Path, predictions: dict, path: str | Path, count:
                 jt, ja, jp = preds.joint_type[k], preds.joint_axis[k], preds.joint_pivot[k]
                 title = names.get(label, label)
             ax.scatter(pts[:, 0], pts[:, 2], -pts[:, 1], c=part_colors(lab), s=1.2, depthshade=False)
-            _draw_axes(ax, pts, jt, ja, jp, diag)
+            _draw_axes(ax, pts[lab >= 0], jt, ja, jp, diag)
             ax.set_title(title, fontsize=8)
             frame_cloud_axes(ax, pts, diag)
-    handles = [Line2D([], [], marker="o", ls="", color=PART_COLORS[i], label=nm) for i, nm in enumerate(ds.part_names)]
+    handles = [Line2D([], [], marker="o", ls="", color=c, label=nm)
+               for c, nm in zip(palette(len(ds.part_names)), ds.part_names)]
     handles += [Line2D([], [], color="k", lw=2, label="revolute axis"),
                 Line2D([], [], color="m", lw=2, label="prismatic axis")]
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8)

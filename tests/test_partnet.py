@@ -105,3 +105,39 @@ def test_plain_urdf_with_package_paths_and_scale(tmp_path):
     assert spec.part_names == ("a", "b")
     np.testing.assert_allclose(spec.gt_joints[0].axis_obj, [0, 0, 1])
     np.testing.assert_allclose(spec.bbox_max - spec.bbox_min, [0.2, 0.2, 0.35], atol=1e-9)
+
+
+TWO_DRAWERS = """<?xml version="1.0"?>
+<robot name="two_drawers">
+  <link name="body"><visual><geometry><mesh filename="body.obj"/></geometry></visual></link>
+  <link name="top"><visual><origin xyz="0.1 0 0"/><geometry><mesh filename="drawer.obj"/></geometry></visual></link>
+  <link name="bottom"><visual><origin xyz="0.1 0 0"/><geometry><mesh filename="drawer.obj"/></geometry></visual></link>
+  <joint name="slide_top" type="prismatic"><origin xyz="0.2 0 0.15"/><axis xyz="1 0 0"/>
+    <parent link="body"/><child link="top"/><limit lower="0" upper="0.3"/></joint>
+  <joint name="slide_bottom" type="prismatic"><origin xyz="0.2 0 -0.15"/><axis xyz="1 0 0"/>
+    <parent link="body"/><child link="bottom"/><limit lower="0" upper="0.3"/></joint>
+</robot>
+"""
+
+
+def test_prismatic_pivot_locates_the_slide_at_the_moving_part(tmp_path):
+    """GTJoint: a prismatic joint's pivot is the point of its axis line closest to the moving part's rest bbox
+    centre, so two drawers of one cabinet have two distinct lines (before: both at the object origin)."""
+    from scapo.sim.assets import load_part_mesh
+
+    trimesh.creation.box([0.4, 0.5, 0.6]).export(tmp_path / "body.obj")
+    trimesh.creation.box([0.2, 0.4, 0.2]).export(tmp_path / "drawer.obj")
+    (tmp_path / "o.urdf").write_text(TWO_DRAWERS)
+    spec = parse_urdf(tmp_path / "o.urdf")
+    # rest bbox x in [-0.2, 0.4] (the drawers stick out to 0.4), so the object frame is the URDF's shifted by
+    # -0.1 in x; each drawer's centre is at (0.2, 0, +-0.15), on its own axis line
+    for j, z in zip(spec.gt_joints, (0.15, -0.15)):
+        assert j.type == 1
+        np.testing.assert_allclose(j.axis_obj, [1, 0, 0], atol=1e-12)
+        np.testing.assert_allclose(j.pivot_obj, [0.2, 0.0, z], atol=1e-9)
+    # the screw joint's prismatic half of the fixture: the pivot is level with the knob along the axis
+    spec = load_partnet_mobility(make_partnet_fixture(tmp_path / "p"))
+    door, knob = spec.gt_joints[0], spec.gt_joints[1]
+    assert abs(door.pivot_obj @ door.axis_obj) < 1e-9  # revolute: closest to the origin, as before
+    b = load_part_mesh(spec, 2).bounds
+    assert abs(((b[0] + b[1]) / 2 - knob.pivot_obj) @ knob.axis_obj) < 1e-9

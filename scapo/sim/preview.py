@@ -8,20 +8,31 @@ from pathlib import Path
 import numpy as np
 
 from scapo.files import atomic_savefig, check_output_file
+from scapo.ops.rigid import closest_point_on_line
 
 PART_COLORS = np.array([
     [0.12, 0.47, 0.71], [0.89, 0.10, 0.11], [0.20, 0.63, 0.17], [1.00, 0.50, 0.00],
-    [0.42, 0.24, 0.60], [0.65, 0.34, 0.16], [0.97, 0.51, 0.75], [0.50, 0.50, 0.50],
+    [0.42, 0.24, 0.60], [0.65, 0.34, 0.16], [0.97, 0.51, 0.75], [0.09, 0.75, 0.81],
 ])
 BACKGROUND = np.array([0.93, 0.93, 0.93])
 OTHER = np.array([0.70, 0.70, 0.70])
 
 
+def palette(n: int) -> np.ndarray:
+    """(n, 3) RGB colours of parts 0..n-1, all distinct: :data:`PART_COLORS` first, then hues spaced by the
+    golden ratio (saturated, mid brightness, so none is mistaken for the grey of background points)."""
+    import colorsys
+
+    extra = [colorsys.hsv_to_rgb((0.11 + 0.618034 * k) % 1.0, 0.75, 0.8 if k % 2 else 0.6)
+             for k in range(max(0, n - len(PART_COLORS)))]
+    return np.concatenate([PART_COLORS[:n], np.array(extra).reshape(-1, 3)])
+
+
 def part_colors(labels: np.ndarray) -> np.ndarray:
-    """RGB (..., 3) for part labels (-1: grey)."""
+    """RGB (..., 3) for part labels (-1: grey), distinct for any number of parts (:func:`palette`)."""
     labels = np.asarray(labels)
-    out = np.where(labels[..., None] >= 0, PART_COLORS[np.maximum(labels, 0) % len(PART_COLORS)], OTHER)
-    return out
+    pal = palette(int(labels.max()) + 1 if labels.size and labels.max() >= 0 else 1)
+    return np.where(labels[..., None] >= 0, pal[np.maximum(labels, 0)], OTHER)
 
 
 def _project(K: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -29,18 +40,28 @@ def _project(K: np.ndarray, p: np.ndarray) -> np.ndarray:
     return uvw[:, :2] / uvw[:, 2:3]
 
 
+def axis_anchor(joint_type: int, axis: np.ndarray, pivot: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Where a joint axis is drawn (camera frame, m): a revolute axis through its pivot; a prismatic one
+    through the point of its line (``pivot`` + s ``axis``, the pivot locating the slide, see
+    :class:`~scapo.sim.assets.urdf.GTJoint`) closest to the centroid of ``points (N, 3)``, so that two
+    drawers of one cabinet are drawn on their own lines, next to the object."""
+    if int(joint_type) == 0 or len(points) == 0:
+        return np.asarray(pivot, dtype=np.float64)
+    return closest_point_on_line(pivot, axis, np.asarray(points, dtype=np.float64).mean(0))
+
+
 def draw_sample(fig, sample: dict, title: str = "", column: int = 0, columns: int = 1, part_names=None,
                 show_cloud: bool = True) -> None:
     """Draw one sample into ``fig``: the labelled depth image (if present) and the 3D cloud.
 
-    Joint axes are drawn as lines through the pivot along the axis (length 0.6 bbox_diag),
+    Joint axes are drawn as lines along the axis (length 0.6 bbox_diag) at :func:`axis_anchor`,
     revolute in black, prismatic in magenta.
     """
     pts, lab = np.asarray(sample["points"]), np.asarray(sample["part_label"])
     diag = float(sample["bbox_diag"])
     segs = []
     for t, a, c in zip(sample["joint_type"], sample["joint_axis"], sample["joint_pivot"]):
-        c = c if t == 0 else pts[lab >= 0].mean(0)
+        c = axis_anchor(t, a, c, pts[lab >= 0])
         segs.append((t, np.stack([c - 0.3 * diag * a, c + 0.3 * diag * a])))
     rows = 2 if "image_part_map" in sample else 1
     if rows == 2:
@@ -71,8 +92,8 @@ def draw_sample(fig, sample: dict, title: str = "", column: int = 0, columns: in
     if part_names is not None:
         from matplotlib.lines import Line2D
 
-        handles = [Line2D([], [], marker="o", ls="", color=PART_COLORS[i % len(PART_COLORS)], label=n)
-                   for i, n in enumerate(part_names)]
+        handles = [Line2D([], [], marker="o", ls="", color=c, label=n)
+                   for c, n in zip(palette(len(part_names)), part_names)]
         ax.legend(handles=handles, fontsize=7, loc="upper left")
 
 

@@ -64,9 +64,13 @@ class GTJoint:
     Attributes:
         name: URDF joint name. type: 0 revolute (incl. continuous), 1 prismatic.
         parent_part, child_part: part indices. axis_obj: (3,) unit axis in the object frame at
-        rest. pivot_obj: (3,) point of the axis closest to the object origin (zeros for
-        prismatic). rest_qpos: the URDF joint value of the rest state. limit: (2,) state range
-        relative to rest (rad or m).
+        rest. pivot_obj: (3,) object frame at rest; revolute: the point of the axis closest to the
+        object origin (SPEC section 3); prismatic: a translation has no axis position, so the pivot
+        locates the slide instead: the point of the joint's axis line (through the URDF joint
+        origin) closest to the moving part's rest bounding-box centre, so that two drawers of one
+        cabinet have two distinct lines. Protocols that score prismatic pivots (``op-align``) use
+        it; ``scapo`` and ``eap`` report C as not applicable for prismatic joints. rest_qpos: the
+        URDF joint value of the rest state. limit: (2,) state range relative to rest (rad or m).
     """
 
     name: str
@@ -356,12 +360,13 @@ def _build_spec(urdf, name, category, links, joints, root, part_names, continuou
                                          for j, t, pp, cp, r, lim in gt_raw),
                                    np.eye(4), np.zeros(3), np.zeros(3))
     poses_root = provisional.link_poses(np.zeros(len(gt_raw)))
-    pts = []
+    pts, part_pts = [], {}
     for ln, vis in links.items():
         for v in vis:
             mesh = _load_mesh(str(v.mesh))
             local = mesh.vertices * np.asarray(v.scale)
             pts.append(transform_points(poses_root[ln] @ v.T_link_visual, local))
+            part_pts.setdefault(part_of_link[ln], []).append(pts[-1])
     allpts = np.vstack(pts)
     lo, hi = allpts.min(0), allpts.max(0)
     center = (lo + hi) / 2
@@ -370,7 +375,12 @@ def _build_spec(urdf, name, category, links, joints, root, part_names, continuou
     for j, t, pp, cp, r, lim in gt_raw:
         T_obj_joint = T_obj_root @ poses_root[j.parent] @ j.T_parent_joint
         axis = normalize(T_obj_joint[:3, :3] @ j.axis)
-        pivot = closest_point_on_line(T_obj_joint[:3, 3], axis) if t == 0 else np.zeros(3)
+        if t == 0:
+            pivot = closest_point_on_line(T_obj_joint[:3, 3], axis)
+        else:  # prismatic: locate the slide at the moving part (its rest bbox centre), see GTJoint
+            cp_pts = np.vstack(part_pts[cp])
+            centre = (cp_pts.min(0) + cp_pts.max(0)) / 2 - center
+            pivot = closest_point_on_line(T_obj_joint[:3, 3], axis, centre)
         gt.append(GTJoint(j.name, t, pp, cp, axis, pivot, r, lim))
     spec = ArticulationSpec(urdf, name, category or name, links, joints, root, tuple(pnames), part_of_link,
                             tuple(gt), T_obj_root, lo - center, hi - center)
