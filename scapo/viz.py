@@ -8,11 +8,10 @@ import numpy as np
 
 from scapo.data.config import GenerateConfig
 from scapo.data.dataset import load
-from scapo.data.generate import sample_seed_key
+from scapo.data.generate import instance_asset_path, load_instance, sample_seed_key
 from scapo.errors import DatasetError
 from scapo.eval.predictions import Predictions
 from scapo.files import atomic_savefig, check_output_file, read_json
-from scapo.sim.assets import build_instance, parse_urdf
 from scapo.sim.preview import PART_COLORS, axis_anchor, draw_sample, frame_cloud_axes, palette, part_colors
 from scapo.sim.render import Renderer, render_with_retries
 
@@ -34,9 +33,8 @@ def render_dataset_samples(data: str | Path, split: str = "test", count: int = 4
     samples, titles = [], []
     for i in indices:
         item = ds[int(i)]
-        rec = build_instance(cfg.category, item["instance_id"], cfg.seed, cache_dir)
-        spec = parse_urdf(rec.urdf, category=cfg.category)
-        s, _ = render_with_retries(renderer, spec, cfg.render, cfg.view_config,
+        spec = load_instance(cfg, instance_asset_path(cfg, Path(data), item["instance_id"], cache_dir))
+        s, _ = render_with_retries(renderer, spec, cfg.render, cfg.view_for(int(item["instance_id"])),
                                    sample_seed_key(cfg, item["instance_id"], item["view_id"]), keep_images=True)
         if not np.allclose(s["points"], item["points"], atol=1e-5):
             raise DatasetError(f"re-rendering sample {item['instance_id']}/{item['view_id']} of {data} does not "

@@ -75,11 +75,24 @@ def cmd_assets_check(args) -> int:
 def cmd_generate(args) -> int:
     from scapo.data import generate, make_config
 
-    cfg = make_config(args.category, args.instances, args.views, args.seed, num_points=args.points,
+    objects = _object_sources(args)
+    if not objects:
+        if args.category is None or args.instances is None:
+            raise ConfigError("give --category and --instances (a procedural category), or --object PATH / --objects "
+                              "DIR (existing objects)")
+        if args.parts or args.scale != "1" or args.object_options:
+            raise ConfigError("--parts, --scale and --object-options apply to existing objects (--object/--objects)")
+    view = {}
+    for name in ("azimuth", "elevation", "distance"):
+        val = getattr(args, name)
+        if val is not None:
+            view[name if name == "distance" else f"{name}_deg"] = _range(val, f"--{name}")
+    cfg = make_config(args.category, args.instances or 0, args.views, args.seed, num_points=args.points,
                       sensor=args.sensor, random_rotation=args.random_rotation, width=args.width,
                       height=args.height, test_fraction=args.test_fraction, val_fraction=args.val_fraction,
                       min_part_fraction=args.min_part_fraction,
-                      shard_size=args.shard_size, cropped=args.cropped)
+                      shard_size=args.shard_size, cropped=args.cropped, objects=objects, parts=args.parts or (),
+                      scale=args.scale, view=view or None)
     rep = generate(cfg, args.out, workers=args.workers, progress=not args.no_progress, cache_dir=args.cache)
     print(f"{rep.out}: {rep.samples} samples ({rep.rendered} rendered now, {rep.skipped_shards} shards already "
           f"done); {sum(rep.rejections.values())} rejected views {dict(rep.rejections)}; "
@@ -91,6 +104,51 @@ def cmd_generate(args) -> int:
         print(f"scapo generate: warning: the test split is empty ({args.instances} instances, --test-fraction "
               f"{args.test_fraction}); methods cannot be evaluated on this dataset", file=sys.stderr)
     return 0
+
+
+def _range(text: str, flag: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(x) for x in text.split(","))
+    except ValueError:
+        raise ConfigError(f"{flag} {text!r}: give a range as two numbers, e.g. {flag} -60,60") from None
+    if not lo <= hi:
+        raise ConfigError(f"{flag} {text!r}: the lower end exceeds the upper one")
+    return lo, hi
+
+
+def _object_sources(args) -> list:
+    """--object / --objects / --object-options -> ObjectSource list (per-object parts and view overrides)."""
+    from scapo.sim.assets.objects import ObjectSource, list_objects, parse_parts, view_overrides
+
+    paths = [str(Path(p).resolve()) for p in (args.object or [])]
+    if args.objects is not None:
+        paths += list_objects(args.objects)
+    for p in paths:
+        if not Path(p).exists():
+            raise ConfigError(f"--object {p}: no such file or folder")
+    options = {}
+    if args.object_options:
+        from scapo.files import read_json
+
+        options = read_json(Path(args.object_options), "object options", ConfigError,
+                            'write a JSON object {"<object name>": {"parts": "door=link_1", "view": {...}}}')
+        if not isinstance(options, dict):
+            raise ConfigError(f"--object-options {args.object_options}: expected a JSON object keyed by object name")
+    out, used = [], set()
+    for p in paths:
+        src = ObjectSource(p)
+        opt = options.get(src.name) or options.get(p) or {}
+        if opt:
+            used.add(src.name if src.name in options else p)
+            parts = opt.get("parts", "")
+            parts = parse_parts(parts) if isinstance(parts, str) else tuple(sorted(parts.items()))
+            src = ObjectSource(p, tuple(sorted(parts)), view_overrides(opt.get("view")))
+        out.append(src)
+    unused = sorted(set(options) - used)
+    if unused:
+        raise ConfigError(f"--object-options names objects that are not in this dataset: {unused}; object names are "
+                          f"{sorted(ObjectSource(p).name for p in paths)[:8]}")
+    return out
 
 
 def cmd_preview(args) -> int:
@@ -323,8 +381,21 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_assets_check)
 
     sp = sub.add_parser("generate", help="render a dataset of partial point clouds with ground truth")
-    sp.add_argument("--category", required=True)
-    sp.add_argument("--instances", type=int, required=True)
+    sp.add_argument("--category", help="procedural category (or, with --object/--objects, the dataset's label)")
+    sp.add_argument("--instances", type=int, help="procedural instances (object datasets: one per object)")
+    sp.add_argument("--object", action="append", metavar="PATH",
+                    help="an existing object: URDF file or PartNet-Mobility folder (also ManiSkill's copy); repeat")
+    sp.add_argument("--objects", type=Path, metavar="DIR", help="every object folder / .urdf file in DIR")
+    sp.add_argument("--parts", help="part map of an object dataset: slots SLOT[=PATTERN],... (PATTERN matches a part's "
+                    "semantic label, link or joint names; default the slot name); other movable parts are fixed at "
+                    "rest and merged into their parent. Default: every movable part")
+    sp.add_argument("--scale", default="1", help="object datasets: length factor (e.g. 0.01) or fit:D to scale each "
+                    "object to a rest bounding-box diagonal of D metres")
+    sp.add_argument("--object-options", type=Path, metavar="FILE", help='JSON {"<object name>": {"parts": '
+                    '"door=link_1", "view": {"azimuth_deg": [110, 250]}}} with per-object overrides')
+    sp.add_argument("--azimuth", help="viewpoint azimuth range in degrees, e.g. -70,70 (0: in front, on -x)")
+    sp.add_argument("--elevation", help="viewpoint elevation range in degrees, e.g. 10,60")
+    sp.add_argument("--distance", help="camera distance range in rest bbox diagonals, e.g. 1.4,2.4")
     sp.add_argument("--views", type=int, required=True)
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--out", type=Path, required=True)

@@ -5,8 +5,10 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from scapo.errors import ConfigError
+from scapo.sim.assets.objects import ObjectSource
 from scapo.sim.assets.templates import load_template
 from scapo.sim.render import CameraConfig, RenderConfig, ViewConfig
 from scapo.sim.sensor import SENSORS, SensorConfig
@@ -47,11 +49,31 @@ class GenerateConfig:
     val_fraction: float = 0.1
     """Fraction of instances in the validation split, where every choice is made (0: no val split; the
     config of a dataset written before val splits existed reads as 0 and hashes as before)."""
+    objects: tuple[ObjectSource, ...] = ()
+    """Existing objects (URDF files, PartNet-Mobility folders) to render instead of procedural instances:
+    instance i is object i, and ``category`` is only the dataset's label (see :mod:`scapo.sim.assets.objects`)."""
+    parts: tuple[tuple[str, str], ...] = ()
+    """Object datasets: the part slots ``(name, pattern)`` that define parts 1.. (empty: every movable part)."""
+    scale: str = "1"
+    """Object datasets: length factor, or ``fit:<rest bbox diagonal in metres>``."""
 
     def __post_init__(self):
         from scapo.sim.assets.categories import CATEGORIES
+        from scapo.sim.assets.objects import parse_scale
 
-        CATEGORIES.get(self.category)  # raises UnknownNameError listing the known categories
+        if self.objects:
+            if not self.category or not all(c.isalnum() or c in "_-." for c in self.category):
+                raise ConfigError(f"the category label of an object dataset must be a non-empty name of letters, "
+                                  f"digits, '_', '-' or '.', got {self.category!r}")
+            if self.instances != len(self.objects):
+                raise ConfigError(f"an object dataset has one instance per object: instances must be "
+                                  f"{len(self.objects)}, got {self.instances}")
+            parse_scale(self.scale)
+        else:
+            CATEGORIES.get(self.category)  # raises UnknownNameError listing the known categories
+            if self.parts or self.scale != "1":
+                raise ConfigError("--parts and --scale apply to datasets of existing objects (--object/--objects), "
+                                  "not to procedural categories")
         if self.seed < 0:
             raise ConfigError(f"seed must be >= 0, got {self.seed}")
         if self.instances < 1 or self.views < 1:
@@ -66,8 +88,16 @@ class GenerateConfig:
 
     @property
     def view_config(self) -> ViewConfig:
-        """The effective viewpoint ranges."""
-        return self.view or ViewConfig.from_template(load_template(self.category).view)
+        """The effective viewpoint ranges (object datasets: :class:`ViewConfig`'s defaults unless given)."""
+        if self.view is not None:
+            return self.view
+        return ViewConfig() if self.objects else ViewConfig.from_template(load_template(self.category).view)
+
+    def view_for(self, instance_id: int) -> ViewConfig:
+        """Viewpoint ranges of one instance: the dataset's, with an object's own overrides."""
+        if self.objects and self.objects[instance_id].view:
+            return dataclasses.replace(self.view_config, **dict(self.objects[instance_id].view))
+        return self.view_config
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -84,6 +114,12 @@ class GenerateConfig:
                     del d["render"]["sensor"][k]
         if not self.val_fraction:  # identical to a config written before val splits existed
             del d["val_fraction"]
+        if self.objects:
+            d["objects"] = [o.to_dict() for o in self.objects]
+            d["parts"] = [list(p) for p in self.parts]
+        else:  # a procedural dataset's config is as before object datasets existed
+            for k in ("objects", "parts", "scale"):
+                del d[k]
         return d
 
     def to_json(self) -> str:
@@ -107,7 +143,9 @@ class GenerateConfig:
                                   **r)
             v = d.pop("view")
             view = ViewConfig(**{k: tuple(x) if isinstance(x, list) else x for k, x in v.items()}) if v else None
-            return cls(render=render, view=view, **d)
+            objects = tuple(ObjectSource.from_dict(o) for o in d.pop("objects", []))
+            parts = tuple(tuple(p) for p in d.pop("parts", []))
+            return cls(render=render, view=view, objects=objects, parts=parts, **d)
         except (KeyError, TypeError, AttributeError) as e:
             raise ConfigError(f"not a scapo generate config ({type(e).__name__}: {e}); was it written by another "
                               "version of scapo?") from None
@@ -117,12 +155,34 @@ def make_config(
     category: str, instances: int, views: int, seed: int = 0, *, num_points: int = 1024,
     sensor: str = "clean", random_rotation: bool = False, width: int | None = None, height: int | None = None,
     test_fraction: float = 0.1, min_part_fraction: float = 0.05, shard_size: int = 64, shader: str = "trivial",
-    val_fraction: float = 0.1, cropped: str = "reject",
+    val_fraction: float = 0.1, cropped: str = "reject", objects=(), parts=(), scale: str = "1",
+    view: dict | None = None,
 ) -> GenerateConfig:
     """Convenience constructor used by the CLI (named sensor, optional SO(3) rotation, image size).
 
     ``cropped``: what to do with views whose object touches the image border ("reject", "flag", or "keep" as
-    the Table 1 datasets do; see :class:`~scapo.sim.render.RenderConfig`)."""
+    the Table 1 datasets do; see :class:`~scapo.sim.render.RenderConfig`). ``objects``: existing objects
+    (paths, or :class:`~scapo.sim.assets.objects.ObjectSource`) instead of a procedural category; then
+    ``category`` is the dataset's label (None: the first object's ``meta.json`` category, else "object"),
+    ``instances`` is ignored, ``parts`` is the part map (``"door,drawer=*drawer*"`` or pairs) and ``scale``
+    a factor or ``fit:<metres>``. ``view``: viewpoint ranges (:class:`~scapo.sim.render.ViewConfig` fields)
+    replacing the category's.
+
+    Raises:
+        ConfigError: an unknown sensor, bad sizes, fractions, part map or scale.
+        UnknownNameError: an unknown procedural category.
+    """
+    from scapo.sim.assets.objects import parse_parts, view_overrides
+
+    if objects:
+        objects = tuple(o if isinstance(o, ObjectSource) else ObjectSource(str(Path(o).resolve())) for o in objects)
+        if category is None:
+            from scapo.sim.assets.objects import _meta_category, find_urdf
+
+            label = _meta_category(find_urdf(objects[0].path).parent) or "object"
+            category = "".join(c if c.isalnum() or c in "_-." else "_" for c in label.lower())
+        instances = len(objects)
+        parts = parse_parts(parts) if isinstance(parts, str) else tuple(tuple(p) for p in parts)
     if sensor not in SENSORS:
         raise ConfigError(f"unknown sensor {sensor!r}; known sensors: {', '.join(SENSORS)}")
     cam = CameraConfig()
@@ -130,10 +190,19 @@ def make_config(
                               height=cam.height if height is None else height)
     render = RenderConfig(camera=cam, num_points=num_points, min_part_fraction=min_part_fraction,
                           shader=shader, sensor=SENSORS[sensor], cropped=cropped)
-    view = None
+    if not objects:
+        from scapo.sim.assets.categories import CATEGORIES
+
+        CATEGORIES.get(category)  # an unknown category is named before its template is looked for
+    base = ViewConfig() if objects else (
+        ViewConfig.from_template(load_template(category).view) if (view or random_rotation) else None)
+    view_cfg = None
+    if view:
+        view_cfg = dataclasses.replace(base, **dict(view_overrides(view)))
     if random_rotation:
-        view = dataclasses.replace(ViewConfig.from_template(load_template(category).view), random_rotation=True)
-    return GenerateConfig(category, instances, views, seed, test_fraction, render, view, shard_size, val_fraction)
+        view_cfg = dataclasses.replace(view_cfg or base, random_rotation=True)
+    return GenerateConfig(category, instances, views, seed, test_fraction, render, view_cfg, shard_size, val_fraction,
+                          tuple(objects), tuple(parts), str(scale))
 
 
 def dict_diff(old, new, prefix: str = "") -> list[str]:

@@ -45,7 +45,8 @@ from scapo.data.storage import (
 )
 from scapo.errors import ConfigError, DatasetError
 from scapo.files import FolderLock, atomic_write_bytes, check_output_dir, clean_stale_temps, read_json
-from scapo.sim.assets import GENERATOR_VERSION, build_category, parse_urdf
+from scapo.sim.assets import GENERATOR_VERSION, build_category
+from scapo.sim.assets.objects import load_object
 from scapo.sim.render import Renderer, render_many
 
 
@@ -141,6 +142,56 @@ def sample_seed_key(cfg: GenerateConfig, instance_id: int, view_id: int) -> tupl
 _WORKER: dict = {}
 
 
+@dataclass(frozen=True)
+class InstanceAsset:
+    """The asset of one dataset instance: a procedural instance (its ``model.urdf``) or a derived object
+    (its folder); ``digest`` is recorded in the journal and the card."""
+
+    instance_id: int
+    urdf: Path
+    digest: str
+
+
+OBJECTS = "objects"
+
+
+def dataset_assets(cfg: GenerateConfig, out: Path, cache_dir: Path | None = None,
+                   progress: bool = False) -> list[InstanceAsset]:
+    """Build (procedural) or derive (existing objects, into ``out/objects/<instance>/``) every instance.
+
+    Raises:
+        ConfigError: objects whose part map cannot be applied or whose parts / joints disagree.
+        URDFError / MissingMeshError: a malformed source object (named).
+    """
+    if not cfg.objects:
+        return [InstanceAsset(r.instance_id, Path(r.urdf), r.digest)
+                for r in build_category(cfg.category, cfg.instances, cfg.seed, cache_dir, progress=progress)]
+    from scapo.sim.assets.objects import check_compatible, derive_object
+
+    derived = [derive_object(o, cfg.parts, cfg.scale, out / OBJECTS / f"{i:05d}", cfg.category)
+               for i, o in enumerate(cfg.objects)]
+    check_compatible(derived)
+    return [InstanceAsset(i, d.folder, d.digest) for i, d in enumerate(derived)]
+
+
+def instance_asset_path(cfg: GenerateConfig, data: Path, instance_id: int, cache_dir: Path | None = None) -> Path:
+    """Where the asset of one instance of the dataset in ``data`` is (building a procedural one if needed)."""
+    if cfg.objects:
+        path = Path(data) / OBJECTS / f"{int(instance_id):05d}"
+        if not (path / "mobility.urdf").is_file():
+            raise DatasetError(f"{data}: the derived object of instance {instance_id} is missing ({path}); rerun "
+                               "'scapo generate' with the dataset's arguments to rewrite it")
+        return path
+    from scapo.sim.assets import build_instance
+
+    return Path(build_instance(cfg.category, int(instance_id), cfg.seed, cache_dir).urdf)
+
+
+def load_instance(cfg: GenerateConfig, path: str | Path):
+    """Parse an instance asset into an ArticulationSpec (see :func:`dataset_assets`)."""
+    return load_object(path, category=cfg.category)
+
+
 def _init_worker(cfg_json: str, urdfs: dict[int, str], queue) -> None:
     cfg = GenerateConfig.from_dict(json.loads(cfg_json))
     _WORKER.update(cfg=cfg, urdfs=urdfs, queue=queue, specs={},
@@ -151,18 +202,21 @@ def _render_shard(task: ShardTask, shard_dir: str) -> dict:
     cfg: GenerateConfig = _WORKER["cfg"]
     renderer: Renderer = _WORKER["renderer"]
     t0 = time.time()
-    jobs = []
+    groups: list[tuple[int, list]] = []  # consecutive items of one instance share its viewpoint ranges
     for sample_id, inst, vid in task.items:
         spec = _WORKER["specs"].get(inst)
         if spec is None:
-            spec = _WORKER["specs"][inst] = parse_urdf(_WORKER["urdfs"][inst], category=cfg.category)
-        jobs.append((sample_id, spec, sample_seed_key(cfg, inst, vid)))
+            spec = _WORKER["specs"][inst] = load_instance(cfg, _WORKER["urdfs"][inst])
+        if not groups or groups[-1][0] != inst:
+            groups.append((inst, []))
+        groups[-1][1].append((sample_id, spec, sample_seed_key(cfg, inst, vid)))
     samples, reasons = [], Counter()
-    for _, s, r in render_many(renderer, jobs, cfg.render, cfg.view_config):
-        samples.append(s)
-        reasons.update(r)
-        if _WORKER["queue"] is not None:
-            _WORKER["queue"].put(1)
+    for inst, jobs in groups:
+        for _, s, r in render_many(renderer, jobs, cfg.render, cfg.view_for(inst)):
+            samples.append(s)
+            reasons.update(r)
+            if _WORKER["queue"] is not None:
+                _WORKER["queue"].put(1)
     meta = {
         "sample_id": np.array([i[0] for i in task.items]),
         "instance_id": np.array([i[1] for i in task.items]),
@@ -337,7 +391,7 @@ def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0) 
         write_json(cfg_path, json.loads(cfg_json))
     cfg_sha = config_sha256(cfg)
 
-    records = build_category(cfg.category, cfg.instances, cfg.seed, cache_dir, progress=False)
+    records = dataset_assets(cfg, out, cache_dir)
     assets = {str(r.instance_id): r.digest for r in records}
     card_shards, card_assets = _card_records(out, cfg)
     journal_shards, journal_assets = _read_journal(out, cfg_sha)
@@ -469,7 +523,7 @@ def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records, r
     buf = io.BytesIO()
     manifest.to_parquet(buf, index=False)
     atomic_write_bytes(out / "manifest.parquet", buf.getvalue())
-    spec = parse_urdf(records[0].urdf, category=cfg.category)
+    spec = load_instance(cfg, records[0].urdf)
     sp = split_instances(cfg.instances, cfg.test_fraction, cfg.seed, cfg.val_fraction)
     splits = {name: {"instances": ids, "samples": int((manifest["split"] == name).sum())}
               for name, ids in (("train", sp.train), ("val", sp.val), ("test", sp.test))}
@@ -497,6 +551,10 @@ def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records, r
         "rejections": {"total": reasons_total, "by_reason": dict(sorted(reasons.items()))},
         "dataset_hash": h.hexdigest(),
     }
+    if cfg.objects:
+        card["objects"] = [{"instance_id": r.instance_id, "source": o.path, "derived": f"{OBJECTS}/{r.instance_id:05d}",
+                            "scale": json.loads((Path(r.urdf) / "meta.json").read_text())["scale"]}
+                           for r, o in zip(records, cfg.objects)]
     write_json(out / "card.json", card)
     return card
 
