@@ -106,7 +106,8 @@ def fit_branch(R: torch.Tensor, clouds: torch.Tensor, min_fraction: float = 0.05
     from scapo.models.refine import upright_direction
 
     if R.dim() != 3 or R.shape[1:] != (3, 3) or clouds.dim() != 3 or clouds.shape[0] != R.shape[0]:
-        raise ValueError(f"fit_branch needs R (M, 3, 3) and clouds (M, n, 3), got {tuple(R.shape)}, {tuple(clouds.shape)}")
+        raise ValueError(f"fit_branch needs R (M, 3, 3) and clouds (M, n, 3), got {tuple(R.shape)}, "
+                         f"{tuple(clouds.shape)}")
     if R.shape[0] < 2:
         raise ValueError("fit_branch needs at least two views")
     Rd, S = R.double(), clouds.double()

@@ -22,7 +22,6 @@ from torch.utils.data import DataLoader, Dataset
 
 from scapo.data.config import dict_diff
 from scapo.data.dataset import load
-from scapo.models.branch import apply_branch
 from scapo.errors import ConfigError, DatasetError, TrainingError
 from scapo.files import (
     FolderLock,
@@ -34,6 +33,7 @@ from scapo.files import (
     write_json,
 )
 from scapo.losses import LossConfig, stage1_terms, stage2_terms, weighted_total
+from scapo.models.branch import apply_branch
 from scapo.models.presets import TrainConfig, get_preset
 from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
@@ -356,7 +356,8 @@ class Trainer:
         branch, flip, info = fit_branch(torch.cat(Rs), torch.cat(Ss), seed=self.preset.seed)
         self.model.branch.copy_(branch.to(self.model.branch))
         self.model.branch_flip.copy_(flip.to(self.model.branch_flip))
-        write_json(self.run / "branch.json", {**info, "views": len(idx), "branch": branch.tolist(), "flip": flip.tolist()})
+        write_json(self.run / "branch.json",
+                   {**info, "views": len(idx), "branch": branch.tolist(), "flip": flip.tolist()})
 
     @torch.no_grad()
     def _init_parts(self, clouds: torch.Tensor, union: torch.Tensor, template: torch.Tensor) -> None:
