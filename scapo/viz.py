@@ -17,7 +17,8 @@ from scapo.sim.render import Renderer, render_with_retries
 
 
 def render_dataset_samples(data: str | Path, split: str = "test", count: int = 4, cache_dir=None, indices=None):
-    """Re-render ``count`` stored samples of a dataset with their images (generation is deterministic).
+    """Re-render ``count`` stored samples of a dataset with their images (generation is deterministic);
+    a dataset converted from elsewhere (its card has a ``source``) gives its stored samples, without images.
 
     Returns (samples, titles, part_names). Raises DatasetError if a re-rendered cloud differs from
     the stored one (the assets or renderer changed since generation).
@@ -25,10 +26,14 @@ def render_dataset_samples(data: str | Path, split: str = "test", count: int = 4
     ds = load(data, split)
     if len(ds) == 0:
         raise DatasetError(f"the {split} split of {data} is empty; choose another split (--split train, test or all)")
-    cfg = GenerateConfig.from_dict(read_json(Path(data) / "config.json", "dataset config", DatasetError,
-                                             "rerun 'scapo generate' with the dataset's arguments to rewrite it"))
     if indices is None:
         indices = np.linspace(0, len(ds) - 1, min(count, len(ds))).round().astype(int)
+    if "source" in ds.card:  # converted from elsewhere (e.g. OP-Align's real data): nothing to re-render
+        items = [ds[int(i)] for i in indices]
+        titles = [f"{ds.category} #{it['instance_id']} view {it['view_id']} (stored cloud)" for it in items]
+        return items, titles, [ds.part_names] * len(items)
+    cfg = GenerateConfig.from_dict(read_json(Path(data) / "config.json", "dataset config", DatasetError,
+                                             "rerun 'scapo generate' with the dataset's arguments to rewrite it"))
     renderer = Renderer(cfg.render.camera, cfg.render.shader)
     samples, titles = [], []
     for i in indices:
@@ -66,7 +71,15 @@ def prediction_figure(data: str | Path, predictions: Predictions, path: str | Pa
     fig = plt.figure(figsize=(3.3 * n, 6.6))
     for c, (s, i) in enumerate(zip(samples, idx)):
         item = ds[int(i)]
-        draw_sample(fig, s, titles[c], column=c, columns=n, show_cloud=False)
+        if "image_part_map" in s:
+            draw_sample(fig, s, titles[c], column=c, columns=n, show_cloud=False)
+        else:  # a converted dataset has no image: the GT cloud in 3-D instead
+            ax = fig.add_subplot(2, n, c + 1, projection="3d")
+            gp, gl = np.asarray(s["points"]), np.asarray(s["part_label"])
+            ax.scatter(gp[:, 0], gp[:, 2], -gp[:, 1], c=part_colors(gl), s=1.5, depthshade=False)
+            _draw_axes(ax, gp[gl >= 0], s["joint_type"], s["joint_axis"], s["joint_pivot"], float(s["bbox_diag"]))
+            ax.set_title(titles[c], fontsize=8)
+            frame_cloud_axes(ax, gp, float(s["bbox_diag"]))
         ax = fig.add_subplot(2, n, n + c + 1, projection="3d")
         r = rows.get((item["instance_id"], item["view_id"]))
         pts = item["points"]

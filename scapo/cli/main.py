@@ -151,6 +151,25 @@ def _object_sources(args) -> list:
     return out
 
 
+def cmd_convert_opalign(args) -> int:
+    from scapo.data.opalign_real import convert_opalign_real
+
+    try:
+        h, w = (int(x) for x in args.image_size.lower().split("x"))
+        jt = [int(x) for x in args.joint_types.split(",")] if args.joint_types else None
+        jp = [[int(y) for y in x.split("-")] for x in args.joint_parts.split(",")] if args.joint_parts else None
+    except ValueError:
+        raise ConfigError("--image-size is HxW (e.g. 480x640), --joint-types e.g. 0,1, --joint-parts e.g. 0-1,0-2") \
+            from None
+    if (jt is None) != (jp is None) or (jt is not None and len(jt) != len(jp)):
+        raise ConfigError("give --joint-types and --joint-parts together, one entry per joint")
+    card = convert_opalign_real(args.root, args.category, args.out, num_points=args.points, seed=args.seed,
+                                val_fraction=args.val_fraction, joint_type=jt, joint_parts=jp, image_size=(h, w))
+    n = {k: v["samples"] for k, v in card["splits"].items()}
+    print(f"{args.out}: {sum(n.values())} samples {n}; skipped frames {card['skipped_frames'] or 'none'}")
+    return 0
+
+
 def cmd_preview(args) -> int:
     from scapo.files import check_output_file
     from scapo.sim.preview import save_preview
@@ -418,6 +437,21 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-progress", action="store_true")
     common_cache(sp)
     sp.set_defaults(func=cmd_generate)
+
+    sp = sub.add_parser("convert", help="convert another dataset format into a scapo dataset")
+    csub = sp.add_subparsers(dest="convert_command", required=True)
+    c = csub.add_parser("opalign-real", help="OP-Align's real-world RGB-D frames (<root>/{train,test}/*/*/input_2/"
+                        "*.npz) of one category")
+    c.add_argument("--root", type=Path, required=True, help="the category folder, e.g. dataset/laptop_output")
+    c.add_argument("--category", required=True, help="basket, drawer, laptop, scissors, suitcase (or give the joints)")
+    c.add_argument("--out", type=Path, required=True)
+    c.add_argument("--points", type=int, default=1024)
+    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--val-fraction", type=float, default=0.1, help="of the training instances")
+    c.add_argument("--image-size", default="480x640", help="HxW of the organised frames")
+    c.add_argument("--joint-types", help="another category: joint types, e.g. 0,1 (0 revolute, 1 prismatic)")
+    c.add_argument("--joint-parts", help="another category: parent-child parts per joint, e.g. 0-1,0-2")
+    c.set_defaults(func=cmd_convert_opalign)
 
     sp = sub.add_parser("preview", help="PNG of dataset samples (re-rendered) with parts coloured and axes drawn")
     sp.add_argument("--data", type=Path, required=True)
