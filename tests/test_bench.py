@@ -186,3 +186,28 @@ def test_a_run_of_a_changed_preset_is_stale_set_aside_and_retrained(bench, monke
     monkeypatch.undo()  # the registered presets again: the untouched SCAPO cell is done, as before
     plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True, **SMALL)
     assert {r["key"]: r["status"] for r in plan} == {"npcs_test_s0": "todo", "scapo_test_s0": "done"}
+
+
+def test_table2_real_style_with_semi_supervised_rows(tmp_path, monkeypatch):
+    """Table 2: realistic-sensor datasets, the SJ rows beside the self-supervised ones, the paper's rows beside
+    ours, AP columns; a rerun recomputes nothing."""
+    from scapo.bench import run_table2
+
+    work, out = tmp_path / "work", tmp_path / "results"
+    kw = dict(work_dir=work, out_dir=out, seeds=[0], figures=False, **SMALL)
+    plan = run_table2(["icp", "op-align"], ["laptop"], dry_run=True, **kw)
+    assert [r["key"] for r in plan] == ["icp", "op-align_test_s0", "op-align-sj_test+sj_s0"]
+    results = run_table2(["icp", "op-align"], ["laptop"], **kw)
+    assert [r.method for r in results] == ["icp", "op-align", "op-align-sj"]
+    assert results[2].info["supervision"] == {"pose": False, "segmentation": True, "joint": True}
+    cfg = json.loads((work / "laptop_i10_v2_s0" / "config.json").read_text())
+    assert cfg["render"]["sensor"]["kind"] == "realistic" and cfg["render"]["cropped"] == "reject"
+    md = (out / "table2_real_style.md").read_text()
+    assert "| Laptop | OP-Align-style (SJ) |  | x | x |" in md and "| Laptop | OP-Align(SJ) (paper) |" in md
+    assert "Protocol: op-align" in md
+    for r in results:
+        assert {"seg_75", "ap_joint_5", "ap_part_15", "min_ap_part_5"} <= set(r.summary)
+    before = {s: (out / f"table2_real_style.{s}").read_text() for s in ("csv", "md", "tex")}
+    _forbid(monkeypatch, "train_method", "run_method", "evaluate")
+    run_table2(["icp", "op-align"], ["laptop"], **kw)
+    assert {s: (out / f"table2_real_style.{s}").read_text() for s in ("csv", "md", "tex")} == before

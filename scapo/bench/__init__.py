@@ -2,8 +2,8 @@
 
 - :mod:`scapo.bench.cells`: one cell (method x category x training seed x ablation), computed once and
   kept with its record in the bench work folder.
-- :mod:`scapo.bench.experiments`: Table 1 and Table 3 as lists of cells, their dry-run plan, tables and
-  figures.
+- :mod:`scapo.bench.experiments`: Tables 1, 2 (real-world style) and 3 as lists of cells, their dry-run plan,
+  tables and figures.
 - :mod:`scapo.bench.choose`: choices of an option value on the validation split.
 """
 
@@ -11,15 +11,19 @@ from scapo.bench.cells import Cell, cell_status, compute_cell, evaluator_fingerp
 from scapo.bench.choose import CRITERIA, choose_on_val
 from scapo.bench.experiments import (
     TABLE1_CATEGORIES,
+    TABLE2_CATEGORIES,
     dataset_dir,
     parse_category_seeds,
     plan,
     run_table1,
+    run_table2,
     run_table3,
     table1_cells,
+    table2_cells,
     table3_cells,
 )
 
-__all__ = ["CRITERIA", "TABLE1_CATEGORIES", "Cell", "cell_status", "choose_on_val", "compute_cell", "dataset_dir",
-           "evaluator_fingerprint", "method_preset", "parse_category_seeds", "plan", "run_table1", "run_table3",
-           "table1_cells", "table3_cells"]
+__all__ = ["CRITERIA", "TABLE1_CATEGORIES", "TABLE2_CATEGORIES", "Cell", "cell_status", "choose_on_val", "compute_cell",
+           "dataset_dir",
+           "evaluator_fingerprint", "method_preset", "parse_category_seeds", "plan", "run_table1", "run_table2",
+           "run_table3", "table1_cells", "table2_cells", "table3_cells"]

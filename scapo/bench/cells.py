@@ -93,6 +93,9 @@ def method_preset(method: str, preset: str, category: str) -> str:
         UnknownNameError: unknown method. ConfigError: a trained method without that preset.
     """
     entry = METHODS.get(method)
+    if "/" in preset:  # a modified preset (an ablation, the semi-supervised /sj): of the method's base preset
+        base, _, mods = preset.partition("/")
+        return f"{method_preset(method, base, category)}/{mods}"
     if f"{preset}-{category}" in entry.presets:
         return f"{preset}-{category}"
     if preset not in entry.presets:

@@ -289,14 +289,14 @@ def cmd_bench_choose(args) -> int:
         if not files:
             raise ConfigError(f"--candidate {value}: no file matches {pattern!r}")
         candidates[value] = [Path(f) for f in files]
-    chosen, rows = choose_on_val(args.data, candidates, args.criterion, args.protocol)
+    chosen, rows = choose_on_val(args.data, candidates, args.criterion, args.protocol or "scapo")
     print(f"{'value':>8s} {'score':>9s} {'val S':>7s} {'val D':>7s} {'val R':>7s}  seeds")
     for r in rows:
         print(f"{r['value']:>8s} {r['score']:9.3f} {r['val_S']:7.2f} {r['val_D']:7.2f} {r['val_R']:7.2f}  "
               f"{len(r['files'])}")
     if args.out:
         write_json(args.out, {"chosen": chosen, "criterion": args.criterion, "split": "val",
-                              "protocol": args.protocol, "candidates": rows,
+                              "protocol": args.protocol or "scapo", "candidates": rows,
                               "provenance": provenance(dataset=str(args.data))})
     print(json.dumps({"chosen": chosen}))
     return 0
@@ -305,7 +305,7 @@ def cmd_bench_choose(args) -> int:
 def cmd_bench(args) -> int:
     if args.what == "choose":
         return cmd_bench_choose(args)
-    if args.what in ("table1", "table3"):
+    if args.what in ("table1", "table2", "table3"):
         return cmd_bench_table(args)
     instances, views = args.instances or 20, args.views or 30
     if min(args.workers) < 1 or instances < 1 or views < 1:
@@ -340,21 +340,26 @@ def cmd_bench(args) -> int:
 
 
 def cmd_bench_table(args) -> int:
-    """``scapo bench table1|table3``: the paper's tables, resumable per cell (``--dry-run`` lists the cells)."""
+    """``scapo bench table1|table2|table3``: the paper's tables, resumable per cell (``--dry-run`` lists the
+    cells)."""
     from scapo.bench import TABLE1_CATEGORIES, parse_category_seeds, run_table1, run_table3
-    from scapo.bench.experiments import table_methods
+    from scapo.bench.experiments import TABLE2_CATEGORIES, run_table2, table_methods
 
     instances, views = args.instances or 80, args.views or 16
     if min(args.workers) < 1 or instances < 1 or views < 1:
         raise ConfigError("--workers, --instances and --views must be >= 1")
     common = dict(instances=instances, views=views, data_seed=args.seed, work_dir=args.work,
                   out_dir=args.out or Path("results"), preset=args.preset, seeds=args.seeds,
-                  category_seeds=parse_category_seeds(args.category_seeds), protocol=args.protocol,
+                  category_seeds=parse_category_seeds(args.category_seeds),
+                  protocol=args.protocol or ("op-align" if args.what == "table2" else "scapo"),
                   workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run,
                   progress=not args.no_progress, device=args.device, finished_only=args.finished_only)
     if args.what == "table1":
         run_table1(methods=args.methods or table_methods(), categories=args.categories or list(TABLE1_CATEGORIES),
                    name=args.name or "table1_synthetic", **common)
+    elif args.what == "table2":
+        run_table2(methods=args.methods or table_methods(), categories=args.categories or list(TABLE2_CATEGORIES),
+                   name=args.name or "table2_real_style", sj=not args.no_sj, **common)
     else:
         if args.methods and args.methods != ["scapo"]:
             raise ConfigError("bench table3 is SCAPO's ablation; it takes no --methods")
@@ -498,13 +503,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("bench", help="benchmarks: perf (throughput), table1 / table3 (the paper's tables, resumable "
                         "per cell), choose (an option value on the val split)")
-    sp.add_argument("what", choices=["perf", "table1", "table3", "choose"])
+    sp.add_argument("what", choices=["perf", "table1", "table2", "table3", "choose"])
+    sp.add_argument("--no-sj", action="store_true", help="table2: leave out the semi-supervised (SJ) rows")
     sp.add_argument("--data", type=Path, default=None, help="choose: the dataset (its val split is used)")
     sp.add_argument("--candidate", action="append", default=[], help="choose: VALUE=GLOB of that value's "
                     "predictions files (one per training seed); repeat per value")
     sp.add_argument("--criterion", default="D+R", help="choose: what to minimise on val, averaged over seeds "
                     "(D+R, R, D, R_median, -S)")
-    sp.add_argument("--protocol", default="scapo", help="choose, table1, table3: evaluation protocol")
+    sp.add_argument("--protocol", default=None, help="choose, table1, table3: evaluation protocol (default scapo); "
+                    "table2: default op-align, as the paper's Table 2")
     sp.add_argument("--what", dest="target", choices=["generate", "model"], default="generate",
                     help="perf: generation throughput, or SCAPO training/inference speed")
     sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3; a "

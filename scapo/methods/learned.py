@@ -110,8 +110,37 @@ def _preset_from_dict(cls: type, d: dict):
                   for f in dataclasses.fields(cls) if f.name in d})
 
 
+#: preset fields added after runs were trained, with the value those runs had: left out of a run's identity
+#: at that value, so older runs keep their identity
+ADDED_FIELDS = {"supervision": "", "sup_weight": 1.0}
+
+
+def resolve_preset(spec: LearnedSpec, preset):
+    """A preset object from a name of ``spec.presets`` or ``"BASE/sj"`` (``/s``, ``/j``): the semi-supervised
+    setting of the paper's Table 2 (:mod:`scapo.losses.supervised`) for methods whose preset has a
+    ``supervision`` field; its ``name`` is the full string.
+
+    Raises:
+        UnknownNameError: unknown base preset, or a suffix this method does not take."""
+    from scapo.errors import UnknownNameError
+
+    if not isinstance(preset, str):
+        return preset
+    base, *mods = preset.split("/")
+    pc = spec.presets.get(base)
+    if not mods:
+        return pc
+    if len(mods) != 1 or mods[0].upper() not in ("S", "J", "SJ") or not hasattr(pc, "supervision"):
+        raise UnknownNameError(f"unknown {spec.method} preset {preset!r}: "
+                               + ("its presets take a suffix /sj, /s or /j (training with segmentation and / or joint "
+                                  "labels)" if hasattr(pc, "supervision") else "it takes no suffix (no supervised "
+                                                                              "setting)"))
+    return dataclasses.replace(pc, name=preset, supervision=mods[0].upper())
+
+
 def _identity(spec: LearnedSpec, preset, card: dict) -> dict:
-    return {"method": spec.method, "preset": dataclasses.asdict(preset), "dataset_hash": card["dataset_hash"],
+    fields = {k: v for k, v in dataclasses.asdict(preset).items() if not (k in ADDED_FIELDS and v == ADDED_FIELDS[k])}
+    return {"method": spec.method, "preset": fields, "dataset_hash": card["dataset_hash"],
             "category": card["category"], "part_names": list(card["part_names"]),
             "joint_type": list(card["joint_type"]), "joint_parts": [list(p) for p in card["joint_parts"]]}
 
@@ -150,7 +179,7 @@ def train_learned(spec: LearnedSpec, data: str | Path, run: str | Path, preset=N
             preset = _preset_from_dict(cls, old["preset"])
         else:
             preset = "cpu"
-    pc = spec.presets.get(preset) if isinstance(preset, str) else preset
+    pc = resolve_preset(spec, preset)
     if seed is not None:
         if int(seed) < 0:
             raise ConfigError(f"seed must be >= 0, got {seed}")
@@ -181,7 +210,7 @@ def run_is_current(spec: LearnedSpec, run: str | Path, data: str | Path, preset:
     old = run_identity(run)
     if old is None:
         return False
-    pc = spec.presets.get(preset)
+    pc = resolve_preset(spec, preset)
     if seed is not None:
         pc = dataclasses.replace(pc, seed=int(seed))
     card = load(data, "train").card
@@ -222,8 +251,11 @@ def _train_locked(spec: LearnedSpec, pc, identity: dict, train: ArticulationData
             _refuse_other(run / "run.json", old, identity)
     write_json(run / "run.json", identity)
     torch.set_num_threads(usable_cores())
-    arrays = train.arrays(list(spec.fields))
-    tensors = {k: torch.from_numpy(np.ascontiguousarray(arrays[k])) for k in spec.fields}
+    from scapo.losses.supervised import supervised_fields
+
+    fields = list(dict.fromkeys([*spec.fields, *supervised_fields(getattr(pc, "supervision", ""))]))
+    arrays = train.arrays(fields)
+    tensors = {k: torch.from_numpy(np.ascontiguousarray(arrays[k])) for k in fields}
     torch.manual_seed(pc.seed)  # parameter initialisation is part of the run's identity
     net = spec.build(train.card, pc).to(dev)
     M = len(tensors["points"])
@@ -415,6 +447,13 @@ class LearnedMethod:
         self.net.eval()
         self.device = dev
         self.identity = ident
+        sup = getattr(self.preset, "supervision", "")
+        if sup:  # the semi-supervised setting: its marks, and a label of its own unless one was given
+            from scapo.losses.supervised import supervision_marks
+
+            self.supervision = supervision_marks(sup)
+            if not o.label:
+                self.label = f"{self.spec.method}-{sup.lower()}"
 
     @torch.no_grad()
     def predict(self, dataset: ArticulationDataset) -> Predictions:

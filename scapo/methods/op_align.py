@@ -46,6 +46,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from scapo.errors import ConfigError
+from scapo.losses.supervised import joint_loss, seg_nll
 from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned, train_learned
 from scapo.methods.nets import PointResNet, mlp
 from scapo.models.refine import rotation_from_rotvec as exp_so3
@@ -78,6 +80,19 @@ class OPAlignPreset(LearnedPreset):
     """Segmentation cost in the part-alignment term (normalised units squared)."""
     min_part: float = 0.1
     """Smallest mean segmentation probability of a part before the balance term acts."""
+    supervision: str = ""
+    """Labels training may use (:mod:`scapo.losses.supervised`): "" self-supervised (the paper's Table 1 row),
+    "SJ" the paper's "OP-Align (SJ)" row of Table 2; preset suffix ``/sj``."""
+    sup_weight: float = 1.0
+    """Weight of the supervised terms."""
+
+    def __post_init__(self):
+        super().__post_init__()
+        from scapo.losses.supervised import check_supervision
+
+        if check_supervision(self.supervision) != self.supervision:
+            raise ConfigError(f"preset {self.name!r}: write supervision as one of '', 'S', 'J', 'SJ', got "
+                              f"{self.supervision!r}")
 
 
 PRESETS: Registry[OPAlignPreset] = Registry("op-align preset")
@@ -213,6 +228,19 @@ class OPAlignNet(nn.Module):
         if copies:
             terms["same_part"] = sum(copies) / len(copies)
             total = total + 10 * terms["same_part"]
+        if pc.supervision:  # the semi-supervised setting (Table 2's "OP-Align (SJ)")
+            extra = {}
+            if "part_label" in batch:
+                extra["sup_seg"] = seg_nll(s["seg"], batch["part_label"])
+            if "joint_axis" in batch and self.J:
+                R, t = out["R_sel"], out["t_sel"]
+                _, c, sc = normalize_clouds(batch["points"].float())
+                axis = (R[:, None] @ s["drct"][..., None]).squeeze(-1)
+                pivot = (R[:, None] @ (s["pivot"] + t[:, None])[..., None]).squeeze(-1)
+                gt_pivot = (batch["joint_pivot"].to(X) - c[:, None]) / sc[:, None, None]
+                extra["sup_joint"] = joint_loss(axis, pivot, batch["joint_axis"].to(X), gt_pivot, self.joint_types)
+            terms.update(extra)
+            total = total + pc.sup_weight * sum(extra.values())
         return terms, total
 
     # ---------------------------------------------------------------- inference

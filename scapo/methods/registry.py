@@ -129,7 +129,9 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
 
 def describe(label: str) -> tuple[str, dict] | None:
     """(display name, supervision marks) for a predictions label: a registered name, or one of an
-    entry's variants (``scapo-no-refine``); None for a label no entry knows."""
+    entry's variants (``scapo-no-refine``), either with a supervision suffix ``-sj`` / ``-s`` / ``-j`` (a run
+    trained with those labels, :mod:`scapo.losses.supervised`: "SCAPO (ours) (SJ)" with its marks); None
+    for a label no entry knows."""
     if label in METHODS:
         e = METHODS.get(label)
         return e.display, dict(e.supervision)
@@ -137,6 +139,14 @@ def describe(label: str) -> tuple[str, dict] | None:
         e = METHODS.get(name)
         if label in e.variants:
             return e.variants[label], dict(e.supervision)
+    base, _, suffix = label.rpartition("-")
+    if base and suffix.upper() in ("S", "J", "SJ"):
+        known = describe(base)
+        if known is not None:
+            display, marks = known
+            sup = suffix.upper()
+            return f"{display} ({sup})", {**marks, "segmentation": marks["segmentation"] or "S" in sup,
+                                          "joint": marks["joint"] or "J" in sup}
     return None
 
 

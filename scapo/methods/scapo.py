@@ -16,6 +16,7 @@ import numpy as np
 from scapo.data.dataset import ArticulationDataset
 from scapo.errors import ConfigError
 from scapo.eval.predictions import Predictions
+from scapo.losses.supervised import supervision_marks
 from scapo.methods.learned import LearnedOptions, check_run_fits
 from scapo.methods.registry import register_method
 from scapo.models.predict import Predictor
@@ -77,6 +78,11 @@ class SCAPOMethod:
         check_run_fits(self.run, ident, train, o.cross_category,
                        f"train a run on this dataset first ('scapo train --data {train.root} --out RUN')")
         self.trained_on = ident["dataset_hash"]
+        sup = ident["preset"].get("supervision", "")
+        if sup:  # the semi-supervised setting: its marks, and a label of its own unless one was given
+            self.supervision = supervision_marks(sup)
+            if not self.options.label:
+                self.label = f"scapo-{sup.lower()}"
         rc = self.predictor.refine
         if rc.steps > 0 and rc.starts == "octahedral" and rc.upright_deg > 0:
             self.predictor.fit_upright(train.arrays(["points"])["points"])

@@ -46,6 +46,11 @@ class TrainConfig:
     """At the start of stage 2, fit a correction of the stage-1 frames' minority branch (the half-turned
     frames of near-symmetric shapes) from the training views without labels, and use the corrected
     frames in stage 2 and at inference (:mod:`scapo.models.branch`, an addition to the paper)."""
+    supervision: str = ""
+    """Labels training may use (:mod:`scapo.losses.supervised`): "" (self-supervised, the paper's Table 1),
+    "S" segmentation, "J" joints, "SJ" both (the paper's Table 2 setting); preset suffix ``/sj``."""
+    sup_weight: float = 1.0
+    """Weight of the supervised terms (stage 2) when ``supervision`` is set."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)
@@ -56,8 +61,13 @@ class TrainConfig:
     """"auto" (CUDA when available), "cpu" or "cuda"."""
 
     def __post_init__(self):
+        from scapo.losses.supervised import check_supervision
+
         if self.stage1_epochs < 0 or self.stage2_epochs < 0 or self.batch_size < 1 or self.train_points < 32:
             raise ConfigError(f"preset {self.name!r}: invalid epochs, batch size or point count")
+        if check_supervision(self.supervision) != self.supervision:
+            raise ConfigError(f"preset {self.name!r}: write supervision as one of '', 'S', 'J', 'SJ', got "
+                              f"{self.supervision!r}")
 
 
 PRESETS: Registry[TrainConfig] = Registry("preset")
@@ -114,7 +124,8 @@ def get_preset(name: str) -> TrainConfig:
     switched off (``LossConfig.disabled``), or with one of our additions to the paper
     (:data:`ADDITIONS`, e.g. ``branch_flip``) set to False; its ``name`` is the full string, so runs
     and tables name the ablation. The paper's Table 3 rows are ``cpu/no-shape_var``, ``cpu/no-dir_align``,
-    ``cpu/no-joint_prox`` and ``cpu/no-joint_boundary`` (or with ``paper``).
+    ``cpu/no-joint_prox`` and ``cpu/no-joint_boundary`` (or with ``paper``). A part ``sj`` (or ``s``, ``j``)
+    trains with those labels (``TrainConfig.supervision``, the paper's Table 2 setting), e.g. ``cpu/sj``.
 
     Raises:
         UnknownNameError: an unknown base preset or regulariser (the message lists the known ones).
@@ -129,6 +140,9 @@ def get_preset(name: str) -> TrainConfig:
     disabled = list(cfg.losses.disabled)
     off = {}
     for part in parts:
+        if part.upper() in ("S", "J", "SJ"):  # the semi-supervised setting of Table 2
+            off["supervision"] = part.upper()
+            continue
         term = part[3:] if part.startswith("no-") else None
         if term in ADDITIONS:
             off[term] = False

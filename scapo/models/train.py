@@ -1,6 +1,8 @@
 """``scapo train``: two-stage self-supervised training of SCAPO on unlabeled clouds, resumable.
 
-Only the ``points`` of the training split are used (no labels, poses or joints). A run folder
+Only the ``points`` of the training split are used (no labels, poses or joints), except in the
+semi-supervised setting of the paper's Table 2 (``TrainConfig.supervision``, presets ``.../sj``), where
+the segmentation and / or joint labels it names are used too (:mod:`scapo.losses.supervised`). A run folder
 holds ``run.json`` (preset, dataset, model structure), ``checkpoint.pt`` (written atomically after
 every epoch, with optimiser, schedule and RNG state so that a resumed run gives the same result),
 ``log.csv`` (one row per iteration) and ``losses.png``.
@@ -41,33 +43,65 @@ from scapo.nn.encoder import EncoderConfig
 from scapo.provenance import usable_cores
 
 
-def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict | None = None,
+               scale: torch.Tensor | None = None, sup_weight: float = 1.0) -> tuple[dict[str, torch.Tensor],
+                                                                                   torch.Tensor]:
     """One forward pass of a training step on normalised clouds ``X (B, N, 3)``: the unweighted loss
     terms of ``stage`` (1: stage-1 terms; 2: stage-1 and stage-2 terms) and their weighted total
-    under ``losses`` (a :class:`~scapo.losses.LossConfig`)."""
+    under ``losses`` (a :class:`~scapo.losses.LossConfig`).
+
+    ``sup``: in the semi-supervised setting (:mod:`scapo.losses.supervised`), the batch's labels:
+    ``part_label (B, N)`` and / or ``joint_axis``, ``joint_pivot (B, J, 3)`` (camera frame, metres;
+    ``scale (B,)`` is the normalisation of ``X``); stage 2 then adds ``sup_seg`` (NLL of the skinning
+    weights) and ``sup_joint`` (the camera-frame joints), weighted by ``sup_weight``."""
     out = model(X, stage=stage)
     terms = stage1_terms(model, X, out, losses, align=stage == 1 or losses.align_in_stage2)
     if stage == 2:
         terms.update(stage2_terms(model, X, out, losses))
-    return terms, weighted_total(terms, losses, stage)
+    total = weighted_total(terms, losses, stage)
+    if stage == 2 and sup:
+        from scapo.losses.supervised import joint_loss, seg_nll
+
+        extra = {}
+        if "part_label" in sup:
+            extra["sup_seg"] = seg_nll(out["w"], sup["part_label"])
+        if "joint_axis" in sup and model.cfg.joint_types:
+            R, t = out["R"], out["enc"].t
+            axis = out["axis_x"] @ R.transpose(1, 2)
+            pivot = out["pivot_x"] @ R.transpose(1, 2) + t[:, None]
+            extra["sup_joint"] = joint_loss(axis, pivot, sup["joint_axis"].to(X), sup["joint_pivot"].to(X)
+                                            / scale[:, None, None], model.cfg.joint_types)
+        terms.update(extra)
+        total = total + sup_weight * sum(extra.values())
+    return terms, total
 
 
 class TrainingClouds(Dataset):
-    """The training split's point clouds only (no labels), each a random subset of ``points`` points."""
+    """The training split's point clouds, each a random subset of ``points`` points; without labels
+    (the paper's setting), or, with ``supervision`` (:mod:`scapo.losses.supervised`), as dicts that also
+    hold the labels it allows (the subset's ``part_label``, the sample's ``joint_axis`` / ``joint_pivot``)."""
 
-    def __init__(self, data: str | Path, points: int):
+    def __init__(self, data: str | Path, points: int, supervision: str = ""):
+        from scapo.losses.supervised import supervised_fields
+
         ds = load(data, "train")
         if len(ds) == 0:
             raise DatasetError(f"{data}: the training split is empty")
-        self.clouds = torch.from_numpy(ds.arrays(["points"])["points"]).float()
+        fields = supervised_fields(supervision)
+        arrays = ds.arrays(["points", *fields])
+        self.clouds = torch.from_numpy(arrays["points"]).float()
+        self.extra = {k: torch.from_numpy(arrays[k]) for k in fields}
         self.points = min(points, self.clouds.shape[1])
 
     def __len__(self) -> int:
         return len(self.clouds)
 
-    def __getitem__(self, i: int) -> torch.Tensor:
+    def __getitem__(self, i: int):
         idx = torch.randperm(self.clouds.shape[1])[: self.points]
-        return self.clouds[i, idx]
+        if not self.extra:
+            return self.clouds[i, idx]
+        return {"points": self.clouds[i, idx], **{k: (v[i, idx] if k == "part_label" else v[i].float())
+                                                  for k, v in self.extra.items()}}
 
 
 def model_config(card: dict, preset: TrainConfig) -> ModelConfig:
@@ -104,7 +138,7 @@ def resolve_device(name: str) -> torch.device:
 INFERENCE_FIELDS = ("refine",)
 #: preset fields added after runs were trained, with the value those runs had: at that value a field is
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
-ADDED_FIELDS = {"branch_flip": False}
+ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0}
 
 
 def _run_identity(preset: TrainConfig, card: dict) -> dict:
@@ -239,7 +273,7 @@ class Trainer:
             return self._ckpt_path()
         write_json(self.run / "run.json", json.loads(json.dumps(self.identity, default=str)))
         torch.set_num_threads(usable_cores())
-        data = TrainingClouds(self.data, pc.train_points)
+        data = TrainingClouds(self.data, pc.train_points, pc.supervision)
         steps_per_epoch = len(data) // pc.batch_size if len(data) >= pc.batch_size else 1
         if pc.max_steps_per_epoch:
             steps_per_epoch = min(steps_per_epoch, pc.max_steps_per_epoch)
@@ -393,11 +427,15 @@ class Trainer:
         new_file = not log_path.is_file()
         with open(log_path, "a", newline="") as f:
             writer = None
-            for step, points in enumerate(loader):
+            for step, batch in enumerate(loader):
                 if step >= steps:
                     break
-                X, _ = SCAPOModel.normalize(points.to(self.device))
-                terms, total = loss_terms(self.model, X, stage, pc.losses)
+                sup = None
+                if isinstance(batch, dict):  # semi-supervised: the labels come along
+                    sup = {k: v.to(self.device) for k, v in batch.items() if k != "points"}
+                    batch = batch["points"]
+                X, scale = SCAPOModel.normalize(batch.to(self.device))
+                terms, total = loss_terms(self.model, X, stage, pc.losses, sup, scale, pc.sup_weight)
                 for name, value in terms.items():
                     if not torch.isfinite(value):
                         raise TrainingError(f"loss {name!r} became {float(value.detach())} at stage {stage}, "
@@ -413,7 +451,7 @@ class Trainer:
                 if writer is None:
                     fields = ["stage", "epoch", "step", "lr", "total", "rec", "ortho", "aug_consist", "can_consist",
                               "align", "consensus", "cycle", "recon", "kp_seg", "seg", "shape_var", "dir_align",
-                              "joint_prox", "joint_boundary"]
+                              "joint_prox", "joint_boundary", "sup_seg", "sup_joint"]
                     writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
                     if new_file:
                         writer.writeheader()

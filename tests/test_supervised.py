@@ -1,0 +1,75 @@
+"""The semi-supervised setting of the paper's Table 2 ("SJ"): losses, presets, marks, run identities."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from scapo.errors import ConfigError, UnknownNameError
+from scapo.losses.supervised import check_supervision, joint_loss, seg_nll, supervision_marks
+from scapo.methods import describe, run_method
+from scapo.methods.learned import resolve_preset
+from scapo.methods.op_align import SPEC as OP_SPEC
+from scapo.models.presets import PRESETS, get_preset
+from scapo.models.train import Trainer, _identity_hash, _run_identity
+
+
+def test_supervised_losses_are_zero_exactly_at_the_labels():
+    labels = torch.tensor([[0, 1, -1, 1]])
+    onehot = torch.nn.functional.one_hot(labels.clamp_min(0), 2).float()
+    assert float(seg_nll(onehot, labels)) == pytest.approx(0.0, abs=1e-5)
+    assert float(seg_nll(1 - onehot, labels)) > 10  # all mass on the wrong part
+    assert float(seg_nll(onehot, torch.full((1, 4), -1))) == 0.0  # nothing labelled
+    g_axis = torch.tensor([[[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]])
+    g_piv = torch.tensor([[[0.1, 0.2, 0.3], [0.0, 0.0, 0.0]]])
+    # the sign of the direction and a pivot moved along the axis are free; prismatic pivots are not scored
+    same = joint_loss(-g_axis * 3, g_piv + torch.tensor([[[0.0, 0.0, 0.5], [9.0, 9.0, 9.0]]]), g_axis, g_piv, [0, 1])
+    assert float(same) == pytest.approx(0.0, abs=1e-6)
+    off = joint_loss(g_axis, g_piv + torch.tensor([[[0.2, 0.0, 0.0], [0.0, 0.0, 0.0]]]), g_axis, g_piv, [0, 1])
+    assert float(off) == pytest.approx(0.2, abs=1e-6)  # point-to-line distance of the revolute joint
+
+
+def test_supervision_names_marks_and_presets():
+    assert check_supervision("js") == "SJ" and check_supervision("") == ""
+    with pytest.raises(ConfigError):
+        check_supervision("P")
+    assert supervision_marks("SJ") == {"pose": False, "segmentation": True, "joint": True}
+    assert get_preset("cpu/sj").supervision == "SJ" and get_preset("cpu/sj").name == "cpu/sj"
+    assert resolve_preset(OP_SPEC, "cpu/sj").supervision == "SJ"
+    with pytest.raises(UnknownNameError):
+        resolve_preset(OP_SPEC, "cpu/xy")
+    name, marks = describe("op-align-sj")
+    assert name == "OP-Align-style (SJ)" and marks == {"pose": False, "segmentation": True, "joint": True}
+    assert describe("scapo-sj")[0] == "SCAPO (ours) (SJ)" and describe("nonsense-sj") is None
+    # the self-supervised runs keep their identity (the fields are left out at their old value)
+    card = {"dataset_hash": "x", "category": "laptop", "part_names": ["a", "b"], "joint_type": [0],
+            "joint_parts": [[0, 1]]}
+    cpu = PRESETS.get("cpu")
+    ident = _run_identity(cpu, card)
+    old = json.loads(json.dumps(ident, default=str))
+    for k in ("supervision", "sup_weight"):
+        del old["preset"][k]
+    assert _identity_hash(old) == _identity_hash(json.loads(json.dumps(ident, default=str)))
+    assert _identity_hash(_run_identity(get_preset("cpu/sj"), card)) != _identity_hash(ident)
+
+
+@pytest.mark.parametrize("method", ["scapo", "op-align"])
+def test_semi_supervised_training_uses_the_labels_and_marks_its_predictions(method, laptop_data, tmp_path):
+    run = tmp_path / "run"
+    if method == "scapo":
+        Trainer(laptop_data, run, get_preset("test/sj"), progress=False).train()
+    else:
+        from scapo.methods.op_align import train
+
+        train(laptop_data, run, "test/sj", progress=False)
+    log = pd.read_csv(run / "log.csv")
+    assert {"sup_seg", "sup_joint"} <= set(log.columns)
+    sup = log.dropna(subset=["sup_seg"])
+    assert len(sup) > 0 and np.isfinite(sup[["sup_seg", "sup_joint"]].to_numpy()).all()
+    preds = run_method(method, laptop_data, tmp_path / "p.npz", run=run)
+    assert preds.method == f"{method}-sj"
+    assert preds.supervision == {"pose": False, "segmentation": True, "joint": True}
+    ident = json.loads((run / "run.json").read_text())
+    assert ident["preset"]["supervision"] == "SJ"
