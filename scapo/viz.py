@@ -12,7 +12,15 @@ from scapo.data.generate import instance_asset_path, load_instance, sample_seed_
 from scapo.errors import DatasetError
 from scapo.eval.predictions import Predictions
 from scapo.files import atomic_savefig, check_output_file, read_json
-from scapo.sim.preview import PART_COLORS, axis_anchor, draw_sample, frame_cloud_axes, palette, part_colors
+from scapo.sim.preview import (
+    PART_COLORS,
+    axis_anchor,
+    draw_sample,
+    frame_cloud_axes,
+    palette,
+    part_colors,
+    part_legend,
+)
 from scapo.sim.render import Renderer, render_with_retries
 
 
@@ -92,7 +100,7 @@ def prediction_figure(data: str | Path, predictions: Predictions, path: str | Pa
             ax.set_title(f"{predictions.method}: segmentation + joint axes", fontsize=8)
         frame_cloud_axes(ax, pts, float(item["bbox_diag"]))
     handles = [Line2D([], [], marker="o", ls="", color=c, label=nm)
-               for c, nm in zip(palette(len(names[0])), names[0])]
+               for c, nm in zip(palette(len(names[0])), part_legend(names[0]))]
     handles += [Line2D([], [], color="k", lw=2, label="revolute axis"),
                 Line2D([], [], color="m", lw=2, label="prismatic axis")]
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8)
@@ -183,7 +191,7 @@ def methods_figure(data: str | Path, predictions: dict, path: str | Path, count:
             ax.set_title(title, fontsize=8)
             frame_cloud_axes(ax, pts, diag)
     handles = [Line2D([], [], marker="o", ls="", color=c, label=nm)
-               for c, nm in zip(palette(len(ds.part_names)), ds.part_names)]
+               for c, nm in zip(palette(len(ds.part_names)), part_legend(ds.part_names))]
     handles += [Line2D([], [], color="k", lw=2, label="revolute axis"),
                 Line2D([], [], color="m", lw=2, label="prismatic axis")]
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8)

@@ -121,3 +121,45 @@ def test_cli_generates_and_previews_an_object_dataset(two_objects, tmp_path, cap
     assert "not in this dataset" in capsys.readouterr().err
     m = pd.read_parquet(d / "manifest.parquet")
     assert sorted(m["instance_id"].unique()) == [0, 1] and (m["category"] == "cabinet").all()
+
+
+def test_revolute_and_prismatic_parts_with_repeated_names(two_objects, tmp_path):
+    """Cabinet b: a door and two drawers both labelled 'drawer' (relative mesh paths in textured_objs). A part
+    map keeps the door and the upper drawer (chosen by joint name); the GT passes the procedural checks, the
+    prismatic joint included. Without a part map every part is kept and the repeated names are told apart by
+    index in previews."""
+    from scapo.sim.assets.objects import ObjectSource
+    from scapo.sim.preview import part_legend
+
+    _, b = two_objects
+    src = ObjectSource(str(b), (("drawer", "j_d1"),))
+    cfg = make_config(None, 0, 4, seed=2, objects=[src], parts="door,drawer", test_fraction=0.0, val_fraction=0.0,
+                      min_part_fraction=0.02, view={"azimuth_deg": [-50, 50], "distance": [1.6, 2.4]})
+    out = tmp_path / "d"
+    generate(cfg, out, progress=False)
+    card = json.loads((out / "card.json").read_text())
+    assert card["part_names"] == ["base", "door", "drawer"] and card["joint_type"] == [0, 1]
+    spec = load_instance(cfg, instance_asset_path(cfg, out, 0))
+    ds = load(out, "train")
+    for i in range(len(ds)):
+        check_sample(ds[i], spec, cfg.render.min_part_points)
+    whole = make_config(None, 0, 1, objects=[b], test_fraction=0.0, val_fraction=0.0, min_part_fraction=0.01,
+                        cropped="keep")
+    generate(whole, tmp_path / "w", progress=False)
+    names = json.loads((tmp_path / "w" / "card.json").read_text())["part_names"]
+    assert names == ["base", "door", "drawer", "drawer"]  # the base of a derived object is always "base"
+    assert part_legend(names) == ["base", "door", "2 drawer", "3 drawer"]
+
+
+def test_bad_object_inputs(two_objects, tmp_path, capsys):
+    a, _ = two_objects
+    with pytest.raises(ConfigError, match="positive factor"):
+        make_config(None, 0, 1, objects=[a], scale="0")
+    with pytest.raises(ConfigError, match=r"(?s)matches no movable part.*joints joint_0.*joint_2a, joint_2b"):
+        generate(make_config(None, 0, 1, objects=[a], parts="lid=joint_9"), tmp_path / "x", progress=False)
+    broken = make_partnet_fixture(tmp_path / "broken")
+    (broken / "textured_objs" / "door.obj").unlink()
+    assert main(["generate", "--object", str(broken), "--views", "1", "--out", str(tmp_path / "y")]) == 2
+    assert "textured_objs/door.obj" in capsys.readouterr().err
+    assert main(["generate", "--object", str(tmp_path / "nothing"), "--views", "1", "--out", str(tmp_path / "z")]) == 2
+    assert "no such file or folder" in capsys.readouterr().err

@@ -79,3 +79,19 @@ def test_flying_pixels_can_be_dropped_and_the_range_is_limited():
 def test_bad_sensor_parameters_are_refused(bad):
     with pytest.raises(ConfigError):
         SensorConfig(**{"kind": "realistic", **bad})
+
+
+def test_measured_noise_matches_the_configured_model():
+    """Nguyen et al. 2012: sigma(z) = sigma_base + sigma_quad (z - 0.4)^2; measured on a flat object at 1 m and 2.5 m."""
+    h = w = 160
+    cfg = dataclasses.replace(SENSORS["realistic"], flying_prob=0.0, drop_prob=0.0, edge_drop_prob=0.0)
+    for z0 in (1.0, 2.5):
+        u, v = np.meshgrid(np.arange(w), np.arange(h))
+        pts = np.stack([(u - w / 2) / 100 * z0, (v - h / 2) / 100 * z0, np.full((h, w), z0)], -1).astype(np.float32)
+        part = np.zeros((h, w), dtype=np.int64)
+        out, keep, label = apply_sensor(pts, np.ones((h, w), bool), part, cfg, np.random.default_rng(5))
+        inner = np.zeros((h, w), bool)
+        inner[5:-5, 5:-5] = True
+        measured = np.std(out[..., 2][inner & keep] - z0)
+        expected = cfg.sigma_base + cfg.sigma_quad * (z0 - 0.4) ** 2
+        assert measured == pytest.approx(expected, rel=0.05)

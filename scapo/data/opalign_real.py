@@ -84,7 +84,8 @@ def read_frame(path: str | Path) -> dict:
         raise DatasetError(f"{path}: arr_0 holds a {type(raw).__name__}, expected a dict")
     missing = [k for k in FRAME_KEYS if k not in raw]
     if missing:
-        raise DatasetError(f"{path}: lacks fields {missing} (has {sorted(raw)})")
+        raise DatasetError(f"{path}: lacks fields {missing} (has {sorted(raw)}; an OP-Align frame holds "
+                           f"{', '.join(FRAME_KEYS)} and color)")
     pc = np.asarray(raw["pc"], dtype=np.float64)
     n = len(pc)
     if pc.ndim != 2 or pc.shape[1] != 3:

@@ -28,6 +28,14 @@ def palette(n: int) -> np.ndarray:
     return np.concatenate([PART_COLORS[:n], np.array(extra).reshape(-1, 3)])
 
 
+def part_legend(names) -> list[str]:
+    """Legend labels of parts: their names, prefixed by the part index when a name repeats (``1 drawer``,
+    ``2 drawer``)."""
+    names = [str(n) for n in names]
+    repeated = {n for n in names if names.count(n) > 1}
+    return [f"{i} {n}" if n in repeated else n for i, n in enumerate(names)]
+
+
 def part_colors(labels: np.ndarray) -> np.ndarray:
     """RGB (..., 3) for part labels (-1: grey), distinct for any number of parts (:func:`palette`)."""
     labels = np.asarray(labels)
@@ -93,7 +101,7 @@ def draw_sample(fig, sample: dict, title: str = "", column: int = 0, columns: in
         from matplotlib.lines import Line2D
 
         handles = [Line2D([], [], marker="o", ls="", color=c, label=n)
-                   for c, n in zip(palette(len(part_names)), part_names)]
+                   for c, n in zip(palette(len(part_names)), part_legend(part_names))]
         ax.legend(handles=handles, fontsize=7, loc="upper left")
 
 
