@@ -15,32 +15,29 @@ import json
 import multiprocessing as mp
 import tempfile
 import time
-from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from scapo.data.config import make_config
-from scapo.data.generate import _WORKER, _init_worker, generate, plan, sample_seed_key
+from scapo.data.generate import _POOL_WORKER, ShardWorker, _pool_init, generate, plan, sample_seed_key
 from scapo.files import atomic_write_text, check_output_dir
 from scapo.ops.rigid import sapien_camera_pose
 from scapo.provenance import provenance, render_device
 from scapo.report import markdown_table
-from scapo.sim.assets import build_category, parse_urdf
+from scapo.sim.assets import build_category
 from scapo.sim.render import sample_camera_pose, sample_state
 
 
-def _bare_render_shard(task, _unused=None) -> tuple[float, float, int]:
-    cfg = _WORKER["cfg"]
-    r = _WORKER["renderer"]
+def _bare_render_shard(worker: ShardWorker, task) -> tuple[float, float, int]:
+    cfg = worker.cfg
+    r = worker.renderer
     view = cfg.view_config
     import sapien
 
     t0 = time.time()
     for _, inst, vid in task.items:
-        spec = _WORKER["specs"].get(inst)
-        if spec is None:
-            spec = _WORKER["specs"][inst] = parse_urdf(_WORKER["urdfs"][inst], category=cfg.category)
+        spec = worker.spec(inst)
         rng = np.random.default_rng((*sample_seed_key(cfg, inst, vid), 0))
         state = sample_state(spec, rng)
         T = sample_camera_pose(view, spec.bbox_diag, rng)
@@ -55,7 +52,11 @@ def _bare_render_shard(task, _unused=None) -> tuple[float, float, int]:
 
 
 def _warm(_):
-    return True
+    return _POOL_WORKER[0].ready()
+
+
+def _pool_bare(task):
+    return _bare_render_shard(_POOL_WORKER[0], task)
 
 
 def render_only_rate(cfg, workers: int, cache_dir=None) -> float:
@@ -63,14 +64,16 @@ def render_only_rate(cfg, workers: int, cache_dir=None) -> float:
     records = build_category(cfg.category, cfg.instances, cfg.seed, cache_dir)
     urdfs = {r.instance_id: str(r.urdf) for r in records}
     tasks = plan(cfg)
+    args = (cfg.to_json(), urdfs)
     if workers <= 1:
-        _init_worker(cfg.to_json(), urdfs, None)
-        res = [_bare_render_shard(t) for t in tasks]
+        worker = ShardWorker(*args)
+        worker.ready()
+        res = [_bare_render_shard(worker, t) for t in tasks]
     else:
         ctx = mp.get_context("spawn")
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(cfg.to_json(), urdfs, None)) as pool:
+        with ctx.Pool(workers, initializer=_pool_init, initargs=(args, None)) as pool:
             pool.map(_warm, range(workers * 4))
-            res = pool.map(partial(_bare_render_shard), tasks, chunksize=1)
+            res = pool.map(_pool_bare, tasks, chunksize=1)
     t0, t1 = min(r[0] for r in res), max(r[1] for r in res)
     return sum(r[2] for r in res) / (t1 - t0)
 

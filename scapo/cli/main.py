@@ -93,7 +93,8 @@ def cmd_generate(args) -> int:
                       min_part_fraction=args.min_part_fraction,
                       shard_size=args.shard_size, cropped=args.cropped, objects=objects, parts=args.parts or (),
                       scale=args.scale, view=view or None)
-    rep = generate(cfg, args.out, workers=args.workers, progress=not args.no_progress, cache_dir=args.cache)
+    rep = generate(cfg, args.out, workers=args.workers, progress=not args.no_progress, cache_dir=args.cache,
+                   executor=args.executor, ray_address=args.ray_address)
     print(f"{rep.out}: {rep.samples} samples ({rep.rendered} rendered now, {rep.skipped_shards} shards already "
           f"done); {sum(rep.rejections.values())} rejected views {dict(rep.rejections)}; "
           f"{rep.samples_per_second:.1f} samples/s")
@@ -423,7 +424,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--views", type=int, required=True)
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--out", type=Path, required=True)
-    sp.add_argument("--workers", type=int, default=1, help="worker processes, one SAPIEN scene each")
+    sp.add_argument("--workers", type=int, default=1, help="worker processes (Ray: actors), one SAPIEN scene each")
+    sp.add_argument("--executor", default="local", choices=["local", "ray"],
+                    help="local processes, or Ray actors (pip install 'scapo[ray]'); same output either way")
+    sp.add_argument("--ray-address", default=None, help="--executor ray: address of a running Ray cluster (e.g. auto, "
+                    "ray://head:10001); default: a local Ray instance")
     sp.add_argument("--points", type=int, default=1024, help="points per sample (FPS)")
     sp.add_argument("--sensor", default="clean", help="clean (exact object points) | realistic (depth noise, flying "
                     "pixels, detector-style mask with nearby background labelled -1, support plane; see "

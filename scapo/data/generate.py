@@ -40,8 +40,8 @@ from scapo.data.config import FORMAT_VERSION, GenerateConfig, dict_diff
 from scapo.data.storage import (
     read_shard,
     sha256_file,
+    shard_bytes,
     write_json,
-    write_shard,
 )
 from scapo.errors import ConfigError, DatasetError
 from scapo.files import FolderLock, atomic_write_bytes, check_output_dir, clean_stale_temps, read_json
@@ -139,9 +139,6 @@ def sample_seed_key(cfg: GenerateConfig, instance_id: int, view_id: int) -> tupl
 
 
 # ---------------------------------------------------------------------------- workers
-_WORKER: dict = {}
-
-
 @dataclass(frozen=True)
 class InstanceAsset:
     """The asset of one dataset instance: a procedural instance (its ``model.urdf``) or a derived object
@@ -192,42 +189,111 @@ def load_instance(cfg: GenerateConfig, path: str | Path):
     return load_object(path, category=cfg.category)
 
 
-def _init_worker(cfg_json: str, urdfs: dict[int, str], queue) -> None:
-    cfg = GenerateConfig.from_dict(json.loads(cfg_json))
-    _WORKER.update(cfg=cfg, urdfs=urdfs, queue=queue, specs={},
-                   renderer=Renderer(cfg.render.camera, cfg.render.shader))
+class ShardWorker:
+    """Renders shards of one dataset; all of a worker's state lives here (one per process or Ray actor).
+
+    It owns one SAPIEN scene (:class:`~scapo.sim.render.Renderer`, made on first use: a scene costs seconds)
+    and the parsed instances. An instance's asset is taken from the driver's path when this machine sees
+    it; otherwise (a Ray worker on another machine) a procedural instance is built into this worker's own
+    cache (deterministic, checked against the driver's digest); derived objects need the dataset folder on
+    a shared filesystem. A shard comes back as the bytes of its ``.npz``: the driver writes and records
+    it, so workers need no access to the output folder.
+
+    Args:
+        cfg_json: the dataset's config (:meth:`GenerateConfig.to_json`). assets: instance id -> asset path
+            on the driver. digests: instance id (str) -> asset digest. data: the dataset folder on the driver.
+        cache_dir: asset cache of this worker (default ``~/.cache/scapo/assets``).
+
+    Raises (from :meth:`render`):
+        RenderError: a sample's views were all rejected, or no Vulkan device. DatasetError: an asset
+            built here differs from the driver's (another scapo version), or a derived object is not visible.
+    """
+
+    def __init__(self, cfg_json: str, assets: dict[int, str], digests: dict[str, str] | None = None,
+                 data: str | None = None, cache_dir: str | None = None):
+        self.cfg = GenerateConfig.from_dict(json.loads(cfg_json))
+        self.assets = {int(k): str(v) for k, v in assets.items()}
+        self.digests = dict(digests or {})
+        self.data = data
+        self.cache_dir = None if cache_dir is None else Path(cache_dir)
+        self.specs: dict = {}
+        self._renderer: Renderer | None = None
+        self.queue = None  # a local pool's progress queue
+
+    @property
+    def renderer(self) -> Renderer:
+        if self._renderer is None:
+            self._renderer = Renderer(self.cfg.render.camera, self.cfg.render.shader)
+        return self._renderer
+
+    def ready(self) -> bool:
+        """Start the scene now (so that start-up is not counted in the first shard's time)."""
+        return self.renderer is not None
+
+    def spec(self, inst: int):
+        """The parsed asset of instance ``inst`` (see the class docstring)."""
+        if inst not in self.specs:
+            path = Path(self.assets[inst])
+            if not path.exists():
+                if self.cfg.objects:
+                    raise DatasetError(f"derived object {path} is not visible on this worker; put the dataset folder "
+                                       "on a filesystem every worker shares")
+                from scapo.sim.assets import build_instance
+
+                rec = build_instance(self.cfg.category, inst, self.cfg.seed, self.cache_dir)
+                if self.digests and rec.digest != self.digests.get(str(inst)):
+                    raise DatasetError(f"instance {inst} built on this worker differs from the driver's (digest "
+                                       f"{rec.digest[:12]} vs {str(self.digests.get(str(inst)))[:12]}); run the same "
+                                       "scapo version everywhere")
+                path = Path(rec.urdf)
+            self.specs[inst] = load_instance(self.cfg, path)
+        return self.specs[inst]
+
+    def render(self, task: ShardTask, progress=None) -> dict:
+        """Render one shard; returns its name, npz ``data`` (bytes), ``sha256``, rejection ``reasons``, times
+        ``t0``/``t1`` (s since the epoch) and ``samples``. ``progress(n)`` is called after each sample."""
+        cfg = self.cfg
+        t0 = time.time()
+        groups: list[tuple[int, list]] = []  # consecutive items of one instance share its viewpoint ranges
+        for sample_id, inst, vid in task.items:
+            spec = self.spec(inst)
+            if not groups or groups[-1][0] != inst:
+                groups.append((inst, []))
+            groups[-1][1].append((sample_id, spec, sample_seed_key(cfg, inst, vid)))
+        samples, reasons = [], Counter()
+        for inst, jobs in groups:
+            for _, s, r in render_many(self.renderer, jobs, cfg.render, cfg.view_for(inst)):
+                samples.append(s)
+                reasons.update(r)
+                if progress is not None:
+                    progress(1)
+        meta = {
+            "sample_id": np.array([i[0] for i in task.items]),
+            "instance_id": np.array([i[1] for i in task.items]),
+            "view_id": np.array([i[2] for i in task.items]),
+            "attempts": np.array([s["attempts"] for s in samples]),
+        }
+        if cfg.render.cropped == "flag":
+            meta["cropped"] = np.array([s["cropped"] for s in samples], dtype=bool)
+        data = shard_bytes(samples, meta, dict(reasons))
+        return {"name": task.name, "data": data, "sha256": hashlib.sha256(data).hexdigest(), "reasons": dict(reasons),
+                "t0": t0, "t1": time.time(), "samples": len(samples)}
 
 
-def _render_shard(task: ShardTask, shard_dir: str) -> dict:
-    cfg: GenerateConfig = _WORKER["cfg"]
-    renderer: Renderer = _WORKER["renderer"]
-    t0 = time.time()
-    groups: list[tuple[int, list]] = []  # consecutive items of one instance share its viewpoint ranges
-    for sample_id, inst, vid in task.items:
-        spec = _WORKER["specs"].get(inst)
-        if spec is None:
-            spec = _WORKER["specs"][inst] = load_instance(cfg, _WORKER["urdfs"][inst])
-        if not groups or groups[-1][0] != inst:
-            groups.append((inst, []))
-        groups[-1][1].append((sample_id, spec, sample_seed_key(cfg, inst, vid)))
-    samples, reasons = [], Counter()
-    for inst, jobs in groups:
-        for _, s, r in render_many(renderer, jobs, cfg.render, cfg.view_for(inst)):
-            samples.append(s)
-            reasons.update(r)
-            if _WORKER["queue"] is not None:
-                _WORKER["queue"].put(1)
-    meta = {
-        "sample_id": np.array([i[0] for i in task.items]),
-        "instance_id": np.array([i[1] for i in task.items]),
-        "view_id": np.array([i[2] for i in task.items]),
-        "attempts": np.array([s["attempts"] for s in samples]),
-    }
-    if cfg.render.cropped == "flag":
-        meta["cropped"] = np.array([s["cropped"] for s in samples], dtype=bool)
-    digest = write_shard(Path(shard_dir) / f"{task.name}.npz", samples, meta, dict(reasons))
-    return {"name": task.name, "sha256": digest, "reasons": dict(reasons), "t0": t0, "t1": time.time(),
-            "samples": len(samples)}
+#: The :class:`ShardWorker` of this process in a local worker pool (a pool initializer can only leave a handle
+#: where the pool's tasks find it; the state itself lives in the object).
+_POOL_WORKER: list[ShardWorker] = []
+
+
+def _pool_init(args: tuple, queue) -> None:
+    _POOL_WORKER[:] = [ShardWorker(*args)]
+    _POOL_WORKER[0].queue = queue
+    _POOL_WORKER[0].ready()
+
+
+def _pool_render(task: ShardTask) -> dict:
+    w = _POOL_WORKER[0]
+    return w.render(task, None if w.queue is None else w.queue.put)
 
 
 JOURNAL = "shards.jsonl"
@@ -336,15 +402,21 @@ def generate(
     progress: bool = True,
     cache_dir: Path | None = None,
     on_shard_done: Callable[[str], None] | None = None,
+    executor: str = "local",
+    ray_address: str | None = None,
 ) -> GenerateReport:
     """Render the dataset described by ``cfg`` into ``out`` (resuming if ``out`` holds a partial run).
 
     Args:
         cfg: what to render. out: dataset directory. workers: worker processes (one SAPIEN
-            scene each); 1 renders in this process. progress: show a progress bar.
+            scene each; with Ray, actors); 1 renders in this process (local). progress: show a progress bar.
         cache_dir: asset cache (default ``~/.cache/scapo/assets``).
         on_shard_done: called with each shard name after it is written (used by tests to
             interrupt a run).
+        executor: "local" (this process or a local process pool) or "ray" (:class:`ShardWorker` actors on
+            a Ray cluster: ``ray_address`` of a running one, e.g. "auto" or "ray://host:10001", or None for
+            a local Ray instance started and stopped here). Shards are the unit of work either way: the
+            output is byte-identical for any executor and number of workers, and resuming works the same.
 
     Resuming verifies every shard already on disk against its record (see the module docstring);
     failing shards are moved to ``out/rejected/`` and rendered again (listed in the report's
@@ -361,14 +433,25 @@ def generate(
     t0 = time.perf_counter()
     if int(workers) < 1:
         raise ConfigError(f"workers must be >= 1, got {workers}")
+    if executor not in EXECUTORS:
+        raise ConfigError(f"unknown executor {executor!r}; known: {', '.join(EXECUTORS)}")
+    if executor == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise ConfigError("--executor ray needs Ray: pip install 'scapo[ray]' (or pip install ray)") from None
     out = Path(out)
     _check_out_folder(out)
     check_output_dir(out, "dataset folder")
     with FolderLock(out, "generate"):
-        return _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0)
+        return _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0, executor, ray_address)
 
 
-def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0) -> GenerateReport:
+EXECUTORS = ("local", "ray")
+
+
+def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0, executor="local",
+                     ray_address=None) -> GenerateReport:
     shard_dir = out / "shards"
     shard_dir.mkdir(parents=True, exist_ok=True)
     for folder in (out, shard_dir):  # leftovers of interrupted writes (we hold the folder's lock)
@@ -432,6 +515,7 @@ def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0) 
     spans: list[tuple[float, float]] = []
 
     def done(res: dict) -> None:
+        atomic_write_bytes(shard_dir / f"{res['name']}.npz", res["data"])
         _append_journal(out, {"shard": res["name"], "sha256": res["sha256"], "config_sha256": cfg_sha})
         recorded[res["name"]] = res["sha256"]
         rejections.update(res["reasons"])
@@ -440,15 +524,19 @@ def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0) 
             on_shard_done(res["name"])
 
     t_render = time.perf_counter()
+    args = (cfg_json, urdfs, assets, str(out), None if cache_dir is None else str(cache_dir))
     try:
-        if todo and workers <= 1:
-            _init_worker(cfg_json, urdfs, None)
+        if todo and executor == "ray":
+            _run_ray(args, todo, workers, bar, done, ray_address)
+        elif todo and workers <= 1:
+            worker = ShardWorker(*args)
+            worker.ready()
             for t in todo:
-                done(_render_shard(t, str(shard_dir)))
+                done(worker.render(t))
                 if bar is not None:
                     bar.update(len(t.items))
         elif todo:
-            _run_pool(cfg_json, urdfs, todo, shard_dir, workers, bar, done)
+            _run_pool(args, todo, workers, bar, done)
     finally:
         if bar is not None:
             bar.close()
@@ -467,9 +555,44 @@ def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0) 
                           card["splits"]["test"]["samples"])
 
 
-def _run_pool(cfg_json, urdfs, todo, shard_dir, workers, bar, done) -> None:
+def _run_ray(args: tuple, todo: list[ShardTask], workers: int, bar, done, address: str | None) -> None:
+    """Render ``todo`` on ``workers`` Ray actors (:class:`ShardWorker`), each given the next shard as it
+    finishes one; the driver writes and records every shard as it comes back."""
+    import ray
+
+    started = not ray.is_initialized()
+    if started:
+        kw = {"address": address} if address else {"num_cpus": workers, "include_dashboard": False}
+        ray.init(log_to_driver=False, configure_logging=False, **kw)
+    Worker = ray.remote(num_cpus=1)(ShardWorker)
+    actors = [Worker.remote(*args) for _ in range(workers)]
+    queue = list(todo)
+    pending = {}
+    try:
+        ray.get([a.ready.remote() for a in actors])
+        for a in actors:
+            if queue:
+                t = queue.pop(0)
+                pending[a.render.remote(t)] = (a, t)
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            a, t = pending.pop(ready[0])
+            res = ray.get(ready[0])  # an actor's ScapoError is re-raised here as that error
+            done(res)
+            if bar is not None:
+                bar.update(len(t.items))
+            if queue:
+                t2 = queue.pop(0)
+                pending[a.render.remote(t2)] = (a, t2)
+    finally:
+        for a in actors:
+            ray.kill(a)
+        if started:
+            ray.shutdown()
+
+
+def _run_pool(args: tuple, todo: list[ShardTask], workers: int, bar, done) -> None:
     import multiprocessing as mp
-    from functools import partial
 
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
@@ -485,8 +608,8 @@ def _run_pool(cfg_json, urdfs, todo, shard_dir, workers, bar, done) -> None:
     th = threading.Thread(target=drain, daemon=True)
     th.start()
     try:
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(cfg_json, urdfs, queue)) as pool:
-            for res in pool.imap_unordered(partial(_render_shard, shard_dir=str(shard_dir)), todo):
+        with ctx.Pool(workers, initializer=_pool_init, initargs=(args, queue)) as pool:
+            for res in pool.imap_unordered(_pool_render, todo):
                 done(res)
     finally:
         queue.put(None)

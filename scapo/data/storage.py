@@ -67,6 +67,13 @@ def write_shard(path: Path, samples: list[dict], meta: dict[str, np.ndarray], re
     ``rejections`` (reason -> count of rejected views while rendering this shard) is stored as
     JSON text in the field ``rejections``.
     """
+    data = shard_bytes(samples, meta, rejections)
+    atomic_write_bytes(path, data)
+    return hashlib.sha256(data).hexdigest()
+
+
+def shard_bytes(samples: list[dict], meta: dict[str, np.ndarray], rejections: dict | None = None) -> bytes:
+    """The bytes of a shard file (see :func:`write_shard`): deterministic for equal inputs."""
     arrays = {k: np.stack([np.asarray(s[k]) for s in samples]).astype(dt, copy=False) for k, dt in ARRAY_FIELDS.items()}
     for k, dt in META_FIELDS.items():
         arrays[k] = np.asarray(meta[k]).astype(dt)
@@ -76,9 +83,7 @@ def write_shard(path: Path, samples: list[dict], meta: dict[str, np.ndarray], re
     arrays["rejections"] = np.array(json.dumps(dict(sorted((rejections or {}).items()))))
     buf = io.BytesIO()
     np.savez(buf, **arrays)
-    data = buf.getvalue()
-    atomic_write_bytes(path, data)
-    return hashlib.sha256(data).hexdigest()
+    return buf.getvalue()
 
 
 def read_shard(path: Path, expected_sha256: str | None = None) -> dict[str, np.ndarray]:

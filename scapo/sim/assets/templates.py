@@ -1,8 +1,8 @@
 """Category templates: parameter ranges, styles, joint ranges and view ranges, kept as data.
 
-Each category has one TOML file in ``sim_assets/categories/<name>.toml`` (see that folder).
-The directory is found, in order, from the ``SCAPO_SIM_ASSETS`` environment variable or the
-``sim_assets/`` folder of the source checkout the package is imported from.
+Each category has one TOML file in ``scapo/sim_assets/categories/<name>.toml`` (see that folder).
+The templates ship inside the package (package data), so a wheel install or a remote worker (Ray) finds
+them where it imports scapo from; ``$SCAPO_SIM_ASSETS`` points to another folder of templates instead.
 """
 
 from __future__ import annotations
@@ -21,20 +21,21 @@ from scapo.errors import ConfigError
 
 
 def sim_assets_dir() -> Path:
-    """Directory holding the category templates (``.../sim_assets``).
+    """Directory holding the category templates: ``$SCAPO_SIM_ASSETS`` when set, else the package's own
+    ``scapo/sim_assets`` (package data).
 
     Raises:
-        ConfigError: if neither ``$SCAPO_SIM_ASSETS`` nor the checkout's ``sim_assets/`` exists.
+        ConfigError: the folder has no ``categories/`` (a ``$SCAPO_SIM_ASSETS`` pointing elsewhere, or an
+            installation made without the package data).
     """
     env = os.environ.get("SCAPO_SIM_ASSETS")
-    candidates = [Path(env)] if env else []
-    candidates.append(Path(__file__).resolve().parents[3] / "sim_assets")
-    for c in candidates:
-        if (c / "categories").is_dir():
-            return c
+    c = Path(env) if env else Path(__file__).resolve().parents[2] / "sim_assets"
+    if (c / "categories").is_dir():
+        return c
     raise ConfigError(
-        "cannot find the category templates (sim_assets/categories); install scapo from its source "
-        "checkout with 'pip install -e .' or set SCAPO_SIM_ASSETS to the sim_assets folder"
+        f"cannot find the category templates in {c / 'categories'}; "
+        + ("set SCAPO_SIM_ASSETS to a folder holding categories/*.toml" if env else
+           "reinstall scapo ('pip install .'): its package data (scapo/sim_assets) is missing")
     )
 
 
@@ -158,7 +159,7 @@ def parse_template(path: Path) -> CategoryTemplate:
 
 @cache
 def load_template(category: str) -> CategoryTemplate:
-    """The template of ``category`` from ``sim_assets/categories/<category>.toml``.
+    """The template of ``category`` from ``scapo/sim_assets/categories/<category>.toml``.
 
     Raises:
         ConfigError: if the file is missing or malformed.
