@@ -190,7 +190,8 @@ def cmd_train(args) -> int:
 
     ck = train_method(args.method, args.data, args.out, args.preset, progress=not args.no_progress,
                       device=args.device, seed=args.seed)
-    print(f"trained: {ck} (loss curves in {Path(args.out) / 'losses.png'})")
+    if os.environ.get("RANK", "0") == "0":  # under torchrun, rank 0 speaks for the run
+        print(f"trained: {ck} (loss curves in {Path(args.out) / 'losses.png'})")
     return 0
 
 

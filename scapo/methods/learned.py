@@ -18,6 +18,7 @@ This harness does the rest, the same way for every such method, as ``scapo train
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import hashlib
@@ -45,6 +46,7 @@ from scapo.files import (
     write_json,
 )
 from scapo.models.train import plot_losses, resolve_device, truncate_log
+from scapo.nn.engine import DistContext, dist_context, per_rank_threads, run_settings
 from scapo.provenance import usable_cores
 from scapo.registry import Registry
 
@@ -197,10 +199,19 @@ def train_learned(spec: LearnedSpec, data: str | Path, run: str | Path, preset=N
         if foreign:
             raise ConfigError(f"--out {run} is a non-empty folder without a scapo run (holds {', '.join(foreign[:4])}"
                               f"{', ...' if len(foreign) > 4 else ''}); give a new or empty folder")
-    check_output_dir(run, "run folder")
-    with FolderLock(run, "train"):
-        clean_stale_temps(run, any_pid=True)
-        return _train_locked(spec, pc, identity, train, run, dev, progress)
+    ctx = dist_context(dev.type)  # data-parallel under torchrun (scapo.nn.engine); else world 1
+    dev = ctx.device(dev)
+    try:
+        if ctx.is_main:
+            check_output_dir(run, "run folder")
+        with FolderLock(run, "train") if ctx.is_main else contextlib.nullcontext():
+            if ctx.is_main:
+                clean_stale_temps(run, any_pid=True)
+            ctx.barrier()  # the other ranks start once rank 0 holds the folder
+            with run_settings(per_rank_threads(usable_cores(), ctx)):
+                return _train_locked(spec, pc, identity, train, run, dev, progress, ctx)
+    finally:
+        ctx.close()
 
 
 def run_is_current(spec: LearnedSpec, run: str | Path, data: str | Path, preset: str, seed: int | None = None) -> bool:
@@ -238,7 +249,9 @@ def _load_checkpoint(path: Path, device) -> dict | None:
         raise TrainingError(f"checkpoint {path} cannot be read ({e}); delete it to start over") from e
 
 
-def _train_locked(spec: LearnedSpec, pc, identity: dict, train: ArticulationDataset, run: Path, dev, progress) -> Path:
+def _train_locked(spec: LearnedSpec, pc, identity: dict, train: ArticulationDataset, run: Path, dev, progress,
+                  ctx: DistContext | None = None) -> Path:
+    ctx = ctx or DistContext()
     ck_path = run / "checkpoint.pt"
     state = _load_checkpoint(ck_path, dev)
     if state is not None:
@@ -249,8 +262,8 @@ def _train_locked(spec: LearnedSpec, pc, identity: dict, train: ArticulationData
         old = run_identity(run)
         if old is not None:
             _refuse_other(run / "run.json", old, identity)
-    write_json(run / "run.json", identity)
-    torch.set_num_threads(usable_cores())
+    if ctx.is_main:
+        write_json(run / "run.json", identity)
     from scapo.losses.supervised import supervised_fields
 
     fields = list(dict.fromkeys([*spec.fields, *supervised_fields(getattr(pc, "supervision", ""))]))
@@ -259,7 +272,7 @@ def _train_locked(spec: LearnedSpec, pc, identity: dict, train: ArticulationData
     torch.manual_seed(pc.seed)  # parameter initialisation is part of the run's identity
     net = spec.build(train.card, pc).to(dev)
     M = len(tensors["points"])
-    steps = max(1, M // pc.batch_size)
+    steps = max(1, (M // ctx.world) // pc.batch_size)  # per rank: its share of the clouds
     if pc.max_steps_per_epoch:
         steps = min(steps, pc.max_steps_per_epoch)
     opt = torch.optim.Adam(net.parameters(), lr=pc.lr, weight_decay=pc.weight_decay)
@@ -274,7 +287,7 @@ def _train_locked(spec: LearnedSpec, pc, identity: dict, train: ArticulationData
     log_path = run / "log.csv"
     truncate_log(log_path, 1, start)
     bar = None
-    if progress:
+    if progress and ctx.is_main:
         from tqdm import tqdm
 
         bar = tqdm(total=pc.epochs * steps, initial=start * steps, desc=f"train {spec.method} "
@@ -282,36 +295,45 @@ def _train_locked(spec: LearnedSpec, pc, identity: dict, train: ArticulationData
     try:
         for epoch in range(start, pc.epochs):
             t0 = time.perf_counter()
-            _epoch(net, pc, tensors, epoch, steps, opt, sched, log_path, bar, dev)
+            _epoch(net, pc, tensors, epoch, steps, opt, sched, log_path, bar, dev, ctx)
             seconds += time.perf_counter() - t0
             done = epoch == pc.epochs - 1
             extras = None
             if done and spec.extras is not None:
                 net.eval()
                 extras = spec.extras(net, train.arrays(list(spec.extras_fields or spec.fields)))
-            buf = io.BytesIO()
-            torch.save({"model": net.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-                        "epoch": epoch + 1, "done": done, "identity": identity, "identity_hash": _hash(identity),
-                        "seconds": seconds, "extras": extras}, buf)
-            atomic_write_bytes(ck_path, buf.getvalue())
-            plot_losses(log_path, run / "losses.png")
+            if ctx.is_main:  # every rank holds the same network, optimiser and schedule
+                buf = io.BytesIO()
+                torch.save({"model": net.state_dict(), "optimizer": opt.state_dict(),
+                            "scheduler": sched.state_dict(), "epoch": epoch + 1, "done": done, "identity": identity,
+                            "identity_hash": _hash(identity), "seconds": seconds, "extras": extras,
+                            "world_size": ctx.world}, buf)
+                atomic_write_bytes(ck_path, buf.getvalue())
+                plot_losses(log_path, run / "losses.png")
+            ctx.barrier()
     finally:
         if bar is not None:
             bar.close()
-    atomic_write_text(run / "timing.json", json.dumps({"seconds": round(seconds, 1), "device": str(dev)}) + "\n")
+    if ctx.is_main:
+        atomic_write_text(run / "timing.json", json.dumps({"seconds": round(seconds, 1), "device": str(dev),
+                                                           "world_size": ctx.world}) + "\n")
     return ck_path
 
 
-def _epoch(net, pc, tensors: dict, epoch: int, steps: int, opt, sched, log_path: Path, bar, dev) -> None:
+def _epoch(net, pc, tensors: dict, epoch: int, steps: int, opt, sched, log_path: Path, bar, dev,
+           ctx: DistContext | None = None) -> None:
+    ctx = ctx or DistContext()
     seed = pc.seed * 1_000_003 + 10_007 + epoch
     g = torch.Generator().manual_seed(seed)
-    torch.manual_seed(seed)
-    M = len(tensors["points"])
+    torch.manual_seed(seed + 7_919 * ctx.rank)  # the networks' own randomness differs between ranks
     N = tensors["points"].shape[1]
-    order = torch.randperm(M, generator=g)
+    order = torch.randperm(len(tensors["points"]), generator=g)
+    if ctx.active:  # each rank its share, in an order fixed by (seed, epoch, world size)
+        order = order[: len(order) // ctx.world * ctx.world][ctx.rank::ctx.world]
+    M = len(order)
     net.train()
     new_file = not log_path.is_file()
-    with open(log_path, "a", newline="") as f:
+    with open(log_path, "a", newline="") if ctx.is_main else contextlib.nullcontext() as f:
         writer = None
         for step in range(steps):
             idx = order[(step * pc.batch_size) % M:][: pc.batch_size]
@@ -332,10 +354,16 @@ def _epoch(net, pc, tensors: dict, epoch: int, steps: int, opt, sched, log_path:
                                         "training stopped (last good checkpoint kept)")
             opt.zero_grad(set_to_none=True)
             total.backward()
+            ctx.average_gradients(net.parameters())
             if pc.grad_clip:
                 torch.nn.utils.clip_grad_norm_(net.parameters(), pc.grad_clip)
             opt.step()
             sched.step()
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{float(total.detach()):.4f}")
+            if f is None:  # ranks other than 0 write nothing; the log holds rank 0's losses
+                continue
             row = {"stage": 1, "epoch": epoch, "step": step, "lr": sched.get_last_lr()[0],
                    "total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
             if writer is None:
@@ -343,9 +371,6 @@ def _epoch(net, pc, tensors: dict, epoch: int, steps: int, opt, sched, log_path:
                 if new_file:
                     writer.writeheader()
             writer.writerow(row)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(loss=f"{float(total.detach()):.4f}")
 
 
 # ---------------------------------------------------------------------------------------------- predict

@@ -10,6 +10,7 @@ every epoch, with optimiser, schedule and RNG state so that a resumed run gives 
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import hashlib
@@ -40,6 +41,7 @@ from scapo.models.presets import TrainConfig, get_preset
 from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.nn.encoder import EncoderConfig
+from scapo.nn.engine import dist_context, per_rank_threads, run_settings
 from scapo.provenance import usable_cores
 
 
@@ -189,7 +191,9 @@ class Trainer:
         train = load(self.data, "train")
         self.card = train.card
         self.identity = _run_identity(self.preset, self.card)
-        self.device = resolve_device(device or self.preset.device)
+        requested = resolve_device(device or self.preset.device)
+        self.dist = dist_context(requested.type)  # data-parallel under torchrun (scapo.nn.engine); else world 1
+        self.device = self.dist.device(requested)
         self.mcfg = model_config(self.card, self.preset)
         torch.manual_seed(self.preset.seed)  # parameter initialisation is part of the run's identity
         self.model = SCAPOModel(self.mcfg).to(self.device)
@@ -259,10 +263,18 @@ class Trainer:
             ConfigError, OutputError: unusable run folder. TrainingError: see the class docstring.
         """
         self._check_run_folder()
-        check_output_dir(self.run, "run folder")
-        with FolderLock(self.run, "train"):
-            clean_stale_temps(self.run, any_pid=True)
-            return self._train_locked()
+        main = self.dist.is_main
+        if main:
+            check_output_dir(self.run, "run folder")
+        try:
+            with FolderLock(self.run, "train") if main else contextlib.nullcontext():
+                if main:
+                    clean_stale_temps(self.run, any_pid=True)
+                self.dist.barrier()  # the other ranks start once rank 0 holds the folder
+                with run_settings(per_rank_threads(usable_cores(), self.dist)):
+                    return self._train_locked()
+        finally:
+            self.dist.close()
 
     def _train_locked(self) -> Path:
         pc = self.preset
@@ -271,10 +283,11 @@ class Trainer:
             self._check_unstarted_run()
         elif state.get("done"):
             return self._ckpt_path()
-        write_json(self.run / "run.json", json.loads(json.dumps(self.identity, default=str)))
-        torch.set_num_threads(usable_cores())
+        if self.dist.is_main:
+            write_json(self.run / "run.json", json.loads(json.dumps(self.identity, default=str)))
         data = TrainingClouds(self.data, pc.train_points, pc.supervision)
-        steps_per_epoch = len(data) // pc.batch_size if len(data) >= pc.batch_size else 1
+        share = len(data) // self.dist.world  # the clouds each rank sees per epoch
+        steps_per_epoch = share // pc.batch_size if share >= pc.batch_size else 1
         if pc.max_steps_per_epoch:
             steps_per_epoch = min(steps_per_epoch, pc.max_steps_per_epoch)
         start_stage, start_epoch = 1, 0
@@ -285,7 +298,7 @@ class Trainer:
         total = steps_per_epoch * (pc.stage1_epochs + pc.stage2_epochs)
         done_steps = steps_per_epoch * (start_epoch if start_stage == 1 else pc.stage1_epochs + start_epoch)
         bar = None
-        if self.progress:
+        if self.progress and self.dist.is_main:
             from tqdm import tqdm
 
             bar = tqdm(total=total, initial=done_steps, desc=f"train {self.card['category']} ({pc.name})", unit="it",
@@ -315,18 +328,22 @@ class Trainer:
                     done = stage == 2 and epoch == epochs - 1 or (stage == 1 and pc.stage2_epochs == 0
                                                                  and epoch == epochs - 1)
                     nxt = (stage, epoch + 1) if epoch + 1 < epochs else (stage + 1, 0)
-                    self._save({"model": self.model.state_dict(), "optimizer": opt.state_dict(),
-                                "scheduler": sched.state_dict(), "stage": nxt[0], "epoch": nxt[1], "done": done,
-                                "identity": self.identity, "identity_hash": _identity_hash(self.identity),
-                                "model_config": dataclasses.asdict(self.mcfg),
-                                "seconds": before + time.perf_counter() - t0})
-                    plot_losses(log_path, self.run / "losses.png")
+                    if self.dist.is_main:  # every rank holds the same model, optimiser and schedule
+                        self._save({"model": self.model.state_dict(), "optimizer": opt.state_dict(),
+                                    "scheduler": sched.state_dict(), "stage": nxt[0], "epoch": nxt[1], "done": done,
+                                    "identity": self.identity, "identity_hash": _identity_hash(self.identity),
+                                    "model_config": dataclasses.asdict(self.mcfg), "world_size": self.dist.world,
+                                    "seconds": before + time.perf_counter() - t0})
+                        plot_losses(log_path, self.run / "losses.png")
+                    self.dist.barrier()
         finally:
             if bar is not None:
                 bar.close()
         # the training time over every session that trained this run (resumes included)
-        atomic_write_text(self.run / "timing.json", json.dumps({"seconds": round(before + time.perf_counter() - t0, 1),
-                                                                "device": str(self.device)}) + "\n")
+        if self.dist.is_main:
+            atomic_write_text(self.run / "timing.json",
+                              json.dumps({"seconds": round(before + time.perf_counter() - t0, 1),
+                                          "device": str(self.device), "world_size": self.dist.world}) + "\n")
         return self._ckpt_path()
 
     def _params(self, stage: int):
@@ -390,8 +407,9 @@ class Trainer:
         branch, flip, info = fit_branch(torch.cat(Rs), torch.cat(Ss), seed=self.preset.seed)
         self.model.branch.copy_(branch.to(self.model.branch))
         self.model.branch_flip.copy_(flip.to(self.model.branch_flip))
-        write_json(self.run / "branch.json",
-                   {**info, "views": len(idx), "branch": branch.tolist(), "flip": flip.tolist()})
+        if self.dist.is_main:
+            write_json(self.run / "branch.json",
+                       {**info, "views": len(idx), "branch": branch.tolist(), "flip": flip.tolist()})
 
     @torch.no_grad()
     def _init_parts(self, clouds: torch.Tensor, union: torch.Tensor, template: torch.Tensor) -> None:
@@ -419,13 +437,22 @@ class Trainer:
     def _epoch(self, stage, epoch, data, opt, sched, steps, log_path, bar) -> None:
         pc = self.preset
         seed = pc.seed * 1_000_003 + stage * 10_007 + epoch
-        torch.manual_seed(seed)
-        np.random.seed(seed % (2 ** 32))  # noqa: NPY002 - any legacy-numpy randomness in a run is seeded too
-        loader = DataLoader(data, batch_size=pc.batch_size, shuffle=True, drop_last=len(data) >= pc.batch_size,
-                            generator=torch.Generator().manual_seed(seed))
+        rank_seed = seed + 7_919 * self.dist.rank  # augmentations and point subsets differ between ranks
+        torch.manual_seed(rank_seed)
+        np.random.seed(rank_seed % (2 ** 32))  # noqa: NPY002 - any legacy-numpy randomness in a run is seeded too
+        if self.dist.active:  # each rank its share of the clouds, in an order fixed by (seed, epoch, world size)
+            from torch.utils.data.distributed import DistributedSampler
+
+            sampler = DistributedSampler(data, num_replicas=self.dist.world, rank=self.dist.rank, shuffle=True,
+                                         seed=seed, drop_last=True)
+            loader = DataLoader(data, batch_size=pc.batch_size, sampler=sampler,
+                                drop_last=len(data) // self.dist.world >= pc.batch_size)
+        else:
+            loader = DataLoader(data, batch_size=pc.batch_size, shuffle=True, drop_last=len(data) >= pc.batch_size,
+                                generator=torch.Generator().manual_seed(seed))
         self.model.train()
         new_file = not log_path.is_file()
-        with open(log_path, "a", newline="") as f:
+        with open(log_path, "a", newline="") if self.dist.is_main else contextlib.nullcontext() as f:
             writer = None
             for step, batch in enumerate(loader):
                 if step >= steps:
@@ -442,10 +469,16 @@ class Trainer:
                                             f"epoch {epoch}, step {step}; training stopped (last good checkpoint kept)")
                 opt.zero_grad(set_to_none=True)
                 total.backward()
+                self.dist.average_gradients(self.model.parameters())
                 if pc.grad_clip:
                     torch.nn.utils.clip_grad_norm_(self.model.parameters(), pc.grad_clip)
                 opt.step()
                 sched.step()
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(stage=stage, loss=f"{float(total.detach()):.4f}")
+                if f is None:  # ranks other than 0 write nothing; the log holds rank 0's losses
+                    continue
                 row = {"stage": stage, "epoch": epoch, "step": step, "lr": sched.get_last_lr()[0],
                        "total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
                 if writer is None:
@@ -456,9 +489,6 @@ class Trainer:
                     if new_file:
                         writer.writeheader()
                 writer.writerow(row)
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(stage=stage, loss=f"{float(total.detach()):.4f}")
 
 
 def truncate_log(log_csv: Path, stage: int, epoch: int) -> None:

@@ -18,6 +18,7 @@ any spatial dims such as points and neighbours). A rotation ``Q`` acts on dimens
 from __future__ import annotations
 
 import torch
+import torch.distributed
 from torch import nn
 
 from scapo.ops.groups import random_rotation
@@ -93,8 +94,34 @@ class VNBatchNorm(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         norm = (x * x).sum(2).add(EPS * EPS).sqrt()  # (B, C, *S); faster than .norm on the middle dim
         B, C = norm.shape[:2]
-        normed = self.bn(norm.reshape(B, C, -1)).reshape(norm.shape)
-        return x / norm.unsqueeze(2) * normed.unsqueeze(2)
+        flat = norm.reshape(B, C, -1)
+        if self.training and _distributed():
+            normed = self._synced(flat)
+        else:
+            normed = self.bn(flat)
+        return x / norm.unsqueeze(2) * normed.reshape(norm.shape).unsqueeze(2)
+
+    def _synced(self, flat: torch.Tensor) -> torch.Tensor:
+        """Batch norm with statistics over the global batch of a data-parallel run (scapo.nn.engine); the
+        running statistics are updated as ``nn.BatchNorm1d`` does (unbiased variance, momentum)."""
+        from scapo.nn.engine import sync_batch_stats
+
+        bn = self.bn
+        mean, var = sync_batch_stats(flat, (0, 2))
+        out = (flat - mean) / (var + bn.eps).sqrt() * bn.weight[None, :, None] + bn.bias[None, :, None]
+        with torch.no_grad():
+            n = flat.shape[0] * flat.shape[2] * torch.distributed.get_world_size()
+            bn.num_batches_tracked.add_(1)
+            m = bn.momentum if bn.momentum is not None else 1.0 / float(bn.num_batches_tracked)
+            bn.running_mean.mul_(1 - m).add_(m * mean.reshape(-1))
+            bn.running_var.mul_(1 - m).add_(m * var.reshape(-1) * n / max(n - 1, 1))
+        return out
+
+
+def _distributed() -> bool:
+    """A data-parallel run with more than one process (torch.distributed initialised)."""
+    return torch.distributed.is_available() and torch.distributed.is_initialized() and \
+        torch.distributed.get_world_size() > 1
 
 
 class VNLinearLeakyReLU(nn.Module):

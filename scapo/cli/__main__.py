@@ -1,0 +1,7 @@
+"""``python -m scapo.cli ...`` (and ``torchrun --nproc_per_node N -m scapo.cli train ...``): the console script."""
+
+import sys
+
+from scapo.cli.main import main
+
+sys.exit(main())
