@@ -244,6 +244,45 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
     return rows
 
 
+def bench_icp(data: str | Path, limit: int = 0) -> list[dict]:
+    """ICP's two searches (``ICPConfig.search``: "exhaustive", the reference, and "batched") on the same test
+    clouds of ``data`` in one run: ms per cloud, the speed-up over the reference, and what each gets (median
+    part rotation error and mean S under the ``scapo`` protocol), so that a speed-up is seen not to cost
+    accuracy. ``limit``: only the first ``limit`` test clouds (0: all)."""
+    import torch
+
+    from scapo.data.dataset import load
+    from scapo.eval import evaluate
+    from scapo.methods.icp import ICPBaseline
+
+    test = load(data, "test")
+    if limit:
+        test.manifest = test.manifest.iloc[:limit].reset_index(drop=True)
+        test._shard, test._row = test.manifest["shard"].to_numpy(), test.manifest["row"].to_numpy()
+    rows, ref_ms = [], None
+    for search in ("exhaustive", "batched"):
+        m = ICPBaseline(search=search)
+        m.fit(load(data, "train"))
+        t = time.perf_counter()
+        preds = m.predict(test)
+        ms = 1000 * (time.perf_counter() - t) / len(test)
+        ref_ms = ms if ref_ms is None else ref_ms
+        if limit:  # a subset: scored here, the evaluator scores whole splits
+            from scapo.eval.metrics import rotation_error_deg, segmentation_iou
+
+            gt = test.arrays(["part_pose", "part_label"])
+            R = rotation_error_deg(preds.part_pose[..., :3, :3], gt["part_pose"][..., :3, :3])
+            S = 100 * np.mean([np.nanmean(segmentation_iou(p, g, test.num_parts))
+                               for p, g in zip(preds.part_label, gt["part_label"])])
+            summary = {"R_median": float(np.median(R)), "S": float(S)}
+        else:
+            summary = evaluate(data, preds).summary
+        rows.append({"method": "icp", "search": search, "clouds": len(test), "ms_per_cloud": round(ms, 1),
+                     "speedup_vs_exhaustive": round(ref_ms / ms, 2), "R_median": round(summary["R_median"], 2),
+                     "S": round(summary["S"], 2), "threads": torch.get_num_threads()})
+    return rows
+
+
 def bench_method(method: str, preset: str = "cpu", device: str | None = None, data: str | Path | None = None,
                  iters: int = 5, num_points: int = 1024) -> list[dict]:
     """Inference speed of any registered method: ms per cloud at batch 1 (and clouds/s at batch 32 for

@@ -56,3 +56,14 @@ def test_prediction_figure_draws_ground_truth_and_predictions(laptop_data, tmp_p
     img = np.asarray(Image.open(png).convert("L"))
     assert img.shape[0] > 200 and img.shape[1] > 200
     assert img.std() > 5.0  # not blank: points, axes and titles were drawn
+
+
+def test_batched_search_matches_the_exhaustive_one_on_a_small_split(laptop_data):
+    """ICP's batched search (one vectorised ICP over all hypotheses and starts) segments as well as the
+    exhaustive one (within 5 IoU points on four clouds); its speed is measured by scapo bench perf --what icp."""
+    from scapo.perf import bench_icp
+
+    rows = bench_icp(laptop_data, limit=4)
+    ex, ba = rows
+    assert ex["search"] == "exhaustive" and ba["search"] == "batched" and ba["clouds"] == 4
+    assert abs(ba["S"] - ex["S"]) < 5.0 and ba["ms_per_cloud"] > 0

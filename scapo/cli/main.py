@@ -318,7 +318,15 @@ def cmd_bench(args) -> int:
         check_output_dir(args.out, "benchmark output folder")
     from scapo.perf import write_perf
 
-    if args.target == "generate":
+    if args.target == "icp":
+        from scapo.perf import bench_icp
+
+        if args.data is None:
+            raise ConfigError("bench perf --what icp needs --data DATASET (ICP's template comes from its training "
+                              "split)")
+        rows = bench_icp(args.data, limit=args.limit)
+        name = f"icp_{Path(args.data).name}"
+    elif args.target == "generate":
         from scapo.perf import bench_generate
 
         rows = bench_generate(args.category, instances, views, tuple(args.workers), args.seed, args.cache)
@@ -518,7 +526,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "(D+R, R, D, R_median, -S)")
     sp.add_argument("--protocol", default=None, help="choose, table1, table3: evaluation protocol (default scapo); "
                     "table2: default op-align, as the paper's Table 2")
-    sp.add_argument("--what", dest="target", choices=["generate", "model"], default="generate",
+    sp.add_argument("--limit", type=int, default=0, help="perf --what icp: time the first N test clouds (0: all)")
+    sp.add_argument("--what", dest="target", choices=["generate", "model", "icp"], default="generate",
                     help="perf: generation throughput, or SCAPO training/inference speed")
     sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3; a "
                     "method's per-category preset PRESET-CATEGORY is used where it has one)")
