@@ -285,7 +285,8 @@ def _train_locked(spec: LearnedSpec, pc, identity: dict, train: ArticulationData
         sched.load_state_dict(state["scheduler"])
         start, seconds = int(state["epoch"]), float(state.get("seconds", 0.0))
     log_path = run / "log.csv"
-    truncate_log(log_path, 1, start)
+    if ctx.is_main:  # only rank 0 touches the log
+        truncate_log(log_path, 1, start)
     bar = None
     if progress and ctx.is_main:
         from tqdm import tqdm

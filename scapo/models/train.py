@@ -294,7 +294,8 @@ class Trainer:
         if state is not None:
             self.model.load_checkpoint_state(state["model"])
             start_stage, start_epoch = state["stage"], state["epoch"]
-        truncate_log(self.run / "log.csv", start_stage, start_epoch)
+        if self.dist.is_main:  # only rank 0 touches the log
+            truncate_log(self.run / "log.csv", start_stage, start_epoch)
         total = steps_per_epoch * (pc.stage1_epochs + pc.stage2_epochs)
         done_steps = steps_per_epoch * (start_epoch if start_stage == 1 else pc.stage1_epochs + start_epoch)
         bar = None
