@@ -200,6 +200,10 @@ def test_table2_real_style_with_semi_supervised_rows(tmp_path, monkeypatch):
     results = run_table2(["icp", "op-align"], ["laptop"], **kw)
     assert [r.method for r in results] == ["icp", "op-align", "op-align-sj"]
     assert results[2].info["supervision"] == {"pose": False, "segmentation": True, "joint": True}
+    import pandas as pd
+
+    log = pd.read_csv(next((work / "laptop_i10_v2_s0").glob("run_op-align-sj_*")) / "log.csv")
+    assert log[["sup_seg", "sup_joint"]].notna().all().all()  # trained with the labels
     cfg = json.loads((work / "laptop_i10_v2_s0" / "config.json").read_text())
     assert cfg["render"]["sensor"]["kind"] == "realistic" and cfg["render"]["cropped"] == "reject"
     md = (out / "table2_real_style.md").read_text()

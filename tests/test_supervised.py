@@ -55,15 +55,11 @@ def test_supervision_names_marks_and_presets():
     assert _identity_hash(_run_identity(get_preset("cpu/sj"), card)) != _identity_hash(ident)
 
 
-@pytest.mark.parametrize("method", ["scapo", "op-align"])
-def test_semi_supervised_training_uses_the_labels_and_marks_its_predictions(method, laptop_data, tmp_path):
+def test_semi_supervised_training_uses_the_labels_and_marks_its_predictions(laptop_data, tmp_path):
+    """SCAPO with preset test/sj (OP-Align-style's SJ row is trained and marked in tests/test_bench.py)."""
+    method = "scapo"
     run = tmp_path / "run"
-    if method == "scapo":
-        Trainer(laptop_data, run, get_preset("test/sj"), progress=False).train()
-    else:
-        from scapo.methods.op_align import train
-
-        train(laptop_data, run, "test/sj", progress=False)
+    Trainer(laptop_data, run, get_preset("test/sj"), progress=False).train()
     log = pd.read_csv(run / "log.csv")
     assert {"sup_seg", "sup_joint"} <= set(log.columns)
     sup = log.dropna(subset=["sup_seg"])
