@@ -283,6 +283,43 @@ def bench_icp(data: str | Path, limit: int = 0) -> list[dict]:
     return rows
 
 
+def bench_maniskill(category: str = "laptop", instances: int = 4, views: int = 32, num_envs: int | None = None,
+                    seed: int = 0, cache_dir=None) -> list[dict]:
+    """Samples/s of the ManiSkill3 backend (:mod:`scapo.sim.maniskill`; ``num_envs`` views per batch, default
+    64 on a GPU, 1 on CPU) next to the SAPIEN backend on the same jobs (objects, seeds, render settings),
+    measured in one run; the first object of each backend is loaded before timing."""
+    import torch
+
+    from scapo.sim.maniskill import ManiSkillRenderer, render_many_maniskill
+    from scapo.sim.render import Renderer, render_many
+
+    cfg = make_config(category, instances, views, seed)
+    records = build_category(category, instances, seed, cache_dir)
+    from scapo.sim.assets import parse_urdf
+
+    specs = [parse_urdf(r.urdf, category=category) for r in records]
+    jobs = [((i, v), specs[i], sample_seed_key(cfg, i, v)) for i in range(instances) for v in range(views)]
+    num_envs = num_envs or (64 if torch.cuda.is_available() else 1)
+    rows = []
+    sap = Renderer(cfg.render.camera, cfg.render.shader)
+    sap.load(specs[0])
+    t = time.perf_counter()
+    n = sum(1 for _ in render_many(sap, jobs, cfg.render, cfg.view_config))
+    ref = n / (time.perf_counter() - t)
+    sap.close()
+    rows.append({"backend": "sapien", "category": category, "samples": n, "views_per_batch": 1,
+                 "samples_per_s": round(ref, 2), "ratio_vs_sapien": 1.0})
+    ms = ManiSkillRenderer(cfg.render.camera, num_envs=num_envs, shader=cfg.render.shader)
+    ms.load(specs[0])
+    t = time.perf_counter()
+    n = sum(1 for _ in render_many_maniskill(ms, jobs, cfg.render, cfg.view_config))
+    rate = n / (time.perf_counter() - t)
+    ms.close()
+    rows.append({"backend": "maniskill3", "category": category, "samples": n, "views_per_batch": num_envs,
+                 "samples_per_s": round(rate, 2), "ratio_vs_sapien": round(rate / ref, 3)})
+    return rows
+
+
 def bench_method(method: str, preset: str = "cpu", device: str | None = None, data: str | Path | None = None,
                  iters: int = 5, num_points: int = 1024) -> list[dict]:
     """Inference speed of any registered method: ms per cloud at batch 1 (and clouds/s at batch 32 for

@@ -3,7 +3,7 @@
 #  1. Vulkan for SAPIEN: on Debian bookworm without a usable device, Mesa >= 24.3 (lavapipe)
 #     from bookworm-backports (SPEC section 12). Other systems: prints what to install.
 #  2. A virtual environment in .venv (override with SCAPO_VENV), torch 2.13.0 (CPU build) when no
-#     torch is importable, then this package in editable mode with its dev and ray extras.
+#     torch is importable, then this package in editable mode with its dev, ray and maniskill extras.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="${SCAPO_VENV:-$here/.venv}"
@@ -64,8 +64,8 @@ install_python() {
     "$vpy" -m pip install -q --disable-pip-version-check torch==2.13.0 2>&1 | grep -v '^WARNING: Location' || true
     "$vpy" -c "import torch" || { log "ERROR: torch install failed"; return 1; }
   fi
-  log "installing scapo (editable) with dev and ray extras"
-  "$vpy" -m pip install -q --disable-pip-version-check -e "$here[dev,ray]" 2>&1 | grep -v '^WARNING: Location' || true
+  log "installing scapo (editable) with dev, ray and maniskill extras"
+  "$vpy" -m pip install -q --disable-pip-version-check -e "$here[dev,ray,maniskill]" 2>&1 | grep -v '^WARNING: Location' || true
   "$vpy" -c "import scapo, sapien, torch, ray" || { log "ERROR: package install failed"; return 1; }
   echo "$want" > "$stamp"
 }

@@ -318,7 +318,13 @@ def cmd_bench(args) -> int:
         check_output_dir(args.out, "benchmark output folder")
     from scapo.perf import write_perf
 
-    if args.target == "icp":
+    if args.target == "maniskill":
+        from scapo.perf import bench_maniskill
+
+        rows = bench_maniskill(args.category, instances=args.instances or 4, views=args.views or 32,
+                               cache_dir=args.cache)
+        name = f"maniskill_{args.category}"
+    elif args.target == "icp":
         from scapo.perf import bench_icp
 
         if args.data is None:
@@ -527,7 +533,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--protocol", default=None, help="choose, table1, table3: evaluation protocol (default scapo); "
                     "table2: default op-align, as the paper's Table 2")
     sp.add_argument("--limit", type=int, default=0, help="perf --what icp: time the first N test clouds (0: all)")
-    sp.add_argument("--what", dest="target", choices=["generate", "model", "icp"], default="generate",
+    sp.add_argument("--what", dest="target", choices=["generate", "model", "icp", "maniskill"], default="generate",
                     help="perf: generation throughput, or SCAPO training/inference speed")
     sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3; a "
                     "method's per-category preset PRESET-CATEGORY is used where it has one)")
