@@ -307,7 +307,14 @@ class ICPBaseline:
         coarse = self._subsample(obs)
         c_obs, c_tpl = obs.mean(0), self._object_template.mean(0)
         T0 = np.stack([as_transform(R, c_obs - R @ c_tpl) for R in self._hyp])
-        T, sc = self.batched_icp("object", coarse, T0, self.config.batch_iterations)
+        # a few iterations for every hypothesis, then the rest for the best third (most never recover)
+        first = min(3, self.config.batch_iterations)
+        T, sc = self.batched_icp("object", coarse, T0, first)
+        keep = np.argsort(sc, kind="stable")[: max(self.config.refine_top * 4, len(T0) // 3)]
+        if self.config.batch_iterations > first:
+            T, sc = self.batched_icp("object", coarse, T[keep], self.config.batch_iterations - first)
+        else:
+            T, sc = T[keep], sc[keep]
         vis = self._visible_scores("object", T, obs_tree, K)
         kept: list[np.ndarray] = []
         for k in np.argsort(sc + vis, kind="stable"):
