@@ -320,6 +320,48 @@ def bench_maniskill(category: str = "laptop", instances: int = 4, views: int = 3
     return rows
 
 
+def bench_growth(category: str = "laptop", sizes=(100, 1000, 10000), views: int = 10, workers: int = 1,
+                 seed: int = 0, cache_dir=None) -> list[dict]:
+    """How generation and evaluation time grow with the number of samples: for each size, a dataset of
+    ``size / views`` instances x ``views`` views (built assets excluded from the time), then the evaluator on its
+    test split with the ground truth as predictions (the evaluator's own cost, no method's). Each row has the
+    seconds, seconds per sample, and the log-log slope against the previous size (1.0: linear)."""
+    import math
+
+    from scapo.data.dataset import load
+    from scapo.eval import Predictions, evaluate
+
+    rows = []
+    for n in sizes:
+        instances = max(2, int(math.ceil(n / views)))
+        cfg = make_config(category, instances, views, seed, test_fraction=0.5, val_fraction=0.0)
+        build_category(category, instances, seed, cache_dir)  # not timed
+        with tempfile.TemporaryDirectory(prefix="scapo-growth-") as tmp:
+            t = time.perf_counter()
+            generate(cfg, Path(tmp) / "ds", workers=workers, progress=False, cache_dir=cache_dir)
+            gen_s = time.perf_counter() - t
+            ds = load(Path(tmp) / "ds", "test")
+            a = ds.arrays()
+            preds = Predictions(method="oracle", instance_id=a["instance_id"], view_id=a["view_id"],
+                                split=np.full(len(ds), "test"), part_label=a["part_label"], part_pose=a["part_pose"],
+                                joint_parts=a["joint_parts"], joint_type=a["joint_type"], joint_axis=a["joint_axis"],
+                                joint_pivot=a["joint_pivot"], joint_state=a["joint_state"], T_cam_obj=a["T_cam_obj"],
+                                needs_alignment=False, dataset_hash=ds.dataset_hash)
+            t = time.perf_counter()
+            evaluate(Path(tmp) / "ds", preds)
+            ev_s = time.perf_counter() - t
+        row = {"category": category, "samples": instances * views, "test_samples": len(ds), "workers": workers,
+               "generate_s": round(gen_s, 2), "generate_ms_per_sample": round(1000 * gen_s / (instances * views), 2),
+               "evaluate_s": round(ev_s, 3), "evaluate_ms_per_sample": round(1000 * ev_s / max(1, len(ds)), 3)}
+        if rows and row["samples"] > rows[-1]["samples"]:
+            prev = rows[-1]
+            ratio = math.log(row["samples"] / prev["samples"])
+            row["generate_growth_exponent"] = round(math.log(gen_s / prev["generate_s"]) / ratio, 3)
+            row["evaluate_growth_exponent"] = round(math.log(ev_s / max(prev["evaluate_s"], 1e-6)) / ratio, 3)
+        rows.append(row)
+    return rows
+
+
 def bench_method(method: str, preset: str = "cpu", device: str | None = None, data: str | Path | None = None,
                  iters: int = 5, num_points: int = 1024) -> list[dict]:
     """Inference speed of any registered method: ms per cloud at batch 1 (and clouds/s at batch 32 for

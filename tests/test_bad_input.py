@@ -567,3 +567,15 @@ def test_names_are_checked_before_any_work(tmp_path):
     assert_clear_error(cli("bench", "table1", "--categories", "laptop,teapot", "--work", tmp_path / "w"), "bench",
                        "unknown category 'teapot'")
     assert not (tmp_path / "demo").exists() and not (tmp_path / "w").exists()
+
+
+def test_perf_growth_command_writes_its_rows(tmp_path, capsys):
+    """The cost-growth benchmark runs end to end on tiny sizes (its timings are measured by scapo bench perf, not
+    judged here)."""
+    from scapo.cli.main import main
+
+    assert main(["bench", "perf", "--what", "growth", "--sizes", "20,40", "--workers", "1", "--out",
+                 str(tmp_path / "perf")]) == 0
+    rows = json.loads((tmp_path / "perf" / "growth_laptop.json").read_text())["rows"]
+    assert [r["samples"] for r in rows] == [20, 40] and "generate_growth_exponent" in rows[1]
+    assert rows[1]["test_samples"] > 0

@@ -318,7 +318,12 @@ def cmd_bench(args) -> int:
         check_output_dir(args.out, "benchmark output folder")
     from scapo.perf import write_perf
 
-    if args.target == "maniskill":
+    if args.target == "growth":
+        from scapo.perf import bench_growth
+
+        rows = bench_growth(args.category, sizes=tuple(args.sizes), workers=args.workers[0], cache_dir=args.cache)
+        name = f"growth_{args.category}"
+    elif args.target == "maniskill":
         from scapo.perf import bench_maniskill
 
         rows = bench_maniskill(args.category, instances=args.instances or 4, views=args.views or 32,
@@ -533,8 +538,12 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--protocol", default=None, help="choose, table1, table3: evaluation protocol (default scapo); "
                     "table2: default op-align, as the paper's Table 2")
     sp.add_argument("--limit", type=int, default=0, help="perf --what icp: time the first N test clouds (0: all)")
-    sp.add_argument("--what", dest="target", choices=["generate", "model", "icp", "maniskill"], default="generate",
-                    help="perf: generation throughput, or SCAPO training/inference speed")
+    sp.add_argument("--sizes", type=_ints, default=[100, 1000, 10000], help="perf --what growth: dataset sizes")
+    sp.add_argument("--what", dest="target", choices=["generate", "model", "icp", "maniskill", "growth"],
+                    default="generate",
+                    help="perf: generation throughput (generate), SCAPO's or a method's training/inference speed "
+                    "(model), ICP's two searches (icp, with --data), the ManiSkill3 backend against SAPIEN "
+                    "(maniskill), generation and evaluation time against dataset size (growth)")
     sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3; a "
                     "method's per-category preset PRESET-CATEGORY is used where it has one)")
     sp.add_argument("--method", default=None, help="perf --what model: time this method's inference (default: "
