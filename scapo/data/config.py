@@ -177,9 +177,10 @@ def make_config(
     if objects:
         objects = tuple(o if isinstance(o, ObjectSource) else ObjectSource(str(Path(o).resolve())) for o in objects)
         if category is None:
-            from scapo.sim.assets.objects import _meta_category, find_urdf
+            from scapo.sim.assets.objects import find_urdf
+            from scapo.sim.assets.urdf import read_meta_category
 
-            label = _meta_category(find_urdf(objects[0].path).parent) or "object"
+            label = read_meta_category(find_urdf(objects[0].path).parent) or "object"
             category = "".join(c if c.isalnum() or c in "_-." else "_" for c in label.lower())
         instances = len(objects)
         parts = parse_parts(parts) if isinstance(parts, str) else tuple(tuple(p) for p in parts)

@@ -36,9 +36,12 @@ from scapo.sim.render import (
     ViewConfig,
     _reason_key,
     _rejection_hint,
+    part_link_names,
     process_frame,
+    qpos_layout,
     sample_camera_pose,
     sample_state,
+    segmentation_lut,
 )
 
 
@@ -183,25 +186,13 @@ class ManiSkillRenderer:
             self.env.reset(seed=0)
         except Exception as e:  # ManiSkill / SAPIEN raise many kinds for a broken asset or device
             raise RenderError(f"ManiSkill could not build a scene with {spec.urdf}: {e}") from e
-        names = [j.name for j in self.env.object.get_active_joints()]
-        try:
-            self._qindex = np.array([names.index(j.name) for j in spec.gt_joints], dtype=np.int64)
-        except ValueError:
-            raise RenderError(f"{spec.urdf}: ManiSkill's movable joints {names} differ from the URDF's "
-                              f"{[j.name for j in spec.gt_joints]}") from None
-        self._rest = np.zeros(len(names))
-        for j, qi in zip(spec.gt_joints, self._qindex):
-            self._rest[qi] = j.rest_qpos
-        ids = {ln.name: ln._objs[0].entity.per_scene_id for ln in self.env.object.get_links()}
-        lut = np.full(max(ids.values()) + 1, -1, dtype=np.int64)
-        for name, sid in ids.items():
-            lut[sid] = spec.part_of_link.get(name, -1)
-        self.lut = lut
+        self._qindex, self._rest = qpos_layout(spec, [j.name for j in self.env.object.get_active_joints()],
+                                               "ManiSkill")
+        self.lut = segmentation_lut(spec, {ln.name: ln._objs[0].entity.per_scene_id
+                                           for ln in self.env.object.get_links()})
         self.K = np.asarray(self.env._sensors["scapo_camera"].camera.get_intrinsic_matrix()[0].cpu().numpy(),
                             dtype=np.float64)
-        self._part_links = []
-        for p in range(spec.num_parts):
-            self._part_links.append(next(n for n, idx in spec.part_of_link.items() if idx == p))
+        self._part_links = part_link_names(spec)
         self._inv_rest = invert_transform(np.stack([spec.rest_link_poses[ln] for ln in self._part_links]))
         self.spec = spec
 

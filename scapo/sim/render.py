@@ -209,26 +209,12 @@ class Renderer:
         if art is None:
             raise AssetError(f"SAPIEN could not load {spec.urdf} (no articulation returned)")
         art.set_root_pose(self._sapien.Pose(spec.T_obj_root))
-        active = [j.name for j in art.get_active_joints()]
-        try:
-            self._qindex = np.array([active.index(j.name) for j in spec.gt_joints], dtype=np.int64)
-        except ValueError:
-            raise AssetError(f"{spec.urdf}: SAPIEN's movable joints {active} differ from the URDF's "
-                             f"{[j.name for j in spec.gt_joints]}") from None
-        self._rest_qpos = np.zeros(len(active))
-        for j, qi in zip(spec.gt_joints, self._qindex):
-            self._rest_qpos[qi] = j.rest_qpos
+        self._qindex, self._rest_qpos = qpos_layout(spec, [j.name for j in art.get_active_joints()], "SAPIEN",
+                                                    AssetError)
         links = {ln.name: ln for ln in art.get_links()}
-        self._part_links = []
-        for p in range(spec.num_parts):
-            name = next(n for n, idx in spec.part_of_link.items() if idx == p)
-            self._part_links.append(links[name])
+        self._part_links = [links[name] for name in part_link_names(spec)]
         self._inv_rest = invert_transform(np.stack([spec.rest_link_poses[ln.name] for ln in self._part_links]))
-        ids = {ln.name: ln.entity.per_scene_id for ln in art.get_links()}
-        lut = np.full(max(ids.values()) + 1, -1, dtype=np.int64)
-        for name, sid in ids.items():
-            lut[sid] = spec.part_of_link.get(name, -1)
-        self.lut = lut
+        self.lut = segmentation_lut(spec, {ln.name: ln.entity.per_scene_id for ln in art.get_links()})
         self._art, self.spec = art, spec
 
     def unload(self) -> None:
@@ -310,6 +296,37 @@ class Renderer:
     def close(self) -> None:
         self.unload()
         self.scene = None
+
+
+def qpos_layout(spec: ArticulationSpec, active: list[str], engine: str, error=RenderError
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Where each GT joint sits in a simulator's qpos vector (``active``: its movable joint names, in its
+    order) and the rest-state qpos: ``(qindex (J,) int64, rest (len(active),) float64)``.
+
+    Raises:
+        ``error``: the simulator's movable joints are not the URDF's (names both)."""
+    try:
+        qindex = np.array([active.index(j.name) for j in spec.gt_joints], dtype=np.int64)
+    except ValueError:
+        raise error(f"{spec.urdf}: {engine}'s movable joints {active} differ from the URDF's "
+                    f"{[j.name for j in spec.gt_joints]}") from None
+    rest = np.zeros(len(active))
+    for j, qi in zip(spec.gt_joints, qindex):
+        rest[qi] = j.rest_qpos
+    return qindex, rest
+
+
+def part_link_names(spec: ArticulationSpec) -> list[str]:
+    """The link whose pose stands for each part (its first link), part order."""
+    return [next(n for n, idx in spec.part_of_link.items() if idx == p) for p in range(spec.num_parts)]
+
+
+def segmentation_lut(spec: ArticulationSpec, ids: dict[str, int]) -> np.ndarray:
+    """Part index per segmentation id, from link name -> the simulator's per-scene entity id (-1: no part)."""
+    lut = np.full(max(ids.values()) + 1, -1, dtype=np.int64)
+    for name, sid in ids.items():
+        lut[sid] = spec.part_of_link.get(name, -1)
+    return lut
 
 
 def gl_to_cv(position: np.ndarray) -> np.ndarray:

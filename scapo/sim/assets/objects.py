@@ -45,7 +45,12 @@ from scipy.spatial.transform import Rotation
 from scapo.errors import ConfigError, URDFError
 from scapo.files import atomic_write_text
 from scapo.ops.rigid import joint_motion
-from scapo.sim.assets.urdf import MOVABLE, ArticulationSpec, load_partnet_mobility, parse_urdf
+from scapo.sim.assets.urdf import (
+    MOVABLE,
+    ArticulationSpec,
+    load_partnet_mobility,
+    parse_urdf,
+)
 
 #: URDF names tried in an object folder, in order (PartNet-Mobility; ManiSkill's copy also has the others).
 URDF_NAMES = ("mobility.urdf", "mobility_cvx.urdf", "mobility_fixed.urdf")
@@ -158,29 +163,8 @@ def load_object(path: str | Path, category: str | None = None) -> ArticulationSp
     """
     urdf = find_urdf(path)
     if (urdf.parent / "semantics.txt").is_file() or (urdf.parent / "meta.json").is_file():
-        if urdf.name == "mobility.urdf":
-            return load_partnet_mobility(urdf.parent, **({"category": category} if category else {}))
-        names = _semantics(urdf.parent)
-        return parse_urdf(urdf, category=category or _meta_category(urdf.parent), part_names=names)
+        return load_partnet_mobility(urdf.parent, urdf=urdf, category=category)
     return parse_urdf(urdf, category=category)
-
-
-def _semantics(folder: Path) -> dict[str, str]:
-    names = {}
-    sem = folder / "semantics.txt"
-    if sem.is_file():
-        for line in sem.read_text().splitlines():
-            f = line.split()
-            if len(f) >= 3:
-                names[f[0]] = f[2]
-    return names
-
-
-def _meta_category(folder: Path) -> str | None:
-    try:
-        return json.loads((folder / "meta.json").read_text()).get("model_cat")
-    except (OSError, ValueError, AttributeError):
-        return None
 
 
 def describe_parts(spec: ArticulationSpec) -> list[str]:

@@ -421,29 +421,48 @@ def load_partnet_mobility(folder: str | Path, **kwargs) -> ArticulationSpec:
 
     ``folder`` holds ``mobility.urdf`` (meshes under ``textured_objs/``), optionally
     ``semantics.txt`` (lines ``<link> <joint kind> <part label>``, used to name parts) and
-    ``meta.json`` (its ``model_cat`` is the category).
+    ``meta.json`` (its ``model_cat`` is the category). ``urdf=PATH`` names another URDF of the folder (ManiSkill's
+    copy has ``mobility_cvx.urdf``).
 
     Raises:
         URDFError / MissingMeshError: as :func:`parse_urdf`; URDFError if ``mobility.urdf`` is missing.
     """
-    import json
 
     folder = Path(folder)
-    urdf = folder / "mobility.urdf"
+    urdf = Path(kwargs.pop("urdf", None) or folder / "mobility.urdf")
     if not urdf.is_file():
-        raise URDFError(f"{folder}: no mobility.urdf (not a PartNet-Mobility object folder)")
+        raise URDFError(f"{folder}: no {urdf.name} (not a PartNet-Mobility object folder)")
+    category = kwargs.pop("category", None)
+    if category is None:
+        category = read_meta_category(folder)
+    return parse_urdf(urdf, category=category, part_names=read_semantics(folder), **kwargs)
+
+
+def read_semantics(folder: str | Path) -> dict[str, str]:
+    """Link name -> part label from a PartNet-Mobility ``semantics.txt`` (lines ``<link> <joint kind> <label>``);
+    empty without one."""
     names = {}
-    sem = folder / "semantics.txt"
+    sem = Path(folder) / "semantics.txt"
     if sem.is_file():
         for line in sem.read_text().splitlines():
             f = line.split()
             if len(f) >= 3:
                 names[f[0]] = f[2]
-    category = kwargs.pop("category", None)
-    meta = folder / "meta.json"
-    if category is None and meta.is_file():
-        try:
-            category = json.loads(meta.read_text()).get("model_cat")
-        except json.JSONDecodeError as e:
-            raise URDFError(f"{meta}: not valid JSON ({e})") from e
-    return parse_urdf(urdf, category=category, part_names=names, **kwargs)
+    return names
+
+
+def read_meta_category(folder: str | Path) -> str | None:
+    """The ``model_cat`` of a PartNet-Mobility ``meta.json`` (None without one).
+
+    Raises:
+        URDFError: ``meta.json`` is not valid JSON."""
+    import json
+
+    meta = Path(folder) / "meta.json"
+    if not meta.is_file():
+        return None
+    try:
+        d = json.loads(meta.read_text())
+    except json.JSONDecodeError as e:
+        raise URDFError(f"{meta}: not valid JSON ({e})") from e
+    return d.get("model_cat") if isinstance(d, dict) else None
