@@ -13,6 +13,7 @@ STAGES = [
     ("scapo.sim",),
     ("scapo.data",),
     ("scapo.eval",),
+    ("scapo.twin",),
     ("scapo.nn",),
     ("scapo.losses",),
     ("scapo.models",),

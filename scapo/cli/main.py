@@ -171,6 +171,26 @@ def cmd_convert_opalign(args) -> int:
     return 0
 
 
+def cmd_export(args) -> int:
+    from scapo.twin import export_twin
+
+    if (args.pred is None) == (args.run is None):
+        raise ConfigError("give --pred FILE (predictions of the dataset) or --run RUN (a trained run, which predicts "
+                          "the sample's split first)")
+    preds = args.pred if args.run is None else _run_predictions(args.run, args.data)
+    rep = export_twin(args.data, preds, args.sample, args.out, split=args.split)
+    print(f"wrote {rep.urdf} ({len(rep.parts)} links: {', '.join(rep.parts)}; "
+          + ", ".join(f"{j['name']} {j['type']} {j['parent']}->{j['child']}" for j in rep.joints) + ")")
+    return 0
+
+
+def _run_predictions(run, data):
+    """Predictions of a trained run on ``data`` (kept in memory; nothing is written)."""
+    from scapo.methods import method_of_run, run_method
+
+    return run_method(method_of_run(run), data, None, run=run)
+
+
 def cmd_preview(args) -> int:
     from scapo.files import check_output_file
     from scapo.sim.preview import save_preview
@@ -482,6 +502,15 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--joint-types", help="another category: joint types, e.g. 0,1 (0 revolute, 1 prismatic)")
     c.add_argument("--joint-parts", help="another category: parent-child parts per joint, e.g. 0-1,0-2")
     c.set_defaults(func=cmd_convert_opalign)
+
+    sp = sub.add_parser("export", help="export one view's prediction as an articulated model (URDF + meshes)")
+    sp.add_argument("--data", type=Path, required=True)
+    sp.add_argument("--pred", type=Path, default=None, help="predictions file of the dataset (scapo predict)")
+    sp.add_argument("--run", type=Path, default=None, help="or a trained run (predicts the dataset first)")
+    sp.add_argument("--sample", type=int, required=True, help="index of the sample in --split")
+    sp.add_argument("--split", default="test")
+    sp.add_argument("--out", type=Path, required=True, help="the twin folder (mobility.urdf, meshes/, twin.json)")
+    sp.set_defaults(func=cmd_export)
 
     sp = sub.add_parser("preview", help="PNG of dataset samples (re-rendered) with parts coloured and axes drawn")
     sp.add_argument("--data", type=Path, required=True)

@@ -206,7 +206,7 @@ def select_parts(spec: ArticulationSpec, slots: tuple[tuple[str, str], ...], whe
     return chosen
 
 
-def _xyz_rpy(T: np.ndarray) -> tuple[str, str]:
+def origin_strings(T: np.ndarray) -> tuple[str, str]:
     """URDF origin strings of a 4x4 pose (rpy as URDF reads it, see urdf._origin)."""
     with warnings.catch_warnings():  # at pitch +-90 deg scipy warns that roll and yaw are not unique: any pair is
         warnings.simplefilter("ignore", UserWarning)  # fine here, only the composed rotation matters
@@ -274,7 +274,7 @@ def derive_object(source: ObjectSource, slots: tuple[tuple[str, str], ...], scal
             T = v.T_link_visual.copy()
             T[:3, 3] *= s
             ve = ET.SubElement(le, "visual")
-            xyz, rpy = _xyz_rpy(T)
+            xyz, rpy = origin_strings(T)
             ET.SubElement(ve, "origin", xyz=xyz, rpy=rpy)
             ge = ET.SubElement(ve, "geometry")
             ET.SubElement(ge, "mesh", filename=str(Path(v.mesh).resolve()),
@@ -288,7 +288,7 @@ def derive_object(source: ObjectSource, slots: tuple[tuple[str, str], ...], scal
         T[:3, 3] *= s
         jtype = j.type if (movable and j.name in kept) else "fixed"
         je = ET.SubElement(robot, "joint", name=j.name, type=jtype)
-        xyz, rpy = _xyz_rpy(T)
+        xyz, rpy = origin_strings(T)
         ET.SubElement(je, "origin", xyz=xyz, rpy=rpy)
         ET.SubElement(je, "parent", link=j.parent)
         ET.SubElement(je, "child", link=j.child)

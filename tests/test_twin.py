@@ -1,0 +1,116 @@
+"""From one view to a URDF: a twin exported from ground-truth-perfect predictions has the object's joints and
+re-renders like the observation."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from scapo.errors import ConfigError, PredictionError
+from scapo.eval.predictions import Predictions
+from scapo.ops.rigid import invert_transform
+from scapo.sim.assets import load_partnet_mobility
+from scapo.sim.render import RenderConfig, ViewConfig, render_sample
+from scapo.twin import export_twin
+
+pytestmark = pytest.mark.render
+
+
+def oracle(data, split="test"):
+    from scapo.data import load
+
+    ds = load(data, split)
+    a = ds.arrays()
+    return Predictions(method="oracle", instance_id=a["instance_id"], view_id=a["view_id"], split=np.full(len(ds), split),
+                       part_label=a["part_label"], part_pose=a["part_pose"], joint_parts=a["joint_parts"],
+                       joint_type=a["joint_type"], joint_axis=a["joint_axis"], joint_pivot=a["joint_pivot"],
+                       joint_state=a["joint_state"], T_cam_obj=a["T_cam_obj"], dataset_hash=ds.dataset_hash)
+
+
+def rerender(twin_dir, renderer, state=None):
+    """The twin rendered from the observed camera at the predicted state (or ``state``): camera-frame points."""
+    spec = load_partnet_mobility(twin_dir)
+    t = json.loads((twin_dir / "twin.json").read_text())
+    q = np.array([j["state"] for j in t["joints"]]) if state is None else np.asarray(state)
+    rest = np.array([j.rest_qpos for j in spec.gt_joints])
+    T_world_cam = spec.T_obj_root @ invert_transform(np.array(t["T_cam_root"]))
+    cfg = RenderConfig(min_part_fraction=0.0, num_points=4096)
+    s = render_sample(renderer, spec, cfg, ViewConfig(), np.random.default_rng(0), q - rest, T_world_cam)
+    return spec, s["points"].astype(np.float64)
+
+
+def test_twin_of_perfect_predictions_has_the_objects_joints_and_looks_like_the_view(laptop_data, tmp_path, renderer):
+    from scapo.data import load
+    from scapo.sim.assets import build_instance, parse_urdf
+
+    ds = load(laptop_data, "test")
+    rep = export_twin(laptop_data, oracle(laptop_data), 0, tmp_path / "twin")
+    item = ds[0]
+    gt = parse_urdf(build_instance("laptop", item["instance_id"], seed=3).urdf)
+    spec = load_partnet_mobility(tmp_path / "twin")
+    assert spec.num_parts == 2 and spec.joint_type.tolist() == gt.joint_type.tolist()
+    np.testing.assert_allclose(spec.gt_joints[0].axis_obj, gt.gt_joints[0].axis_obj, atol=1e-6)
+    # the axis line is the object's: the GT pivot lies on the twin's axis (both in the rest frame, which the
+    # twin's root frame is for perfect predictions, up to its own bbox centring)
+    twin_pivot = spec.gt_joints[0].pivot_obj - spec.T_obj_root[:3, 3]
+    gt_pivot = gt.gt_joints[0].pivot_obj - gt.T_obj_root[:3, 3]
+    d = twin_pivot - gt_pivot
+    assert np.linalg.norm(d - (d @ gt.gt_joints[0].axis_obj) * gt.gt_joints[0].axis_obj) < 1e-6
+    # re-rendered at the observed state from the observed camera, it covers the observation
+    _, pts = rerender(tmp_path / "twin", renderer)
+    obs = item["points"].astype(np.float64)
+    d_obs, _ = cKDTree(pts).query(obs)
+    assert np.median(d_obs) < 0.01 * item["bbox_diag"] and np.mean(d_obs < 0.03 * item["bbox_diag"]) > 0.9
+    assert rep.parts == ["base", "screen"] and rep.joints[0]["type"] == "revolute"
+    # and it moves like the object: opened 0.3 rad further, both rendered from the observed camera
+    from scapo.sim.render import render_sample as rs
+
+    q = np.array([j["state"] for j in rep.joints]) + 0.3
+    _, twin_pts = rerender(tmp_path / "twin", renderer, state=q)
+    cfg = RenderConfig(min_part_fraction=0.0, num_points=4096)
+    true = rs(renderer, gt, cfg, ViewConfig(), np.random.default_rng(0), item["joint_state"] + 0.3,
+              invert_transform(item["T_cam_obj"]))["points"].astype(np.float64)
+    d1, _ = cKDTree(true).query(twin_pts)
+    assert np.median(d1) < 0.01 * item["bbox_diag"]  # what the twin shows is on the true object
+
+
+def test_three_part_eyeglasses_export(tmp_path):
+    from scapo.data import generate, make_config
+
+    data = tmp_path / "eyeglasses"
+    generate(make_config("eyeglasses", 2, 2, seed=1, test_fraction=0.5, val_fraction=0.0, cropped="keep",
+                         min_part_fraction=0.03), data, progress=False)
+    rep = export_twin(data, oracle(data), 1, tmp_path / "twin")
+    spec = load_partnet_mobility(tmp_path / "twin")
+    assert spec.num_parts == 3 and spec.joint_type.tolist() == [0, 0] and len(rep.joints) == 2
+    from scapo.data import load
+
+    gt_axes = load(data, "test")[1]
+    R0 = np.asarray(rep.T_cam_root)[:3, :3]
+    for j, joint in enumerate(spec.gt_joints):  # the twin's axes, in the camera, are the observed ones
+        np.testing.assert_allclose(R0 @ joint.axis_obj, gt_axes["joint_axis"][j], atol=1e-6)
+
+
+def test_bad_export_inputs(laptop_data, tmp_path):
+    with pytest.raises(ConfigError, match="out of range"):
+        export_twin(laptop_data, oracle(laptop_data), 10_000, tmp_path / "a")
+    preds = oracle(laptop_data)
+    preds.dataset_hash = "f" * 64
+    with pytest.raises(PredictionError, match="not on"):
+        export_twin(laptop_data, preds, 0, tmp_path / "b")
+
+
+def test_cli_export_and_assets_check(laptop_data, tmp_path, capsys):
+    from scapo.cli.main import main
+
+    pred = tmp_path / "p.npz"
+    oracle(laptop_data).save(pred)
+    assert main(["export", "--data", str(laptop_data), "--pred", str(pred), "--sample", "1", "--out",
+                 str(tmp_path / "twin")]) == 0
+    assert "joint0 revolute 0->1" in capsys.readouterr().out
+    assert main(["assets", "check", str(tmp_path / "twin")]) == 0
+    assert "parts=['base', 'screen']" in capsys.readouterr().out
+    assert main(["export", "--data", str(laptop_data), "--pred", str(pred), "--sample", "99", "--out",
+                 str(tmp_path / "t2")]) == 2
+    assert "out of range" in capsys.readouterr().err
