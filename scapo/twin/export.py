@@ -20,7 +20,8 @@ joints; a trained run is not needed once its predictions exist):
   observation (``scapo evaluate --twin`` scores how well it does).
 
 The folder holds ``mobility.urdf``, ``meshes/part<k>.obj``, ``semantics.txt`` (part names) and ``twin.json``,
-the PartNet-Mobility layout, so ``scapo assets check TWIN/`` and ``scapo generate --object TWIN/`` read it.
+the PartNet-Mobility layout, so ``scapo assets check TWIN/`` and ``scapo generate --object TWIN/`` read it;
+``twin.json`` also records which predicted slot matched each GT part on this view (point IoU), for scoring.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ import numpy as np
 
 from scapo.data.dataset import load
 from scapo.errors import ConfigError, PredictionError
+from scapo.eval.metrics import match_parts
 from scapo.eval.predictions import Predictions
 from scapo.files import atomic_write_text, check_output_dir
 from scapo.ops.rigid import invert_transform, normalize, transform_points
@@ -176,6 +178,7 @@ def export_twin(data: str | Path, predictions: str | Path | Predictions, sample:
     twin = {"dataset": str(Path(data).resolve()), "dataset_hash": ds.dataset_hash, "split": split,
             "sample": int(sample), "instance_id": int(item["instance_id"]), "view_id": int(item["view_id"]),
             "method": preds.method, "parts": [names[s] for s in kept], "slots": kept, "joints": joints,
+            "gt_part_slots": match_parts(label, item["part_label"], ds.num_parts, S).tolist(),
             "T_cam_root": pose[0].tolist(), "K": np.asarray(item["K"]).tolist(),
             "image_size": [int(round(2 * item["K"][1, 2])), int(round(2 * item["K"][0, 2]))]}
     atomic_write_text(out / "twin.json", json.dumps(twin, indent=1) + "\n")
