@@ -3,7 +3,8 @@
 #  1. Vulkan for SAPIEN: on Debian bookworm without a usable device, Mesa >= 24.3 (lavapipe)
 #     from bookworm-backports (SPEC section 12). Other systems: prints what to install.
 #  2. A virtual environment in .venv (override with SCAPO_VENV), torch 2.13.0 (CPU build) when no
-#     torch is importable, then this package in editable mode with its dev, ray and maniskill extras.
+#     torch is importable, then this package in editable mode with its dev, ray, maniskill and viewer extras.
+#  3. Chromium (Debian package) for the browser test of the viewer, where apt can install it.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="${SCAPO_VENV:-$here/.venv}"
@@ -64,11 +65,25 @@ install_python() {
     "$vpy" -m pip install -q --disable-pip-version-check torch==2.13.0 2>&1 | grep -v '^WARNING: Location' || true
     "$vpy" -c "import torch" || { log "ERROR: torch install failed"; return 1; }
   fi
-  log "installing scapo (editable) with dev, ray and maniskill extras"
-  "$vpy" -m pip install -q --disable-pip-version-check -e "$here[dev,ray,maniskill]" 2>&1 | grep -v '^WARNING: Location' || true
+  log "installing scapo (editable) with dev, ray, maniskill and viewer extras"
+  "$vpy" -m pip install -q --disable-pip-version-check -e "$here[dev,ray,maniskill,viewer]" 2>&1 | grep -v '^WARNING: Location' || true
   "$vpy" -c "import scapo, sapien, torch, ray" || { log "ERROR: package install failed"; return 1; }
   echo "$want" > "$stamp"
 }
 
+install_chromium() {
+  if command -v chromium >/dev/null || command -v chromium-browser >/dev/null; then log "Chromium present"; return 0; fi
+  if ! command -v apt-get >/dev/null; then log "no Chromium and no apt: the browser test of the viewer is skipped"; return 0; fi
+  local sudo=""
+  if [ "$(id -u)" != 0 ]; then
+    if command -v sudo >/dev/null; then sudo="sudo"; else log "no root: the browser test of the viewer is skipped"; return 0; fi
+  fi
+  log "installing chromium (for the viewer's browser test)"
+  $sudo apt-get update -qq >/dev/null 2>&1 || true
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq chromium >/dev/null 2>&1 \
+    || log "WARNING: chromium could not be installed; the browser test of the viewer is skipped"
+}
+
 install_vulkan
 install_python
+install_chromium

@@ -18,7 +18,7 @@ STAGES = [
     ("scapo.losses",),
     ("scapo.models",),
     ("scapo.methods",),
-    ("scapo.bench", "scapo.perf", "scapo.viz", "scapo.demo"),
+    ("scapo.bench", "scapo.perf", "scapo.viz", "scapo.demo", "scapo.viewer"),
     ("scapo.cli",),
 ]
 

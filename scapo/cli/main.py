@@ -192,6 +192,15 @@ def _run_predictions(run, data):
     return run_method(method_of_run(run), data, None, run=run)
 
 
+def cmd_view(args) -> int:
+    from scapo.viewer import Viewer
+
+    v = Viewer(args.data, args.pred or (), args.twin, split=args.split, host=args.host, port=args.port)
+    print(f"scapo view: open {v.url} in a browser (Ctrl-C stops)", flush=True)
+    v.serve_forever()
+    return 0
+
+
 def cmd_preview(args) -> int:
     from scapo.files import check_output_file
     from scapo.sim.preview import save_preview
@@ -552,6 +561,15 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--split", default="test")
     sp.add_argument("--out", type=Path, required=True, help="the twin folder (mobility.urdf, meshes/, twin.json)")
     sp.set_defaults(func=cmd_export)
+
+    sp = sub.add_parser("view", help="interactive 3-D viewer in the browser (viser): samples, predictions, twins")
+    sp.add_argument("--data", type=Path, required=True)
+    sp.add_argument("--pred", type=Path, nargs="*", default=[], help="predictions files to colour points by")
+    sp.add_argument("--twin", type=Path, default=None, help="a twin folder (scapo export) to show and articulate")
+    sp.add_argument("--split", default="test")
+    sp.add_argument("--host", default="127.0.0.1", help="listen address (0.0.0.0: reachable from other machines)")
+    sp.add_argument("--port", type=int, default=8080)
+    sp.set_defaults(func=cmd_view)
 
     sp = sub.add_parser("preview", help="PNG of dataset samples (re-rendered) with parts coloured and axes drawn")
     sp.add_argument("--data", type=Path, required=True)

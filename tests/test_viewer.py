@@ -1,0 +1,59 @@
+"""The viewer in a real browser: ``scapo view`` on a tiny dataset, loaded by headless Chromium, shows the cloud."""
+
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def screenshot(args, path, size=(900, 700), wait=60.0):
+    """Start ``scapo view ARGS`` on a free port, screenshot its page with headless Chromium, stop it."""
+    port = _free_port()
+    log = path.with_suffix(".log")
+    with open(log, "w") as f:
+        proc = subprocess.Popen([sys.executable, "-m", "scapo.cli", "view", *args, "--port", str(port)], stdout=f,
+                                stderr=subprocess.STDOUT, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    try:
+        t0 = time.time()
+        while "open http" not in log.read_text():
+            assert proc.poll() is None, log.read_text()
+            assert time.time() - t0 < wait, "scapo view did not start"
+            time.sleep(0.5)
+        r = subprocess.run([CHROMIUM, "--headless=new", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
+                            "--use-angle=swiftshader", f"--window-size={size[0]},{size[1]}",
+                            "--virtual-time-budget=20000", f"--screenshot={path}", f"http://127.0.0.1:{port}"],
+                           capture_output=True, text=True, timeout=120)
+        assert path.is_file(), r.stderr[-2000:]
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed (scripts/setup.sh installs it on Debian)")
+def test_viewer_page_shows_the_cloud(laptop_data, tmp_path):
+    import matplotlib.image as mpimg
+
+    shot = tmp_path / "view.png"
+    screenshot(["--data", str(laptop_data)], shot)
+    img = (mpimg.imread(shot)[..., :3] * 255).astype(int)
+    h, w = img.shape[:2]
+    centre = img[h // 5: 4 * h // 5, w // 5: 3 * w // 5]  # the scene, away from the GUI panel
+    r, b = centre[..., 0], centre[..., 2]
+    blue = (b > r + 40).sum()  # the base part's points (PART_COLORS[0], shaded)
+    red = (r > b + 40).sum()  # the screen's
+    assert blue > 100 and red > 100, (blue, red)  # the cloud, coloured by part: not a blank page
+    assert np.mean(centre.sum(-1) < 700) > 0.005
