@@ -210,3 +210,22 @@ def test_training_seed_gives_another_run_and_is_part_of_its_identity(laptop_data
         train(laptop_data, tmp_path / "s0", TEST, progress=False, seed=1)
     preds = run_method("scapo", laptop_data, None, run=tmp_path / "s1")
     assert preds.info["seed"] == 1
+
+
+def test_a_resumed_run_keeps_its_logs_columns(laptop_data, tmp_path):
+    """A run started by a scapo whose log had fewer columns resumes into the same columns (a log with rows of two
+    widths could not be read back)."""
+    import csv
+
+    import pandas as pd
+
+    run = tmp_path / "run"
+    interrupt_at(Trainer(laptop_data, run, TEST, progress=False), 2, 0)
+    with open(run / "log.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    old = [r[:-2] for r in rows]  # as written before the supervised columns existed
+    with open(run / "log.csv", "w", newline="") as f:
+        csv.writer(f).writerows(old)
+    Trainer(laptop_data, run, TEST, progress=False).train()
+    log = pd.read_csv(run / "log.csv")
+    assert list(log.columns) == old[0] and (log["stage"] == 2).any()

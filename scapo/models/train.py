@@ -486,6 +486,9 @@ class Trainer:
                     fields = ["stage", "epoch", "step", "lr", "total", "rec", "ortho", "aug_consist", "can_consist",
                               "align", "consensus", "cycle", "recon", "kp_seg", "seg", "shape_var", "dir_align",
                               "joint_prox", "joint_boundary", "sup_seg", "sup_joint"]
+                    if not new_file:  # a resumed run keeps its log's columns (written by the scapo it started with)
+                        with open(log_path, newline="") as g:
+                            fields = next(csv.reader(g), None) or fields
                     writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
                     if new_file:
                         writer.writeheader()
