@@ -40,7 +40,8 @@ def _picture(renderer: Renderer, spec: ArticulationSpec, state: np.ndarray, T_wo
     renderer.load(spec)
     renderer.set_state(state)
     pts, part_map, _ = renderer.capture(T_world_cam)
-    return pts, part_map >= 0
+    # a degenerate twin surface (a sliver of a hull) can give pixels without a finite position: not seen
+    return pts, (part_map >= 0) & np.isfinite(pts).all(-1)
 
 
 def _compare(a, b, observed: np.ndarray | None, diag: float) -> tuple[float, float, float]:
