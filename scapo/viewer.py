@@ -6,7 +6,7 @@ holds the scene, any browser that opens its URL shows it. In the scene:
 - the sample's cloud, coloured by ground-truth part or by the part of a prediction (``--pred``, several
   allowed; slots matched to GT parts by point IoU on the sample, as the figures do), in the camera frame turned
   so that the camera's -y is up;
-- the GT joint axes (black) and the selected prediction's (magenta), drawn at
+- the GT joint axes (black) and the selected prediction's (magenta) with their pivots (dots), drawn at
   :func:`~scapo.sim.preview.axis_anchor`;
 - with ``--twin``, the exported twin (:mod:`scapo.twin.export`) as meshes placed by its predicted pose in the view
   it was exported from (the viewer starts at that sample), and one slider per joint that articulates it (forward
@@ -125,15 +125,20 @@ class Viewer:
                        (200, 0, 200), self.show_pred.value, diag)
 
     def _axes(self, name, types, axes, pivots, obj, pts, color, visible, diag) -> None:
-        segs = []
+        segs, anchors = [], []
         for t, a, c in zip(types, axes, pivots):
             c = axis_anchor(int(t), a, c, obj)
+            anchors.append(c)
             segs.append([c - 0.3 * diag * np.asarray(a), c + 0.3 * diag * np.asarray(a)])
         if not segs:
             return
         segs = (np.asarray(segs) - pts.mean(0)) @ R_VIEW.T
         self.server.scene.add_line_segments(name, segs.astype(np.float32), np.array(color, dtype=np.uint8),
                                             thickness=0.01 * diag, visible=bool(visible))
+        # the pivots (prismatic joints: where the slide is drawn)
+        self.server.scene.add_point_cloud(f"{name}_pivots", ((np.asarray(anchors) - pts.mean(0)) @ R_VIEW.T)
+                                          .astype(np.float32), np.array(color, dtype=np.uint8),
+                                          point_size=0.03 * diag, point_shape="circle", visible=bool(visible))
 
     # ------------------------------------------------------------------ twin
     def _load_twin(self, folder: Path) -> None:
