@@ -24,11 +24,17 @@ def cropped_share(path: str, split: str, margin: float = 2.0) -> tuple[int, floa
 
 
 if __name__ == "__main__":
+    from scapo.provenance import provenance
+
     print("| dataset | split | views | cropped (%, lower bound) |\n|:--|:--|--:|--:|")
+    hashes = {}
     for d in sys.argv[1:]:
+        hashes[d.rstrip("/").split("/")[-1]] = load(d, "test").dataset_hash[:16]
         for split in ("train", "val", "test"):
             try:
                 n, share = cropped_share(d, split)
             except Exception:  # noqa: BLE001 - a dataset without that split
                 continue
             print(f"| {d.rstrip('/').split('/')[-1]} | {split} | {n} | {100 * share:.1f} |")
+    p = provenance(datasets=hashes)
+    print("\nProvenance: " + ", ".join(f"{k}={p[k]}" for k in ("commit", "time", "datasets") if k in p))
