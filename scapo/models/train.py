@@ -195,8 +195,9 @@ class Trainer:
         self.dist = dist_context(requested.type)  # data-parallel under torchrun (scapo.nn.engine); else world 1
         self.device = self.dist.device(requested)
         self.mcfg = model_config(self.card, self.preset)
-        torch.manual_seed(self.preset.seed)  # parameter initialisation is part of the run's identity
-        self.model = SCAPOModel(self.mcfg).to(self.device)
+        with torch.random.fork_rng(devices=[]):  # the caller's global RNG is left as it was
+            torch.manual_seed(self.preset.seed)  # parameter initialisation is part of the run's identity
+            self.model = SCAPOModel(self.mcfg).to(self.device)
 
     # ------------------------------------------------------------------ checkpoints
     def _ckpt_path(self) -> Path:

@@ -96,8 +96,12 @@ class DistContext:
         return int(t.item())
 
     def close(self) -> None:
+        """Leave the process group this context started (after every rank has arrived here)."""
         if self.started and dist.is_initialized():
-            dist.destroy_process_group()
+            try:
+                dist.barrier()
+            finally:
+                dist.destroy_process_group()
             self.started = False
 
 
