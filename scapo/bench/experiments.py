@@ -257,16 +257,22 @@ def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGO
     """
     cells = table1_cells(methods, categories, preset, seeds, category_seeds)
 
-    def write(results, done, prov):
-        from scapo.eval.tables import write_table1
+    from scapo.eval.tables import write_table1
 
-        paths = write_table1(results, out_dir, prov, name=name, describe=describe)
+    write = _writer(write_table1, name, out_dir, figures, work_dir, instances, views, data_seed)
+    return _bench("scapo bench table1", cells, methods, categories, write, instances, views, data_seed, work_dir,
+                  out_dir, preset, protocol, workers, cache_dir, dry_run, progress, device, finished_only)
+
+
+def _writer(write_table, name, out_dir, figures, work_dir, instances, views, data_seed):
+    """``write(results, done cells, provenance) -> paths`` of a table with its figures (Tables 1 and 2)."""
+    def write(results, done, prov):
+        paths = write_table(results, out_dir, prov, name=name, describe=describe)
         if figures:
             paths += _figures(done, results, work_dir, instances, views, data_seed, prov["protocol"], out_dir, name)
         return paths
 
-    return _bench("scapo bench table1", cells, methods, categories, write, instances, views, data_seed, work_dir,
-                  out_dir, preset, protocol, workers, cache_dir, dry_run, progress, device, finished_only)
+    return write
 
 
 def _bench(title, cells, methods, categories, write, instances, views, data_seed, work_dir, out_dir, preset, protocol,
@@ -364,14 +370,9 @@ def run_table2(methods: Sequence[str], categories: Sequence[str] = TABLE2_CATEGO
     own work folder (the datasets differ from Table 1's)."""
     cells = table2_cells(methods, categories, preset, seeds, category_seeds, sj)
 
-    def write(results, done, prov):
-        from scapo.eval.tables import write_table2
+    from scapo.eval.tables import write_table2
 
-        paths = write_table2(results, out_dir, prov, name=name, describe=describe)
-        if figures:
-            paths += _figures(done, results, work_dir, instances, views, data_seed, prov["protocol"], out_dir, name)
-        return paths
-
+    write = _writer(write_table2, name, out_dir, figures, work_dir, instances, views, data_seed)
     return _bench("scapo bench table2", cells, methods, categories, write, instances, views, data_seed, work_dir,
                   out_dir, preset, protocol, workers, cache_dir, dry_run, progress, device, finished_only,
                   REAL_STYLE_DATA)
