@@ -12,7 +12,12 @@ from pathlib import Path
 
 @lru_cache(maxsize=1)
 def git_commit() -> str:
-    """``<sha>`` of the source checkout, ``<sha>-dirty`` with uncommitted changes, or "unknown"."""
+    """``<sha>`` of the source checkout, ``<sha>-dirty`` with uncommitted changes, or "unknown".
+
+    Taken once per process, at the first call; every ``scapo`` command calls it as it starts (:func:`scapo.cli.
+    main.main`), so a long bench records the commit of the code it loaded, not the state of the checkout
+    hours later when a cell finishes (edits made meanwhile do not run in it).
+    """
     root = Path(__file__).resolve().parents[1]
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,

@@ -35,3 +35,19 @@ def test_generate_predict_evaluate_round_trip(tmp_path, capsys):
     assert main(["preview", "--data", str(d), "--count", "2", "--out", str(tmp_path / "p.png")]) == 0
     assert (tmp_path / "p.png").stat().st_size > 10_000
     assert main(["predict", "--method", "nope", "--data", str(d), "--out", str(tmp_path / "x.npz")]) == 2
+
+
+def test_a_command_takes_its_commit_as_it_starts(capsys, monkeypatch):
+    """Provenance records the commit of the code a process loaded: every command takes it before its work, so
+    edits to the checkout while a long bench runs do not change what its later cells record."""
+    from scapo import provenance
+
+    provenance.git_commit.cache_clear()
+    calls = []
+    monkeypatch.setattr(provenance.subprocess, "run", lambda *a, **k: calls.append(a[0]) or
+                        subprocess.CompletedProcess(a[0], 0, stdout="abc123\n" if "rev-parse" in a[0] else ""))
+    assert main(["list"]) == 0
+    assert ["git", "rev-parse", "HEAD"] in calls  # taken during the command...
+    n = len(calls)
+    assert provenance.provenance()["commit"] == "abc123" and len(calls) == n  # ...and reused afterwards
+    provenance.git_commit.cache_clear()

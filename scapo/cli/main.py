@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from scapo.errors import ConfigError, ScapoError
+from scapo.provenance import git_commit
 
 
 def _ints(text: str) -> list[int]:
@@ -693,6 +694,7 @@ def main(argv: list[str] | None = None) -> int:
     (``SCAPO_DEBUG=1`` shows the traceback).
     """
     args = build_parser().parse_args(argv)
+    git_commit()  # the commit of the code this process loads, recorded in provenance however long it runs
     try:
         return int(args.func(args) or 0)
     except ScapoError as e:
