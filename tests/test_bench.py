@@ -215,3 +215,45 @@ def test_table2_real_style_with_semi_supervised_rows(tmp_path, monkeypatch):
     _forbid(monkeypatch, "train_method", "run_method", "evaluate")
     run_table2(["icp", "op-align"], ["laptop"], **kw)
     assert {s: (out / f"table2_real_style.{s}").read_text() for s in ("csv", "md", "tex")} == before
+
+
+def test_cells_computed_at_a_dirty_commit_are_listed_and_recomputed_on_request(bench, monkeypatch, tmp_path, capsys):
+    """A record naming a -dirty commit (uncommitted code): the dry run flags it; --recompute-dirty moves its
+    files aside (kept) and computes the cell again, leaving the clean cells alone."""
+    import shutil
+
+    import scapo.bench.cells as cells
+    from scapo import provenance
+
+    work, _, _, _ = bench
+    copy = tmp_path / "work"
+    shutil.copytree(work, copy)
+    data = copy / "laptop_i10_v2_s0"
+    for key, commit in (("npcs", "0123456789abcdef-dirty"), ("scapo", "0123456789abcdef")):
+        p = cells.cell_paths(data, Cell(key, "laptop", seed=0, preset="test"), "scapo").record
+        rec = json.loads(p.read_text())
+        rec["provenance"]["commit"] = commit  # whatever the checkout running this test is
+        p.write_text(json.dumps(rec))
+    paths = cells.cell_paths(data, Cell("npcs", "laptop", seed=0, preset="test"), "scapo")
+    plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True, **SMALL)
+    assert {r["key"]: r["status"] for r in plan} == {"npcs_test_s0": "done", "scapo_test_s0": "done"}
+    assert "(computed at 0123456789ab-dirty; --recompute-dirty" in capsys.readouterr().out
+    plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True,
+                      recompute_dirty=True, **SMALL)
+    assert {r["key"]: r["status"] for r in plan} == {"npcs_test_s0": "recompute (dirty)", "scapo_test_s0": "done"}
+    # recomputed as at a clean commit
+    monkeypatch.setattr(cells, "provenance", lambda **kw: {**provenance.provenance(**kw), "commit": "fedcba9876543210"})
+    with pytest.raises(ConfigError, match="use one of them"):
+        run_table1(["npcs"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], finished_only=True,
+                   recompute_dirty=True, **SMALL)
+    trained = []
+    real_train = cells.train_method
+    monkeypatch.setattr(cells, "train_method", lambda m, *a, **k: trained.append(m) or real_train(m, *a, **k))
+    run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], recompute_dirty=True, **SMALL)
+    assert trained == ["npcs"]  # only the dirty cell, from scratch
+    moved = list((data / "dirty").iterdir())
+    assert len(moved) == 1 and {p.name for p in moved[0].iterdir()} >= {"run_npcs_test_s0", "npcs_test_s0.scapo.json"}
+    assert json.loads(paths.record.read_text())["provenance"]["commit"] == "fedcba9876543210"
+    plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True,
+                      recompute_dirty=True, **SMALL)
+    assert {r["key"]: r["status"] for r in plan} == {"npcs_test_s0": "done", "scapo_test_s0": "done"}

@@ -23,7 +23,9 @@ recorded per cell (training: summed over every session that trained the run, fro
 
 A run whose preset's training fields changed since it was trained is stale: the cell is retrained,
 after its old run, predictions and record are moved (never deleted) to
-``<dataset>/stale/<key>-<UTC time>/``.
+``<dataset>/stale/<key>-<UTC time>/``. On request (``recompute_dirty``) a cell whose record names a
+``-dirty`` (or unknown) commit, so that the code that computed it cannot be recovered, is moved aside the
+same way to ``<dataset>/dirty/<key>-<UTC time>/`` and computed again from scratch.
 """
 
 from __future__ import annotations
@@ -174,12 +176,24 @@ def set_aside_stale(paths: CellPaths, cell: Cell) -> Path | None:
     never deleted) so the cell is recomputed; returns that folder, or None when the run is current."""
     if not _stale_run(paths, cell):
         return None
-    dest = paths.run.parent / "stale" / f"{cell.key}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}"
+    return _set_aside(paths, cell, "stale")
+
+
+def _set_aside(paths: CellPaths, cell: Cell, why: str) -> Path:
+    """Move the cell's run, predictions and records into ``<dataset>/<why>/<key>-<UTC time>/``."""
+    dest = paths.run.parent / why / f"{cell.key}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}"
     dest.mkdir(parents=True, exist_ok=False)
     for p in (paths.run, paths.predictions, paths.record, paths.per_sample):
         if p.exists():
             p.rename(dest / p.name)
     return dest
+
+
+def dirty_commit(rec: dict) -> bool:
+    """The record was computed from a checkout with uncommitted changes (``<sha>-dirty``) or outside git
+    (``unknown``): the code behind it cannot be recovered from the history."""
+    commit = str(rec.get("provenance", {}).get("commit", "unknown"))
+    return commit.endswith("-dirty") or commit == "unknown"
 
 
 def _result_of(rec: dict, paths: CellPaths) -> EvalResult:
@@ -192,15 +206,18 @@ def _run_finished(run: Path) -> bool:
     return (run / "timing.json").is_file()
 
 
-def cell_status(data: Path, cell: Cell, protocol: str, dataset_hash: str | None) -> str:
+def cell_status(data: Path, cell: Cell, protocol: str, dataset_hash: str | None,
+                recompute_dirty: bool = False) -> str:
     """What is left of a cell: ``done``, ``evaluate`` (predictions exist), ``predict`` (run trained),
     ``resume training`` (a partial run), ``retrain (stale)`` (its preset's training fields changed
-    since the run was trained) or ``todo`` (nothing yet; also when the dataset is not built)."""
+    since the run was trained), ``recompute (dirty)`` (done at a ``-dirty`` commit, with
+    ``recompute_dirty``) or ``todo`` (nothing yet; also when the dataset is not built)."""
     paths = cell_paths(data, cell, protocol)
     if dataset_hash is None:
         return "todo"
-    if _read_record(paths, dataset_hash) is not None:  # a valid record implies a current run
-        return "done"
+    rec = _read_record(paths, dataset_hash)
+    if rec is not None:  # a valid record implies a current run
+        return "recompute (dirty)" if recompute_dirty and dirty_commit(rec) else "done"
     if _stale_run(paths, cell):
         return "retrain (stale)"
     if paths.predictions.is_file():
@@ -229,8 +246,11 @@ def _predictions_fit(path: Path, dataset_hash: str, cell: Cell, run: Path) -> bo
 
 
 def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
-                 device: str | None = None) -> tuple[EvalResult, dict, bool]:
+                 device: str | None = None, recompute_dirty: bool = False) -> tuple[EvalResult, dict, bool]:
     """Compute (or load) one cell: train, predict, evaluate on the test split of ``data``.
+
+    ``recompute_dirty``: a done cell whose record names a ``-dirty`` or unknown commit is moved aside
+    (``<dataset>/dirty/``, kept) and computed again from scratch (training included).
 
     Returns:
         (the test-split :class:`EvalResult`, the cell's record, whether anything was computed).
@@ -244,6 +264,11 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
     paths = cell_paths(data, cell, protocol)
     dataset_hash = load(data, "test").dataset_hash
     rec = _read_record(paths, dataset_hash)
+    if rec is not None and recompute_dirty and dirty_commit(rec):
+        moved = _set_aside(paths, cell, "dirty")
+        print(f"scapo: {cell.key}: computed at commit {rec['provenance'].get('commit')}; moved it to {moved} and "
+              "computing it again")
+        rec = None
     if rec is not None:
         return _result_of(rec, paths), rec, False
     moved = set_aside_stale(paths, cell)

@@ -122,9 +122,11 @@ def _dataset_hash(data: Path) -> str | None:
         return None
 
 
-def plan(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str) -> list[dict]:
+def plan(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str,
+         recompute_dirty: bool = False) -> list[dict]:
     """One row per cell: category, key, method, seed, preset, status (:func:`cell_status`; ``todo``
-    also when its dataset is not generated yet), and the recorded wall seconds of a done cell."""
+    also when its dataset is not generated yet), the recorded wall seconds of a done cell, and the commit
+    its record names (``-dirty``: computed from a checkout with uncommitted changes)."""
     import json
 
     rows, hashes = [], {}
@@ -132,14 +134,16 @@ def plan(cells: Sequence[Cell], work: Path, instances: int, views: int, data_see
         data = dataset_dir(work, c.category, instances, views, data_seed)
         if data not in hashes:
             hashes[data] = _dataset_hash(data)
-        status = cell_status(data, c, protocol, hashes[data])
-        seconds = math.nan
-        if status == "done":
-            wall = json.loads(cell_paths(data, c, protocol).record.read_text())["wall"]
-            seconds = sum(v for k, v in wall.items() if k.endswith("_s"))
+        status = cell_status(data, c, protocol, hashes[data], recompute_dirty)
+        seconds, commit = math.nan, ""
+        if status in ("done", "recompute (dirty)"):
+            rec = json.loads(cell_paths(data, c, protocol).record.read_text())
+            commit = str(rec.get("provenance", {}).get("commit", "unknown"))
+            if status == "done":
+                seconds = sum(v for k, v in rec["wall"].items() if k.endswith("_s"))
         rows.append({"category": c.category, "key": c.key, "method": c.method, "seed": c.seed, "preset": c.preset,
                      "status": status, "dataset": "generated" if hashes[data] else "to generate",
-                     "seconds": seconds})
+                     "seconds": seconds, "commit": commit})
     return rows
 
 
@@ -147,8 +151,11 @@ def print_plan(rows: list[dict]) -> None:
     """The dry run's listing: one line per cell and a count per status."""
     for r in rows:
         secs = "" if math.isnan(r["seconds"]) else f"{r['seconds'] / 60:7.1f} min"
-        print(f"{r['category']:11s} {r['key']:44s} {r['status']:16s} {secs}"
-              + ("" if r["dataset"] == "generated" else "  (dataset to generate)"))
+        dirty = r.get("commit", "").endswith("-dirty") or r.get("commit") == "unknown"
+        print(f"{r['category']:11s} {r['key']:44s} {r['status']:17s} {secs}"
+              + ("" if r["dataset"] == "generated" else "  (dataset to generate)")
+              + (f"  (computed at {r['commit'][:12]}-dirty; --recompute-dirty computes it again)"
+                 if dirty and r["status"] == "done" else ""))
     counts: dict[str, int] = {}
     for r in rows:
         counts[r["status"]] = counts.get(r["status"], 0) + 1
@@ -166,7 +173,7 @@ REAL_STYLE_DATA = {"sensor": "realistic", "cropped": "reject"}
 
 def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str,
              workers: int, cache_dir, progress: bool, device: str | None, finished_only: bool = False,
-             data_kwargs: dict | None = None):
+             data_kwargs: dict | None = None, recompute_dirty: bool = False):
     """Generate each dataset once (resumes), then compute every cell in order; with ``finished_only``
     nothing is computed and only the cells that are done are returned (the others in ``missing``)."""
     results, records, hashes, done, missing = [], [], {}, [], []
@@ -183,7 +190,8 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
                      workers=workers,
                      progress=progress, cache_dir=cache_dir)
             hashes[c.category] = load(data, "test").dataset_hash
-        res, rec, computed = compute_cell(data, c, protocol, progress=progress, device=device)
+        res, rec, computed = compute_cell(data, c, protocol, progress=progress, device=device,
+                                          recompute_dirty=recompute_dirty)
         s = res.summary
         print(f"{'computed' if computed else 'cached  '} {c.category:11s} {c.key:44s} "
               + " ".join(f"{k}={s[k]:.3f}" for k in ("S", "D", "C", "R", "R_median")), flush=True)
@@ -238,7 +246,7 @@ def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGO
                preset: str = "cpu", seeds: Sequence[int] = (0,), category_seeds: dict | None = None,
                protocol: str = "scapo", workers: int = 1, cache_dir: Path | None = None, name: str = "table1_synthetic",
                dry_run: bool = False, progress: bool = True, device: str | None = None, figures: bool = True,
-               finished_only: bool = False):
+               finished_only: bool = False, recompute_dirty: bool = False):
     """Table 1 on our synthetic data: generate (or reuse) one dataset per category (``data_seed`` draws
     assets, splits and views), train every trained method once per training seed, predict, evaluate
     under ``protocol`` and write ``<name>.{csv,md,tex,json}`` (our rows: mean +- std over seeds; the
@@ -246,6 +254,8 @@ def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGO
 
     ``finished_only``: compute nothing and write the tables of the cells that are done (the others are
     listed under ``missing_cells`` in the provenance), e.g. to commit a bench that outlives a session.
+    ``recompute_dirty``: compute again (from scratch, the old files moved aside) the done cells whose record
+    names a ``-dirty`` or unknown commit (:func:`~scapo.bench.cells.compute_cell`).
 
     Returns:
         The plan rows with ``dry_run`` (nothing is computed or written), else the test-split
@@ -261,7 +271,8 @@ def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGO
 
     write = _writer(write_table1, name, out_dir, figures, work_dir, instances, views, data_seed)
     return _bench("scapo bench table1", cells, methods, categories, write, instances, views, data_seed, work_dir,
-                  out_dir, preset, protocol, workers, cache_dir, dry_run, progress, device, finished_only)
+                  out_dir, preset, protocol, workers, cache_dir, dry_run, progress, device, finished_only,
+                  recompute_dirty=recompute_dirty)
 
 
 def _writer(write_table, name, out_dir, figures, work_dir, instances, views, data_seed):
@@ -276,18 +287,20 @@ def _writer(write_table, name, out_dir, figures, work_dir, instances, views, dat
 
 
 def _bench(title, cells, methods, categories, write, instances, views, data_seed, work_dir, out_dir, preset, protocol,
-           workers, cache_dir, dry_run, progress, device, finished_only, data_kwargs=None):
+           workers, cache_dir, dry_run, progress, device, finished_only, data_kwargs=None, recompute_dirty=False):
     """What both tables do: check names and outputs, list the cells (dry run) or compute them, and
     ``write(results, done cells, provenance) -> paths`` into ``out_dir``."""
+    if finished_only and recompute_dirty:
+        raise ConfigError("--finished-only computes nothing and --recompute-dirty recomputes cells: use one of them")
     protocol = _check(methods, categories, protocol, None if dry_run else work_dir,
                       None if dry_run else out_dir)
     if dry_run:
-        rows = plan(cells, work_dir, instances, views, data_seed, protocol)
+        rows = plan(cells, work_dir, instances, views, data_seed, protocol, recompute_dirty)
         print_plan(rows)
         return rows
     results, records, hashes, done, missing = _compute(cells, work_dir, instances, views, data_seed, protocol,
                                                        workers, cache_dir, progress, device, finished_only,
-                                                       data_kwargs)
+                                                       data_kwargs, recompute_dirty)
     if out_dir is not None:
         prov = _provenance(title, done, records, hashes, instances, views, data_seed, protocol, preset, missing)
         for p in write(results, done, prov):
@@ -320,7 +333,8 @@ def run_table3(categories: Sequence[str] = ("laptop", "eyeglasses"), instances: 
                preset: str = "cpu", seeds: Sequence[int] = (0,), category_seeds: dict | None = None,
                protocol: str = "scapo", workers: int = 1, cache_dir: Path | None = None,
                name: str = "table3_ablation", dry_run: bool = False, progress: bool = True,
-               device: str | None = None, ablations: Sequence[str] | None = None, finished_only: bool = False):
+               device: str | None = None, ablations: Sequence[str] | None = None, finished_only: bool = False,
+               recompute_dirty: bool = False):
     """The paper's Table 3 on our data: SCAPO full and without each of L_shape-var, L_dir-align,
     L_joint-prox, L_joint-boundary, per category and training seed; writes
     ``<name>.{csv,md,tex,json}`` (:func:`scapo.eval.tables.write_table3`). Same machinery, work folder
@@ -331,7 +345,7 @@ def run_table3(categories: Sequence[str] = ("laptop", "eyeglasses"), instances: 
     return _bench("scapo bench table3", cells, ["scapo"], categories,
                   lambda results, done, prov: write_table3(results, out_dir, prov, name=name), instances, views,
                   data_seed, work_dir, out_dir, preset, protocol, workers, cache_dir, dry_run, progress, device,
-                  finished_only)
+                  finished_only, recompute_dirty=recompute_dirty)
 
 
 #: The paper's Table 2 categories (OP-Align's real data), rendered from our procedural objects.
@@ -360,7 +374,8 @@ def run_table2(methods: Sequence[str], categories: Sequence[str] = TABLE2_CATEGO
                preset: str = "cpu", seeds: Sequence[int] = (0,), category_seeds: dict | None = None,
                protocol: str = "op-align", workers: int = 1, cache_dir: Path | None = None,
                name: str = "table2_real_style", dry_run: bool = False, progress: bool = True,
-               device: str | None = None, finished_only: bool = False, sj: bool = True, figures: bool = True):
+               device: str | None = None, finished_only: bool = False, sj: bool = True, figures: bool = True,
+               recompute_dirty: bool = False):
     """The paper's Table 2 in real-world style on our data: the categories of OP-Align's real scans rendered
     from our procedural objects with the realistic sensor (:mod:`scapo.sim.sensor`; cropped views
     rejected), every method of ``methods`` and, with ``sj``, the semi-supervised rows of OP-Align-style and
@@ -375,4 +390,4 @@ def run_table2(methods: Sequence[str], categories: Sequence[str] = TABLE2_CATEGO
     write = _writer(write_table2, name, out_dir, figures, work_dir, instances, views, data_seed)
     return _bench("scapo bench table2", cells, methods, categories, write, instances, views, data_seed, work_dir,
                   out_dir, preset, protocol, workers, cache_dir, dry_run, progress, device, finished_only,
-                  REAL_STYLE_DATA)
+                  REAL_STYLE_DATA, recompute_dirty)

@@ -445,7 +445,8 @@ def cmd_bench_table(args) -> int:
                   category_seeds=parse_category_seeds(args.category_seeds),
                   protocol=args.protocol or ("op-align" if args.what == "table2" else "scapo"),
                   workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run,
-                  progress=not args.no_progress, device=args.device, finished_only=args.finished_only)
+                  progress=not args.no_progress, device=args.device, finished_only=args.finished_only,
+                  recompute_dirty=args.recompute_dirty)
     if args.what == "table1":
         run_table1(methods=args.methods or table_methods(), categories=args.categories or list(TABLE1_CATEGORIES),
                    name=args.name or "table1_synthetic", **common)
@@ -658,6 +659,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "nothing")
     sp.add_argument("--finished-only", action="store_true", help="table1/3: compute nothing; write the tables of the "
                     "cells that are done (the others are listed in the provenance)")
+    sp.add_argument("--recompute-dirty", action="store_true", help="table1/2/3: compute again, from scratch, the done "
+                    "cells whose record names a -dirty commit (computed from uncommitted code; the old files are "
+                    "moved to <dataset>/dirty/)")
     sp.add_argument("--name", default=None, help="table1/3: file name stem (table1_synthetic, table3_ablation)")
     sp.add_argument("--no-progress", action="store_true")
     sp.add_argument("--out", type=Path, default=None, help="write result files here (table1/3: default results/)")
