@@ -371,9 +371,9 @@ class ICPBaseline:
         starts_of = np.zeros((C, P, 4, 4))
         for p in range(P):
             obs = pts[gl == p]
-            c = obs.mean(0)
+            centre = obs.mean(0)  # perturbations turn about the part's centroid, as in register_part
             R0 = np.einsum("lij,cjk->clik", self._local, cands[:, :3, :3]).reshape(-1, 3, 3)
-            t0 = (np.einsum("lij,cj->cli", self._local, cands[:, :3, 3] - c) + c).reshape(-1, 3)
+            t0 = (np.einsum("lij,cj->cli", self._local, cands[:, :3, 3] - centre) + centre).reshape(-1, 3)
             starts = np.tile(np.eye(4), (C * L, 1, 1))
             starts[:, :3, :3], starts[:, :3, 3] = R0, t0
             T, sc = self.batched_icp(p, self._subsample(obs), starts, self.config.batch_iterations)
