@@ -37,6 +37,9 @@ def nearest_centroid_s(points: np.ndarray, labels: np.ndarray, num_parts: int) -
 if __name__ == "__main__":
     from scapo.provenance import provenance
 
+    print("# Nearest-keypoint segmentation: its best S (keypoints at each view's true part centroids)\n\n"
+          "Written by `.venv/bin/python bench/seg_ceiling.py DATASET ...` (see its docstring). The learned "
+          "segmentation's S is in the tables beside this file.\n")
     print("| dataset | split | views | S observed (%) | S rest / NPCS (%) | moving-part share of points |\n"
           "|:--|:--|--:|--:|--:|--:|")
     hashes = {}
