@@ -9,7 +9,10 @@ from the ground truth of that very view (an oracle keypoint set), in two frames:
 SCAPO's ``L_seg`` (paper Sec. 3.3) trains the skinning weights towards exactly this labelling (each point to
 its nearest keypoint), and our initial part split (``scapo.models.part_init``) is a nearest-keypoint split,
 so these numbers bound what those terms can teach: a Voronoi cell of two points is a half-space, which cannot
-cut a small door flush with a large body. Usage: ``.venv/bin/python bench/seg_ceiling.py DATASET
+cut a small door flush with a large body. Beside them, the same oracle with Gaussian bones, the form of the
+paper's skinning field (Sec. 3.2: each part a Gaussian, centre and covariance ``Q^-1 = V^T Lambda^-1 V`` fitted
+to the view's true part points; every point to the part of highest likelihood, Mahalanobis distance plus
+log-determinant): what a segmentation label built from the bones' shapes could teach instead. Usage: ``.venv/bin/python bench/seg_ceiling.py DATASET
 [DATASET ...]``; prints Markdown.
 """
 
@@ -34,14 +37,34 @@ def nearest_centroid_s(points: np.ndarray, labels: np.ndarray, num_parts: int) -
     return 100.0 * float(np.mean(out))
 
 
+def gaussian_bone_s(points: np.ndarray, labels: np.ndarray, num_parts: int) -> float:
+    """As :func:`nearest_centroid_s` with each part a Gaussian fitted to the view's true part points."""
+    out = []
+    for x, lab in zip(points.astype(np.float64), labels):
+        obj = lab >= 0
+        cost = np.full((int(obj.sum()), num_parts), np.inf)
+        for p in range(num_parts):
+            q = x[lab == p]
+            if len(q) < 4:
+                continue
+            cov = np.cov(q.T)
+            cov += 1e-6 * np.trace(cov) * np.eye(3)  # flat parts: a tiny isotropic floor keeps it invertible
+            dx = x[obj] - q.mean(0)
+            cost[:, p] = np.einsum("ni,ij,nj->n", dx, np.linalg.inv(cov), dx) + np.log(np.linalg.det(cov))
+        pred = np.full_like(lab, -1)
+        pred[obj] = cost.argmin(1)
+        out.append(np.nanmean(segmentation_iou(pred, lab, num_parts)))
+    return 100.0 * float(np.mean(out))
+
+
 if __name__ == "__main__":
     from scapo.provenance import provenance
 
-    print("# Nearest-keypoint segmentation: its best S (keypoints at each view's true part centroids)\n\n"
+    print("# Segmentation ceilings: nearest keypoint and Gaussian bones at each view's true parts\n\n"
           "Written by `.venv/bin/python bench/seg_ceiling.py DATASET ...` (see its docstring). The learned "
           "segmentation's S is in the tables beside this file.\n")
-    print("| dataset | split | views | S observed (%) | S rest / NPCS (%) | moving-part share of points |\n"
-          "|:--|:--|--:|--:|--:|--:|")
+    print("| dataset | split | views | nearest keypoint: S observed (%) | S rest / NPCS (%) | Gaussian bones: S "
+          "observed (%) | S rest / NPCS (%) | moving-part share of points |\n|:--|:--|--:|--:|--:|--:|--:|--:|")
     hashes = {}
     for d in sys.argv[1:]:
         name = d.rstrip("/").split("/")[-1]
@@ -50,8 +73,8 @@ if __name__ == "__main__":
             ds = load(d, split)
             a = ds.arrays(["points", "npcs", "part_label"])
             moving = np.mean([(lab[lab >= 0] > 0).mean() for lab in a["part_label"]])
-            s_obs = nearest_centroid_s(a["points"], a["part_label"], ds.num_parts)
-            s_rest = nearest_centroid_s(a["npcs"], a["part_label"], ds.num_parts)
-            print(f"| {name} | {split} | {len(ds)} | {s_obs:.1f} | {s_rest:.1f} | {moving:.2f} |")
+            s = [f(a[k], a["part_label"], ds.num_parts) for f in (nearest_centroid_s, gaussian_bone_s)
+                 for k in ("points", "npcs")]
+            print(f"| {name} | {split} | {len(ds)} | " + " | ".join(f"{v:.1f}" for v in s) + f" | {moving:.2f} |")
     p = provenance(datasets=hashes)
     print("\nProvenance: " + ", ".join(f"{k}={p[k]}" for k in ("commit", "time", "datasets") if k in p))
