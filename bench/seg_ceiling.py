@@ -10,9 +10,9 @@ SCAPO's ``L_seg`` (paper Sec. 3.3) trains the skinning weights towards exactly t
 its nearest keypoint), and our initial part split (``scapo.models.part_init``) is a nearest-keypoint split,
 so these numbers bound what those terms can teach: a Voronoi cell of two points is a half-space, which cannot
 cut a small door flush with a large body. Beside them, the same oracle with Gaussian bones, the form of the
-paper's skinning field (Sec. 3.2: each part a Gaussian, centre and covariance ``Q^-1 = V^T Lambda^-1 V`` fitted
-to the view's true part points; every point to the part of highest likelihood, Mahalanobis distance plus
-log-determinant): what a segmentation label built from the bones' shapes could teach instead. Usage: ``.venv/bin/python bench/seg_ceiling.py DATASET
+paper's skinning field (Sec. 3.2: each part a Gaussian; here its centre and covariance are fitted to the view's
+true part points and ``Q`` is the inverse covariance; every point goes to the part of highest likelihood,
+Mahalanobis distance plus log-determinant): what a segmentation label built from the bones' shapes could teach instead. Usage: ``.venv/bin/python bench/seg_ceiling.py DATASET
 [DATASET ...]``; prints Markdown.
 """
 
