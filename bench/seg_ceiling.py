@@ -12,8 +12,8 @@ so these numbers bound what those terms can teach: a Voronoi cell of two points 
 cut a small door flush with a large body. Beside them, the same oracle with Gaussian bones, the form of the
 paper's skinning field (Sec. 3.2: each part a Gaussian; here its centre and covariance are fitted to the view's
 true part points and ``Q`` is the inverse covariance; every point goes to the part of highest likelihood,
-Mahalanobis distance plus log-determinant): what a segmentation label built from the bones' shapes could teach instead. Usage: ``.venv/bin/python bench/seg_ceiling.py DATASET
-[DATASET ...]``; prints Markdown.
+Mahalanobis distance plus log-determinant): what a segmentation label built from the bones' shapes could
+teach instead. Usage: ``.venv/bin/python bench/seg_ceiling.py DATASET [DATASET ...]``; prints Markdown.
 """
 
 import sys
