@@ -125,7 +125,8 @@ def get_preset(name: str) -> TrainConfig:
     (:data:`ADDITIONS`, e.g. ``branch_flip``) set to False; its ``name`` is the full string, so runs
     and tables name the ablation. The paper's Table 3 rows are ``cpu/no-shape_var``, ``cpu/no-dir_align``,
     ``cpu/no-joint_prox`` and ``cpu/no-joint_boundary`` (or with ``paper``). A part ``sj`` (or ``s``, ``j``)
-    trains with those labels (``TrainConfig.supervision``, the paper's Table 2 setting), e.g. ``cpu/sj``.
+    trains with those labels (``TrainConfig.supervision``, the paper's Table 2 setting), e.g. ``cpu/sj``; a
+    part ``seg-gaussian`` takes ``L_seg``'s targets from Gaussian parts (``LossConfig.seg_labels``).
 
     Raises:
         UnknownNameError: an unknown base preset or regulariser (the message lists the known ones).
@@ -139,9 +140,13 @@ def get_preset(name: str) -> TrainConfig:
         return cfg
     disabled = list(cfg.losses.disabled)
     off = {}
+    seg_labels = cfg.losses.seg_labels
     for part in parts:
         if part.upper() in ("S", "J", "SJ"):  # the semi-supervised setting of Table 2
             off["supervision"] = part.upper()
+            continue
+        if part == "seg-gaussian":  # L_seg's targets from Gaussian parts (LossConfig.seg_labels; our addition)
+            seg_labels = "gaussian"
             continue
         term = part[3:] if part.startswith("no-") else None
         if term in ADDITIONS:
@@ -152,7 +157,8 @@ def get_preset(name: str) -> TrainConfig:
                                    f"{', '.join(REGULARISERS + ADDITIONS)} (e.g. {base}/no-shape_var)")
         if term not in disabled:
             disabled.append(term)
-    return replace(cfg, name=str(name), losses=replace(cfg.losses, disabled=tuple(disabled)), **off)
+    return replace(cfg, name=str(name), losses=replace(cfg.losses, disabled=tuple(disabled), seg_labels=seg_labels),
+                   **off)
 
 
 def list_presets() -> list[str]:

@@ -141,6 +141,8 @@ INFERENCE_FIELDS = ("refine",)
 #: preset fields added after runs were trained, with the value those runs had: at that value a field is
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0}
+#: the same for fields added to the preset's LossConfig
+LOSS_ADDED_FIELDS = {"seg_labels": "nearest"}
 
 
 def _run_identity(preset: TrainConfig, card: dict) -> dict:
@@ -150,8 +152,12 @@ def _run_identity(preset: TrainConfig, card: dict) -> dict:
 
 def _training_identity(identity: dict) -> dict:
     """``identity`` without the preset's inference-only fields (what decides whether a checkpoint fits)."""
-    return {**identity, "preset": {k: v for k, v in identity.get("preset", {}).items()
-                                   if k not in INFERENCE_FIELDS and not (k in ADDED_FIELDS and v == ADDED_FIELDS[k])}}
+    preset = {k: v for k, v in identity.get("preset", {}).items()
+              if k not in INFERENCE_FIELDS and not (k in ADDED_FIELDS and v == ADDED_FIELDS[k])}
+    if isinstance(preset.get("losses"), dict):
+        preset["losses"] = {k: v for k, v in preset["losses"].items()
+                            if not (k in LOSS_ADDED_FIELDS and v == LOSS_ADDED_FIELDS[k])}
+    return {**identity, "preset": preset}
 
 
 def _identity_hash(obj: dict) -> str:
