@@ -257,3 +257,17 @@ def test_cells_computed_at_a_dirty_commit_are_listed_and_recomputed_on_request(b
     plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True,
                       recompute_dirty=True, **SMALL)
     assert {r["key"]: r["status"] for r in plan} == {"npcs_test_s0": "done", "scapo_test_s0": "done"}
+
+
+def test_table2_per_category_render_settings_leave_the_other_datasets_alone():
+    """Table 2's exception for basket (thin handles: a lower visibility threshold) changes basket's config only;
+    every other category keeps the config hash of the datasets made before the exception existed."""
+    from scapo.bench.experiments import REAL_STYLE_CATEGORY_DATA, REAL_STYLE_DATA, data_settings
+    from scapo.data.config import make_config
+
+    assert data_settings("basket", REAL_STYLE_DATA, REAL_STYLE_CATEGORY_DATA)["min_part_fraction"] == 0.03
+    for cat in ("drawer", "laptop", "scissors", "suitcase"):
+        kw = data_settings(cat, REAL_STYLE_DATA, REAL_STYLE_CATEGORY_DATA)
+        assert kw == REAL_STYLE_DATA
+        assert make_config(cat, 80, 16, 1, **kw).to_json() == make_config(cat, 80, 16, 1, **REAL_STYLE_DATA).to_json()
+    assert data_settings("laptop") == {"cropped": "keep"}  # Tables 1 and 3: as before
