@@ -368,9 +368,9 @@ class ICPBaseline:
         cands = self._batched_object_candidates(
             obj, K, small_gicp.KdTree(self._subsample(obj, self.config.batch_object_points)))
         C, L, P = len(cands), len(self._local), len(self.templates)
+        parts = [pts[gl == p] for p in range(P)]
         starts_of = np.zeros((C, P, 4, 4))
-        for p in range(P):
-            obs = pts[gl == p]
+        for p, obs in enumerate(parts):
             centre = obs.mean(0)  # perturbations turn about the part's centroid, as in register_part
             R0 = np.einsum("lij,cjk->clik", self._local, cands[:, :3, :3]).reshape(-1, 3, 3)
             t0 = (np.einsum("lij,cj->cli", self._local, cands[:, :3, 3] - centre) + centre).reshape(-1, 3)
@@ -380,11 +380,10 @@ class ICPBaseline:
             fit = (sc + self._visible_scores(p, T, small_gicp.KdTree(obs), K)).reshape(C, L)
             starts_of[:, p] = T.reshape(C, L, 4, 4)[np.arange(C), fit.argmin(1)]
         best = None
-        trees = [cKDTree(pts[gl == p]) for p in range(P)]
+        trees = [cKDTree(obs) for obs in parts]
         for c in range(C):
             total, poses = 0.0, []
-            for p in range(P):
-                obs = pts[gl == p]
+            for p, obs in enumerate(parts):
                 T, score = self._align(p, obs, starts_of[c, p], self.config.max_iterations)
                 total += len(obs) * (score + self._visible_score(p, T, obs, K, trees[p]))
                 poses.append(T)
