@@ -38,3 +38,14 @@ def test_grid_rejects_bad_input():
         ClosestPointGrid(np.zeros((4, 3)), 0.0, 0.05)
     with pytest.raises(ValueError, match="larger cell"):
         ClosestPointGrid(np.array([[0.0, 0, 0], [10.0, 10, 10]]), 0.001, 0.05)
+
+
+def test_icp_refuses_a_grid_cell_too_small_for_memory(laptop_data):
+    from scapo.data import load
+    from scapo.errors import ConfigError
+    from scapo.methods.icp import ICPBaseline
+
+    m = ICPBaseline(search="batched", grid_cell=1e-4)
+    m.fit(load(laptop_data, "train"))
+    with pytest.raises(ConfigError, match="grid_cell=0.0001.*larger cell"):
+        m._grid("object")

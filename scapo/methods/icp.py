@@ -247,8 +247,11 @@ class ICPBaseline:
     def _grid(self, key) -> ClosestPointGrid:
         """The closest-point grid of template ``key`` ("object" or a part index), built at first use."""
         if key not in self._grids:
-            self._grids[key] = ClosestPointGrid(self._index[key][2].data, self.config.grid_cell * self.scale,
-                                                self.config.max_correspondence * self.scale)
+            try:
+                self._grids[key] = ClosestPointGrid(self._index[key][2].data, self.config.grid_cell * self.scale,
+                                                    self.config.max_correspondence * self.scale)
+            except ValueError as e:  # e.g. a grid_cell so small that the grid would not fit in memory
+                raise ConfigError(f"ICP option grid_cell={self.config.grid_cell}: {e}") from None
         return self._grids[key]
 
     def batched_icp(self, key, src: np.ndarray, T0: np.ndarray, iters: int) -> tuple[np.ndarray, np.ndarray]:
