@@ -102,6 +102,31 @@ def test_op_align_scores_the_pivot_of_a_prismatic_joint_and_scapo_does_not(drawe
         assert op.per_sample["C_j0"].iloc[k] == pytest.approx(shift_m * 0.25 / mcd, rel=1e-6)
 
 
+def test_op_align_leaves_background_points_out_of_the_iou_and_scapo_counts_them(tmp_path):
+    """Real-world-style clouds hold background points (GT -1). OP-Align's code scores real scans on the object
+    points only (art_metric.py evaluation_segmentation with noise_exist); the scapo protocol counts a background
+    point predicted as a part against that part. One protocol rule, the same for every method."""
+    data = tmp_path / "real"
+    generate(make_config("laptop", 2, 2, seed=3, sensor="realistic", test_fraction=0.5, val_fraction=0.0), data,
+             progress=False)
+    gt = load(data, "test").arrays()["part_label"]
+    assert (gt < 0).any() and (gt >= 0).any()
+
+    def background_as_part0(arrays, a):
+        arrays["part_label"] = np.where(a["part_label"] >= 0, arrays["part_label"], 0)
+
+    clean = ground_truth_predictions(data)  # background predicted as -1: perfect under both
+    grabbing = ground_truth_predictions(data, edit=background_as_part0)
+    for name in ("scapo", "op-align"):
+        assert evaluate(data, clean, protocol=name).summary["S"] == pytest.approx(100.0)
+    per_sample = evaluate(data, grabbing, protocol="scapo").per_sample
+    expected = [100.0 * np.mean([np.sum(g == 0) / np.sum(g <= 0), 1.0]) for g in gt]  # part 0 takes every background point
+    np.testing.assert_allclose(per_sample["S"], expected)
+    assert per_sample["S"].max() < 100.0
+    op = evaluate(data, grabbing, protocol="op-align").summary
+    assert op["S"] == pytest.approx(100.0) and op["seg_75"] == 100.0 and op["min_seg_75"] == 100.0
+
+
 def test_min_map_is_below_mean_map_when_one_of_three_parts_fails(eyeglasses):
     turn = Rotation.from_rotvec([0.0, 0.0, math.radians(30)]).as_matrix()
 

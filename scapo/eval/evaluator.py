@@ -211,7 +211,8 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     diag = gt["bbox_diag"]
     M = len(rows)
     seg_pred = np.stack([relabel(preds.part_label[r], s) for r, s in zip(rows, slots)]) if M else np.zeros((0, 0))
-    iou = np.stack([segmentation_iou(sp, g, P) for sp, g in zip(seg_pred, gt["part_label"])]) if M else \
+    ignore_bg = proto.seg_background == "ignored"
+    iou = np.stack([segmentation_iou(sp, g, P, ignore_bg) for sp, g in zip(seg_pred, gt["part_label"])]) if M else \
         np.zeros((0, P))
     R_err = rotation_error_deg(pose[..., :3, :3], gt["part_pose"][..., :3, :3])
     if proto.fold_rotation:

@@ -99,20 +99,27 @@ def line_distance(p_pred: np.ndarray, d_pred: np.ndarray, p_gt: np.ndarray, d_gt
     return np.where(nn < parallel_eps, par, skew)
 
 
-def segmentation_iou(pred_label: np.ndarray, gt_label: np.ndarray, num_parts: int) -> np.ndarray:
+def segmentation_iou(pred_label: np.ndarray, gt_label: np.ndarray, num_parts: int,
+                     ignore_background: bool = False) -> np.ndarray:
     """Point IoU of each ground-truth part, as a fraction in [0, 1].
 
     Args:
         pred_label: (N,) predicted part per point (already mapped to GT part indices; -1 = none).
-        gt_label: (N,) ground-truth part per point (-1 = not object: such points count as false
-            positives of the part they are predicted as).
+        gt_label: (N,) ground-truth part per point (-1 = not object).
         num_parts: P.
+        ignore_background: False: a point with GT -1 counts as a false positive of the part it is
+            predicted as. True: such points are left out, as OP-Align scores its real scans
+            (SPConvNets/models/art_metric.py ``evaluation_segmentation`` with ``noise_exist``, which
+            SPConvNets/trainer_art.py ``_setup_metric`` sets for ``dataset_type == 'Real'``).
 
     Returns:
         (P,) float64; NaN for a part absent from both prediction and ground truth.
     """
     pred = np.asarray(pred_label)
     gt = np.asarray(gt_label)
+    if ignore_background:
+        obj = gt >= 0
+        pred, gt = pred[obj], gt[obj]
     ious = np.full(num_parts, np.nan)
     for p in range(num_parts):
         a, b = pred == p, gt == p

@@ -21,12 +21,19 @@ translation and pivot errors reported in those units; canonical-frame offsets by
 iterations, means of 5 random training samples, a rotation inlier within 10 deg, a translation
 inlier within 0.25 units, rotation and translation chosen separately by inlier count); the pivot as
 the distance from the predicted pivot point to the GT axis line, for every joint, prismatic ones
-included; AP also as "min mAP" (a sample counts only if all its parts / joints pass; 5 and 10 deg).
+included; AP also as "min mAP" (a sample counts only if all its parts / joints pass; 5 and 10 deg);
+points whose GT label is background (-1, real-world-style data) left out of the segmentation IoU, as
+art_metric.py ``evaluation_segmentation`` does for real scans (``noise_exist``, set by trainer_art.py
+``_setup_metric`` for ``dataset_type == 'Real'``); the part order is likewise chosen on object points only.
+The other protocols count such points as false positives of the part they are predicted as.
 What differs from that code: its category-specific symmetry matrices applied to the GT poses when
 the swapped order wins are defined in its datasets' canonical frames and are not applied here; the
 AP distance thresholds are centimetres (5 / 10 cm), where its code compares 0.5 / 1.0 in its
 dataset units; its typo that scores three-part "10 deg" AP with 5 deg is not reproduced; the
-rotation mean is the chordal L2 mean (scipy), where it uses its own ``so3_mean``.
+rotation mean is the chordal L2 mean (scipy), where it uses its own ``so3_mean``; on real scans its code
+(SPConvNets/datasets/RealDataset.py) scales clouds, background included, to a mean centroid distance of
+0.5 and reports t and pivot errors back in the scan's units, where the reported t and C here stay in the
+0.25 units of the object points (the AP columns, in cm, do not depend on the unit).
 
 ``eap`` follows Meowuu7/equi-articulated-pose, SPConvNets/trainer_unsup_arti_align.py (the rotation
 error folded to ``min(theta, 180 - theta)``; the pivot as the absolute difference of the centroid's
@@ -73,11 +80,16 @@ class Protocol:
     (each cloud scaled to a mean centroid distance of 0.25, as OP-Align)."""
     min_ap: bool = False
     """Also report OP-Align's "min mAP" (all parts / joints of a sample must pass)."""
+    seg_background: str = "false-positive"
+    """Points whose GT label is -1 (background, flying pixels: real-world-style data only) in the
+    segmentation IoU: "false-positive" (counted against the part they are predicted as) or "ignored"
+    (left out, as OP-Align's code scores real scans)."""
 
     def __post_init__(self):
         allowed = {"matching": ("hungarian", "hungarian-category", "fixed-orders"),
                    "alignment": ("ransac-offsets", "ransac-sample-means"),
-                   "pivot": ("line-line", "point-line", "origin-offset"), "units": ("bbox-diag", "centroid-0.25")}
+                   "pivot": ("line-line", "point-line", "origin-offset"), "units": ("bbox-diag", "centroid-0.25"),
+                   "seg_background": ("false-positive", "ignored")}
         for k, values in allowed.items():
             if getattr(self, k) not in values:
                 raise ValueError(f"protocol {self.name!r}: {k} must be one of {values}, got {getattr(self, k)!r}")
@@ -88,7 +100,7 @@ PROTOCOLS: dict[str, Protocol] = {
     "scapo-per-category": Protocol("scapo-per-category", matching="hungarian-category"),
     "op-align": Protocol("op-align", matching="fixed-orders", alignment="ransac-sample-means", alignment_deg=10.0,
                          alignment_t=0.25, pivot="point-line", pivot_prismatic=True, units="centroid-0.25",
-                         min_ap=True),
+                         min_ap=True, seg_background="ignored"),
     "eap": Protocol("eap", pivot="origin-offset", fold_rotation=True),
 }
 #: Names of earlier versions, kept so that old commands and provenance still resolve.
