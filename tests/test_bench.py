@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -81,18 +82,56 @@ def test_rerun_recomputes_nothing_and_rewrites_identical_tables(bench, monkeypat
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
 
-def test_a_changed_evaluator_re_evaluates_without_retraining_or_predicting(bench, monkeypatch):
+def test_a_changed_evaluator_re_evaluates_without_retraining_or_predicting(bench, monkeypatch, tmp_path, capsys):
+    """Only the evaluation is redone; the record keeps the commit that trained and predicted the cell beside the
+    evaluation's, and a cell computed at a -dirty commit stays flagged after a clean re-evaluation."""
+    import scapo.bench.cells as cells
+    from scapo import provenance
+
+    work, _, _, results = bench
+    path = work / "laptop_i10_v2_s0" / "cells" / "npcs_test_s0.scapo.json"
+    per_sample = path.with_suffix(".parquet")
+    saved = {p: p.read_bytes() for p in (path, per_sample)}  # the shared fixture is put back afterwards
+    try:
+        rec = json.loads(path.read_text())
+        rec["provenance"]["commit"] = "0123456789abcdef-dirty"  # as if trained from uncommitted code
+        rec.pop("computed_commit", None)  # a record written before the field existed
+        path.write_text(json.dumps(rec))
+        _forbid(monkeypatch, "run_method")
+        monkeypatch.setattr(cells, "evaluator_fingerprint", lambda: "changed")
+        monkeypatch.setattr(cells, "provenance",
+                            lambda **kw: {**provenance.provenance(**kw), "commit": "fedcba9876543210"})
+        out = tmp_path / "out"
+        again = run_table1(["npcs"], ["laptop"], work_dir=work, out_dir=out, seeds=[0], **SMALL)
+        assert _same(again[:1], results[:1])  # same predictions, same evaluator code: same scores
+        rec = json.loads(path.read_text())
+        assert rec["evaluator"] == "changed" and rec["provenance"]["commit"] == "fedcba9876543210"
+        assert rec["computed_commit"] == "0123456789abcdef-dirty"
+        prov = json.loads((out / "table1_synthetic.json").read_text())["provenance"]
+        assert prov["cells"][0]["commit"] == "0123456789abcdef-dirty"
+        assert prov["cells"][0]["evaluated_at"] == "fedcba9876543210"
+        assert prov["commits"] == ["0123456789abcdef-dirty", "fedcba9876543210"]
+        assert "0123456789ab-dirty (evaluated fedcba987654)" in (out / "table1_synthetic.md").read_text()
+        capsys.readouterr()
+        plan = run_table1(["npcs"], ["laptop"], work_dir=work, out_dir=None, seeds=[0], dry_run=True, **SMALL)
+        assert plan[0]["status"] == "done" and "(computed at 0123456789ab-dirty" in capsys.readouterr().out
+        assert cells.dirty_commit(rec)
+        _forbid(monkeypatch, "evaluate")  # the same evaluator again: a valid record, nothing recomputed
+        run_table1(["npcs"], ["laptop"], work_dir=work, out_dir=None, seeds=[0], **SMALL)
+        assert json.loads(path.read_text()) == rec
+    finally:
+        for p, b in saved.items():
+            p.write_bytes(b)
+
+
+def test_the_evaluator_fingerprint_is_the_code_this_process_loaded(monkeypatch):
+    """A bench runs for hours: a checkout changed under it must not make its records claim the new evaluator."""
     import scapo.bench.cells as cells
 
-    work, out, _, results = bench
-    _forbid(monkeypatch, "run_method")
-    monkeypatch.setattr(cells, "evaluator_fingerprint", lambda: "changed")
-    again = run_table1(["npcs"], ["laptop"], work_dir=work, out_dir=None, seeds=[0], **SMALL)
-    assert _same(again[:1], results[:1])  # same predictions, same evaluator code: same scores
-    rec = json.loads((work / "laptop_i10_v2_s0" / "cells" / "npcs_test_s0.scapo.json").read_text())
-    assert rec["evaluator"] == "changed"
-    monkeypatch.undo()
-    run_table1(["npcs"], ["laptop"], work_dir=work, out_dir=None, seeds=[0], **SMALL)  # back to the real evaluator
+    first = cells.evaluator_fingerprint()
+    monkeypatch.setattr(Path, "read_bytes", lambda self: b"edited on disk since")
+    assert cells.evaluator_fingerprint() == first
+    assert cells._hash_evaluator_source() != first  # what a fresh process would record
 
 
 def test_table3_reuses_table1s_scapo_cell_and_names_the_ablations(bench, monkeypatch):
@@ -232,7 +271,7 @@ def test_cells_computed_at_a_dirty_commit_are_listed_and_recomputed_on_request(b
     for key, commit in (("npcs", "0123456789abcdef-dirty"), ("scapo", "0123456789abcdef")):
         p = cells.cell_paths(data, Cell(key, "laptop", seed=0, preset="test"), "scapo").record
         rec = json.loads(p.read_text())
-        rec["provenance"]["commit"] = commit  # whatever the checkout running this test is
+        rec["provenance"]["commit"] = rec["computed_commit"] = commit  # whatever the checkout running this test is
         p.write_text(json.dumps(rec))
     paths = cells.cell_paths(data, Cell("npcs", "laptop", seed=0, preset="test"), "scapo")
     plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True, **SMALL)

@@ -18,7 +18,8 @@ run is the one its preset would train today (``MethodEntry.run_is_current``); a 
 recomputed, so a finished bench reruns in seconds and writes identical tables. Each step resumes on
 its own: a finished run is not retrained, existing predictions of the same dataset, run and
 inference settings are not recomputed, and only the (cheap) evaluation is redone when the evaluator
-changed. Training, prediction and evaluation wall times are
+changed; the record then keeps the commit that trained and predicted the cell (``computed_commit``)
+beside the evaluation's own provenance. Training, prediction and evaluation wall times are
 recorded per cell (training: summed over every session that trained the run, from its ``timing.json``).
 
 A run whose preset's training fields changed since it was trained is stale: the cell is retrained,
@@ -34,7 +35,6 @@ import hashlib
 import json
 import time
 from dataclasses import asdict, dataclass
-from functools import lru_cache
 from pathlib import Path
 
 import pandas as pd
@@ -105,10 +105,7 @@ def method_preset(method: str, preset: str, category: str) -> str:
     return preset
 
 
-@lru_cache(maxsize=1)
-def evaluator_fingerprint() -> str:
-    """sha256 (16 hex digits) of the evaluator's source (``scapo/eval/*.py``, reference tables
-    excluded): a change of metrics, matching, alignment or protocols invalidates every cached score."""
+def _hash_evaluator_source() -> str:
     import scapo.eval
 
     root = Path(scapo.eval.__file__).parent
@@ -118,6 +115,24 @@ def evaluator_fingerprint() -> str:
             continue
         h.update(p.name.encode() + b"\0" + p.read_bytes())
     return h.hexdigest()[:16]
+
+
+# Taken once, as this module is imported (scapo.eval is imported above it): a long bench records the evaluator it
+# runs, not the files on disk when a cell ends, which a checkout changed under it would no longer match.
+_EVALUATOR_FINGERPRINT = _hash_evaluator_source()
+
+
+def evaluator_fingerprint() -> str:
+    """sha256 (16 hex digits) of the evaluator's source (``scapo/eval/*.py``, reference tables
+    excluded) as this process loaded it: a change of metrics, matching, alignment or protocols
+    invalidates every cached score."""
+    return _EVALUATOR_FINGERPRINT
+
+
+def computed_commit(rec: dict) -> str:
+    """The commit whose code trained and predicted a cell: kept from the first record when only the
+    evaluation was redone since (``computed_commit``), else the record's own commit."""
+    return str(rec.get("computed_commit") or rec.get("provenance", {}).get("commit", "unknown"))
 
 
 @dataclass
@@ -190,10 +205,10 @@ def _set_aside(paths: CellPaths, cell: Cell, why: str) -> Path:
 
 
 def dirty_commit(rec: dict) -> bool:
-    """The record was computed from a checkout with uncommitted changes (``<sha>-dirty``) or outside git
-    (``unknown``): the code behind it cannot be recovered from the history."""
-    commit = str(rec.get("provenance", {}).get("commit", "unknown"))
-    return commit.endswith("-dirty") or commit == "unknown"
+    """The cell was trained, predicted or evaluated from a checkout with uncommitted changes
+    (``<sha>-dirty``) or outside git (``unknown``): the code behind it cannot be recovered from the history."""
+    commits = {computed_commit(rec), str(rec.get("provenance", {}).get("commit", "unknown"))}
+    return any(c.endswith("-dirty") or c == "unknown" for c in commits)
 
 
 def _result_of(rec: dict, paths: CellPaths) -> EvalResult:
@@ -263,6 +278,10 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
     data = Path(data)
     paths = cell_paths(data, cell, protocol)
     dataset_hash = load(data, "test").dataset_hash
+    try:  # an earlier record of this cell, valid or not (e.g. scored by an older evaluator)
+        earlier = json.loads(paths.record.read_text())
+    except (OSError, ValueError):
+        earlier = None
     rec = _read_record(paths, dataset_hash)
     if rec is not None and recompute_dirty and dirty_commit(rec):
         moved = _set_aside(paths, cell, "dirty")
@@ -295,12 +314,19 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
     t1 = time.perf_counter()
     res = evaluate(data, preds, protocol=protocol)
     wall["evaluate_s"] = round(time.perf_counter() - t1, 3)
+    prov = provenance(torch_device=wall.get("train_device") or None)
+    preds_sha = sha256_file(paths.predictions)
+    # only re-evaluated (the same predictions, hence the same run): the code that computed them is the earlier
+    # record's, which the commit of this evaluation must not replace
+    reevaluated = (earlier is not None and earlier.get("predictions_sha256") == preds_sha
+                   and earlier.get("dataset_hash") == dataset_hash)
     rec = {"cell": asdict(cell), "key": cell.key, "label": cell.label, "category": cell.category,
            "protocol": protocol, "dataset": str(data), "dataset_hash": dataset_hash,
-           "predictions": paths.predictions.name, "predictions_sha256": sha256_file(paths.predictions),
+           "predictions": paths.predictions.name, "predictions_sha256": preds_sha,
            "run": paths.run.name if cell.trained else None, "evaluator": evaluator_fingerprint(),
+           "computed_commit": computed_commit(earlier) if reevaluated else prov["commit"],
            "summary": res.summary, "info": json.loads(json.dumps(res.info, default=str)), "wall": wall,
-           "provenance": provenance(torch_device=wall.get("train_device") or None)}
+           "provenance": prov}
     paths.record.parent.mkdir(parents=True, exist_ok=True)
     buf = res.per_sample.to_parquet(index=False)
     atomic_write_bytes(paths.per_sample, buf)

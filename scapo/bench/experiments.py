@@ -22,7 +22,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from scapo.bench.cells import Cell, cell_paths, cell_status, compute_cell, method_preset
+from scapo.bench.cells import Cell, cell_paths, cell_status, compute_cell, computed_commit, method_preset
 from scapo.data import generate, load, make_config
 from scapo.errors import ConfigError
 from scapo.files import check_output_dir
@@ -138,7 +138,10 @@ def plan(cells: Sequence[Cell], work: Path, instances: int, views: int, data_see
         seconds, commit = math.nan, ""
         if status in ("done", "recompute (dirty)"):
             rec = json.loads(cell_paths(data, c, protocol).record.read_text())
-            commit = str(rec.get("provenance", {}).get("commit", "unknown"))
+            commit = computed_commit(rec)
+            evaluated = str(rec.get("provenance", {}).get("commit", "unknown"))
+            if evaluated != commit and (evaluated.endswith("-dirty") or evaluated == "unknown"):
+                commit = evaluated  # the dirty one is what the listing must show
             if status == "done":
                 seconds = sum(v for k, v in rec["wall"].items() if k.endswith("_s"))
         rows.append({"category": c.category, "key": c.key, "method": c.method, "seed": c.seed, "preset": c.preset,
@@ -223,7 +226,9 @@ def _provenance(name: str, cells, records, hashes, instances, views, data_seed, 
     for c, r in zip(cells, records):
         w = r["wall"]
         per_cell.append({"category": c.category, "cell": c.key, "method": c.method, "preset": c.preset, "seed": c.seed,
-                         "commit": r["provenance"]["commit"], "device": r["provenance"]["device"],
+                         "commit": computed_commit(r), "device": r["provenance"]["device"],
+                         **({"evaluated_at": r["provenance"]["commit"]}
+                            if r["provenance"]["commit"] != computed_commit(r) else {}),
                          **{k: w[k] for k in ("train_s", "predict_s", "evaluate_s") if k in w}})
     seeds: dict[str, list[int]] = {}
     for c in cells:
@@ -233,7 +238,9 @@ def _provenance(name: str, cells, records, hashes, instances, views, data_seed, 
     return {"bench": name, "preset": preset, "protocol": protocol,
             "data": {"instances": instances, "views": views, "seed": data_seed},
             "datasets": {k: v[:16] for k, v in hashes.items()}, "training_seeds": seeds,
-            "commits": sorted({p["commit"] for p in per_cell}), "devices": sorted({p["device"] for p in per_cell}),
+            "commits": sorted({p["commit"] for p in per_cell} | {p["evaluated_at"] for p in per_cell
+                                                                  if "evaluated_at" in p}),
+            "devices": sorted({p["device"] for p in per_cell}),
             "compute_hours": round(total / 3600, 2), "cells": per_cell,
             **({"missing_cells": [f"{c.category}/{c.key}" for c in missing]} if missing else {})}
 

@@ -171,15 +171,23 @@ def _partial_note(provenance: dict) -> list[str]:
 
 
 def cells_markdown(cells: Sequence[dict] | None) -> list[str]:
-    """Markdown lines of a bench's per-cell provenance (``scapo.bench``: category, cell, commit,
-    device, training / prediction / evaluation wall time); nothing when there is none."""
+    """Markdown lines of a bench's per-cell provenance (``scapo.bench``: category, cell, commit that
+    computed it (and the evaluation's, when the evaluation was redone later), device, training /
+    prediction / evaluation wall time); nothing when there is none."""
     if not cells:
         return []
 
     def minutes(c, k):
         return "-" if c.get(k) is None else f"{c[k] / 60:.1f}"
 
-    rows = [[c["category"], c["cell"], str(c["commit"])[:12], c["device"], minutes(c, "train_s"),
+    def short(sha) -> str:
+        sha = str(sha)
+        return sha[:12] + ("-dirty" if sha.endswith("-dirty") else "")
+
+    def commit(c):  # the code that trained and predicted it; a later evaluation's commit beside it
+        return short(c["commit"]) + (f" (evaluated {short(c['evaluated_at'])})" if c.get("evaluated_at") else "")
+
+    rows = [[c["category"], c["cell"], commit(c), c["device"], minutes(c, "train_s"),
              minutes(c, "predict_s"), minutes(c, "evaluate_s")] for c in cells]
     return ["## Cells (wall time, minutes)", "",
             markdown_table(["Category", "Cell", "Commit", "Device", "Train", "Predict", "Evaluate"], rows,
