@@ -94,6 +94,7 @@ def test_a_changed_evaluator_re_evaluates_without_retraining_or_predicting(bench
     saved = {p: p.read_bytes() for p in (path, per_sample)}  # the shared fixture is put back afterwards
     try:
         rec = json.loads(path.read_text())
+        predict_s = rec["wall"]["predict_s"]
         rec["provenance"]["commit"] = "0123456789abcdef-dirty"  # as if trained from uncommitted code
         rec.pop("computed_commit", None)  # a record written before the field existed
         path.write_text(json.dumps(rec))
@@ -107,6 +108,7 @@ def test_a_changed_evaluator_re_evaluates_without_retraining_or_predicting(bench
         rec = json.loads(path.read_text())
         assert rec["evaluator"] == "changed" and rec["provenance"]["commit"] == "fedcba9876543210"
         assert rec["computed_commit"] == "0123456789abcdef-dirty"
+        assert rec["wall"]["predict_s"] == predict_s  # the predictions' wall time as measured when they were made
         prov = json.loads((out / "table1_synthetic.json").read_text())["provenance"]
         assert prov["cells"][0]["commit"] == "0123456789abcdef-dirty"
         assert prov["cells"][0]["evaluated_at"] == "fedcba9876543210"
@@ -292,7 +294,8 @@ def test_cells_computed_at_a_dirty_commit_are_listed_and_recomputed_on_request(b
     assert trained == ["npcs"]  # only the dirty cell, from scratch
     moved = list((data / "dirty").iterdir())
     assert len(moved) == 1 and {p.name for p in moved[0].iterdir()} >= {"run_npcs_test_s0", "npcs_test_s0.scapo.json"}
-    assert json.loads(paths.record.read_text())["provenance"]["commit"] == "fedcba9876543210"
+    rec = json.loads(paths.record.read_text())
+    assert rec["provenance"]["commit"] == rec["computed_commit"] == "fedcba9876543210"  # nothing kept from before
     plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True,
                       recompute_dirty=True, **SMALL)
     assert {r["key"]: r["status"] for r in plan} == {"npcs_test_s0": "done", "scapo_test_s0": "done"}
