@@ -198,6 +198,27 @@ def test_finished_only_writes_the_done_cells_and_lists_the_missing(bench, monkey
                    **SMALL)
 
 
+def test_finished_only_scores_predicted_cells_again_when_the_evaluator_changed(bench, monkeypatch, tmp_path):
+    """A bench still running elsewhere: --finished-only re-evaluates the predicted cells (cheap) and never trains."""
+    import scapo.bench.cells as cells
+
+    work, _, _, results = bench
+    record = work / "laptop_i10_v2_s0" / "cells" / "npcs_test_s0.scapo.json"
+    saved = {p: p.read_bytes() for p in (record, record.with_suffix(".parquet"))}
+    try:
+        _forbid(monkeypatch, "train_method", "run_method")
+        monkeypatch.setattr(cells, "evaluator_fingerprint", lambda: "changed")
+        part = run_table1(["npcs"], ["laptop"], work_dir=work, out_dir=tmp_path, seeds=[0], finished_only=True,
+                          **SMALL)
+        assert _same(part, results[:1]) and json.loads(record.read_text())["evaluator"] == "changed"
+    finally:
+        for p, b in saved.items():
+            p.write_bytes(b)
+    data = work / "laptop_i10_v2_s0"
+    with pytest.raises(ConfigError, match="npcs_test_s1 has no predictions yet"):
+        cells.compute_cell(data, Cell("npcs", "laptop", seed=1, preset="test"), "scapo", evaluate_only=True)
+
+
 def test_a_run_of_a_changed_preset_is_stale_set_aside_and_retrained(bench, monkeypatch, tmp_path):
     """A preset whose training fields changed after its cells were computed: the dry run says so, the
     records are no longer valid, and the old run, predictions and record are moved aside (kept)."""

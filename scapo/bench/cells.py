@@ -261,8 +261,12 @@ def _predictions_fit(path: Path, dataset_hash: str, cell: Cell, run: Path) -> bo
 
 
 def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
-                 device: str | None = None, recompute_dirty: bool = False) -> tuple[EvalResult, dict, bool]:
+                 device: str | None = None, recompute_dirty: bool = False,
+                 evaluate_only: bool = False) -> tuple[EvalResult, dict, bool]:
     """Compute (or load) one cell: train, predict, evaluate on the test split of ``data``.
+
+    ``evaluate_only``: load or (re-)evaluate a cell whose predictions exist, never train or predict
+    (``--finished-only``; a bench may be computing other cells of the same folder meanwhile).
 
     ``recompute_dirty``: a done cell whose record names a ``-dirty`` or unknown commit is moved aside
     (``<dataset>/dirty/``, kept) and computed again from scratch (training included).
@@ -296,8 +300,13 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
         print(f"scapo: {cell.key}: the run was trained with an older {cell.preset!r} preset; moved it to {moved} "
               "and training again")
     wall: dict = {}
+    if evaluate_only and not (paths.predictions.is_file()
+                              and _predictions_fit(paths.predictions, dataset_hash, cell, paths.run)):
+        raise ConfigError(f"cell {cell.category}/{cell.key} has no predictions yet; run the bench without "
+                          "--finished-only to compute it")
     if cell.trained:
-        train_method(cell.method, data, paths.run, cell.preset, progress=progress, device=device, seed=cell.seed)
+        if not evaluate_only:
+            train_method(cell.method, data, paths.run, cell.preset, progress=progress, device=device, seed=cell.seed)
         timing = json.loads((paths.run / "timing.json").read_text())
         wall.update(train_s=float(timing["seconds"]), train_device=timing.get("device"))
     t0 = time.perf_counter()

@@ -196,7 +196,9 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
         if finished_only:
             if c.category not in hashes:
                 hashes[c.category] = _dataset_hash(data)
-            if hashes[c.category] is None or cell_status(data, c, protocol, hashes[c.category]) != "done":
+            # done, or predicted and only to be scored again (the evaluator changed since): cheap, computes nothing
+            if hashes[c.category] is None or cell_status(data, c, protocol, hashes[c.category]) not in (
+                    "done", "evaluate"):
                 missing.append(c)
                 continue
         elif c.category not in hashes:
@@ -206,7 +208,7 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
                      progress=progress, cache_dir=cache_dir)
             hashes[c.category] = load(data, "test").dataset_hash
         res, rec, computed = compute_cell(data, c, protocol, progress=progress, device=device,
-                                          recompute_dirty=recompute_dirty)
+                                          recompute_dirty=recompute_dirty, evaluate_only=finished_only)
         s = res.summary
         print(f"{'computed' if computed else 'cached  '} {c.category:11s} {c.key:44s} "
               + " ".join(f"{k}={s[k]:.3f}" for k in ("S", "D", "C", "R", "R_median")), flush=True)

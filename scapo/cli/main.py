@@ -657,8 +657,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "cell records")
     sp.add_argument("--dry-run", action="store_true", help="table1/3: list the cells and which are done; compute "
                     "nothing")
-    sp.add_argument("--finished-only", action="store_true", help="table1/3: compute nothing; write the tables of the "
-                    "cells that are done (the others are listed in the provenance)")
+    sp.add_argument("--finished-only", action="store_true", help="table1/2/3: train and predict nothing; write the "
+                    "tables of the cells that are done or predicted (scored again when the evaluator changed "
+                    "since; the others are listed in the provenance)")
     sp.add_argument("--recompute-dirty", action="store_true", help="table1/2/3: compute again, from scratch, the done "
                     "cells whose record names a -dirty commit (computed from uncommitted code; the old files are "
                     "moved to <dataset>/dirty/)")
