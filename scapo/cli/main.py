@@ -93,7 +93,8 @@ def cmd_generate(args) -> int:
                       sensor=args.sensor, random_rotation=args.random_rotation, width=args.width,
                       height=args.height, test_fraction=args.test_fraction, val_fraction=args.val_fraction,
                       min_part_fraction=args.min_part_fraction,
-                      shard_size=args.shard_size, cropped=args.cropped, objects=objects, parts=args.parts or (),
+                      shard_size=args.shard_size, cropped=args.cropped,
+                      symmetric_labels=args.symmetric_labels, objects=objects, parts=args.parts or (),
                       scale=args.scale, view=view or None)
     rep = generate(cfg, args.out, workers=args.workers, progress=not args.no_progress, cache_dir=args.cache,
                    executor=args.executor, ray_address=args.ray_address)
@@ -528,6 +529,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--cropped", default="reject", choices=["reject", "flag", "keep"],
                     help="views whose object touches the image border: reject them (default), flag them (kept, with "
                     "a 'cropped' column in the manifest), or keep them (as the Table 1 datasets do)")
+    sp.add_argument("--symmetric-labels", default="view", choices=["view", "asset"],
+                    help="categories whose symmetry exchanges parts (basket): label those parts by view (the handle "
+                    "on the camera's side is handle_a) or keep the asset's labels")
     sp.add_argument("--random-rotation", action="store_true", help="uniform SO(3) object rotation")
     sp.add_argument("--width", type=int, default=None)
     sp.add_argument("--height", type=int, default=None)

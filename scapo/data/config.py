@@ -99,6 +99,14 @@ class GenerateConfig:
             return dataclasses.replace(self.view_config, **dict(self.objects[instance_id].view))
         return self.view_config
 
+    @property
+    def symmetry(self):
+        """The :class:`~scapo.sim.assets.symmetry.Symmetry` of a procedural category that has one, else None
+        (object datasets: None)."""
+        from scapo.sim.assets.symmetry import SYMMETRIES
+
+        return None if self.objects else SYMMETRIES.get(self.category)
+
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["view"] = dataclasses.asdict(self.view_config)
@@ -107,6 +115,8 @@ class GenerateConfig:
         # datasets keep their config hash and resume
         if d["render"]["cropped"] == "keep":
             del d["render"]["cropped"]
+        if self.render.symmetric_labels == "asset" or self.symmetry is None:  # no effect: as before the rule
+            del d["render"]["symmetric_labels"]
         if d["render"]["sensor"]["kind"] == "clean":  # the clean sensor ignores them
             default = dataclasses.asdict(SensorConfig())
             for k in SENSOR_ADDED_FIELDS:
@@ -156,12 +166,14 @@ def make_config(
     sensor: str = "clean", random_rotation: bool = False, width: int | None = None, height: int | None = None,
     test_fraction: float = 0.1, min_part_fraction: float = 0.05, shard_size: int = 64, shader: str = "trivial",
     val_fraction: float = 0.1, cropped: str = "reject", objects=(), parts=(), scale: str = "1",
-    view: dict | None = None,
+    view: dict | None = None, symmetric_labels: str = "view",
 ) -> GenerateConfig:
     """Convenience constructor used by the CLI (named sensor, optional SO(3) rotation, image size).
 
     ``cropped``: what to do with views whose object touches the image border ("reject", "flag", or "keep" as
-    the Table 1 datasets do; see :class:`~scapo.sim.render.RenderConfig`). ``objects``: existing objects
+    the Table 1 datasets do; see :class:`~scapo.sim.render.RenderConfig`). ``symmetric_labels``: "view" (part
+    labels of a symmetric category such as basket chosen by view) or "asset" (see
+    :mod:`scapo.sim.assets.symmetry`). ``objects``: existing objects
     (paths, or :class:`~scapo.sim.assets.objects.ObjectSource`) instead of a procedural category; then
     ``category`` is the dataset's label (None: the first object's ``meta.json`` category, else "object"),
     ``instances`` is ignored, ``parts`` is the part map (``"door,drawer=*drawer*"`` or pairs) and ``scale``
@@ -190,7 +202,7 @@ def make_config(
     cam = dataclasses.replace(cam, width=cam.width if width is None else width,
                               height=cam.height if height is None else height)
     render = RenderConfig(camera=cam, num_points=num_points, min_part_fraction=min_part_fraction,
-                          shader=shader, sensor=SENSORS[sensor], cropped=cropped)
+                          shader=shader, sensor=SENSORS[sensor], cropped=cropped, symmetric_labels=symmetric_labels)
     if not objects:
         from scapo.sim.assets.categories import CATEGORIES
 

@@ -47,6 +47,7 @@ from scapo.errors import ConfigError, DatasetError
 from scapo.files import FolderLock, atomic_write_bytes, check_output_dir, clean_stale_temps, read_json
 from scapo.sim.assets import GENERATOR_VERSION, build_category
 from scapo.sim.assets.objects import load_object
+from scapo.sim.assets.symmetry import by_view
 from scapo.sim.render import Renderer, render_many
 
 
@@ -261,9 +262,10 @@ class ShardWorker:
                 groups.append((inst, []))
             groups[-1][1].append((sample_id, spec, sample_seed_key(cfg, inst, vid)))
         samples, reasons = [], Counter()
+        sym = cfg.symmetry if cfg.render.symmetric_labels == "view" else None
         for inst, jobs in groups:
             for _, s, r in render_many(self.renderer, jobs, cfg.render, cfg.view_for(inst)):
-                samples.append(s)
+                samples.append(s if sym is None else by_view(s, sym))
                 reasons.update(r)
                 if progress is not None:
                     progress(1)
@@ -674,6 +676,8 @@ def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records, r
         "rejections": {"total": reasons_total, "by_reason": dict(sorted(reasons.items()))},
         "dataset_hash": h.hexdigest(),
     }
+    if cfg.symmetry is not None:  # the other ground truth of every view, for the evaluator (op-align protocol)
+        card["symmetry"] = {**cfg.symmetry.to_dict(), "labels": cfg.render.symmetric_labels}
     if cfg.objects:
         card["objects"] = [{"instance_id": r.instance_id, "source": o.path, "derived": f"{OBJECTS}/{r.instance_id:05d}",
                             "scale": json.loads((Path(r.urdf) / "meta.json").read_text())["scale"]}

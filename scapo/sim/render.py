@@ -83,6 +83,7 @@ class ViewConfig:
 
 
 CROPPED = ("keep", "reject", "flag")
+SYMMETRIC_LABELS = ("asset", "view")
 
 
 @dataclass(frozen=True)
@@ -108,10 +109,16 @@ class RenderConfig:
     """Views whose object touches the image border: "keep" them (the default of datasets made before this
     rule existed, e.g. Table 1's), "reject" them (counted like other rejections) or "flag" them (kept, with a
     per-sample ``cropped`` flag in the shards and the manifest)."""
+    symmetric_labels: str = "asset"
+    """Categories with a symmetry that exchanges parts (:mod:`scapo.sim.assets.symmetry`, e.g. basket): keep the
+    "asset"'s part labels (the default of datasets made before this rule existed), or label "view" by view (of the
+    two valid ground truths, the one whose front faces the camera). No effect on other categories."""
 
     def __post_init__(self):
         if self.cropped not in CROPPED:
             raise ConfigError(f"cropped must be one of {CROPPED}, got {self.cropped!r}")
+        if self.symmetric_labels not in SYMMETRIC_LABELS:
+            raise ConfigError(f"symmetric_labels must be one of {SYMMETRIC_LABELS}, got {self.symmetric_labels!r}")
         if self.num_points < 16:
             raise ConfigError(f"the number of points per sample (--points) must be >= 16, got {self.num_points}")
         if not 0.0 <= self.min_part_fraction < 1.0:
