@@ -10,6 +10,7 @@ from gt_checks import check_sample
 
 from scapo.data import generate, load, make_config
 from scapo.errors import ConfigError
+from scapo.eval import Predictions, evaluate
 from scapo.sim.assets import build_instance, load_template, parse_urdf
 from scapo.sim.assets.symmetry import SYMMETRIES, Symmetry, by_view, twin
 from scapo.sim.render import RenderConfig, ViewConfig, render_many
@@ -60,3 +61,35 @@ def test_labels_by_view_put_handle_a_on_the_cameras_side_and_the_card_records_th
     assert "symmetric_labels" not in make_config("laptop", 3, 4).to_dict()["render"]
     with pytest.raises(ConfigError, match="symmetric_labels must be one of"):
         make_config("basket", 3, 4, symmetric_labels="random")
+
+
+def _gt_predictions(data, split, swap) -> Predictions:
+    """The ground truth as predictions; samples with ``swap`` True written in their twin's labels and poses."""
+    ds = load(data, split)
+    a = ds.arrays()
+    arrays = {k: a[k].copy() for k in ("part_label", "part_pose", "joint_axis", "joint_pivot", "joint_state",
+                                       "T_cam_obj")}
+    tw = twin({k: v[swap] for k, v in arrays.items()}, BASKET)
+    for k, v in tw.items():
+        arrays[k][swap] = v
+    return Predictions(method="gt", instance_id=a["instance_id"], view_id=a["view_id"], split=np.full(len(ds), split),
+                       needs_alignment=False, dataset_hash=ds.dataset_hash, joint_type=a["joint_type"],
+                       joint_parts=a["joint_parts"], **arrays)
+
+
+def test_op_align_scores_a_prediction_in_the_twins_order_against_the_twin(tmp_path):
+    """OP-Align's standardisation: a sample whose parts come in the symmetry's order is scored against the other
+    valid ground truth; the scapo protocol (the paper's text) has no such rule and scores the handles' half turn."""
+    out = tmp_path / "b"
+    generate(make_config("basket", 2, 4, seed=4, test_fraction=0.5, val_fraction=0.0), out, progress=False)
+    n = len(load(out, "test"))
+    swap = np.arange(n) % 2 == 1
+    preds = _gt_predictions(out, "test", swap)
+    op = evaluate(out, preds, protocol="op-align").summary
+    assert op["S"] == pytest.approx(100.0) and op["R"] == pytest.approx(0.0, abs=1e-5)
+    assert op["D"] == pytest.approx(0.0, abs=1e-5) and op["C"] == pytest.approx(0.0, abs=1e-7)
+    assert op["twin_rate"] == pytest.approx(100.0 * swap.mean())
+    sc = evaluate(out, preds, protocol="scapo")
+    assert sc.summary["S"] == pytest.approx(100.0)  # the same points per part: only the poses tell the twin apart
+    assert (sc.per_sample["R"][swap] > 90).all() and (sc.per_sample["R"][~swap] < 1e-5).all()
+    assert "twin_rate" not in sc.summary

@@ -100,6 +100,41 @@ def _match(preds: Predictions, rows: np.ndarray, gt_label: np.ndarray, P: int, p
     return np.stack([match_parts(preds.part_label[r], g, P, S) for r, g in zip(rows, gt_label)])
 
 
+#: Ground-truth fields that differ between the two valid ground truths of a symmetric category's view.
+TWIN_FIELDS = ("part_label", "npcs", "part_pose", "T_cam_obj", "joint_axis", "joint_pivot", "joint_state",
+               "joint_limit")
+
+
+def _symmetry(ds: ArticulationDataset, proto: Protocol):
+    """The dataset's symmetry when the protocol scores twins (``Protocol.symmetric_gt``), else None."""
+    if not proto.symmetric_gt or not ds.card.get("symmetry"):
+        return None
+    from scapo.sim.assets.symmetry import Symmetry
+
+    sym = Symmetry.from_dict(ds.card["symmetry"])
+    return sym if list(sym.parts) != list(range(len(sym.parts))) else None
+
+
+def _use_twins(gt: dict, slots: np.ndarray, sym) -> tuple[dict, np.ndarray, np.ndarray]:
+    """OP-Align's standardisation (art_metric.py ``standardization_order``): the samples matched in the symmetry's
+    part order are scored against their twin ground truth, in the identity order. Returns the ground truth with
+    those rows replaced, the slots, and the (M,) bool rows replaced."""
+    from scapo.sim.assets.symmetry import twin
+
+    swapped = (slots == np.asarray(sym.parts)[None]).all(1)
+    if not swapped.any():
+        return gt, slots, swapped
+    gt = dict(gt)
+    tw = twin({k: gt[k][swapped] for k in TWIN_FIELDS if k in gt}, sym)
+    for k in tw:
+        if k in TWIN_FIELDS and k in gt:
+            gt[k] = gt[k].copy()
+            gt[k][swapped] = tw[k]
+    slots = slots.copy()
+    slots[swapped] = np.arange(slots.shape[1])
+    return gt, slots, swapped
+
+
 def _unit(proto: Protocol, points: np.ndarray, labels: np.ndarray, bbox_diag: np.ndarray) -> np.ndarray:
     """(M,) metres per reported unit of t and C: the bbox diagonal, or OP-Align's cloud scale."""
     if proto.units == "centroid-0.25":
@@ -184,6 +219,9 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
                               f"{gt['points'].shape[1]} points")
     gt_jp = gt["joint_parts"][0] if J else np.zeros((0, 2), dtype=np.int64)
     slots = _match(preds, rows, gt["part_label"], P, proto)
+    sym = _symmetry(test, proto)
+    if sym is not None:
+        gt, slots, twinned = _use_twins(gt, slots, sym)
     pose, axis, pivot, state, matched = _gather(preds, rows, slots, gt_jp)
     unit = _unit(proto, gt["points"], gt["part_label"], gt["bbox_diag"])  # metres per reported unit
 
@@ -193,6 +231,8 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
         gtr = train.arrays(["part_label", "part_pose", "joint_axis", "joint_state", "points", "bbox_diag"])
         trows = _rows_for(preds, train, "train")
         tslots = _match(preds, trows, gtr["part_label"], P, proto)
+        if sym is not None:
+            gtr, tslots, _ = _use_twins(gtr, tslots, sym)
         tpose, taxis, _, tstate, tmatched = _gather(preds, trows, tslots, gt_jp)
         good = tmatched.all(1) & (tslots >= 0).all(1)
         if not good.any():
@@ -267,6 +307,8 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
                                       np.zeros(0, dtype=bool), proto.min_ap))
     summary.update(robust_summary(per_sample, P, jt[0] if J else []))
     summary["samples"] = M
+    if sym is not None:  # share of test samples scored against their twin ground truth (%)
+        summary["twin_rate"] = 100.0 * float(twinned.mean()) if M else float("nan")
     summary["joint_match_rate"] = float(matched.mean()) if J and M else float("nan")
     info = {"protocol": proto.name, "dataset_hash": test.dataset_hash, "seconds": round(time.perf_counter() - t0, 3),
             "needs_alignment": preds.needs_alignment, "supervision": preds.supervision, **preds.info}

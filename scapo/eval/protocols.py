@@ -26,8 +26,11 @@ points whose GT label is background (-1, real-world-style data) left out of the 
 art_metric.py ``evaluation_segmentation`` does for real scans (``noise_exist``, set by trainer_art.py
 ``_setup_metric`` for ``dataset_type == 'Real'``); the part order is likewise chosen on object points only.
 The other protocols count such points as false positives of the part they are predicted as.
-What differs from that code: its category-specific symmetry matrices applied to the GT poses when
-the swapped order wins are defined in its datasets' canonical frames and are not applied here; the
+When the swapped order wins on a symmetric category, that code multiplies the GT rotations by a fixed
+half turn of its datasets' canonical frames (``standardization_order``); here the category's own symmetry
+(the dataset card's, :mod:`scapo.sim.assets.symmetry`) gives the whole other ground truth (parts, poses
+and joints exchanged), and categories without one (its laptop, suitcase and scissors matrices concern its
+scans' frames; our procedural ones are not symmetric) get none. What differs from that code: the
 AP distance thresholds are centimetres (5 / 10 cm), where its code compares 0.5 / 1.0 in its
 dataset units; its typo that scores three-part "10 deg" AP with 5 deg is not reproduced; the
 rotation mean is the chordal L2 mean (scipy), where it uses its own ``so3_mean``; on real scans its code
@@ -80,6 +83,9 @@ class Protocol:
     (each cloud scaled to a mean centroid distance of 0.25, as OP-Align)."""
     min_ap: bool = False
     """Also report OP-Align's "min mAP" (all parts / joints of a sample must pass)."""
+    symmetric_gt: bool = False
+    """For a dataset of a symmetric category (its card's ``symmetry``, :mod:`scapo.sim.assets.symmetry`): score a
+    sample whose matched part order is the symmetry's against the other valid ground truth (the twin)."""
     seg_background: str = "false-positive"
     """Points whose GT label is -1 (background, flying pixels: real-world-style data only) in the
     segmentation IoU: "false-positive" (counted against the part they are predicted as) or "ignored"
@@ -100,7 +106,7 @@ PROTOCOLS: dict[str, Protocol] = {
     "scapo-per-category": Protocol("scapo-per-category", matching="hungarian-category"),
     "op-align": Protocol("op-align", matching="fixed-orders", alignment="ransac-sample-means", alignment_deg=10.0,
                          alignment_t=0.25, pivot="point-line", pivot_prismatic=True, units="centroid-0.25",
-                         min_ap=True, seg_background="ignored"),
+                         min_ap=True, seg_background="ignored", symmetric_gt=True),
     "eap": Protocol("eap", pivot="origin-offset", fold_rotation=True),
 }
 #: Names of earlier versions, kept so that old commands and provenance still resolve.
