@@ -575,15 +575,24 @@ def write_table2(results: Sequence[EvalResult], out_dir: str | Path, provenance:
             rows.append([cat.capitalize() if cat != "mean" else "Mean", display,
                          *["x" if first[k] else "" for k in ("pose", "segmentation", "joint")], *vals])
     protocol = provenance.get("protocol", "op-align")
-    legend = (f"Protocol: {protocol}. Seg 75% / 50%: share of test samples (%) whose part IoU exceeds 75 / 50 %, "
-              "averaged over parts; Joint a/d: share of joints whose direction error is under a deg and pivot "
-              "error under d cm (prismatic joints: direction only); Part a/d: share of parts whose rotation "
+    from scapo.eval.protocols import get_protocol
+
+    proto = get_protocol(protocol)
+    background = (" (background points, label -1, left out, as OP-Align's code scores real scans)"
+                  if proto.seg_background == "ignored" else " (background points predicted as a part count against it)")
+    pivots = "every joint, prismatic ones included" if proto.pivot_prismatic else "prismatic joints: direction only"
+    twins = (" Basket (symmetric: a half turn exchanges its handles): parts labelled by view, the handle on the "
+             "camera's side is handle_a; a sample predicted in the exchanged part order is scored against that other "
+             "ground truth (share: twin_rate in the JSON)." if proto.symmetric_gt and "basket" in cats else "")
+    legend = (f"Protocol: {protocol}. Seg 75% / 50%: share of test samples (%) whose part IoU{background} exceeds "
+              "75 / 50 %, averaged over parts; Joint a/d: share of joints whose direction error is under a deg and "
+              f"pivot error under d cm ({pivots}); Part a/d: share of parts whose rotation "
               "error is under a deg and translation error under d cm; both averaged over joints / parts ('mean "
               "mAP'; OP-Align's 'min mAP', where a sample counts only if all pass, is in the CSV / JSON). Pose / "
               "Seg. / Joint: the labels a method trains with ((SJ): the semi-supervised setting of the paper's "
               "Table 2). Ours: our procedural objects under --sensor realistic (depth noise, flying pixels, "
               "detector-style mask), mean ± std over training seeds; Mean: over the categories shown. Rows "
-              "marked (paper): the SCAPO paper's Table 2, on OP-Align's real RGB-D scans, not our data.")
+              "marked (paper): the SCAPO paper's Table 2, on OP-Align's real RGB-D scans, not our data." + twins)
     return _write_table_files(out_dir, name, f"Table 2 (real-world style): {', '.join(cats)}", long, header, rows,
                               ["l", "l", "c", "c", "c", *["r"] * len(TABLE2_METRICS)], legend, provenance, results,
                               with_info=True)
