@@ -312,8 +312,12 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
     t0 = time.perf_counter()
     if paths.predictions.is_file() and _predictions_fit(paths.predictions, dataset_hash, cell, paths.run):
         preds = Predictions.load(paths.predictions)
-        if earlier is not None and earlier.get("predictions_sha256") == sha256_file(paths.predictions) \
-                and "predict_s" in earlier.get("wall", {}):
+        preds_sha = sha256_file(paths.predictions)
+        # only re-evaluated (the same predictions, hence the same run): the code that computed them and their
+        # measured time are the earlier record's, which this evaluation must not replace
+        reevaluated = (earlier is not None and earlier.get("predictions_sha256") == preds_sha
+                       and earlier.get("dataset_hash") == dataset_hash)
+        if reevaluated and "predict_s" in earlier.get("wall", {}):
             wall["predict_s"] = float(earlier["wall"]["predict_s"])  # as timed when they were made
         else:  # predictions written before the bench timed them: the method's own timing of the splits
             wall["predict_s"] = float(preds.info.get("predict_seconds_total", preds.info.get("fit_seconds", 0.0)
@@ -324,15 +328,11 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
             opts["device"] = device
         preds = run_method(cell.method, data, paths.predictions, progress=progress, **opts)
         wall["predict_s"] = round(time.perf_counter() - t0, 3)
+        preds_sha, reevaluated = sha256_file(paths.predictions), False
     t1 = time.perf_counter()
     res = evaluate(data, preds, protocol=protocol)
     wall["evaluate_s"] = round(time.perf_counter() - t1, 3)
     prov = provenance(torch_device=wall.get("train_device") or None)
-    preds_sha = sha256_file(paths.predictions)
-    # only re-evaluated (the same predictions, hence the same run): the code that computed them is the earlier
-    # record's, which the commit of this evaluation must not replace
-    reevaluated = (earlier is not None and earlier.get("predictions_sha256") == preds_sha
-                   and earlier.get("dataset_hash") == dataset_hash)
     rec = {"cell": asdict(cell), "key": cell.key, "label": cell.label, "category": cell.category,
            "protocol": protocol, "dataset": str(data), "dataset_hash": dataset_hash,
            "predictions": paths.predictions.name, "predictions_sha256": preds_sha,

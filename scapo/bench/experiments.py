@@ -22,7 +22,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from scapo.bench.cells import Cell, cell_paths, cell_status, compute_cell, computed_commit, method_preset
+from scapo.bench.cells import Cell, cell_paths, cell_status, compute_cell, computed_commit, dirty_commit, method_preset
 from scapo.data import generate, load, make_config
 from scapo.errors import ConfigError
 from scapo.files import check_output_dir
@@ -139,9 +139,8 @@ def plan(cells: Sequence[Cell], work: Path, instances: int, views: int, data_see
         if status in ("done", "recompute (dirty)"):
             rec = json.loads(cell_paths(data, c, protocol).record.read_text())
             commit = computed_commit(rec)
-            evaluated = str(rec.get("provenance", {}).get("commit", "unknown"))
-            if evaluated != commit and (evaluated.endswith("-dirty") or evaluated == "unknown"):
-                commit = evaluated  # the dirty one is what the listing must show
+            if dirty_commit(rec) and not dirty_commit({"computed_commit": commit}):
+                commit = str(rec["provenance"]["commit"])  # evaluated from dirty code: the listing shows that one
             if status == "done":
                 seconds = sum(v for k, v in rec["wall"].items() if k.endswith("_s"))
         rows.append({"category": c.category, "key": c.key, "method": c.method, "seed": c.seed, "preset": c.preset,
