@@ -210,6 +210,27 @@ def test_choices_on_val_never_read_the_test_split(tmp_path, monkeypatch):
     assert choice["chosen"] == chosen and choice["split"] == "val" and "commit" in choice["provenance"]
     assert main(["bench", "choose", "--data", str(d), "--candidate", f"1={tmp_path}/none*.npz"]) == 2
 
+    # several datasets (one choice for the categories of a table): the mean of the per-dataset scores
+    d2 = tmp_path / "d2"
+    generate(make_config("laptop", 6, 2, seed=2, test_fraction=0.2, val_fraction=0.2), d2, progress=False)
+    for v in ("1", "30"):
+        run_method("icp", d2, d2 / f"p{v}.npz", max_iterations=int(v), refine_top=1)
+        (tmp_path / f"p{v}.npz").rename(d / f"p{v}.npz")
+    scores2 = {v: evaluate(d2, d2 / f"p{v}.npz", split="val").summary for v in ("1", "30")}
+    scores2 = {v: s["D"] + s["R"] for v, s in scores2.items()}
+    out = tmp_path / "choice2.json"
+    assert main(["bench", "choose", "--data", str(d), "--data", str(d2), "--candidate", "1={data}/p1.npz",
+                 "--candidate", "30={data}/p30.npz", "--out", str(out)]) == 0
+    choice = json.loads(out.read_text())
+    mean = {v: (scores[v] + scores2[v]) / 2 for v in scores}
+    assert choice["chosen"] == min(mean, key=mean.get)
+    for row in choice["candidates"]:
+        assert row["score"] == pytest.approx(mean[row["value"]])
+        assert [p["score"] for p in row["per_dataset"]] == pytest.approx([scores[row["value"]], scores2[row["value"]]])
+    # a GLOB without {data} is ambiguous with several datasets; a dataset without files is named
+    assert main(["bench", "choose", "--data", str(d), "--data", str(d2), "--candidate", f"1={d}/p1.npz"]) == 2
+    assert main(["bench", "choose", "--data", str(d), "--data", str(tmp_path), "--candidate", "1={data}/p1.npz"]) == 2
+
 
 def test_a_config_written_before_the_crop_rule_and_sensor_fields_keeps_its_hash():
     """Table 1's datasets (config.json written before ``cropped`` and the sensor's range, depth crop, flying and

@@ -350,28 +350,40 @@ def cmd_bench_choose(args) -> int:
     from scapo.files import check_output_file, write_json
     from scapo.provenance import provenance
 
-    if args.data is None or not args.candidate:
+    if not args.data or not args.candidate:
         raise ConfigError("bench choose needs --data DIR and one --candidate VALUE=GLOB per value")
     if args.out:
         check_output_file(args.out, "choice file", "choice.json")
+    several = len(args.data) > 1
     candidates = {}
     for spec in args.candidate:
         value, eq, pattern = spec.partition("=")
         if not eq:
             raise ConfigError(f"--candidate {spec!r} is not of the form VALUE=GLOB (e.g. 0.3='work/pred_*_m0.3.npz')")
-        files = sorted(glob.glob(pattern))
-        if not files:
-            raise ConfigError(f"--candidate {value}: no file matches {pattern!r}")
-        candidates[value] = [Path(f) for f in files]
-    chosen, rows = choose_on_val(args.data, candidates, args.criterion, args.protocol or "scapo")
-    print(f"{'value':>8s} {'score':>9s} {'val S':>7s} {'val D':>7s} {'val R':>7s}  seeds")
+        if several and "{data}" not in pattern:
+            raise ConfigError(f"--candidate {value}: with several --data, write the dataset's place in the GLOB as "
+                              f"{{data}} (e.g. {value}='{{data}}/predictions_*.npz'), got {pattern!r}")
+        lists = []
+        for d in args.data:
+            p = pattern.replace("{data}", str(d))
+            files = sorted(glob.glob(p))
+            if not files:
+                raise ConfigError(f"--candidate {value}: no file matches {p!r}")
+            lists.append([Path(f) for f in files])
+        candidates[value] = lists if several else lists[0]
+    chosen, rows = choose_on_val(args.data if several else args.data[0], candidates, args.criterion,
+                                 args.protocol or "scapo")
+    print(f"{'value':>8s} {'score':>9s} {'val S':>7s} {'val D':>7s} {'val R':>7s}  files")
     for r in rows:
+        for p in r.get("per_dataset", ()):
+            print(f"{'':>8s} {p['score']:9.3f} {p['val_S']:7.2f} {p['val_D']:7.2f} {p['val_R']:7.2f}  "
+                  f"{len(p['files'])}  {p['dataset']}")
         print(f"{r['value']:>8s} {r['score']:9.3f} {r['val_S']:7.2f} {r['val_D']:7.2f} {r['val_R']:7.2f}  "
-              f"{len(r['files'])}")
+              f"{len(r['files'])}{'  (mean over datasets)' if several else ''}")
     if args.out:
         write_json(args.out, {"chosen": chosen, "criterion": args.criterion, "split": "val",
                               "protocol": args.protocol or "scapo", "candidates": rows,
-                              "provenance": provenance(dataset=str(args.data))})
+                              "provenance": provenance(dataset=", ".join(str(d) for d in args.data))})
     print(json.dumps({"chosen": chosen}))
     return 0
 
@@ -381,6 +393,9 @@ def cmd_bench(args) -> int:
         return cmd_bench_choose(args)
     if args.what in ("table1", "table2", "table3"):
         return cmd_bench_table(args)
+    if len(args.data) > 1:
+        raise ConfigError(f"bench {args.what} takes one --data, got {len(args.data)}")
+    args.data = args.data[0] if args.data else None
     instances, views = args.instances or 20, args.views or 30
     if min(args.workers) < 1 or instances < 1 or views < 1:
         raise ConfigError("--workers, --instances and --views must be >= 1")
@@ -627,9 +642,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "per cell), choose (an option value on the val split)")
     sp.add_argument("what", choices=["perf", "table1", "table2", "table3", "choose"])
     sp.add_argument("--no-sj", action="store_true", help="table2: leave out the semi-supervised (SJ) rows")
-    sp.add_argument("--data", type=Path, default=None, help="choose: the dataset (its val split is used)")
+    sp.add_argument("--data", type=Path, action="append", default=[], help="choose: the dataset (its val split is "
+                    "used); repeat to choose one value for several datasets (mean of their scores); perf --what "
+                    "icp / --method: the dataset")
     sp.add_argument("--candidate", action="append", default=[], help="choose: VALUE=GLOB of that value's "
-                    "predictions files (one per training seed); repeat per value")
+                    "predictions files (one per training seed; with several --data, {data} stands for each "
+                    "dataset); repeat per value")
     sp.add_argument("--criterion", default="D+R", help="choose: what to minimise on val, averaged over seeds "
                     "(D+R, R, D, R_median, -S)")
     sp.add_argument("--protocol", default=None, help="choose, table1, table3: evaluation protocol (default scapo); "
