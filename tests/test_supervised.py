@@ -49,10 +49,56 @@ def test_supervision_names_marks_and_presets():
     cpu = PRESETS.get("cpu")
     ident = _run_identity(cpu, card)
     old = json.loads(json.dumps(ident, default=str))
-    for k in ("supervision", "sup_weight"):
+    for k in ("supervision", "sup_weight", "label_init"):
         del old["preset"][k]
     assert _identity_hash(old) == _identity_hash(json.loads(json.dumps(ident, default=str)))
     assert _identity_hash(_run_identity(get_preset("cpu/sj"), card)) != _identity_hash(ident)
+    # segmentation labels start the template's parts in the labels' order; an SJ run trained before
+    # that (no label_init in its identity) is no longer what cpu/sj trains, so a bench retrains it
+    assert get_preset("cpu/sj").label_init and get_preset("cpu/s").label_init and not get_preset("cpu/j").label_init
+    sj = json.loads(json.dumps(_run_identity(get_preset("cpu/sj"), card), default=str))
+    del sj["preset"]["label_init"]
+    assert _identity_hash(sj) != _identity_hash(json.loads(json.dumps(_run_identity(get_preset("cpu/sj"), card),
+                                                                       default=str)))
+
+
+def test_labelled_centroids_prefer_the_template_then_every_cloud_then_the_unlabeled_split():
+    from scapo.models.train import labelled_centroids
+
+    K = torch.tensor([[9.0, 9.0, 9.0], [8.0, 8.0, 8.0], [7.0, 7.0, 7.0]])
+    template = torch.cat([torch.zeros(10, 3), torch.ones(3, 3), torch.full((4, 3), 5.0)])
+    t_lab = torch.tensor([0] * 10 + [1] * 3 + [-1] * 4)  # part 1: 3 template points (< 8); background ignored
+    points = torch.cat([torch.full((5, 3), 2.0), torch.full((5, 3), -3.0)])
+    p_lab = torch.tensor([1] * 5 + [-1] * 5)
+    out = labelled_centroids(K, template, t_lab, points, p_lab)
+    torch.testing.assert_close(out, torch.tensor([[0.0, 0.0, 0.0], [2.0, 2.0, 2.0], [7.0, 7.0, 7.0]]))
+    out = labelled_centroids(K, template, None, points, p_lab)  # no template labels: every cloud's
+    torch.testing.assert_close(out[1], torch.full((3,), 2.0)) and torch.testing.assert_close(out[0], K[0])
+
+
+def test_label_init_puts_the_templates_part_k_on_the_labelled_part_k(laptop_data, tmp_path):
+    import dataclasses
+
+    from scapo.models.train import TrainingClouds
+
+    p = dataclasses.replace(get_preset("test/sj"), name="test_label_init", part_init=True, stage1_epochs=1,
+                            stage2_epochs=0)
+    assert p.label_init
+    t = Trainer(laptop_data, tmp_path / "run", p, progress=False)
+    t.train()
+    data = TrainingClouds(laptop_data, p.train_points, "S")
+    lab = t._init_template(data)
+    K = t.model.keypoints.net[-1].bias.detach().view(2, -1)[:, :3]
+    Y = t.model.y_base.detach()
+    assert lab is not None and lab.shape == (len(Y),)
+    nearest = torch.cdist(Y, K).argmin(-1)
+    obj = lab >= 0
+    agree = float((nearest[obj] == lab[obj]).float().mean())
+    assert agree > 0.8  # the template's nearest-keypoint parts are its labelled parts, in the labels' order
+    # without label_init the split comes from part_init alone (and no labels are returned)
+    t2 = Trainer(laptop_data, tmp_path / "run2", dataclasses.replace(p, label_init=False), progress=False)
+    t2.train()
+    assert t2._init_template(TrainingClouds(laptop_data, p.train_points)) is None
 
 
 def test_semi_supervised_training_uses_the_labels_and_marks_its_predictions(laptop_data, tmp_path):

@@ -51,6 +51,13 @@ class TrainConfig:
     "S" segmentation, "J" joints, "SJ" both (the paper's Table 2 setting); preset suffix ``/sj``."""
     sup_weight: float = 1.0
     """Weight of the supervised terms (stage 2) when ``supervision`` is set."""
+    label_init: bool = False
+    """With segmentation labels (``supervision`` with "S"): stage 2's keypoints start at the centroids of
+    the labelled parts of the template (its points keep the labels of the training cloud they are sampled
+    from), so the template's part k is the labelled part k, the part the supervised term trains the
+    input's skinning weights to call k. Without it the template's parts keep :mod:`scapo.models.part_init`'s
+    unlabeled split in an arbitrary order, and the template (whose parts the test-time refinement uses)
+    and the input disagree on which part is which. Set by the ``/sj`` and ``/s`` presets."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)
@@ -144,6 +151,7 @@ def get_preset(name: str) -> TrainConfig:
     for part in parts:
         if part.upper() in ("S", "J", "SJ"):  # the semi-supervised setting of Table 2
             off["supervision"] = part.upper()
+            off["label_init"] = "S" in part.upper()  # the template's parts in the labels' order
             continue
         if part == "seg-gaussian":  # L_seg's targets from Gaussian parts (LossConfig.seg_labels; our addition)
             seg_labels = "gaussian"

@@ -106,6 +106,24 @@ class TrainingClouds(Dataset):
                                                   for k, v in self.extra.items()}}
 
 
+def labelled_centroids(K: torch.Tensor, template: torch.Tensor, template_labels: torch.Tensor | None,
+                       points: torch.Tensor, point_labels: torch.Tensor, min_points: int = 8) -> torch.Tensor:
+    """Initial keypoints ``(P, 3)`` from segmentation labels (``TrainConfig.label_init``), canonical frame.
+
+    Part ``p``'s keypoint is the centroid of the ``template (M, 3)`` points labelled ``p`` by
+    ``template_labels (M,)`` when there are at least ``min_points`` of them (the template is one cloud in
+    one articulation state), else of ``points (U, 3)`` labelled ``p`` by ``point_labels (U,)`` (all the
+    canonical clouds: a part hidden in the template's view), else ``K[p]`` (the unlabeled split's, for a
+    part no cloud shows). Labels -1 (background) are ignored."""
+    out = K.clone()
+    for p in range(len(K)):
+        if template_labels is not None and int((template_labels == p).sum()) >= min_points:
+            out[p] = template[template_labels == p].mean(0)
+        elif bool((point_labels == p).any()):
+            out[p] = points[point_labels == p].mean(0)
+    return out.to(K)
+
+
 def model_config(card: dict, preset: TrainConfig) -> ModelConfig:
     """The network's structure for a dataset's category (parts and joints from its card)."""
     return ModelConfig(num_parts=len(card["part_names"]), joint_types=tuple(card["joint_type"]),
@@ -140,7 +158,7 @@ def resolve_device(name: str) -> torch.device:
 INFERENCE_FIELDS = ("refine",)
 #: preset fields added after runs were trained, with the value those runs had: at that value a field is
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
-ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0}
+ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest"}
 
@@ -360,7 +378,7 @@ class Trainer:
         return list(self.model.parameters())
 
     @torch.no_grad()
-    def _init_template(self, data: TrainingClouds) -> None:
+    def _init_template(self, data: TrainingClouds) -> torch.Tensor | None:
         """Initial state of stage 2 from up to 64 training clouds canonicalised by the stage-1 encoder.
 
         With ``part_init`` (default): ``Y_base`` is a farthest-point sample of the medoid canonical
@@ -368,7 +386,8 @@ class Trainer:
         the most rigid part split (:meth:`_init_parts`). Without it: ``Y_base`` is a farthest-point
         sample of the union of the canonical clouds and the heads keep their fixed initialisation.
         With ``branch_flip``, the branch correction is fitted first (:meth:`_init_branch`) and the
-        canonical clouds are taken in the corrected frames.
+        canonical clouds are taken in the corrected frames. Returns the template's segmentation labels
+        ``(M,)`` int64 (-1 background) with ``label_init`` and a medoid template, else None.
         """
         from scapo.models import part_init
         from scapo.ops.sampling import farthest_point_indices
@@ -386,13 +405,22 @@ class Trainer:
         sub = clouds[:, :: max(1, clouds.shape[1] // 128)]
         M = self.mcfg.template_points
         rng = np.random.default_rng(self.preset.seed)
+        medoid = None
         if self.preset.part_init and len(clouds) >= 2 and clouds.shape[1] >= M:
-            S = clouds[part_init.medoid(sub)].numpy()
+            medoid = part_init.medoid(sub)
+            S = clouds[medoid].numpy()
         else:
             S = clouds.reshape(-1, 3).numpy()
-        self.model.y_base.copy_(torch.from_numpy(S[farthest_point_indices(S, M, rng)]).to(self.model.y_base))
+        fps = farthest_point_indices(S, M, rng)
+        self.model.y_base.copy_(torch.from_numpy(S[fps]).to(self.model.y_base))
+        labels = None
+        if self.preset.label_init and "part_label" in data.extra:  # the template's points keep their labels
+            lab = data.extra["part_label"][idx].long()
+            labels = (lab[medoid][torch.from_numpy(np.asarray(fps))] if medoid is not None else None,
+                      clouds.reshape(-1, 3), lab.reshape(-1))
         if self.preset.part_init and len(clouds) >= 2:
-            self._init_parts(sub, clouds.reshape(-1, 3), self.model.y_base.detach().cpu())
+            self._init_parts(sub, clouds.reshape(-1, 3), self.model.y_base.detach().cpu(), labels)
+        return labels[0] if labels is not None else None
 
     @torch.no_grad()
     def _init_branch(self, data: TrainingClouds, views: int = 512, points: int = 128) -> None:
@@ -420,19 +448,27 @@ class Trainer:
                        {**info, "views": len(idx), "branch": branch.tolist(), "flip": flip.tolist()})
 
     @torch.no_grad()
-    def _init_parts(self, clouds: torch.Tensor, union: torch.Tensor, template: torch.Tensor) -> None:
+    def _init_parts(self, clouds: torch.Tensor, union: torch.Tensor, template: torch.Tensor,
+                    labels: tuple | None = None) -> None:
         """Keypoint and joint heads start from the most rigid split (:mod:`scapo.models.part_init`) of
         the canonical ``clouds (B, n, 3)``, candidates drawn from their ``union (U, 3)``: keypoints at
         the part centroids of ``template (M, 3)`` under that split; each joint's pivot at the boundary
         between its two parts of the template, its axis from the parts' relative motions across the
         clouds (:func:`~scapo.models.part_init.estimate_axes`; the boundary's direction if too few
-        pairs move)."""
+        pairs move).
+
+        ``labels`` (``TrainConfig.label_init``, segmentation labels allowed): ``(template_labels (M,) or
+        None, points (U', 3), point_labels (U',))`` int64, -1 for background. Each part's keypoint is then
+        the centroid of its labelled template points (at least 8), else of its labelled points of all the
+        canonical clouds, else the unlabeled split's keypoint (a part no cloud shows)."""
         from scapo.models import part_init
 
         g = torch.Generator().manual_seed(self.preset.seed)
         pool = union[torch.randperm(len(union), generator=g)[:1024]]
         K, _ = part_init.initial_split(clouds, pool, self.mcfg.num_parts, seed=self.preset.seed)
         K = part_init.part_centroids(template, K)
+        if labels is not None:
+            K = labelled_centroids(K, template, *labels)
         kb = self.model.keypoints.net[-1].bias.view(self.mcfg.num_parts, -1)
         kb[:, :3] = K.to(kb)
         axes = part_init.estimate_axes(clouds, K, self.mcfg.joint_types, self.mcfg.joint_parts, generator=g)
