@@ -5,7 +5,7 @@
 # trained. One choice for the five Table 2 categories, made on their val splits (never test) by the criterion
 # of every earlier refinement choice (D+R, op-align protocol), between the Table 2 SJ runs' predictions (with
 # the refinement, as bench/table2.sh wrote them) and the same runs predicted without it. Needs the SJ cells of
-# bench/table2.sh finished; resumable (an existing predictions file is kept). Writes
+# bench/table2.sh finished; resumable (a predictions file newer than its run's checkpoint is kept). Writes
 # results/table2_sj_refine_choice_val.json.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -17,7 +17,7 @@ for c in ${CATEGORIES:-basket drawer laptop scissors suitcase}; do
   d="$WORK/${c}_i80_v16_s1"
   [ -f "$d/predictions_$RUN.npz" ] || { echo "scapo: $d has no predictions_$RUN.npz; run bash bench/table2.sh first" >&2; exit 2; }
   f="$d/valchoice_${RUN}_norefine.npz"
-  [ -f "$f" ] || $S predict --run "$d/run_$RUN" --data "$d" --out "$f" --option refine_steps=0 \
+  [ "$f" -nt "$d/run_$RUN/checkpoint.pt" ] || $S predict --run "$d/run_$RUN" --data "$d" --out "$f" --option refine_steps=0 \
       --option label=scapo-sj-no-refine
   data+=(--data "$d")
 done
