@@ -282,7 +282,8 @@ def test_table2_real_style_with_semi_supervised_rows(tmp_path, monkeypatch):
 
 def test_cells_computed_at_a_dirty_commit_are_listed_and_recomputed_on_request(bench, monkeypatch, tmp_path, capsys):
     """A record naming a -dirty commit (uncommitted code): the dry run flags it; --recompute-dirty moves its
-    files aside (kept) and computes the cell again, leaving the clean cells alone."""
+    files aside (kept) and computes the cell again; a cell only evaluated from uncommitted code (trained and
+    predicted at a clean commit) is evaluated again, its predictions and their commit kept."""
     import shutil
 
     import scapo.bench.cells as cells
@@ -292,33 +293,44 @@ def test_cells_computed_at_a_dirty_commit_are_listed_and_recomputed_on_request(b
     copy = tmp_path / "work"
     shutil.copytree(work, copy)
     data = copy / "laptop_i10_v2_s0"
-    for key, commit in (("npcs", "0123456789abcdef-dirty"), ("scapo", "0123456789abcdef")):
+    for key, computed, evaluated in (("npcs", "0123456789abcdef-dirty", "0123456789abcdef-dirty"),
+                                     ("scapo", "0123456789abcdef", "abcdef0123456789-dirty")):
         p = cells.cell_paths(data, Cell(key, "laptop", seed=0, preset="test"), "scapo").record
         rec = json.loads(p.read_text())
-        rec["provenance"]["commit"] = rec["computed_commit"] = commit  # whatever the checkout running this test is
+        rec["computed_commit"], rec["provenance"]["commit"] = computed, evaluated  # whatever this checkout is
         p.write_text(json.dumps(rec))
     paths = cells.cell_paths(data, Cell("npcs", "laptop", seed=0, preset="test"), "scapo")
-    plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True, **SMALL)
+    sc_paths = cells.cell_paths(data, Cell("scapo", "laptop", seed=0, preset="test"), "scapo")
+    sc_sha = json.loads(sc_paths.record.read_text())["predictions_sha256"]
+    methods = ["npcs", "scapo"]
+    plan = run_table1(methods, ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True, **SMALL)
     assert {r["key"]: r["status"] for r in plan} == {"npcs_test_s0": "done", "scapo_test_s0": "done"}
-    assert "(computed at 0123456789ab-dirty; --recompute-dirty" in capsys.readouterr().out
-    plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True,
+    listing = capsys.readouterr().out
+    assert "(computed at 0123456789ab-dirty; --recompute-dirty computes it again" in listing
+    assert "(evaluated at abcdef012345-dirty; --recompute-dirty evaluates its predictions again" in listing
+    plan = run_table1(methods, ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True,
                       recompute_dirty=True, **SMALL)
-    assert {r["key"]: r["status"] for r in plan} == {"npcs_test_s0": "recompute (dirty)", "scapo_test_s0": "done"}
+    assert {r["key"]: r["status"] for r in plan} == {"npcs_test_s0": "recompute (dirty)",
+                                                      "scapo_test_s0": "re-evaluate (dirty)"}
     # recomputed as at a clean commit
     monkeypatch.setattr(cells, "provenance", lambda **kw: {**provenance.provenance(**kw), "commit": "fedcba9876543210"})
     with pytest.raises(ConfigError, match="use one of them"):
         run_table1(["npcs"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], finished_only=True,
                    recompute_dirty=True, **SMALL)
-    trained = []
-    real_train = cells.train_method
+    trained, predicted = [], []
+    real_train, real_run = cells.train_method, cells.run_method
     monkeypatch.setattr(cells, "train_method", lambda m, *a, **k: trained.append(m) or real_train(m, *a, **k))
-    run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], recompute_dirty=True, **SMALL)
-    assert trained == ["npcs"]  # only the dirty cell, from scratch
+    monkeypatch.setattr(cells, "run_method", lambda m, *a, **k: predicted.append(m) or real_run(m, *a, **k))
+    run_table1(methods, ["laptop"], work_dir=copy, out_dir=None, seeds=[0], recompute_dirty=True, **SMALL)
+    assert trained == ["npcs"] and predicted == ["npcs"]  # only the dirty cell, from scratch
+    sc = json.loads(sc_paths.record.read_text())  # only scored again: its predictions and their commit kept
+    assert sc["predictions_sha256"] == sc_sha and sc["computed_commit"] == "0123456789abcdef"
+    assert sc["provenance"]["commit"] == "fedcba9876543210"
     moved = list((data / "dirty").iterdir())
     assert len(moved) == 1 and {p.name for p in moved[0].iterdir()} >= {"run_npcs_test_s0", "npcs_test_s0.scapo.json"}
     rec = json.loads(paths.record.read_text())
     assert rec["provenance"]["commit"] == rec["computed_commit"] == "fedcba9876543210"  # nothing kept from before
-    plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True,
+    plan = run_table1(methods, ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True,
                       recompute_dirty=True, **SMALL)
     assert {r["key"]: r["status"] for r in plan} == {"npcs_test_s0": "done", "scapo_test_s0": "done"}
 

@@ -204,11 +204,15 @@ def _set_aside(paths: CellPaths, cell: Cell, why: str) -> Path:
     return dest
 
 
+def dirty_sha(commit: str) -> bool:
+    """A commit as provenance records it names uncommitted code (``<sha>-dirty``) or none (``unknown``)."""
+    return commit.endswith("-dirty") or commit == "unknown"
+
+
 def dirty_commit(rec: dict) -> bool:
     """The cell was trained, predicted or evaluated from a checkout with uncommitted changes
     (``<sha>-dirty``) or outside git (``unknown``): the code behind it cannot be recovered from the history."""
-    commits = {computed_commit(rec), str(rec.get("provenance", {}).get("commit", "unknown"))}
-    return any(c.endswith("-dirty") or c == "unknown" for c in commits)
+    return any(dirty_sha(c) for c in (computed_commit(rec), str(rec.get("provenance", {}).get("commit", "unknown"))))
 
 
 def _result_of(rec: dict, paths: CellPaths) -> EvalResult:
@@ -226,13 +230,16 @@ def cell_status(data: Path, cell: Cell, protocol: str, dataset_hash: str | None,
     """What is left of a cell: ``done``, ``evaluate`` (predictions exist), ``predict`` (run trained),
     ``resume training`` (a partial run), ``retrain (stale)`` (its preset's training fields changed
     since the run was trained), ``recompute (dirty)`` (done at a ``-dirty`` commit, with
-    ``recompute_dirty``) or ``todo`` (nothing yet; also when the dataset is not built)."""
+    ``recompute_dirty``), ``re-evaluate (dirty)`` (only evaluated at one, with ``recompute_dirty``) or
+    ``todo`` (nothing yet; also when the dataset is not built)."""
     paths = cell_paths(data, cell, protocol)
     if dataset_hash is None:
         return "todo"
     rec = _read_record(paths, dataset_hash)
     if rec is not None:  # a valid record implies a current run
-        return "recompute (dirty)" if recompute_dirty and dirty_commit(rec) else "done"
+        if recompute_dirty and dirty_commit(rec):
+            return "recompute (dirty)" if dirty_sha(computed_commit(rec)) else "re-evaluate (dirty)"
+        return "done"
     if _stale_run(paths, cell):
         return "retrain (stale)"
     if paths.predictions.is_file():
@@ -269,7 +276,9 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
     (``--finished-only``; a bench may be computing other cells of the same folder meanwhile).
 
     ``recompute_dirty``: a done cell whose record names a ``-dirty`` or unknown commit is moved aside
-    (``<dataset>/dirty/``, kept) and computed again from scratch (training included).
+    (``<dataset>/dirty/``, kept) and computed again from scratch (training included); one only evaluated
+    from such a checkout (trained and predicted at a clean commit) is evaluated again, keeping its
+    predictions and their commit.
 
     Returns:
         (the test-split :class:`EvalResult`, the cell's record, whether anything was computed).
@@ -287,11 +296,17 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
     except (OSError, ValueError):
         earlier = None
     rec = _read_record(paths, dataset_hash)
+    rescore = False
     if rec is not None and recompute_dirty and dirty_commit(rec):
-        moved = _set_aside(paths, cell, "dirty")
-        print(f"scapo: {cell.key}: computed at commit {rec['provenance'].get('commit')}; moved it to {moved} and "
-              "computing it again")
-        rec = earlier = None
+        if not dirty_sha(computed_commit(rec)):  # trained and predicted from committed code: only the scoring again
+            print(f"scapo: {cell.key}: evaluated at commit {rec['provenance'].get('commit')}; evaluating its "
+                  f"predictions (computed at {computed_commit(rec)[:12]}) again")
+            rec, rescore = None, True  # the record was valid: its predictions are the ones it scored
+        else:
+            moved = _set_aside(paths, cell, "dirty")
+            print(f"scapo: {cell.key}: computed at commit {computed_commit(rec)}; moved it to {moved} and "
+                  "computing it again")
+            rec = earlier = None
     if rec is not None:
         return _result_of(rec, paths), rec, False
     moved = set_aside_stale(paths, cell)
@@ -300,17 +315,18 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
         print(f"scapo: {cell.key}: the run was trained with an older {cell.preset!r} preset; moved it to {moved} "
               "and training again")
     wall: dict = {}
-    if evaluate_only and not (paths.predictions.is_file()
-                              and _predictions_fit(paths.predictions, dataset_hash, cell, paths.run)):
+    fit = paths.predictions.is_file() and (rescore or _predictions_fit(paths.predictions, dataset_hash, cell,
+                                                                        paths.run))
+    if evaluate_only and not fit:
         raise ConfigError(f"cell {cell.category}/{cell.key} has no predictions yet; run the bench without "
                           "--finished-only to compute it")
     if cell.trained:
-        if not evaluate_only:
+        if not (evaluate_only or rescore):
             train_method(cell.method, data, paths.run, cell.preset, progress=progress, device=device, seed=cell.seed)
         timing = json.loads((paths.run / "timing.json").read_text())
         wall.update(train_s=float(timing["seconds"]), train_device=timing.get("device"))
     t0 = time.perf_counter()
-    if paths.predictions.is_file() and _predictions_fit(paths.predictions, dataset_hash, cell, paths.run):
+    if fit:
         preds = Predictions.load(paths.predictions)
         preds_sha = sha256_file(paths.predictions)
         # only re-evaluated (the same predictions, hence the same run): the code that computed them and their

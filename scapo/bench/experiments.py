@@ -22,7 +22,16 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from scapo.bench.cells import Cell, cell_paths, cell_status, compute_cell, computed_commit, dirty_commit, method_preset
+from scapo.bench.cells import (
+    Cell,
+    cell_paths,
+    cell_status,
+    compute_cell,
+    computed_commit,
+    dirty_commit,
+    dirty_sha,
+    method_preset,
+)
 from scapo.data import generate, load, make_config
 from scapo.errors import ConfigError
 from scapo.files import check_output_dir
@@ -135,17 +144,19 @@ def plan(cells: Sequence[Cell], work: Path, instances: int, views: int, data_see
         if data not in hashes:
             hashes[data] = _dataset_hash(data)
         status = cell_status(data, c, protocol, hashes[data], recompute_dirty)
-        seconds, commit = math.nan, ""
-        if status in ("done", "recompute (dirty)"):
+        seconds, commit, dirty = math.nan, "", ""
+        if status in ("done", "recompute (dirty)", "re-evaluate (dirty)"):
             rec = json.loads(cell_paths(data, c, protocol).record.read_text())
             commit = computed_commit(rec)
-            if dirty_commit(rec) and not dirty_commit({"computed_commit": commit}):
-                commit = str(rec["provenance"]["commit"])  # evaluated from dirty code: the listing shows that one
+            if dirty_commit(rec):
+                dirty = "computed" if dirty_sha(commit) else "evaluated"
+                if dirty == "evaluated":
+                    commit = str(rec["provenance"]["commit"])  # evaluated from dirty code: the listing shows that one
             if status == "done":
                 seconds = sum(v for k, v in rec["wall"].items() if k.endswith("_s"))
         rows.append({"category": c.category, "key": c.key, "method": c.method, "seed": c.seed, "preset": c.preset,
                      "status": status, "dataset": "generated" if hashes[data] else "to generate",
-                     "seconds": seconds, "commit": commit})
+                     "seconds": seconds, "commit": commit, "dirty": dirty})
     return rows
 
 
@@ -153,10 +164,11 @@ def print_plan(rows: list[dict]) -> None:
     """The dry run's listing: one line per cell and a count per status."""
     for r in rows:
         secs = "" if math.isnan(r["seconds"]) else f"{r['seconds'] / 60:7.1f} min"
-        dirty = r.get("commit", "").endswith("-dirty") or r.get("commit") == "unknown"
-        print(f"{r['category']:11s} {r['key']:44s} {r['status']:17s} {secs}"
+        dirty = r.get("dirty", "")
+        again = "computes it again" if dirty == "computed" else "evaluates its predictions again"
+        print(f"{r['category']:11s} {r['key']:44s} {r['status']:19s} {secs}"
               + ("" if r["dataset"] == "generated" else "  (dataset to generate)")
-              + (f"  (computed at {r['commit'][:12]}-dirty; --recompute-dirty computes it again)"
+              + (f"  ({dirty} at {r['commit'][:12]}-dirty; --recompute-dirty {again})"
                  if dirty and r["status"] == "done" else ""))
     counts: dict[str, int] = {}
     for r in rows:
