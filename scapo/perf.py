@@ -204,9 +204,9 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
     """
     import torch
 
+    from scapo.engine.runs import resolve_device
     from scapo.models.presets import PRESETS
     from scapo.models.scapo_model import ModelConfig, SCAPOModel
-    from scapo.models.train import resolve_device
 
     pc = PRESETS.get(preset)
     devices = [device] if device else ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -382,9 +382,9 @@ def bench_method(method: str, preset: str = "cpu", device: str | None = None, da
     """
     import torch
 
+    from scapo.engine.runs import resolve_device
     from scapo.errors import ConfigError
     from scapo.methods import METHODS
-    from scapo.models.train import resolve_device
 
     entry = METHODS.get(method)
     if method == "scapo":

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from typing import Generic, TypeVar
+from typing import Generic, NamedTuple, TypeVar
 
 from scapo.errors import UnknownNameError
 
@@ -49,6 +49,15 @@ class Registry(Generic[T]):
             known = ", ".join(sorted(self._entries)) or "(none)"
             raise UnknownNameError(f"unknown {self.kind} {name!r}; known: {known}") from None
 
+    def remove(self, name: str) -> T:
+        """Unregister ``name`` and return its entry (e.g. a method a test registered for itself).
+
+        Raises:
+            UnknownNameError: ``name`` is not registered."""
+        entry = self.get(name)
+        del self._entries[name]
+        return entry
+
     def names(self) -> list[str]:
         """Registered names in registration order."""
         return list(self._entries)
@@ -61,3 +70,43 @@ class Registry(Generic[T]):
 
     def __len__(self) -> int:
         return len(self._entries)
+
+
+#: the supervision settings a preset name or a predictions label can name (the paper's Table 2: S, J, SJ)
+SUPERVISIONS = ("S", "J", "SJ")
+
+
+class PresetName(NamedTuple):
+    """A preset name taken apart: ``"cpu/sj/no-shape_var"`` -> base ``cpu``, mods ``("sj", "no-shape_var")``.
+
+    Attributes:
+        base: the registered preset. mods: the parts after it, in order.
+        supervision: ``"S"``, ``"J"`` or ``"SJ"`` when a part names a supervised setting, else None.
+        disabled: the ``TERM`` of every ``no-TERM`` part. rest: the parts that are neither.
+    """
+
+    base: str
+    mods: tuple[str, ...]
+    supervision: str | None
+    disabled: tuple[str, ...]
+    rest: tuple[str, ...]
+
+
+def parse_preset(name: str) -> PresetName:
+    """Take a preset name ``BASE[/MOD...]`` apart (the one parser of the preset syntax; each method decides
+    which parts it accepts). A part ``sj``, ``s`` or ``j`` names the semi-supervised setting, ``no-TERM``
+    switches something off."""
+    base, *mods = str(name).split("/")
+    sup = [m.upper() for m in mods if m.upper() in SUPERVISIONS]
+    off = tuple(m[3:] for m in mods if m.startswith("no-"))
+    rest = tuple(m for m in mods if m.upper() not in SUPERVISIONS and not m.startswith("no-"))
+    return PresetName(base, tuple(mods), sup[-1] if sup else None, off, rest)
+
+
+def split_supervision_label(label: str) -> tuple[str, str] | None:
+    """``"scapo-sj"`` -> ``("scapo", "SJ")``: a predictions label with a supervision suffix (a run trained with
+    those labels, named by :func:`parse_preset`'s ``supervision``); None for a label without one."""
+    base, _, suffix = str(label).rpartition("-")
+    if base and suffix.upper() in SUPERVISIONS:
+        return base, suffix.upper()
+    return None

@@ -494,18 +494,21 @@ def test_resume_drops_the_log_rows_of_the_interrupted_epoch(laptop_data, tmp_pat
     import pandas as pd
 
     p = dataclasses.replace(TEST, stage1_epochs=2, stage2_epochs=1)
-    t = Trainer(laptop_data, tmp_path / "r", p, progress=False)
-    orig = t._epoch
+    from unittest import mock
 
-    def stop_mid_epoch(st, ep, *a):
-        if (st, ep) == (1, 1):
+    from scapo.engine import loop as engine_fit
+
+    t = Trainer(laptop_data, tmp_path / "r", p, progress=False)
+    orig = engine_fit.run_epoch
+
+    def stop_mid_epoch(job, st, ep, *a):
+        if (st.index, ep) == (1, 1):
             with open(tmp_path / "r" / "log.csv", "a") as f:  # a row of the epoch, then the interruption
                 f.write("1,1,0,0.001,1.0" + "," * 14 + "\n1,1,1,0.0")
             raise KeyboardInterrupt
-        return orig(st, ep, *a)
+        return orig(job, st, ep, *a)
 
-    t._epoch = stop_mid_epoch
-    with pytest.raises(KeyboardInterrupt):
+    with mock.patch.object(engine_fit, "run_epoch", stop_mid_epoch), pytest.raises(KeyboardInterrupt):
         t.train()
     Trainer(laptop_data, tmp_path / "r", p, progress=False).train()
     log = pd.read_csv(tmp_path / "r" / "log.csv")

@@ -16,6 +16,7 @@ STAGES = [
     ("scapo.twin",),
     ("scapo.nn",),
     ("scapo.losses",),
+    ("scapo.engine",),
     ("scapo.models",),
     ("scapo.methods",),
     ("scapo.bench", "scapo.perf", "scapo.viz", "scapo.demo", "scapo.viewer"),

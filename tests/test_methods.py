@@ -101,15 +101,17 @@ def test_learned_runs_resume_refuse_other_configs_and_other_methods(name, laptop
 
 
 def test_an_interrupted_learned_run_resumes_to_the_same_weights(laptop_data, tmp_path, monkeypatch):
-    from scapo.methods import learned, npcs
+    from scapo.engine import loop as learned  # the engine's loop (scapo.engine.loop.run_epoch)
+    from scapo.methods import learned as harness
+    from scapo.methods import npcs
 
     preset = dataclasses.replace(npcs.PRESETS.get("test"), epochs=3)
-    train_method_direct = learned.train_learned
+    train_method_direct = harness.train_learned
     full = tmp_path / "full"
     train_method_direct(npcs.SPEC, laptop_data, full, preset, progress=False)
 
     calls = {"n": 0}
-    real_epoch = learned._epoch
+    real_epoch = learned.run_epoch
 
     def stop_after_two(*a, **k):
         if calls["n"] == 2:
@@ -118,10 +120,10 @@ def test_an_interrupted_learned_run_resumes_to_the_same_weights(laptop_data, tmp
         return real_epoch(*a, **k)
 
     part = tmp_path / "part"
-    monkeypatch.setattr(learned, "_epoch", stop_after_two)
+    monkeypatch.setattr(learned, "run_epoch", stop_after_two)
     with pytest.raises(KeyboardInterrupt):
         train_method_direct(npcs.SPEC, laptop_data, part, preset, progress=False)
-    monkeypatch.setattr(learned, "_epoch", real_epoch)
+    monkeypatch.setattr(learned, "run_epoch", real_epoch)
     state = torch.load(part / "checkpoint.pt", weights_only=False)
     assert state["epoch"] == 2 and not state["done"]
     train_method_direct(npcs.SPEC, laptop_data, part, preset, progress=False)
@@ -132,14 +134,14 @@ def test_an_interrupted_learned_run_resumes_to_the_same_weights(laptop_data, tmp
 
 
 def test_an_unfinished_learned_run_is_refused_by_predict(laptop_data, tmp_path, monkeypatch):
-    from scapo.methods import learned
+    from scapo.engine import loop as learned  # the engine's loop
 
     def stop(*a, **k):
         raise KeyboardInterrupt
 
     with pytest.raises(TrainingError, match="holds no checkpoint"):
         run_method("eap", laptop_data, None, run=tmp_path / "empty")
-    real = learned._epoch
+    real = learned.run_epoch
     calls = {"n": 0}
 
     def one(*a, **k):
@@ -148,7 +150,7 @@ def test_an_unfinished_learned_run_is_refused_by_predict(laptop_data, tmp_path, 
         calls["n"] += 1
         return real(*a, **k)
 
-    monkeypatch.setattr(learned, "_epoch", one)
+    monkeypatch.setattr(learned, "run_epoch", one)
     with pytest.raises(KeyboardInterrupt):
         train_method("eap", laptop_data, tmp_path / "r", "test", progress=False)
     with pytest.raises(TrainingError, match="unfinished run"):

@@ -24,15 +24,18 @@ class Stop(Exception):
 
 def interrupt_at(trainer: Trainer, stage: int, epoch: int) -> None:
     """Run ``trainer`` and stop it (as an interruption would) when it reaches ``(stage, epoch)``."""
-    orig = trainer._epoch
+    from unittest import mock
 
-    def interrupted(st, ep, *a):
-        if (st, ep) == (stage, epoch):
+    from scapo.engine import loop as engine_fit
+
+    orig = engine_fit.run_epoch
+
+    def interrupted(job, st, ep, *a):
+        if (st.index, ep) == (stage, epoch):
             raise Stop
-        return orig(st, ep, *a)
+        return orig(job, st, ep, *a)
 
-    trainer._epoch = interrupted
-    with pytest.raises(Stop):
+    with mock.patch.object(engine_fit, "run_epoch", interrupted), pytest.raises(Stop):
         trainer.train()
 
 

@@ -1,4 +1,5 @@
-"""Training and inference harness shared by the learned baselines (OP-Align-style, EAP-style, NPCS-style).
+"""The learned baselines' side of training and inference (OP-Align-style, EAP-style, NPCS-style); the
+training loop and the run folder are the engine's (:mod:`scapo.engine`).
 
 A learned baseline module provides a :class:`LearnedSpec`: its preset registry, the dataset fields its
 training reads (``points`` only for the self-supervised ones), and a network class with ``losses``
@@ -18,12 +19,7 @@ This harness does the rest, the same way for every such method, as ``scapo train
 
 from __future__ import annotations
 
-import contextlib
-import csv
 import dataclasses
-import hashlib
-import io
-import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -33,22 +29,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from scapo.data.config import dict_diff
 from scapo.data.dataset import ArticulationDataset, load
+from scapo.engine import CloudSet, FitConfig, RunFolder, Stage, TrainJob, train_run
+from scapo.engine.runs import read_checkpoint, read_run_json, resolve_device
 from scapo.errors import ConfigError, DatasetError, TrainingError
 from scapo.eval.predictions import Predictions
-from scapo.files import (
-    FolderLock,
-    atomic_write_bytes,
-    atomic_write_text,
-    check_output_dir,
-    clean_stale_temps,
-    write_json,
-)
-from scapo.models.train import plot_losses, resolve_device, truncate_log
-from scapo.nn.engine import DistContext, dist_context, per_rank_threads, run_settings
-from scapo.provenance import usable_cores
-from scapo.registry import Registry
+from scapo.registry import Registry, parse_preset
 
 
 @dataclass(frozen=True)
@@ -120,7 +106,7 @@ ADDED_FIELDS = {"supervision": "", "sup_weight": 1.0}
 def resolve_preset(spec: LearnedSpec, preset):
     """A preset object from a name of ``spec.presets`` or ``"BASE/sj"`` (``/s``, ``/j``): the semi-supervised
     setting of the paper's Table 2 (:mod:`scapo.losses.supervised`) for methods whose preset has a
-    ``supervision`` field; its ``name`` is the full string.
+    ``supervision`` field; its ``name`` is the full string (:func:`scapo.registry.parse_preset`).
 
     Raises:
         UnknownNameError: unknown base preset, or a suffix this method does not take."""
@@ -128,16 +114,17 @@ def resolve_preset(spec: LearnedSpec, preset):
 
     if not isinstance(preset, str):
         return preset
-    base, *mods = preset.split("/")
-    pc = spec.presets.get(base)
-    if not mods:
+    name = parse_preset(preset)
+    pc = spec.presets.get(name.base)
+    if not name.mods:
         return pc
-    if len(mods) != 1 or mods[0].upper() not in ("S", "J", "SJ") or not hasattr(pc, "supervision"):
+    sup = name.supervision
+    if len(name.mods) != 1 or sup is None or not hasattr(pc, "supervision"):
         raise UnknownNameError(f"unknown {spec.method} preset {preset!r}: "
                                + ("its presets take a suffix /sj, /s or /j (training with segmentation and / or joint "
                                   "labels)" if hasattr(pc, "supervision") else "it takes no suffix (no supervised "
                                                                               "setting)"))
-    return dataclasses.replace(pc, name=preset, supervision=mods[0].upper())
+    return dataclasses.replace(pc, name=preset, supervision=sup)
 
 
 def _identity(spec: LearnedSpec, preset, card: dict) -> dict:
@@ -147,22 +134,16 @@ def _identity(spec: LearnedSpec, preset, card: dict) -> dict:
             "joint_type": list(card["joint_type"]), "joint_parts": [list(p) for p in card["joint_parts"]]}
 
 
-def _hash(identity: dict) -> str:
-    return hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()
-
-
 def run_identity(run: str | Path) -> dict | None:
     """``run.json`` of a run folder, or None when it has none (or an unreadable one)."""
-    try:
-        d = json.loads((Path(run) / "run.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return d if isinstance(d, dict) else None
+    return read_run_json(run)
 
 
 def train_learned(spec: LearnedSpec, data: str | Path, run: str | Path, preset=None, progress: bool = True,
                   device: str | None = None, seed: int | None = None) -> Path:
-    """Train (or resume) a learned baseline into the run folder ``run``; returns the checkpoint path.
+    """Train (or resume) a learned baseline into the run folder ``run`` with the engine
+    (:func:`scapo.engine.train_run`: one stage, ``spec.build(card, preset).losses`` as its loss); returns the
+    checkpoint path.
 
     ``preset``: a name of ``spec.presets`` or a preset object; None resumes an existing run with its own
     preset and starts a new one with ``cpu``. ``seed`` replaces the preset's seed (a different run).
@@ -176,7 +157,7 @@ def train_learned(spec: LearnedSpec, data: str | Path, run: str | Path, preset=N
     run = Path(run)
     cls = type(spec.presets.get(spec.presets.names()[0]))
     if preset is None:
-        old = run_identity(run)
+        old = read_run_json(run)
         if old is not None and old.get("method") == spec.method and isinstance(old.get("preset"), dict):
             preset = _preset_from_dict(cls, old["preset"])
         else:
@@ -190,80 +171,15 @@ def train_learned(spec: LearnedSpec, data: str | Path, run: str | Path, preset=N
     train = load(data, "train")
     if len(train) == 0:
         raise DatasetError(f"{data}: the training split is empty")
-    card = train.card
-    identity = json.loads(json.dumps(_identity(spec, pc, card), default=str))
-    if run.exists() and not run.is_dir():
-        raise ConfigError(f"--out {run} is an existing file; give a folder for the run")
-    if run.is_dir() and not ((run / "checkpoint.pt").exists() or (run / "run.json").exists()):
-        foreign = sorted(p.name for p in run.iterdir() if p.name != FolderLock.NAME)
-        if foreign:
-            raise ConfigError(f"--out {run} is a non-empty folder without a scapo run (holds {', '.join(foreign[:4])}"
-                              f"{', ...' if len(foreign) > 4 else ''}); give a new or empty folder")
-    ctx = dist_context(dev.type)  # data-parallel under torchrun (scapo.nn.engine); else world 1
-    dev = ctx.device(dev)
-    try:
-        if ctx.is_main:
-            check_output_dir(run, "run folder")
-        with FolderLock(run, "train") if ctx.is_main else contextlib.nullcontext():
-            if ctx.is_main:
-                clean_stale_temps(run, any_pid=True)
-            ctx.barrier()  # the other ranks start once rank 0 holds the folder
-            with run_settings(per_rank_threads(usable_cores(), ctx)):
-                return _train_locked(spec, pc, identity, train, run, dev, progress, ctx)
-    finally:
-        ctx.close()
+    folder = RunFolder(run, _identity(spec, pc, train.card))
+    return train_run(folder, lambda dev, ctx: learned_job(spec, pc, train, dev), dev, progress)
 
 
-def run_is_current(spec: LearnedSpec, run: str | Path, data: str | Path, preset: str, seed: int | None = None) -> bool:
-    """Whether ``run`` holds the run ``train_learned(spec, data, run, preset, seed=seed)`` would start
-    now (same ``run.json`` identity: method, the registered preset's fields today, dataset, structure);
-    False without a readable ``run.json`` or when the preset's fields changed since (stale results)."""
-    old = run_identity(run)
-    if old is None:
-        return False
-    pc = resolve_preset(spec, preset)
-    if seed is not None:
-        pc = dataclasses.replace(pc, seed=int(seed))
-    card = load(data, "train").card
-    return _hash(old) == _hash(json.loads(json.dumps(_identity(spec, pc, card), default=str)))
-
-
-def _refuse_other(path: Path, old: dict, new: dict) -> None:
-    if _hash(old) == _hash(new):
-        return
-    what = dict_diff(old.get("preset", {}), new.get("preset", {}))
-    detail = f" (preset fields that differ: {', '.join(what)})" if what else ""
-    oldp = old.get("preset", {}).get("name") if isinstance(old.get("preset"), dict) else None
-    raise TrainingError(f"{path} holds a {old.get('method', 'scapo')!r} run with preset {oldp!r} on the "
-                        f"{old.get('category')!r} dataset {str(old.get('dataset_hash'))[:12]}..., not a "
-                        f"{new['method']!r} run with preset {new['preset']['name']!r} on {new['category']!r} dataset "
-                        f"{new['dataset_hash'][:12]}...{detail}; use another --out folder")
-
-
-def _load_checkpoint(path: Path, device) -> dict | None:
-    if not path.is_file():
-        return None
-    try:
-        return torch.load(path, map_location=device, weights_only=False)
-    except Exception as e:  # noqa: BLE001 - torch raises many kinds for a broken file
-        raise TrainingError(f"checkpoint {path} cannot be read ({e}); delete it to start over") from e
-
-
-def _train_locked(spec: LearnedSpec, pc, identity: dict, train: ArticulationDataset, run: Path, dev, progress,
-                  ctx: DistContext | None = None) -> Path:
-    ctx = ctx or DistContext()
-    ck_path = run / "checkpoint.pt"
-    state = _load_checkpoint(ck_path, dev)
-    if state is not None:
-        _refuse_other(ck_path, state.get("identity", {}), identity)
-        if state.get("done"):
-            return ck_path
-    else:
-        old = run_identity(run)
-        if old is not None:
-            _refuse_other(run / "run.json", old, identity)
-    if ctx.is_main:
-        write_json(run / "run.json", identity)
+def learned_job(spec: LearnedSpec, pc, train: ArticulationDataset, dev: torch.device) -> TrainJob:
+    """The engine's job for a learned baseline: ``spec.build(card, pc)`` (initialised from ``pc.seed``), one
+    stage of ``pc.epochs`` over its ``losses(batch, progress)``, the training split's ``spec.fields`` (and the
+    labels ``pc.supervision`` allows) subsampled to ``pc.points`` points; ``spec.extras`` stored with the
+    final checkpoint."""
     from scapo.losses.supervised import supervised_fields
 
     fields = list(dict.fromkeys([*spec.fields, *supervised_fields(getattr(pc, "supervision", ""))]))
@@ -271,107 +187,28 @@ def _train_locked(spec: LearnedSpec, pc, identity: dict, train: ArticulationData
     tensors = {k: torch.from_numpy(np.ascontiguousarray(arrays[k])) for k in fields}
     torch.manual_seed(pc.seed)  # parameter initialisation is part of the run's identity
     net = spec.build(train.card, pc).to(dev)
-    M = len(tensors["points"])
-    steps = max(1, (M // ctx.world) // pc.batch_size)  # per rank: its share of the clouds
-    if pc.max_steps_per_epoch:
-        steps = min(steps, pc.max_steps_per_epoch)
-    opt = torch.optim.Adam(net.parameters(), lr=pc.lr, weight_decay=pc.weight_decay)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, pc.epochs * steps), eta_min=pc.min_lr)
-    start = 0
-    seconds = 0.0
-    if state is not None:
-        net.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        sched.load_state_dict(state["scheduler"])
-        start, seconds = int(state["epoch"]), float(state.get("seconds", 0.0))
-    log_path = run / "log.csv"
-    if ctx.is_main:  # only rank 0 touches the log
-        truncate_log(log_path, 1, start)
-    bar = None
-    if progress and ctx.is_main:
-        from tqdm import tqdm
 
-        bar = tqdm(total=pc.epochs * steps, initial=start * steps, desc=f"train {spec.method} "
-                   f"{train.card['category']} ({pc.name})", unit="it", dynamic_ncols=True)
-    try:
-        for epoch in range(start, pc.epochs):
-            t0 = time.perf_counter()
-            _epoch(net, pc, tensors, epoch, steps, opt, sched, log_path, bar, dev, ctx)
-            seconds += time.perf_counter() - t0
-            done = epoch == pc.epochs - 1
-            extras = None
-            if done and spec.extras is not None:
-                net.eval()
-                extras = spec.extras(net, train.arrays(list(spec.extras_fields or spec.fields)))
-            if ctx.is_main:  # every rank holds the same network, optimiser and schedule
-                buf = io.BytesIO()
-                torch.save({"model": net.state_dict(), "optimizer": opt.state_dict(),
-                            "scheduler": sched.state_dict(), "epoch": epoch + 1, "done": done, "identity": identity,
-                            "identity_hash": _hash(identity), "seconds": seconds, "extras": extras,
-                            "world_size": ctx.world}, buf)
-                atomic_write_bytes(ck_path, buf.getvalue())
-                plot_losses(log_path, run / "losses.png")
-            ctx.barrier()
-    finally:
-        if bar is not None:
-            bar.close()
-    if ctx.is_main:
-        atomic_write_text(run / "timing.json", json.dumps({"seconds": round(seconds, 1), "device": str(dev),
-                                                           "world_size": ctx.world}) + "\n")
-    return ck_path
+    def extras(done: bool) -> dict:
+        if not done or spec.extras is None:
+            return {"extras": None}
+        net.eval()
+        return {"extras": spec.extras(net, train.arrays(list(spec.extras_fields or spec.fields)))}
+
+    stage = Stage(index=1, epochs=pc.epochs, lr=pc.lr, params=lambda: list(net.parameters()), losses=net.losses)
+    cfg = FitConfig(batch_size=pc.batch_size, weight_decay=pc.weight_decay, min_lr=pc.min_lr, grad_clip=pc.grad_clip,
+                    max_steps_per_epoch=pc.max_steps_per_epoch, seed=pc.seed, order="permutation")
+    return TrainJob(model=net, data=CloudSet(tensors, pc.points), stages=[stage], config=cfg, extras=extras,
+                    desc=f"train {spec.method} {train.card['category']} ({pc.name})")
 
 
-def _epoch(net, pc, tensors: dict, epoch: int, steps: int, opt, sched, log_path: Path, bar, dev,
-           ctx: DistContext | None = None) -> None:
-    ctx = ctx or DistContext()
-    seed = pc.seed * 1_000_003 + 10_007 + epoch
-    g = torch.Generator().manual_seed(seed)
-    torch.manual_seed(seed + 7_919 * ctx.rank)  # the networks' own randomness differs between ranks
-    N = tensors["points"].shape[1]
-    order = torch.randperm(len(tensors["points"]), generator=g)
-    if ctx.active:  # each rank its share, in an order fixed by (seed, epoch, world size)
-        order = order[: len(order) // ctx.world * ctx.world][ctx.rank::ctx.world]
-    M = len(order)
-    net.train()
-    new_file = not log_path.is_file()
-    with open(log_path, "a", newline="") if ctx.is_main else contextlib.nullcontext() as f:
-        writer = None
-        for step in range(steps):
-            idx = order[(step * pc.batch_size) % M:][: pc.batch_size]
-            if len(idx) < min(pc.batch_size, M):
-                idx = torch.cat([idx, order[: min(pc.batch_size, M) - len(idx)]])
-            pts = torch.stack([torch.randperm(N, generator=g)[: min(pc.points, N)] for _ in idx])
-            batch = {}
-            for k, v in tensors.items():
-                v = v[idx]
-                if v.dim() >= 2 and v.shape[1] == N and k in ("points", "part_label", "npcs"):
-                    v = torch.gather(v, 1, pts.view(len(idx), -1, *([1] * (v.dim() - 2))).expand(
-                        -1, -1, *v.shape[2:]))
-                batch[k] = v.to(dev)
-            terms, total = net.losses(batch, (epoch * steps + step) / max(1, pc.epochs * steps))
-            for name, value in terms.items():
-                if not torch.isfinite(value):
-                    raise TrainingError(f"loss {name!r} became {float(value.detach())} at epoch {epoch}, step {step}; "
-                                        "training stopped (last good checkpoint kept)")
-            opt.zero_grad(set_to_none=True)
-            total.backward()
-            ctx.average_gradients(net.parameters())
-            if pc.grad_clip:
-                torch.nn.utils.clip_grad_norm_(net.parameters(), pc.grad_clip)
-            opt.step()
-            sched.step()
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(loss=f"{float(total.detach()):.4f}")
-            if f is None:  # ranks other than 0 write nothing; the log holds rank 0's losses
-                continue
-            row = {"stage": 1, "epoch": epoch, "step": step, "lr": sched.get_last_lr()[0],
-                   "total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
-            if writer is None:
-                writer = csv.DictWriter(f, fieldnames=list(row), extrasaction="ignore")
-                if new_file:
-                    writer.writeheader()
-            writer.writerow(row)
+def run_is_current(spec: LearnedSpec, run: str | Path, data: str | Path, preset: str, seed: int | None = None) -> bool:
+    """Whether ``run`` holds the run ``train_learned(spec, data, run, preset, seed=seed)`` would start
+    now (same ``run.json`` identity: method, the registered preset's fields today, dataset, structure);
+    False without a readable ``run.json`` or when the preset's fields changed since (stale results)."""
+    pc = resolve_preset(spec, preset)
+    if seed is not None:
+        pc = dataclasses.replace(pc, seed=int(seed))
+    return RunFolder(run, _identity(spec, pc, load(data, "train").card)).is_current()
 
 
 # ---------------------------------------------------------------------------------------------- predict
@@ -452,7 +289,7 @@ class LearnedMethod:
         if not ck.is_file():
             raise TrainingError(f"{self.run} holds no checkpoint; {hint}")
         dev = resolve_device(o.device or "auto")
-        state = _load_checkpoint(ck, dev)
+        state = read_checkpoint(ck, dev)
         ident = state.get("identity", {})
         if ident.get("method") != self.spec.method:
             raise ConfigError(f"{self.run} is a run of method {ident.get('method', 'scapo')!r}, not "

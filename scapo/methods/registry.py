@@ -27,7 +27,7 @@ from scapo.data.dataset import ArticulationDataset, load
 from scapo.errors import ConfigError, DatasetError
 from scapo.eval.predictions import Predictions
 from scapo.files import check_output_file
-from scapo.registry import Registry
+from scapo.registry import Registry, split_supervision_label
 
 
 class Method(Protocol):
@@ -139,12 +139,12 @@ def describe(label: str) -> tuple[str, dict] | None:
         e = METHODS.get(name)
         if label in e.variants:
             return e.variants[label], dict(e.supervision)
-    base, _, suffix = label.rpartition("-")
-    if base and suffix.upper() in ("S", "J", "SJ"):
+    split = split_supervision_label(label)
+    if split is not None:
+        base, sup = split
         known = describe(base)
         if known is not None:
             display, marks = known
-            sup = suffix.upper()
             return f"{display} ({sup})", {**marks, "segmentation": marks["segmentation"] or "S" in sup,
                                           "joint": marks["joint"] or "J" in sup}
     return None

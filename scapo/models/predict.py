@@ -9,12 +9,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from scapo.engine.runs import resolve_device
 from scapo.errors import ConfigError, InputError, TrainingError
 from scapo.models.presets import PRESETS, get_preset
 from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
-from scapo.models.train import preset_from_dict, resolve_device
+from scapo.models.train import preset_from_dict
 from scapo.nn.encoder import EncoderConfig
+from scapo.registry import parse_preset
 
 
 def _model_config(d: dict) -> ModelConfig:
@@ -83,7 +85,7 @@ def stored_refine(stored: dict) -> RefineConfig:
     """The refinement settings of a run whose preset is ``stored`` (``run.json``'s ``preset``): an
     inference setting, so it follows the preset's current definition when the preset is registered
     (or is an ablation of one), and the stored settings otherwise."""
-    registered = str(stored.get("name", "")).split("/")[0] in PRESETS.names()
+    registered = parse_preset(str(stored.get("name", ""))).base in PRESETS.names()
     return (get_preset(stored["name"]) if registered else preset_from_dict(stored)).refine
 
 

@@ -8,7 +8,7 @@ from scapo.errors import ConfigError
 from scapo.losses import LossConfig
 from scapo.models.refine import RefineConfig
 from scapo.nn.encoder import EncoderConfig
-from scapo.registry import Registry
+from scapo.registry import Registry, parse_preset
 
 
 @dataclass(frozen=True)
@@ -141,33 +141,30 @@ def get_preset(name: str) -> TrainConfig:
     from scapo.errors import UnknownNameError
     from scapo.losses import REGULARISERS
 
-    base, *parts = str(name).split("/")
-    cfg = PRESETS.get(base)
-    if not parts:
+    parsed = parse_preset(name)
+    cfg = PRESETS.get(parsed.base)
+    if not parsed.mods:
         return cfg
     disabled = list(cfg.losses.disabled)
     off = {}
     seg_labels = cfg.losses.seg_labels
-    for part in parts:
-        if part.upper() in ("S", "J", "SJ"):  # the semi-supervised setting of Table 2
-            off["supervision"] = part.upper()
-            off["label_init"] = "S" in part.upper()  # the template's parts in the labels' order
-            continue
-        if part == "seg-gaussian":  # L_seg's targets from Gaussian parts (LossConfig.seg_labels; our addition)
-            seg_labels = "gaussian"
-            continue
-        term = part[3:] if part.startswith("no-") else None
+    if parsed.supervision:  # the semi-supervised setting of Table 2
+        off["supervision"] = parsed.supervision
+        off["label_init"] = "S" in parsed.supervision  # the template's parts in the labels' order
+    for part in parsed.rest:
+        if part != "seg-gaussian":
+            raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "
+                                   f"{', '.join(REGULARISERS + ADDITIONS)} (e.g. {parsed.base}/no-shape_var)")
+        seg_labels = "gaussian"  # L_seg's targets from Gaussian parts (LossConfig.seg_labels; our addition)
+    for term in parsed.disabled:
         if term in ADDITIONS:
             off[term] = False
             continue
         if term not in REGULARISERS:
-            raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "
-                                   f"{', '.join(REGULARISERS + ADDITIONS)} (e.g. {base}/no-shape_var)")
+            raise UnknownNameError(f"unknown preset {name!r}: 'no-{term}' is not 'no-TERM' with TERM one of "
+                                   f"{', '.join(REGULARISERS + ADDITIONS)} (e.g. {parsed.base}/no-shape_var)")
         if term not in disabled:
             disabled.append(term)
     return replace(cfg, name=str(name), losses=replace(cfg.losses, disabled=tuple(disabled), seg_labels=seg_labels),
                    **off)
 
-
-def list_presets() -> list[str]:
-    return PRESETS.names()

@@ -10,39 +10,31 @@ every epoch, with optimiser, schedule and RNG state so that a resumed run gives 
 
 from __future__ import annotations
 
-import contextlib
-import csv
 import dataclasses
 import hashlib
-import io
 import json
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset
 
-from scapo.data.config import dict_diff
 from scapo.data.dataset import load
-from scapo.errors import ConfigError, DatasetError, TrainingError
-from scapo.files import (
-    FolderLock,
-    atomic_savefig,
-    atomic_write_bytes,
-    atomic_write_text,
-    check_output_dir,
-    clean_stale_temps,
-    write_json,
-)
+from scapo.engine import CloudSet, FitConfig, RunFolder, Stage, TrainJob, train_run
+from scapo.engine.distributed import dist_context
+from scapo.engine.runs import read_run_json, resolve_device
+from scapo.errors import ConfigError, DatasetError
+from scapo.files import write_json
 from scapo.losses import LossConfig, stage1_terms, stage2_terms, weighted_total
 from scapo.models.branch import apply_branch
 from scapo.models.presets import TrainConfig, get_preset
 from scapo.models.refine import RefineConfig
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.nn.encoder import EncoderConfig
-from scapo.nn.engine import dist_context, per_rank_threads, run_settings
-from scapo.provenance import usable_cores
+
+#: the log's loss-term columns of each stage, in order (stage 2 also logs stage 1's)
+STAGE1_TERMS = ("rec", "ortho", "aug_consist", "can_consist", "align", "consensus", "cycle")
+STAGE2_TERMS = ("recon", "kp_seg", "seg", "shape_var", "dir_align", "joint_prox", "joint_boundary", "sup_seg",
+                "sup_joint")
 
 
 def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict | None = None,
@@ -78,10 +70,14 @@ def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict
     return terms, total
 
 
-class TrainingClouds(Dataset):
-    """The training split's point clouds, each a random subset of ``points`` points; without labels
-    (the paper's setting), or, with ``supervision`` (:mod:`scapo.losses.supervised`), as dicts that also
-    hold the labels it allows (the subset's ``part_label``, the sample's ``joint_axis`` / ``joint_pivot``)."""
+class TrainingClouds(CloudSet):
+    """The training split's point clouds for the engine (:class:`~scapo.engine.CloudSet`), each a random subset
+    of ``points`` points; ``points`` only (the paper's setting), or, with ``supervision``
+    (:mod:`scapo.losses.supervised`), also the labels it allows (the subset's ``part_label``, the sample's
+    ``joint_axis`` / ``joint_pivot``).
+
+    Raises:
+        DatasetError: an empty training split, or a dataset without the fields the supervision needs."""
 
     def __init__(self, data: str | Path, points: int, supervision: str = ""):
         from scapo.losses.supervised import supervised_fields
@@ -91,19 +87,8 @@ class TrainingClouds(Dataset):
             raise DatasetError(f"{data}: the training split is empty")
         fields = supervised_fields(supervision)
         arrays = ds.arrays(["points", *fields])
-        self.clouds = torch.from_numpy(arrays["points"]).float()
-        self.extra = {k: torch.from_numpy(arrays[k]) for k in fields}
-        self.points = min(points, self.clouds.shape[1])
-
-    def __len__(self) -> int:
-        return len(self.clouds)
-
-    def __getitem__(self, i: int):
-        idx = torch.randperm(self.clouds.shape[1])[: self.points]
-        if not self.extra:
-            return self.clouds[i, idx]
-        return {"points": self.clouds[i, idx], **{k: (v[i, idx] if k == "part_label" else v[i].float())
-                                                  for k, v in self.extra.items()}}
+        super().__init__({"points": torch.from_numpy(arrays["points"]).float(),
+                          **{k: torch.from_numpy(arrays[k]) for k in fields}}, points)
 
 
 def labelled_centroids(K: torch.Tensor, template: torch.Tensor, template_labels: torch.Tensor | None,
@@ -129,29 +114,6 @@ def model_config(card: dict, preset: TrainConfig) -> ModelConfig:
     return ModelConfig(num_parts=len(card["part_names"]), joint_types=tuple(card["joint_type"]),
                        joint_parts=tuple(tuple(p) for p in card["joint_parts"]), encoder=preset.encoder,
                        template_points=preset.template_points, gamma=preset.gamma, root_motion=preset.root_motion)
-
-
-def resolve_device(name: str) -> torch.device:
-    """``"auto"`` (CUDA when available, else CPU), ``"cpu"``, ``"cuda"`` or ``"cuda:N"`` -> a usable device.
-
-    Raises:
-        ConfigError: an unknown device name, or a CUDA device this machine or torch build does not have.
-    """
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        dev = torch.device(name)
-    except (RuntimeError, TypeError):
-        raise ConfigError(f"unknown device {name!r}; use cpu, cuda, cuda:N or auto") from None
-    if dev.type == "cuda":
-        if not torch.cuda.is_available():
-            why = "this torch build has no CUDA" if torch.version.cuda is None else "no CUDA GPU is visible"
-            raise ConfigError(f"device {name!r} requested, but {why} (torch {torch.__version__}); use --device cpu")
-        if dev.index is not None and dev.index >= torch.cuda.device_count():
-            raise ConfigError(f"device {name!r} requested, but only {torch.cuda.device_count()} CUDA device(s) exist")
-    elif dev.type != "cpu":
-        raise ConfigError(f"device {name!r} is not supported; use cpu, cuda, cuda:N or auto")
-    return dev
 
 
 #: preset fields that only affect inference; a checkpoint is not refused when they differ
@@ -216,69 +178,17 @@ class Trainer:
         self.card = train.card
         self.identity = _run_identity(self.preset, self.card)
         requested = resolve_device(device or self.preset.device)
-        self.dist = dist_context(requested.type)  # data-parallel under torchrun (scapo.nn.engine); else world 1
+        self.dist = dist_context(requested.type)  # data-parallel under torchrun (scapo.engine); else world 1
         self.device = self.dist.device(requested)
         self.mcfg = model_config(self.card, self.preset)
         with torch.random.fork_rng(devices=[]):  # the caller's global RNG is left as it was
             torch.manual_seed(self.preset.seed)  # parameter initialisation is part of the run's identity
             self.model = SCAPOModel(self.mcfg).to(self.device)
 
-    # ------------------------------------------------------------------ checkpoints
-    def _ckpt_path(self) -> Path:
-        return self.run / "checkpoint.pt"
+        self.folder = RunFolder(self.run, self.identity, _training_identity)
 
-    def _save(self, state: dict) -> None:
-        buf = io.BytesIO()
-        torch.save(state, buf)
-        atomic_write_bytes(self._ckpt_path(), buf.getvalue())
-
-    def _load_checkpoint(self) -> dict | None:
-        path = self._ckpt_path()
-        if not path.is_file():
-            return None
-        try:
-            state = torch.load(path, map_location=self.device, weights_only=False)
-        except Exception as e:  # noqa: BLE001 - torch raises many kinds for a broken file
-            raise TrainingError(f"checkpoint {path} cannot be read ({e}); delete it to start over") from e
-        if state.get("identity_hash") != _identity_hash(self.identity):
-            old = state.get("identity", {})
-            changed = dict_diff(_training_identity(old)["preset"], _training_identity(self.identity)["preset"])
-            what = f" (preset fields that differ: {', '.join(changed)})" if changed else ""
-            raise TrainingError(
-                f"{path} was trained with preset {old.get('preset', {}).get('name')!r} on the {old.get('category')!r} "
-                f"dataset {str(old.get('dataset_hash'))[:12]}..., not with preset {self.preset.name!r} on "
-                f"{self.card['category']!r} dataset {self.card['dataset_hash'][:12]}...{what}; "
-                "use another --out folder")
-        return state
-
-    def _check_run_folder(self) -> None:
-        """Refuse a ``run`` that is a file, or a non-empty folder that holds no scapo run."""
-        if self.run.exists() and not self.run.is_dir():
-            raise ConfigError(f"--out {self.run} is an existing file; give a folder for the run")
-        if self.run.is_dir() and not ((self.run / "checkpoint.pt").exists() or (self.run / "run.json").exists()):
-            foreign = sorted(p.name for p in self.run.iterdir() if p.name != FolderLock.NAME)
-            if foreign:
-                raise ConfigError(f"--out {self.run} is a non-empty folder without a scapo run (holds "
-                                  f"{', '.join(foreign[:4])}{', ...' if len(foreign) > 4 else ''}); give a new or "
-                                  "empty folder")
-
-    def _check_unstarted_run(self) -> None:
-        """A run folder without a checkpoint but with ``run.json`` must be this run (refuse before writing)."""
-        try:
-            old = json.loads((self.run / "run.json").read_text())
-        except (OSError, ValueError):
-            return  # no run.json, or one truncated before any epoch finished: nothing to protect
-        if isinstance(old, dict) and _identity_hash(old) != _identity_hash(json.loads(json.dumps(
-                self.identity, default=str))):
-            old_preset = old.get("preset", {}).get("name") if isinstance(old.get("preset"), dict) else None
-            raise TrainingError(f"{self.run} holds a run started with preset {old_preset!r} on the "
-                                f"{old.get('category')!r} dataset {str(old.get('dataset_hash'))[:12]}..., not with "
-                                f"preset {self.preset.name!r} on {self.card['category']!r} dataset "
-                                f"{self.card['dataset_hash'][:12]}...; use another --out folder")
-
-    # ------------------------------------------------------------------ training
     def train(self) -> Path:
-        """Run (or resume) both stages; returns the checkpoint path.
+        """Run (or resume) both stages with the engine (:func:`scapo.engine.train_run`); returns the checkpoint path.
 
         Everything is checked before anything is written: the run folder (a file, a foreign non-empty
         folder, or not writable), another process training into it, and a checkpoint or ``run.json`` of
@@ -287,90 +197,32 @@ class Trainer:
         Raises:
             ConfigError, OutputError: unusable run folder. TrainingError: see the class docstring.
         """
-        self._check_run_folder()
-        main = self.dist.is_main
-        if main:
-            check_output_dir(self.run, "run folder")
-        try:
-            with FolderLock(self.run, "train") if main else contextlib.nullcontext():
-                if main:
-                    clean_stale_temps(self.run, any_pid=True)
-                self.dist.barrier()  # the other ranks start once rank 0 holds the folder
-                with run_settings(per_rank_threads(usable_cores(), self.dist)):
-                    return self._train_locked()
-        finally:
-            self.dist.close()
+        return train_run(self.folder, lambda dev, ctx: self.job(), self.device, self.progress, ctx=self.dist)
 
-    def _train_locked(self) -> Path:
+    def job(self) -> TrainJob:
+        """SCAPO's schedule for the engine: stage 1 trains the encoder and decoder on the stage-1 terms; stage 2
+        starts from the template initialisation (:meth:`_init_template`) and trains everything on both
+        stages' terms (:func:`loss_terms`)."""
         pc = self.preset
-        state = self._load_checkpoint()
-        if state is None:
-            self._check_unstarted_run()
-        elif state.get("done"):
-            return self._ckpt_path()
-        if self.dist.is_main:
-            write_json(self.run / "run.json", json.loads(json.dumps(self.identity, default=str)))
         data = TrainingClouds(self.data, pc.train_points, pc.supervision)
-        share = len(data) // self.dist.world  # the clouds each rank sees per epoch
-        steps_per_epoch = share // pc.batch_size if share >= pc.batch_size else 1
-        if pc.max_steps_per_epoch:
-            steps_per_epoch = min(steps_per_epoch, pc.max_steps_per_epoch)
-        start_stage, start_epoch = 1, 0
-        if state is not None:
-            self.model.load_checkpoint_state(state["model"])
-            start_stage, start_epoch = state["stage"], state["epoch"]
-        if self.dist.is_main:  # only rank 0 touches the log
-            truncate_log(self.run / "log.csv", start_stage, start_epoch)
-        total = steps_per_epoch * (pc.stage1_epochs + pc.stage2_epochs)
-        done_steps = steps_per_epoch * (start_epoch if start_stage == 1 else pc.stage1_epochs + start_epoch)
-        bar = None
-        if self.progress and self.dist.is_main:
-            from tqdm import tqdm
+        stages = [Stage(index=1, epochs=pc.stage1_epochs, lr=pc.lr_stage1, params=lambda: self._params(1),
+                        losses=lambda batch, progress: self._losses(1, batch), terms=STAGE1_TERMS),
+                  Stage(index=2, epochs=pc.stage2_epochs, lr=pc.lr_stage2, params=lambda: self._params(2),
+                        losses=lambda batch, progress: self._losses(2, batch), terms=STAGE2_TERMS,
+                        on_start=lambda: self._init_template(data))]
+        cfg = FitConfig(batch_size=pc.batch_size, weight_decay=pc.weight_decay, min_lr=pc.min_lr,
+                        grad_clip=pc.grad_clip, max_steps_per_epoch=pc.max_steps_per_epoch, seed=pc.seed,
+                        order="shuffle")
+        mcfg = dataclasses.asdict(self.mcfg)
+        return TrainJob(model=self.model, data=data, stages=stages, config=cfg,
+                        desc=f"train scapo {self.card['category']} ({pc.name})",
+                        load_state=self.model.load_checkpoint_state, extras=lambda done: {"model_config": mcfg})
 
-            bar = tqdm(total=total, initial=done_steps, desc=f"train {self.card['category']} ({pc.name})", unit="it",
-                       dynamic_ncols=True)
-        log_path = self.run / "log.csv"
-        t0 = time.perf_counter()
-        before = float(state.get("seconds", 0.0)) if state is not None else 0.0  # training time of earlier sessions
-        try:
-            for stage in (1, 2):
-                if stage < start_stage:
-                    continue
-                epochs = pc.stage1_epochs if stage == 1 else pc.stage2_epochs
-                if epochs == 0:
-                    continue
-                opt = torch.optim.Adam(self._params(stage), lr=pc.lr_stage1 if stage == 1 else pc.lr_stage2,
-                                       weight_decay=pc.weight_decay)
-                sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, epochs * steps_per_epoch),
-                                                                   eta_min=pc.min_lr)
-                first = start_epoch if stage == start_stage else 0
-                if state is not None and stage == start_stage and "optimizer" in state and first > 0:
-                    opt.load_state_dict(state["optimizer"])
-                    sched.load_state_dict(state["scheduler"])
-                if stage == 2 and first == 0:
-                    self._init_template(data)
-                for epoch in range(first, epochs):
-                    self._epoch(stage, epoch, data, opt, sched, steps_per_epoch, log_path, bar)
-                    done = stage == 2 and epoch == epochs - 1 or (stage == 1 and pc.stage2_epochs == 0
-                                                                 and epoch == epochs - 1)
-                    nxt = (stage, epoch + 1) if epoch + 1 < epochs else (stage + 1, 0)
-                    if self.dist.is_main:  # every rank holds the same model, optimiser and schedule
-                        self._save({"model": self.model.state_dict(), "optimizer": opt.state_dict(),
-                                    "scheduler": sched.state_dict(), "stage": nxt[0], "epoch": nxt[1], "done": done,
-                                    "identity": self.identity, "identity_hash": _identity_hash(self.identity),
-                                    "model_config": dataclasses.asdict(self.mcfg), "world_size": self.dist.world,
-                                    "seconds": before + time.perf_counter() - t0})
-                        plot_losses(log_path, self.run / "losses.png")
-                    self.dist.barrier()
-        finally:
-            if bar is not None:
-                bar.close()
-        # the training time over every session that trained this run (resumes included)
-        if self.dist.is_main:
-            atomic_write_text(self.run / "timing.json",
-                              json.dumps({"seconds": round(before + time.perf_counter() - t0, 1),
-                                          "device": str(self.device), "world_size": self.dist.world}) + "\n")
-        return self._ckpt_path()
+    def _losses(self, stage: int, batch: dict) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        pc = self.preset
+        sup = {k: v for k, v in batch.items() if k != "points"}  # semi-supervised: the labels come along
+        X, scale = SCAPOModel.normalize(batch["points"])
+        return loss_terms(self.model, X, stage, pc.losses, sup, scale, pc.sup_weight)
 
     def _params(self, stage: int):
         if stage == 1:
@@ -478,130 +330,13 @@ class Trainer:
             jb[j, :3] = pivot.to(jb)
             jb[j, 3:6] = (axis if axes[j] is None else axes[j]).to(jb)
 
-    def _epoch(self, stage, epoch, data, opt, sched, steps, log_path, bar) -> None:
-        pc = self.preset
-        seed = pc.seed * 1_000_003 + stage * 10_007 + epoch
-        rank_seed = seed + 7_919 * self.dist.rank  # augmentations and point subsets differ between ranks
-        torch.manual_seed(rank_seed)
-        np.random.seed(rank_seed % (2 ** 32))  # noqa: NPY002 - any legacy-numpy randomness in a run is seeded too
-        if self.dist.active:  # each rank its share of the clouds, in an order fixed by (seed, epoch, world size)
-            from torch.utils.data.distributed import DistributedSampler
-
-            sampler = DistributedSampler(data, num_replicas=self.dist.world, rank=self.dist.rank, shuffle=True,
-                                         seed=seed, drop_last=True)
-            loader = DataLoader(data, batch_size=pc.batch_size, sampler=sampler,
-                                drop_last=len(data) // self.dist.world >= pc.batch_size)
-        else:
-            loader = DataLoader(data, batch_size=pc.batch_size, shuffle=True, drop_last=len(data) >= pc.batch_size,
-                                generator=torch.Generator().manual_seed(seed))
-        self.model.train()
-        new_file = not log_path.is_file()
-        with open(log_path, "a", newline="") if self.dist.is_main else contextlib.nullcontext() as f:
-            writer = None
-            for step, batch in enumerate(loader):
-                if step >= steps:
-                    break
-                sup = None
-                if isinstance(batch, dict):  # semi-supervised: the labels come along
-                    sup = {k: v.to(self.device) for k, v in batch.items() if k != "points"}
-                    batch = batch["points"]
-                X, scale = SCAPOModel.normalize(batch.to(self.device))
-                terms, total = loss_terms(self.model, X, stage, pc.losses, sup, scale, pc.sup_weight)
-                for name, value in terms.items():
-                    if not torch.isfinite(value):
-                        raise TrainingError(f"loss {name!r} became {float(value.detach())} at stage {stage}, "
-                                            f"epoch {epoch}, step {step}; training stopped (last good checkpoint kept)")
-                opt.zero_grad(set_to_none=True)
-                total.backward()
-                self.dist.average_gradients(self.model.parameters())
-                if pc.grad_clip:
-                    torch.nn.utils.clip_grad_norm_(self.model.parameters(), pc.grad_clip)
-                opt.step()
-                sched.step()
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(stage=stage, loss=f"{float(total.detach()):.4f}")
-                if f is None:  # ranks other than 0 write nothing; the log holds rank 0's losses
-                    continue
-                row = {"stage": stage, "epoch": epoch, "step": step, "lr": sched.get_last_lr()[0],
-                       "total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
-                if writer is None:
-                    fields = ["stage", "epoch", "step", "lr", "total", "rec", "ortho", "aug_consist", "can_consist",
-                              "align", "consensus", "cycle", "recon", "kp_seg", "seg", "shape_var", "dir_align",
-                              "joint_prox", "joint_boundary", "sup_seg", "sup_joint"]
-                    if not new_file:  # a resumed run keeps its log's columns (written by the scapo it started with)
-                        with open(log_path, newline="") as g:
-                            fields = next(csv.reader(g), None) or fields
-                    writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-                    if new_file:
-                        writer.writeheader()
-                writer.writerow(row)
-
-
-def truncate_log(log_csv: Path, stage: int, epoch: int) -> None:
-    """Keep only the rows of ``log.csv`` from before ``(stage, epoch)``, where a resumed run restarts
-    (an interrupted epoch's rows are written again); a torn last line is dropped."""
-    if not log_csv.is_file():
-        return
-    with open(log_csv, newline="") as f:
-        rows = list(csv.reader(f))
-    if not rows:
-        log_csv.unlink()
-        return
-    header, kept = rows[0], []
-    try:
-        si, ei = header.index("stage"), header.index("epoch")
-    except ValueError:
-        log_csv.unlink()
-        return
-    for r in rows[1:]:
-        try:
-            if len(r) == len(header) and (int(r[si]), int(r[ei])) < (stage, epoch):
-                kept.append(r)
-        except ValueError:
-            continue
-    if not kept:
-        log_csv.unlink()
-        return
-    buf = io.StringIO()
-    csv.writer(buf).writerows([header, *kept])
-    atomic_write_text(log_csv, buf.getvalue())
-
-
-def plot_losses(log_csv: Path, png: Path) -> None:
-    """Loss curves (log scale, one panel per stage) from ``log.csv``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import pandas as pd
-
-    df = pd.read_csv(log_csv)
-    if df.empty:
-        return
-    stages = sorted(df["stage"].unique())
-    fig, axes = plt.subplots(1, len(stages), figsize=(6 * len(stages), 4), squeeze=False)
-    for ax, st in zip(axes[0], stages):
-        d = df[df["stage"] == st].reset_index(drop=True)
-        for col in d.columns[4:]:
-            v = d[col]
-            if v.notna().any() and (v.abs() > 0).any():
-                ax.plot(v.abs().rolling(5, min_periods=1).mean(), label=col, lw=1)
-        ax.set_yscale("log")
-        ax.set_title(f"stage {st}")
-        ax.set_xlabel("iteration")
-        ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    atomic_savefig(fig, png, dpi=90)
-    plt.close(fig)
-
 
 def run_preset(run: str | Path) -> TrainConfig | None:
     """The preset a run folder was started with (from its ``run.json``), or None when there is none."""
+    ident = read_run_json(run)
     try:
-        ident = json.loads((Path(run) / "run.json").read_text())
         return preset_from_dict(ident["preset"])
-    except (OSError, ValueError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError):
         return None
 
 
@@ -632,18 +367,11 @@ def run_is_current(run: str | Path, data: str | Path, preset: str, seed: int | N
     ones, dataset, category structure) of the registered ``preset`` today. False for a folder without
     a readable ``run.json`` and for a run of a preset whose training fields have changed since (its
     results are stale). Raises UnknownNameError for an unknown preset."""
-    try:
-        old = json.loads((Path(run) / "run.json").read_text())
-    except (OSError, ValueError):
-        return False
-    if not isinstance(old, dict):
-        return False
     cfg = get_preset(preset)
     if seed is not None:
         cfg = dataclasses.replace(cfg, seed=int(seed))
-    card = load(data, "train").card
-    return _identity_hash(old) == _identity_hash(json.loads(json.dumps(_run_identity(cfg, card), default=str)))
+    return RunFolder(run, _run_identity(cfg, load(data, "train").card), _training_identity).is_current()
 
 
-__all__ = ["Trainer", "TrainingClouds", "model_config", "plot_losses", "preset_from_dict", "run_is_current",
+__all__ = ["Trainer", "TrainingClouds", "model_config", "preset_from_dict", "run_is_current",
            "run_preset", "train"]

@@ -102,9 +102,9 @@ class VNBatchNorm(nn.Module):
         return x / norm.unsqueeze(2) * normed.reshape(norm.shape).unsqueeze(2)
 
     def _synced(self, flat: torch.Tensor) -> torch.Tensor:
-        """Batch norm with statistics over the global batch of a data-parallel run (scapo.nn.engine); the
+        """Batch norm with statistics over the global batch of a data-parallel run (scapo.nn.sync); the
         running statistics are updated as ``nn.BatchNorm1d`` does (unbiased variance, momentum)."""
-        from scapo.nn.engine import sync_batch_stats
+        from scapo.nn.sync import sync_batch_stats
 
         bn = self.bn
         mean, var = sync_batch_stats(flat, (0, 2))

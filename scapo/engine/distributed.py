@@ -1,6 +1,5 @@
-"""The training engine shared by every trained method (SCAPO's two stages and the learned baselines):
-data-parallel training across processes started by ``torchrun``, one optimiser step, and the process
-settings a run needs without leaking them into the caller's process.
+"""Data-parallel training for the engine (:mod:`scapo.engine.loop`): the process group ``torchrun`` starts,
+gradient averaging, and the process settings a run needs without leaking them into the caller's process.
 
 Data parallelism (PyTorch distributed, the process group that ``torchrun`` describes in its environment:
 ``RANK``, ``WORLD_SIZE``, ``LOCAL_RANK``, ``MASTER_ADDR``/``MASTER_PORT``):
@@ -10,9 +9,9 @@ Data parallelism (PyTorch distributed, the process group that ``torchrun`` descr
 - after each backward pass the gradients are averaged over the ranks (:meth:`DistContext.average_gradients`:
   what ``DistributedDataParallel`` does, done explicitly because SCAPO's losses call several sub-networks
   outside a single ``forward``), so all ranks take the same optimiser step and stay identical;
-- batch statistics are synchronised: the vector-neuron batch norm (:class:`scapo.nn.vn.VNBatchNorm`) takes its
-  mean and variance over the global batch through :func:`sync_batch_stats` (differentiable all-reduce; torch's
-  ``SyncBatchNorm`` refuses CPU tensors, and the gloo backend is how this is tested on CPU);
+- batch statistics are synchronised: the vector-neuron batch norm (:class:`scapo.nn.vn.VNBatchNorm`) takes
+  its mean and variance over the global batch through :func:`scapo.nn.sync.sync_batch_stats` (differentiable
+  all-reduce; torch's ``SyncBatchNorm`` refuses CPU tensors, and the gloo backend is how this is tested on CPU);
 - batch-coupled losses (SCAPO's cross-instance alignment and consensus terms, OP-Align-style's balance term)
   are computed over each rank's local batch: with world size W and per-rank batch B the gradient is the
   average over ranks of those local-batch losses, the same as one process stepping on W batches of B (not
@@ -87,14 +86,6 @@ class DistContext:
             g.copy_(flat[k:k + n].view_as(g))
             k += n
 
-    def broadcast_(self, value: int) -> int:
-        """Rank 0's ``value`` on every rank (e.g. the epoch to resume from)."""
-        if not self.active:
-            return int(value)
-        t = torch.tensor([int(value)], dtype=torch.int64)
-        dist.broadcast(t, 0)
-        return int(t.item())
-
     def close(self) -> None:
         """Leave the process group this context started (after every rank has arrived here)."""
         if self.started and dist.is_initialized():
@@ -125,26 +116,6 @@ def dist_context(device_type: str = "cpu") -> DistContext:
         dist.init_process_group(backend=backend)
         started = True
     return DistContext(rank, world, local, started)
-
-
-def sync_batch_stats(x: torch.Tensor, dims: tuple[int, ...]) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mean and (biased) variance of ``x`` over ``dims``, over the global batch of a data-parallel run
-    (differentiable all-reduce of the sums; every rank must call it), or over ``x`` alone otherwise.
-
-    Returns tensors shaped like ``x`` reduced over ``dims`` (keepdim)."""
-    count = 1
-    for d in dims:
-        count *= x.shape[d]
-    s = x.sum(dim=dims, keepdim=True)
-    sq = (x * x).sum(dim=dims, keepdim=True)
-    if dist.is_available() and dist.is_initialized() and dist.get_world_size() > 1:
-        from torch.distributed.nn.functional import all_reduce
-
-        n = all_reduce(torch.tensor([float(count)], device=x.device, dtype=x.dtype))
-        s, sq, count = all_reduce(s), all_reduce(sq), n
-    mean = s / count
-    var = (sq / count - mean * mean).clamp_min(0.0)
-    return mean, var
 
 
 @contextlib.contextmanager

@@ -1,0 +1,348 @@
+"""One training loop for every trained method: SCAPO's two stages and each learned baseline.
+
+A method hands the engine a :class:`TrainJob`: its network, its training clouds (:class:`CloudSet`), and a
+schedule of :class:`Stage` objects, each with the parameters it trains, a learning rate, a number of epochs
+and ``losses(batch, progress) -> (terms, total)``; a term's name is its column of ``log.csv``. The engine
+does the rest, the same way for every method:
+
+- the run folder (:class:`~scapo.engine.runs.RunFolder`): refusals before anything is written, a lock
+  against a second process, ``run.json``, a checkpoint after every epoch, ``log.csv``, ``losses.png``,
+  ``timing.json``; an interrupted run resumes from its next (stage, epoch) and gives the same weights;
+- per stage: Adam with weight decay, a cosine schedule to ``min_lr`` over the stage's steps, gradient
+  clipping, a stop naming the loss term that became NaN or infinite (the last good checkpoint kept);
+- batches from a :class:`~torch.utils.data.DataLoader`; with several processes (``torchrun``) a
+  :class:`~torch.utils.data.distributed.DistributedSampler` gives each rank its share and the gradients are
+  averaged (:mod:`scapo.engine.distributed`);
+- every epoch is seeded by (seed, stage, epoch, rank): a run is a function of its preset and data.
+
+Usage (a method's ``train`` function)::
+
+    folder = RunFolder(run, identity)
+    train_run(folder, lambda dev, ctx: TrainJob(...), device, progress=True)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+from torch.utils.data.distributed import DistributedSampler
+
+from scapo.engine.distributed import DistContext, dist_context, per_rank_threads, run_settings
+from scapo.engine.runs import RunFolder, plot_losses, truncate_log
+from scapo.errors import TrainingError
+from scapo.files import FolderLock, check_output_dir, clean_stale_temps
+from scapo.provenance import usable_cores
+
+#: the log's leading columns; the loss terms follow
+BASE_COLUMNS = ("stage", "epoch", "step", "lr", "total")
+
+LossFn = Callable[[dict, float], "tuple[dict[str, torch.Tensor], torch.Tensor]"]
+
+
+class CloudSet(Dataset):
+    """Training clouds for the engine: sample ``i`` is a dict of its fields, each per-point field
+    (``points (N, 3)``, ``part_label (N,)``, ``npcs (N, 3)``) restricted to the same random subset of
+    ``points`` points, each per-sample field (e.g. ``joint_axis (J, 3)``) whole; dtypes as stored.
+
+    Args:
+        tensors: field -> tensor ``(M, ...)`` over the ``M`` clouds; must hold ``points (M, N, 3)``.
+        points: points per training cloud (at most ``N``).
+        per_point: fields subsampled with the points.
+
+    The subsets are drawn from :attr:`generator` when one is set (the engine sets it per epoch in the
+    ``"permutation"`` order), else from torch's global RNG.
+    """
+
+    PER_POINT = ("points", "part_label", "npcs")
+
+    def __init__(self, tensors: dict[str, torch.Tensor], points: int, per_point: Sequence[str] = PER_POINT):
+        if "points" not in tensors:
+            raise ValueError("CloudSet needs a 'points' field")
+        self.tensors = dict(tensors)
+        self.per_point = tuple(per_point)
+        self.points = min(int(points), self.tensors["points"].shape[1])
+        self.generator: torch.Generator | None = None
+
+    @property
+    def clouds(self) -> torch.Tensor:
+        """``(M, N, 3)`` the whole clouds."""
+        return self.tensors["points"]
+
+    @property
+    def extra(self) -> dict[str, torch.Tensor]:
+        """The fields other than ``points``."""
+        return {k: v for k, v in self.tensors.items() if k != "points"}
+
+    def __len__(self) -> int:
+        return len(self.tensors["points"])
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        N = self.tensors["points"].shape[1]
+        idx = torch.randperm(N, generator=self.generator)[: self.points]
+        return {k: (v[i, idx] if k in self.per_point else v[i]) for k, v in self.tensors.items()}
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of a training schedule.
+
+    Attributes:
+        index: 1-based; the ``stage`` column of ``log.csv`` and the checkpoint's resume point; it seeds the
+            stage's epochs.
+        epochs: passes over the training clouds (0 skips the stage).
+        lr: Adam's learning rate at the start of the stage (cosine-annealed to ``FitConfig.min_lr``).
+        params: ``params() -> list of parameters`` the stage's optimiser updates (called when it starts).
+        losses: ``losses(batch, progress) -> (terms, total)``: ``batch`` a dict of the :class:`CloudSet`
+            fields stacked ``(B, ...)`` on the training device, ``progress`` in [0, 1) the fraction of the
+            stage done; ``terms`` name -> scalar tensor (logged, checked for NaN), ``total`` the scalar
+            that is minimised.
+        terms: the loss-term names this stage may log, in column order (declare every stage's terms so that
+            the log's header, written at the first step, holds the later stages' columns too).
+        on_start: called once when the stage starts from its first epoch (not on a resume inside it),
+            e.g. SCAPO's template initialisation before stage 2.
+    """
+
+    index: int
+    epochs: int
+    lr: float
+    params: Callable[[], list]
+    losses: LossFn
+    terms: tuple[str, ...] = ()
+    on_start: Callable[[], None] | None = None
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Settings of the loop shared by every stage.
+
+    Attributes:
+        batch_size: clouds per step and rank. weight_decay: Adam's. min_lr: the cosine schedule's floor.
+        grad_clip: max gradient norm (0: none). max_steps_per_epoch: 0 = every batch of the rank's share.
+        seed: the run's seed. order: how an epoch's batches are drawn:
+
+            - ``"permutation"`` (new methods): DistributedSampler's permutation of the clouds for every world
+              size, the point subsets from a generator seeded by the epoch that continues after the
+              permutation; a run on one process and its share on each of W processes see the same order.
+            - ``"shuffle"``: the DataLoader's shuffle (seeded by the epoch) on one process, the
+              DistributedSampler under ``torchrun``, the point subsets from the global RNG seeded by the
+              epoch and rank; SCAPO's order since its first runs, kept so that they resume and reproduce.
+    """
+
+    batch_size: int
+    weight_decay: float = 0.0
+    min_lr: float = 0.0
+    grad_clip: float = 0.0
+    max_steps_per_epoch: int = 0
+    seed: int = 0
+    order: Literal["permutation", "shuffle"] = "permutation"
+
+
+@dataclass
+class TrainJob:
+    """What a method gives the engine to train.
+
+    Attributes:
+        model: the network (on the training device). data: the training clouds. stages: the schedule.
+        config: the loop's settings. desc: the progress bar's label.
+        load_state: ``load_state(model_state_dict)`` on resume (default ``model.load_state_dict``).
+        extras: ``extras(done) -> dict`` merged into every checkpoint (e.g. the model's structure; statistics
+            computed once training is done).
+    """
+
+    model: torch.nn.Module
+    data: CloudSet
+    stages: list[Stage]
+    config: FitConfig
+    desc: str = "train"
+    load_state: Callable[[dict], None] | None = None
+    extras: Callable[[bool], dict] | None = None
+
+    def steps_per_epoch(self, world: int) -> int:
+        """Optimiser steps per epoch on each of ``world`` ranks (at least 1)."""
+        share = len(self.data) // world
+        steps = share // self.config.batch_size if share >= self.config.batch_size else 1
+        if self.config.max_steps_per_epoch:
+            steps = min(steps, self.config.max_steps_per_epoch)
+        return steps
+
+
+def train_run(folder: RunFolder, make_job: Callable[[torch.device, DistContext], TrainJob], device: torch.device,
+              progress: bool = True, ctx: DistContext | None = None) -> Path:
+    """Train (or resume, or find finished) the run of ``folder``; returns the checkpoint path.
+
+    Everything is checked before anything is written: the folder (a file, a foreign non-empty folder, not
+    writable), another process training into it, a checkpoint or ``run.json`` of another identity. Then
+    ``make_job(device, ctx)`` builds the network and data (not called for a finished run) and :func:`fit`
+    trains it, with this process's share of the cores and a private copy of the global RNG.
+
+    Args:
+        ctx: the data-parallel context (default: :func:`~scapo.engine.distributed.dist_context`); closed here.
+
+    Raises:
+        ConfigError, OutputError: unusable folder. TrainingError: another identity, unreadable checkpoint,
+        a NaN/inf loss.
+    """
+    folder.check_target()
+    ctx = ctx or dist_context(device.type)
+    device = ctx.device(device)
+    try:
+        if ctx.is_main:
+            check_output_dir(folder.path, "run folder")
+        with FolderLock(folder.path, "train") if ctx.is_main else contextlib.nullcontext():
+            if ctx.is_main:
+                clean_stale_temps(folder.path, any_pid=True)
+            ctx.barrier()  # the other ranks start once rank 0 holds the folder
+            with run_settings(per_rank_threads(usable_cores(), ctx)):
+                state = folder.load_checkpoint(device)
+                if state is not None and state.get("done"):
+                    return folder.checkpoint
+                if ctx.is_main:
+                    folder.write_identity()
+                return fit(make_job(device, ctx), folder, state, device, progress, ctx)
+    finally:
+        ctx.close()
+
+
+def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.device, progress: bool = True,
+        ctx: DistContext | None = None) -> Path:
+    """The loop: every stage of ``job`` from the checkpoint ``state``'s next (stage, epoch) (or the start),
+    a checkpoint and the loss plot after every epoch, ``timing.json`` at the end. Returns the checkpoint path.
+
+    Raises:
+        TrainingError: a loss term became NaN or infinite (named, with stage, epoch and step).
+    """
+    ctx = ctx or DistContext()
+    cfg = job.config
+    steps = job.steps_per_epoch(ctx.world)
+    start = (1, 0)
+    if state is not None:
+        (job.load_state or job.model.load_state_dict)(state["model"])
+        start = (int(state.get("stage", 1)), int(state["epoch"]))
+    if ctx.is_main:  # only rank 0 touches the log
+        truncate_log(folder.log, *start)
+    live = [s for s in job.stages if s.epochs > 0]
+    done_before = sum(s.epochs for s in live if s.index < start[0]) + sum(
+        min(start[1], s.epochs) for s in live if s.index == start[0])
+    bar = None
+    if progress and ctx.is_main:
+        from tqdm import tqdm
+
+        bar = tqdm(total=steps * sum(s.epochs for s in live), initial=steps * done_before, desc=job.desc, unit="it",
+                   dynamic_ncols=True)
+    columns = list(dict.fromkeys([*BASE_COLUMNS, *[t for s in job.stages for t in s.terms]]))
+    t0 = time.perf_counter()
+    before = float(state.get("seconds", 0.0)) if state is not None else 0.0  # earlier sessions' training time
+    try:
+        for stage in live:
+            if stage.index < start[0]:
+                continue
+            first = start[1] if stage.index == start[0] else 0
+            opt = torch.optim.Adam(stage.params(), lr=stage.lr, weight_decay=cfg.weight_decay)
+            sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, stage.epochs * steps),
+                                                               eta_min=cfg.min_lr)
+            if state is not None and stage.index == start[0] and first > 0 and "optimizer" in state:
+                opt.load_state_dict(state["optimizer"])
+                sched.load_state_dict(state["scheduler"])
+            if first == 0 and stage.on_start is not None:
+                stage.on_start()
+            for epoch in range(first, stage.epochs):
+                run_epoch(job, stage, epoch, opt, sched, steps, folder, bar, device, ctx, columns)
+                last_stage = stage is live[-1]
+                done = last_stage and epoch == stage.epochs - 1
+                nxt = (stage.index, epoch + 1) if epoch + 1 < stage.epochs or last_stage else (
+                    live[live.index(stage) + 1].index, 0)
+                extras = job.extras(done) if job.extras is not None else {}
+                if ctx.is_main:  # every rank holds the same model, optimiser and schedule
+                    folder.save({"model": job.model.state_dict(), "optimizer": opt.state_dict(),
+                                 "scheduler": sched.state_dict(), "stage": nxt[0], "epoch": nxt[1], "done": done,
+                                 "world_size": ctx.world, "seconds": before + time.perf_counter() - t0, **extras})
+                    plot_losses(folder.log, folder.path / "losses.png")
+                ctx.barrier()
+    finally:
+        if bar is not None:
+            bar.close()
+    if ctx.is_main:  # the training time over every session that trained this run (resumes included)
+        folder.write_timing(before + time.perf_counter() - t0, device, ctx.world)
+    return folder.checkpoint
+
+
+def epoch_batches(data: CloudSet, cfg: FitConfig, seed: int, ctx: DistContext) -> Iterable[dict]:
+    """The batches of one epoch seeded by ``seed`` on this rank (see :attr:`FitConfig.order`)."""
+    share = len(data) // ctx.world
+    if cfg.order == "permutation":
+        g = torch.Generator().manual_seed(seed)
+        torch.randperm(len(data), generator=g)  # the sampler's permutation; the subsets' stream continues after it
+        data.generator = g
+        sampler = DistributedSampler(data, num_replicas=ctx.world, rank=ctx.rank, shuffle=True, seed=seed,
+                                     drop_last=True)
+        return DataLoader(data, batch_size=cfg.batch_size, sampler=sampler, drop_last=share >= cfg.batch_size,
+                          generator=torch.Generator())  # the loader's own seed draw leaves the global RNG alone
+    data.generator = None
+    if ctx.active:
+        sampler = DistributedSampler(data, num_replicas=ctx.world, rank=ctx.rank, shuffle=True, seed=seed,
+                                     drop_last=True)
+        return DataLoader(data, batch_size=cfg.batch_size, sampler=sampler, drop_last=share >= cfg.batch_size)
+    return DataLoader(data, batch_size=cfg.batch_size, shuffle=True, drop_last=len(data) >= cfg.batch_size,
+                      generator=torch.Generator().manual_seed(seed))
+
+
+def run_epoch(job: TrainJob, stage: Stage, epoch: int, opt, sched, steps: int, folder: RunFolder, bar, device,
+              ctx: DistContext, columns: list[str]) -> None:
+    """One epoch of ``stage``: ``steps`` optimiser steps, one ``log.csv`` row each (rank 0).
+
+    Raises:
+        TrainingError: a loss term became NaN or infinite.
+    """
+    cfg = job.config
+    seed = cfg.seed * 1_000_003 + stage.index * 10_007 + epoch
+    rank_seed = seed + 7_919 * ctx.rank  # augmentations and point subsets differ between ranks
+    torch.manual_seed(rank_seed)
+    np.random.seed(rank_seed % (2 ** 32))  # noqa: NPY002 - any legacy-numpy randomness in a run is seeded too
+    loader = epoch_batches(job.data, cfg, seed, ctx)
+    job.model.train()
+    log = folder.log
+    new_file = not log.is_file()
+    multi = len([s for s in job.stages if s.epochs > 0]) > 1
+    with open(log, "a", newline="") if ctx.is_main else contextlib.nullcontext() as f:
+        writer = None
+        for step, batch in enumerate(loader):
+            if step >= steps:
+                break
+            batch = {k: v.to(device) for k, v in batch.items()}
+            terms, total = stage.losses(batch, (epoch * steps + step) / max(1, stage.epochs * steps))
+            for name, value in terms.items():
+                if not torch.isfinite(value):
+                    raise TrainingError(f"loss {name!r} became {float(value.detach())} at stage {stage.index}, "
+                                        f"epoch {epoch}, step {step}; training stopped (last good checkpoint kept)")
+            opt.zero_grad(set_to_none=True)
+            total.backward()
+            ctx.average_gradients(job.model.parameters())
+            if cfg.grad_clip:
+                torch.nn.utils.clip_grad_norm_(job.model.parameters(), cfg.grad_clip)
+            opt.step()
+            sched.step()
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(**({"stage": stage.index} if multi else {}), loss=f"{float(total.detach()):.4f}")
+            if f is None:  # ranks other than 0 write nothing; the log holds rank 0's losses
+                continue
+            row = {"stage": stage.index, "epoch": epoch, "step": step, "lr": sched.get_last_lr()[0],
+                   "total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
+            if writer is None:
+                fields = columns if len(columns) > len(BASE_COLUMNS) else [*BASE_COLUMNS, *terms]
+                if not new_file:  # a resumed run keeps its log's columns (written by the scapo it started with)
+                    with open(log, newline="") as g:
+                        fields = next(csv.reader(g), None) or fields
+                writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+                if new_file:
+                    writer.writeheader()
+            writer.writerow(row)

@@ -1,0 +1,165 @@
+"""The training engine (scapo.engine): one loop for every trained method, pinned against the loops it replaced,
+and open to a new method defined outside the package (a toy learned method trains, predicts and is scored through
+the CLI with no edit anywhere else)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from torch.utils.data.distributed import DistributedSampler
+
+from scapo.engine import CloudSet, FitConfig, RunFolder
+from scapo.engine.distributed import DistContext
+from scapo.engine.loop import epoch_batches
+from scapo.errors import ConfigError, TrainingError
+from scapo.methods import METHODS, train_method
+
+DATA = Path(__file__).parent / "data"
+PINS = json.loads((DATA / "engine_pins.json").read_text())
+
+
+@pytest.mark.parametrize("key", sorted(PINS["runs"]))
+def test_every_methods_test_preset_gives_the_losses_of_the_loops_before_the_engine(key, tmp_path):
+    """``engine_pins.json`` holds the log of each trained method's ``test`` preset (and ``test/sj``) trained by the
+    two loops the engine replaced (commit c217f4f) on ``tests/data/pin_laptop``: every loss of every step is the
+    same now (bit-identical on the machine that pinned them; 1e-6 relative leaves room for another CPU's
+    float rounding, far below what a different batch order or seed changes)."""
+    method, preset = key.split(":")
+    pin = PINS["runs"][key]
+    train_method(method, DATA / "pin_laptop", tmp_path / "run", preset, progress=False)
+    with open(tmp_path / "run" / "log.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == pin["header"]
+    assert len(rows) - 1 == len(pin["rows"])
+    for got, want in zip(rows[1:], pin["rows"]):
+        assert got[:3] == want[:3]  # stage, epoch, step
+        g = np.array([float(v) if v else np.nan for v in got[3:]])
+        w = np.array([float(v) if v else np.nan for v in want[3:]])
+        np.testing.assert_allclose(g, w, rtol=1e-6, atol=1e-9, err_msg=f"{key} {want[:3]}")
+
+
+def test_the_permutation_order_is_distributed_samplers_and_shards_it_among_ranks():
+    data = CloudSet({"points": torch.randn(10, 32, 3), "part_label": torch.arange(32).repeat(10, 1)}, points=8)
+    cfg = FitConfig(batch_size=2, seed=3, order="permutation")
+    one = [b for b in epoch_batches(data, cfg, 77, DistContext())]
+    assert len(one) == 5 and all(b["points"].shape == (2, 8, 3) for b in one)
+    perm = list(DistributedSampler(range(10), num_replicas=1, rank=0, shuffle=True, seed=77, drop_last=True))
+    got = [int(torch.nonzero((data.clouds == b["points"][i, 0]).all(-1))[0, 0]) for b in one for i in range(2)]
+    assert got == perm
+    # the per-point fields keep the same subset as the points
+    b = one[0]
+    i = perm[0]
+    np.testing.assert_array_equal(b["points"][0].numpy(), data.clouds[i, b["part_label"][0].long()].numpy())
+    # two ranks: each its share of the same permutation (an incomplete last batch is dropped)
+    shares = [[int(torch.nonzero((data.clouds == bb["points"][k, 0]).all(-1))[0, 0]) for bb in
+               epoch_batches(data, cfg, 77, DistContext(rank=r, world=2)) for k in range(len(bb["points"]))]
+              for r in (0, 1)]
+    assert shares[0] == perm[0::2][:4] and shares[1] == perm[1::2][:4]  # 5 each, two full batches of 2
+
+
+def test_a_run_folder_refuses_files_foreign_folders_and_other_identities(tmp_path):
+    ident = {"method": "toy", "preset": {"name": "a", "seed": 0}, "dataset_hash": "x" * 64, "category": "laptop"}
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ConfigError, match="existing file"):
+        RunFolder(tmp_path / "file", ident).check_target()
+    (tmp_path / "foreign").mkdir()
+    (tmp_path / "foreign" / "notes.txt").write_text("x")
+    with pytest.raises(ConfigError, match="non-empty folder without a scapo run"):
+        RunFolder(tmp_path / "foreign", ident).check_target()
+    run = RunFolder(tmp_path / "run", ident)
+    (tmp_path / "run").mkdir()  # train_run makes it (check_output_dir)
+    run.write_identity()
+    assert run.is_current() and run.load_checkpoint() is None
+    other = RunFolder(tmp_path / "run", {**ident, "preset": {"name": "a", "seed": 1}})
+    with pytest.raises(TrainingError, match=r"'toy' run started with preset 'a'.*differ: seed"):
+        other.load_checkpoint()
+    run.save({"model": {}, "epoch": 1})
+    with pytest.raises(TrainingError, match="'toy' run trained with preset 'a'"):
+        other.load_checkpoint()
+    # a normalisation that leaves the seed out makes the two the same run
+    assert RunFolder(tmp_path / "run", other.identity, lambda d: {**d, "preset": {"name": "a"}}).load_checkpoint()
+    (tmp_path / "run" / "checkpoint.pt").write_bytes(b"garbage")
+    with pytest.raises(TrainingError, match="cannot be read"):
+        run.load_checkpoint()
+
+
+# ---------------------------------------------------------------------------------------------- a toy method
+@dataclass(frozen=True)
+class ToyPreset:
+    """A toy method's presets: the fields every learned preset has (scapo.methods.learned.LearnedPreset)."""
+
+    name: str = "test"
+    epochs: int = 2
+    batch_size: int = 4
+    lr: float = 1e-2
+    min_lr: float = 1e-4
+    weight_decay: float = 0.0
+    points: int = 64
+    max_steps_per_epoch: int = 2
+    grad_clip: float = 1.0
+    seed: int = 0
+    device: str = "cpu"
+
+
+class ToyNet(torch.nn.Module):
+    """Predicts each part as the whole cloud, posed at the cloud's centroid plus a learned offset."""
+
+    def __init__(self, card: dict, preset):
+        super().__init__()
+        self.parts = len(card["part_names"])
+        self.joints = len(card["joint_type"])
+        self.offset = torch.nn.Parameter(torch.zeros(3))
+
+    def losses(self, batch: dict, progress: float):
+        pts = batch["points"]
+        err = ((pts.mean(1) + self.offset - pts.mean(1).detach()) ** 2).sum(-1).mean()
+        return {"centre": err}, err
+
+    def infer(self, points: torch.Tensor) -> dict:
+        B, N, _ = points.shape
+        pose = torch.eye(4).repeat(B, self.parts, 1, 1)
+        pose[:, :, :3, 3] = (points.mean(1) + self.offset)[:, None]
+        T = pose[:, 0].clone()
+        axis = torch.tensor([0.0, 0.0, 1.0]).repeat(B, self.joints, 1)
+        return {"part_label": np.zeros((B, N), np.int64), "part_pose": pose.detach().numpy(),
+                "joint_axis": axis.numpy(), "joint_pivot": pose[:, :self.joints, :3, 3].detach().numpy(),
+                "joint_state": np.zeros((B, self.joints)), "T_cam_obj": T.detach().numpy()}
+
+
+@pytest.fixture
+def toy_method():
+    from scapo.methods.learned import LearnedSpec, register_learned
+    from scapo.registry import Registry
+
+    presets = Registry("toy preset")
+    presets.add("test", ToyPreset())
+    presets.add("cpu", ToyPreset(name="cpu"))
+    spec = LearnedSpec(method="toy", presets=presets, fields=("points",), build=ToyNet)
+    register_learned(spec, display="Toy-style", supervision={"pose": False, "segmentation": False, "joint": False},
+                     needs_alignment=True, summary="a toy method defined in a test")
+    yield "toy"
+    METHODS.remove("toy")
+
+
+def test_a_method_defined_outside_the_package_trains_predicts_and_is_scored_through_the_cli(
+        toy_method, laptop_data, tmp_path, capsys):
+    from scapo.cli.main import main
+
+    run, pred = tmp_path / "run", tmp_path / "p.npz"
+    assert main(["train", "--method", toy_method, "--data", str(laptop_data), "--preset", "test", "--out", str(run),
+                 "--no-progress"]) == 0
+    log = list(csv.DictReader(open(run / "log.csv", newline="")))
+    assert list(log[0]) == ["stage", "epoch", "step", "lr", "total", "centre"] and len(log) == 4  # 2 epochs x 2 steps
+    state = torch.load(run / "checkpoint.pt", weights_only=False)
+    assert state["done"] and state["identity"]["method"] == "toy"
+    assert main(["predict", "--run", str(run), "--data", str(laptop_data), "--out", str(pred)]) == 0
+    assert main(["evaluate", "--data", str(laptop_data), "--pred", str(pred), "--out", str(tmp_path / "t")]) == 0
+    out = capsys.readouterr().out
+    assert "Toy-style" in out
+    assert "toy" not in METHODS.names() or METHODS.get("toy").trained
