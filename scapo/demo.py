@@ -23,15 +23,13 @@ def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12,
     from scapo.eval import evaluate
     from scapo.eval.tables import write_table1
     from scapo.files import check_output_dir
-    from scapo.methods import describe, run_method
-    from scapo.models.presets import PRESETS
-    from scapo.models.train import train
+    from scapo.methods import METHODS, describe, run_method, train_method
     from scapo.provenance import provenance, render_device
     from scapo.sim.assets import build_category
     from scapo.viz import prediction_figure
 
     t0 = time.perf_counter()
-    PRESETS.get(preset)  # an unknown preset is refused before any work
+    METHODS.get("scapo").preset(preset)  # an unknown preset is refused before any work
     make_config(category, instances, views, seed, test_fraction=0.25)  # so are bad sizes
     out = check_output_dir(out, "demo output folder")
     _step(f"render device: {render_device()}")
@@ -50,7 +48,7 @@ def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12,
     _step(f"SCAPO: self-supervised training on the training clouds only (preset '{preset}')")
     run = out / f"run_scapo_{preset}"
     scapo_path = out / "predictions_scapo.npz"
-    train(data, run, preset, progress=True)
+    train_method("scapo", data, run, preset, progress=True)
     scapo = run_method("scapo", data, scapo_path, run=run, progress=True)
     ms = scapo.info["ms_per_cloud_test"]
     print(f"   {ms:.0f} ms per test cloud -> {scapo_path}; loss curves in {run}/losses.png")

@@ -10,7 +10,6 @@ start to the last shard's end, excluding process start-up and asset building.
 
 from __future__ import annotations
 
-import functools
 import json
 import multiprocessing as mp
 import tempfile
@@ -131,117 +130,6 @@ def write_perf(rows: list[dict], out_dir: Path, name: str, **prov) -> list[Path]
     atomic_write_text(paths[1], "\n".join(md) + "\n")
     atomic_write_text(paths[2], json.dumps({"rows": rows, "provenance": p}, indent=1) + "\n")
     return paths
-
-
-def _box_clouds(batch: int, n: int, seed: int = 0) -> np.ndarray:
-    """Partial-view-like test clouds: points on three faces of random boxes, 1-2 m from the camera."""
-    rng = np.random.default_rng(seed)
-    out = np.empty((batch, n, 3), dtype=np.float32)
-    for b in range(batch):
-        ext = rng.uniform(0.1, 0.4, 3)
-        face = rng.integers(0, 3, n)
-        p = rng.uniform(-0.5, 0.5, (n, 3)) * ext
-        p[np.arange(n), face] = -0.5 * ext[face]
-        out[b] = p + [0.0, 0.0, rng.uniform(1.0, 2.0)]
-    return out
-
-
-def _median_seconds(fn, iters: int, cuda: bool) -> float:
-    """Median wall time (s) of ``iters`` calls of ``fn()`` after one warm-up call (CUDA synchronised)."""
-    import torch
-
-    times = []
-    for i in range(iters + 1):
-        if cuda:
-            torch.cuda.synchronize()
-        t = time.perf_counter()
-        fn()
-        if cuda:
-            torch.cuda.synchronize()
-        if i:
-            times.append(time.perf_counter() - t)
-    return float(np.median(times))
-
-
-def _inference_speed(fn, device, num_points: int, iters: int) -> dict:
-    """``fn(points (B, N, 3))`` timed on box clouds on ``device``: ms per cloud and clouds/s at batch 1,
-    clouds/s at batch 32 (medians over ``iters`` calls after a warm-up)."""
-    import torch
-
-    out = {}
-    for batch in (1, 32):
-        pts = torch.from_numpy(_box_clouds(batch, num_points, seed=1)).to(device)
-        med = _median_seconds(functools.partial(fn, pts), iters, device.type == "cuda")
-        if batch == 1:
-            out["infer_ms_per_cloud_b1"] = round(1000 * med, 2)
-            out["infer_clouds_per_s_b1"] = round(1 / med, 2)
-        else:
-            out["infer_clouds_per_s_b32"] = round(batch / med, 2)
-    return out
-
-
-def _train_step(model, opt, points, stage: int, losses) -> None:
-    """One optimiser step of ``stage`` on camera-frame ``points (B, N, 3)``, as the trainer takes it."""
-    from scapo.models.scapo_model import SCAPOModel
-    from scapo.models.train import loss_terms
-
-    X, _ = SCAPOModel.normalize(points)
-    _, total = loss_terms(model, X, stage, losses)
-    opt.zero_grad()
-    total.backward()
-    opt.step()
-
-
-def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, num_points: int = 1024) -> list[dict]:
-    """SCAPO speed: training samples/s per stage and inference latency (batch 1) / throughput (batch 32).
-
-    Runs on the given device, or on CPU and (when available) CUDA. Uses synthetic clouds; speed
-    does not depend on what the points show. The targets of the issue are reported next to the
-    measurements (41 clouds/s at batch 1 on a GPU, OP-Align's reported speed; 100 ms per cloud on
-    CPU); they apply to the network's one-pass prediction. When the preset has a test-time
-    refinement (``TrainConfig.refine``), its cost is measured too (``refined_*`` columns: network
-    plus refinement).
-    """
-    import torch
-
-    from scapo.engine.runs import resolve_device
-    from scapo.models.presets import PRESETS
-    from scapo.models.scapo_model import ModelConfig, SCAPOModel
-
-    pc = PRESETS.get(preset)
-    devices = [device] if device else ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-    resolved = {dev: resolve_device(dev) for dev in devices}  # unknown or unavailable devices: ConfigError
-    rows = []
-    for dev in devices:
-        d = resolved[dev]
-        cfg = ModelConfig(2, (0,), ((0, 1),), encoder=pc.encoder, template_points=pc.template_points, gamma=pc.gamma,
-                          root_motion=pc.root_motion)
-        model = SCAPOModel(cfg).to(d)
-        opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-        train_pts = torch.from_numpy(_box_clouds(pc.batch_size, pc.train_points)).to(d)
-        row = {"preset": preset, "device": dev, "batch_size": pc.batch_size, "train_points": pc.train_points}
-        for stage in (1, 2):
-            med = _median_seconds(functools.partial(_train_step, model, opt, train_pts, stage, pc.losses), iters,
-                                  dev == "cuda")
-            row[f"train_stage{stage}_samples_per_s"] = round(pc.batch_size / med, 2)
-        model.eval()
-        row.update(_inference_speed(model.predict, d, num_points, iters))
-        for batch in (1, 32):
-            pts = torch.from_numpy(_box_clouds(batch, num_points, seed=1)).to(d)
-            if pc.refine.steps > 0:  # the preset's test-time refinement on top (scapo.models.refine)
-                med = _median_seconds(functools.partial(model.predict, pts, pc.refine), iters, dev == "cuda")
-                key = "refined_ms_per_cloud_b1" if batch == 1 else "refined_clouds_per_s_b32"
-                row[key] = round(1000 * med, 2) if batch == 1 else round(batch / med, 2)
-        row["refine_steps"] = pc.refine.steps
-        row["target"] = "41 clouds/s at batch 1 (OP-Align)" if dev == "cuda" else "< 100 ms per cloud at batch 1"
-        row["meets_target"] = (row["infer_clouds_per_s_b1"] >= 41) if dev == "cuda" else \
-            (row["infer_ms_per_cloud_b1"] < 100)
-        if "refined_ms_per_cloud_b1" in row:  # the same goal, for the preset's default prediction
-            row["refined_meets_target"] = (1000 / row["refined_ms_per_cloud_b1"] >= 41) if dev == "cuda" else \
-                (row["refined_ms_per_cloud_b1"] < 100)
-        row["threads"] = torch.get_num_threads()
-        rows.append(row)
-    return rows
 
 
 def bench_icp(data: str | Path, limit: int = 0) -> list[dict]:
@@ -368,57 +256,25 @@ def bench_growth(category: str = "laptop", sizes=(100, 1000, 10000), views: int 
 def bench_method(method: str, preset: str = "cpu", device: str | None = None, data: str | Path | None = None,
                  iters: int = 5, num_points: int = 1024) -> list[dict]:
     """Inference speed of any registered method: ms per cloud at batch 1 (and clouds/s at batch 32 for
-    the networks), on the given device, or on CPU and (when available) CUDA.
+    the networks), on the given device, or on CPU and (when available) CUDA; each method times itself through
+    its entry's ``speed`` hook (:class:`~scapo.methods.registry.MethodEntry`).
 
     Learned methods are timed with freshly initialised networks of ``preset``'s size on the
-    partial-view-like box clouds of :func:`bench_model` (speed does not depend on the weights or on
-    what the points show), for a two-part, one-revolute-joint structure; ``scapo`` is
-    :func:`bench_model`. ICP needs ``data``: its template is fitted on the training split and it is timed
-    on the test clouds (the ground-truth segmentation it uses is the dataset's).
+    partial-view-like box clouds of :func:`scapo.engine.speed.box_clouds` (speed does not depend on the weights
+    or on what the points show), for a two-part, one-revolute-joint structure; ``scapo`` also reports its
+    training samples/s per stage and its test-time refinement. ICP needs ``data``: its template is fitted on
+    the training split and it is timed on the test clouds (the ground-truth segmentation it uses is the
+    dataset's).
 
     Raises:
         UnknownNameError: unknown method or preset. ConfigError: ICP without ``data``, an unavailable
         device, or a method without inference to time.
     """
-    import torch
-
-    from scapo.engine.runs import resolve_device
     from scapo.errors import ConfigError
     from scapo.methods import METHODS
 
     entry = METHODS.get(method)
-    if method == "scapo":
-        rows = bench_model(preset, device=device, iters=iters, num_points=num_points)
-        return [{"method": method, **r} for r in rows]
-    if method == "icp":
-        if data is None:
-            raise ConfigError("timing ICP needs --data DATASET: its template is fitted on the training split")
-        from scapo.data.dataset import load
-
-        m = entry.factory()
-        m.fit(load(data, "train"))
-        test = load(data, "test")
-        keep = test.manifest.index[: max(1, iters)]
-        test.manifest = test.manifest.loc[keep]
-        t = time.perf_counter()
-        m.predict(test)
-        ms = 1000 * (time.perf_counter() - t) / len(keep)
-        return [{"method": method, "preset": "-", "device": "cpu", "infer_ms_per_cloud_b1": round(ms, 2),
-                 "infer_clouds_per_s_b1": round(1000 / ms, 2), "clouds_timed": len(keep),
-                 "threads": torch.get_num_threads()}]
-    spec = getattr(entry.factory, "spec", None)
-    if spec is None:
+    if entry.speed is None:
         raise ConfigError(f"method {method!r} has no network to time")
-    pc = spec.presets.get(preset)
-    devices = [device] if device else ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-    resolved = {dev: resolve_device(dev) for dev in devices}
-    card = {"part_names": ["base", "lid"], "joint_type": [0], "joint_parts": [[0, 1]]}
-    rows = []
-    for dev in devices:
-        torch.manual_seed(0)
-        net = spec.build(card, pc).to(resolved[dev]).eval()
-        row = {"method": method, "preset": preset, "device": dev, "points": num_points,
-               **_inference_speed(net.infer, resolved[dev], num_points, iters)}
-        row["threads"] = torch.get_num_threads()
-        rows.append(row)
-    return rows
+    return [{"method": method, **r} for r in entry.speed(preset=preset, device=device, iters=iters,
+                                                          num_points=num_points, data=data)]

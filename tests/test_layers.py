@@ -92,3 +92,31 @@ def test_stage_packages_form_no_cycle():
 
     for n in pkg:
         visit(n)
+
+
+def _from_imports() -> list[tuple[str, str, str]]:
+    """(module, imported-from module, name) of every ``from scapo... import name`` in the package."""
+    root = Path(scapo.__file__).parent
+    out = []
+    for path in root.rglob("*.py"):
+        parts = path.relative_to(root.parent).with_suffix("").parts
+        mod = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("scapo"):
+                out += [(mod, node.module, a.name) for a in node.names]
+    return out
+
+
+def test_rotation_helpers_come_from_ops_only():
+    helpers = {"skew", "exp_so3", "log_so3", "make_transform", "invert_transform", "invert", "rotation_from_rotvec",
+               "rotation_from_6d", "gram_schmidt", "rotation_between"}
+    wrong = [f"{m} imports {n} from {src}" for m, src, n in _from_imports()
+             if n in helpers and not src.startswith("scapo.ops")]  # numpy ones: scapo.ops.rigid
+    assert not wrong, "\n".join(wrong)
+
+
+def test_only_scapos_method_module_and_the_cli_import_the_model_package():
+    allowed = ("scapo.models", "scapo.methods.scapo", "scapo.cli")
+    wrong = sorted({f"{m} imports {src}" for m, src, _ in _from_imports()
+                    if src.startswith("scapo.models") and not m.startswith(allowed)})
+    assert not wrong, "\n".join(wrong)

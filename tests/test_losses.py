@@ -25,14 +25,13 @@ from scapo.nn.skinning import (
     blend,
     bone_transforms,
     cross_space_transforms,
-    exp_so3,
-    invert,
     joint_transform,
-    rotation_between,
     skinning_weights,
 )
 from scapo.ops.chamfer import chamfer_distance
 from scapo.ops.rigid import joint_motion
+from scapo.ops.so3 import exp_so3, rotation_between
+from scapo.ops.so3 import invert_transform as invert
 
 D = torch.float64
 

@@ -11,7 +11,7 @@ from scapo.losses import LossConfig, stage2_terms
 from scapo.models import part_init as PI
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.nn.encoder import EncoderConfig
-from scapo.nn.skinning import exp_so3
+from scapo.ops.so3 import exp_so3
 
 HINGE = torch.tensor([0.0, 0.0, 1.0])
 

@@ -11,9 +11,9 @@ from scapo.models.refine import (
     TemplatePoser,
     posed_template,
     refine_articulation,
-    rotation_from_rotvec,
 )
 from scapo.models.scapo_model import ModelConfig
+from scapo.ops.so3 import rotation_from_rotvec
 
 CFG = ModelConfig(num_parts=2, joint_types=(0,), joint_parts=((0, 1),))
 

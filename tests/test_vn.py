@@ -16,10 +16,10 @@ from scapo.nn.vn import (
     VNTLinearLeakyReLU,
     VNTMaxPool,
     equivariance_error,
-    gram_schmidt,
     random_rotation,
     vn_mean_pool,
 )
+from scapo.ops.so3 import rotation_from_6d as gram_schmidt
 
 TOL = {torch.float32: 1e-4, torch.float64: 1e-8}
 DTYPES = [torch.float32, torch.float64]

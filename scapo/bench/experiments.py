@@ -107,17 +107,17 @@ def table3_cells(categories: Sequence[str], preset: str, seeds: Sequence[int],
                  category_seeds: dict[str, list[int]] | None = None,
                  ablations: Sequence[str] | None = None) -> list[Cell]:
     """The SCAPO ablation's cells: per category and seed, the full model and one run per ablated
-    regulariser (:data:`scapo.models.presets.ABLATIONS`), labelled ``scapo-no-<term>``."""
-    from scapo.models.presets import ABLATIONS, get_preset
-
+    regulariser (the method entry's ``ablations``: :data:`scapo.models.presets.ABLATIONS`), labelled
+    ``scapo-no-<term>``."""
+    entry = METHODS.get("scapo")
     category_seeds = dict(category_seeds or {})
     cells = []
     for cat in categories:
         full = method_preset("scapo", preset, cat)
         for s in category_seeds.get(cat, seeds):
             cells.append(Cell("scapo", cat, int(s), full))
-            for term in (ablations or ABLATIONS):
-                get_preset(f"{full}/no-{term}")  # an unknown term is refused before any work
+            for term in (ablations or entry.ablations):
+                entry.preset(f"{full}/no-{term}")  # an unknown term is refused before any work
                 cells.append(Cell("scapo", cat, int(s), f"{full}/no-{term}", label=f"scapo-no-{term}"))
     return cells
 

@@ -282,41 +282,15 @@ def cmd_evaluate(args) -> int:
 
 
 def _evaluate_twins(args, results) -> None:
-    """``scapo evaluate --twin``: every method's twins scored by render and compare (scapo.twin.score), printed
-    and, with ``--out``, written as ``<name>_twin.{md,csv,json}`` with provenance."""
-    import pandas as pd
-
-    from scapo.files import atomic_write_text
+    """``scapo evaluate --twin``: every method's twins scored by render and compare (:func:`scapo.twin.twin_table`)."""
     from scapo.methods import describe
-    from scapo.provenance import provenance
-    from scapo.report import markdown_table
-    from scapo.twin.score import TWIN_METRICS, twin_scores, twin_summary
+    from scapo.twin import twin_table
 
-    rows, per = [], []
-    for p, res in zip(args.pred, results):
-        ps = twin_scores(args.data, p, split=args.split, limit=args.twin_limit)
-        ps.insert(0, "method", res.method)
-        per.append(ps)
-        s = twin_summary(ps)
-        rows.append([(describe(res.method) or (res.method,))[0], f"{s['twin_built']:.0f}",
-                     *[f"{s[m]:.3f} ({s[m + '_median']:.3f})" for m in TWIN_METRICS]])
-    header = ["Method", "twin built %", *[f"{m} mean (median)" for m in TWIN_METRICS]]
-    table = markdown_table(header, rows, ["l", *["r"] * (len(header) - 1)])
-    print(table)
+    names = [(describe(res.method) or (res.method,))[0] for res in results]
+    print(twin_table(args.data, args.pred, [r.method for r in results], names, split=args.split,
+                     limit=args.twin_limit, out=args.out, name=args.name))
     if args.out:
-        prov = provenance(dataset_hash=results[0].info["dataset_hash"], dataset=str(args.data), split=args.split,
-                          predictions=[str(p) for p in args.pred], twin_samples=int(len(per[0])))
-        legend = ("Render and compare (scapo.twin.score): each test sample's prediction exported as a URDF twin; "
-                  "mask IoU, depth difference (cm) and Chamfer distance (bbox diagonals) between the twin at the "
-                  "predicted state and the true object at the true state, from the observed camera; 'moved': both "
-                  "opened a further 30 deg (prismatic: 10 % of the bbox diagonal) and compared again.")
-        out = Path(args.out)
-        atomic_write_text(out / f"{args.name}_twin.md", "\n".join(["# Twins", "", table, "", legend, "",
-                                                                    f"Provenance: {prov}", ""]))
-        atomic_write_text(out / f"{args.name}_twin.csv", pd.concat(per).to_csv(index=False))
-        atomic_write_text(out / f"{args.name}_twin.json", json.dumps({"provenance": prov, "rows": rows}, indent=1,
-                                                                     default=str) + "\n")
-        print(f"wrote {out / (args.name + '_twin.md')}")
+        print(f"wrote {Path(args.out) / (args.name + '_twin.md')}")
 
 
 def _method_provenance(results) -> dict:
@@ -344,7 +318,6 @@ def _print_summary(results, protocol: str = "scapo") -> None:
 def cmd_bench_choose(args) -> int:
     """``scapo bench choose``: pick an option value on the val split, averaged over seeds."""
     import glob
-    import json
 
     from scapo.bench import choose_on_val
     from scapo.files import check_output_file, write_json
@@ -429,10 +402,10 @@ def cmd_bench(args) -> int:
 
         rows = bench_generate(args.category, instances, views, tuple(args.workers), args.seed, args.cache)
         name = f"generate_{args.category}"
-    elif args.method is None:
-        from scapo.perf import bench_model
+    elif args.method is None:  # SCAPO's training and inference speed
+        from scapo.perf import bench_method
 
-        rows = bench_model(args.preset, device=args.device)
+        rows = bench_method("scapo", args.preset, device=args.device)
         name = f"model_{args.preset}"
     else:
         from scapo.perf import bench_method

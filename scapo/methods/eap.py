@@ -47,9 +47,10 @@ from torch import nn
 from scapo.methods.joints import joint_from_part_poses
 from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned, train_learned
 from scapo.methods.nets import mlp
-from scapo.nn.vn import VNInvariant, VNLinear, VNLinearLeakyReLU, gather_neighbours, gram_schmidt, knn_indices
+from scapo.nn.vn import VNInvariant, VNLinear, VNLinearLeakyReLU, gather_neighbours, knn_indices
 from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist
 from scapo.ops.rigid import invert_transform, relative_motion_to_joint
+from scapo.ops.so3 import rotation_from_6d
 from scapo.registry import Registry
 
 
@@ -119,7 +120,7 @@ class EAPNet(nn.Module):
         wn = w / w.sum(1, keepdim=True).clamp_min(1e-6)
         pooled = torch.einsum("bcin,bnp->bpci", f, wn)  # (B, P, C, 3)
         v = self.frame(pooled.reshape(B * self.P, -1, 3)).view(B, self.P, 3, 3)
-        R = gram_schmidt(v[:, :, 0].reshape(-1, 3), v[:, :, 1].reshape(-1, 3)).view(B, self.P, 3, 3)
+        R = rotation_from_6d(v[:, :, 0].reshape(-1, 3), v[:, :, 1].reshape(-1, 3)).view(B, self.P, 3, 3)
         t = torch.einsum("bnp,bni->bpi", wn, X) + 0.1 * v[:, :, 2]
         code = torch.einsum("bpci,bpij->bpcj", pooled, R).flatten(2)  # invariant: pooled features in the part frame
         Y = self.decoder(code).view(B, self.P, -1, 3)

@@ -439,8 +439,33 @@ class ICPBaseline:
         )
 
 
+def icp_speed(preset: str = "-", device: str | None = None, iters: int = 5, num_points: int = 1024,
+              data=None) -> list[dict]:
+    """ICP's prediction time on the first ``iters`` test clouds of ``data`` after fitting its template on the
+    training split (CPU; ms per cloud). Raises ConfigError without ``data``."""
+    import time
+
+    import torch
+
+    from scapo.data.dataset import load
+
+    if data is None:
+        raise ConfigError("timing ICP needs --data DATASET: its template is fitted on the training split")
+    m = ICPBaseline()
+    m.fit(load(data, "train"))
+    test = load(data, "test")
+    keep = test.manifest.index[: max(1, iters)]
+    test.manifest = test.manifest.loc[keep]
+    t = time.perf_counter()
+    m.predict(test)
+    ms = 1000 * (time.perf_counter() - t) / len(keep)
+    return [{"preset": "-", "device": "cpu", "infer_ms_per_cloud_b1": round(ms, 2),
+             "infer_clouds_per_s_b1": round(1000 / ms, 2), "clouds_timed": len(keep),
+             "threads": torch.get_num_threads()}]
+
+
 @register_method("icp", options=ICPConfig, display="ICP", supervision=ICPBaseline.supervision, needs_alignment=False,
-                 summary="per-part rigid ICP to a category template (GT segmentation at test time)")
+                 summary="per-part rigid ICP to a category template (GT segmentation at test time)", speed=icp_speed)
 def make_icp(**options) -> ICPBaseline:
     """ICP baseline; options are :class:`ICPConfig` fields."""
     return ICPBaseline(**options)

@@ -369,9 +369,32 @@ def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, need
 
     register_method(spec.method, options=options_cls, display=display, supervision=supervision,
                     needs_alignment=needs_alignment, summary=summary, train=trainer,
-                    presets=tuple(spec.presets.names()), run_is_current=current)(factory)
+                    presets=tuple(spec.presets.names()), run_is_current=current,
+                    preset=lambda name: resolve_preset(spec, name),
+                    speed=lambda **kw: learned_speed(spec, **kw))(factory)
     factory.spec = spec
     return factory
+
+
+def learned_speed(spec: LearnedSpec, preset: str = "cpu", device: str | None = None, iters: int = 5,
+                  num_points: int = 1024, data=None) -> list[dict]:
+    """Inference speed of a freshly initialised network of ``preset``'s size (a two-part, one-revolute-joint
+    structure) on box clouds (:func:`scapo.engine.speed.inference_speed`), on ``device`` or on CPU and CUDA
+    when present: one row per device. Raises UnknownNameError (preset), ConfigError (device)."""
+    from scapo.engine.speed import inference_speed
+
+    pc = resolve_preset(spec, preset)
+    devices = [device] if device else ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    resolved = {dev: resolve_device(dev) for dev in devices}
+    card = {"part_names": ["base", "lid"], "joint_type": [0], "joint_parts": [[0, 1]]}
+    rows = []
+    for dev in devices:
+        torch.manual_seed(0)
+        net = spec.build(card, pc).to(resolved[dev]).eval()
+        rows.append({"preset": preset, "device": dev, "points": num_points,
+                     **inference_speed(net.infer, resolved[dev], num_points, iters),
+                     "threads": torch.get_num_threads()})
+    return rows
 
 
 def normalize_clouds(points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

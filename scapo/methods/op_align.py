@@ -50,9 +50,9 @@ from scapo.errors import ConfigError
 from scapo.losses.supervised import joint_loss, seg_nll
 from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned, train_learned
 from scapo.methods.nets import PointResNet, mlp
-from scapo.models.refine import rotation_from_rotvec as exp_so3
 from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist
 from scapo.ops.groups import rotation_group
+from scapo.ops.so3 import rotation_from_rotvec as exp_so3
 from scapo.registry import Registry
 
 

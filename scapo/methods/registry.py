@@ -73,6 +73,11 @@ class MethodEntry:
         run_is_current: for trained methods, ``run_is_current(run, data, preset, seed) -> bool``: the run
             folder holds the run ``train(data, run, preset, seed=seed)`` would start now (False when
             the preset's training fields changed since), so the bench never reports a stale run.
+        preset: for trained methods, ``preset(name) -> preset object``: a registered preset or a variant of one
+            (``cpu/sj``, ``cpu/no-TERM``); raises UnknownNameError for a name the method does not take.
+        ablations: the parts a preset can switch off as ``BASE/no-TERM`` (the paper's Table 3 for SCAPO).
+        speed: ``speed(preset, device, iters, num_points, data) -> list of rows`` timing the method's inference
+            (``scapo bench perf --what model --method NAME``); None for a method with nothing to time.
     """
 
     name: str
@@ -87,6 +92,9 @@ class MethodEntry:
     variants: Mapping[str, str] = field(default_factory=dict)
     inference: Callable[[Path], dict] | None = None
     run_is_current: Callable[..., bool] | None = None
+    preset: Callable[[str], Any] | None = None
+    ablations: tuple[str, ...] = ()
+    speed: Callable[..., list] | None = None
 
     @property
     def trained(self) -> bool:
@@ -106,7 +114,8 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
                     needs_alignment: bool, summary: str = "", train: Callable[..., Path] | None = None,
                     presets: tuple[str, ...] = (), variants: Mapping[str, str] | None = None,
                     inference: Callable[[Path], dict] | None = None,
-                    run_is_current: Callable[..., bool] | None = None):
+                    run_is_current: Callable[..., bool] | None = None, preset: Callable[[str], Any] | None = None,
+                    ablations: tuple[str, ...] = (), speed: Callable[..., list] | None = None):
     """Decorator registering a method factory under ``name`` (see :class:`MethodEntry`).
 
     Raises:
@@ -120,7 +129,8 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
 
     def deco(factory):
         METHODS.add(name, MethodEntry(name, factory, options, display, dict(supervision), needs_alignment, summary,
-                                      train, tuple(presets), dict(variants or {}), inference, run_is_current))
+                                      train, tuple(presets), dict(variants or {}), inference, run_is_current,
+                                      preset, tuple(ablations), speed))
         factory.options = options
         return factory
 

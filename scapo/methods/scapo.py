@@ -20,7 +20,7 @@ from scapo.losses.supervised import supervision_marks
 from scapo.methods.learned import LearnedOptions, check_run_fits
 from scapo.methods.registry import register_method
 from scapo.models.predict import Predictor
-from scapo.models.presets import PRESETS
+from scapo.models.presets import ABLATIONS, PRESETS, get_preset
 
 
 @dataclass(frozen=True)
@@ -142,11 +142,17 @@ def _train(data, run, preset=None, progress=True, device=None, seed=None):
     return train(data, run, preset, progress=progress, device=device, seed=seed)
 
 
+def _speed(preset: str = "cpu", device: str | None = None, iters: int = 5, num_points: int = 1024, data=None):
+    from scapo.models.speed import bench_model
+
+    return bench_model(preset, device=device, iters=iters, num_points=num_points)
+
+
 @register_method("scapo", options=SCAPOOptions, display="SCAPO (ours)", supervision=SCAPOMethod.supervision,
                  needs_alignment=True, summary="self-supervised SE(3)-equivariant skinning (the paper's method)",
                  train=_train, presets=tuple(PRESETS.names()),
                  variants={"scapo-no-refine": "SCAPO (ours, no refinement)"}, inference=inference_settings,
-                 run_is_current=_run_is_current)
+                 run_is_current=_run_is_current, preset=get_preset, ablations=ABLATIONS, speed=_speed)
 def make_scapo(**options) -> SCAPOMethod:
     """SCAPO (ours) from a trained run; options are :class:`SCAPOOptions` fields."""
     return SCAPOMethod(**options)

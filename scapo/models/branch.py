@@ -35,8 +35,8 @@ import math
 import torch
 
 from scapo.models.part_init import fibonacci_hemisphere
-from scapo.nn.skinning import exp_so3
 from scapo.ops.chamfer import trimmed_one_sided_chamfer
+from scapo.ops.so3 import exp_so3
 
 EPS = 1e-12
 

@@ -37,8 +37,9 @@ from dataclasses import dataclass
 
 import torch
 
-from scapo.nn.skinning import blend, bone_transforms, exp_so3, root_joint, skew
+from scapo.nn.skinning import blend, bone_transforms, root_joint
 from scapo.ops.groups import octahedral_rotations
+from scapo.ops.so3 import skew
 
 
 @dataclass(frozen=True)
@@ -136,12 +137,6 @@ def upright_direction(R: torch.Tensor, radius_deg: float = 45.0, iterations: int
         d = d / d.norm().clamp_min(1e-12)
     support = float(((u @ d) >= cos).double().mean())
     return torch.stack([d, v]).to(R.dtype), support
-
-
-def rotation_from_rotvec(w: torch.Tensor) -> torch.Tensor:
-    """``w (B, 3)`` rotation vectors (rad) -> ``(B, 3, 3)``; smooth at ``w = 0``."""
-    angle = torch.sqrt((w * w).sum(-1) + 1e-20)
-    return exp_so3(w / angle.unsqueeze(-1), angle)
 
 
 def posed_template(joint_types, joint_parts, num_parts: int, template_rest: torch.Tensor, weights: torch.Tensor,

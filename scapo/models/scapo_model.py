@@ -32,10 +32,9 @@ from scapo.nn.skinning import (
     blend,
     bone_transforms,
     cross_space_transforms,
-    invert,
     skinning_weights,
 )
-from scapo.nn.vn import gram_schmidt
+from scapo.ops.so3 import invert_transform, rotation_from_6d
 
 
 @dataclass(frozen=True)
@@ -99,7 +98,7 @@ class KeypointHead(nn.Module):
 
     def forward(self, code: torch.Tensor):
         o = self.net(code).reshape(-1, self.P, 12)
-        V = gram_schmidt(o[..., 3:6].reshape(-1, 3), o[..., 6:9].reshape(-1, 3)).reshape(-1, self.P, 3, 3)
+        V = rotation_from_6d(o[..., 3:6].reshape(-1, 3), o[..., 6:9].reshape(-1, 3)).reshape(-1, self.P, 3, 3)
         return o[..., :3], V.transpose(-1, -2), o[..., 9:].clamp(-4.0, 1.0)
 
 
@@ -208,7 +207,7 @@ class SCAPOModel(nn.Module):
         jt, jp, P = cfg.joint_types, cfg.joint_parts, cfg.num_parts
         T_x = bone_transforms(jt, jp, d_x, c_x, a_x, P, b_x)  # canonical -> aligned input
         T_y = bone_transforms(jt, jp, d_y, c_y, a_y, P, b_y)
-        T_x_inv, T_y_inv = invert(T_x), invert(T_y)
+        T_x_inv, T_y_inv = invert_transform(T_x), invert_transform(T_y)
         w, W = skinning_weights(S_obj, K, V, log_s, cfg.gamma)
         S_star = blend(S_obj, w, T_x_inv)  # backward D^{o->c}
         K_star = apply_per_part(T_x_inv, K)
@@ -225,7 +224,7 @@ class SCAPOModel(nn.Module):
         Y_hat = blend(Y_star, w_ystar, T_y)
         # cross-space alignment
         S_x2y = blend(S_obj, w, T_xy)
-        S_y2x = blend(Y, w_y, invert(T_xy))
+        S_y2x = blend(Y, w_y, invert_transform(T_xy))
         return {
             "R": R, "S_obj": S_obj, "K": K, "V": V, "log_scale": log_s, "w": w, "W": W,
             "Y": Y, "delta": delta, "pivot_x": c_x, "axis_x": d_x, "state_x": a_x,

@@ -21,9 +21,9 @@ from scapo.nn.vn import (
     VNTLinear,
     VNTLinearLeakyReLU,
     gather_neighbours,
-    gram_schmidt,
     knn_indices,
 )
+from scapo.ops.so3 import rotation_from_6d
 
 
 @dataclass(frozen=True)
@@ -101,7 +101,7 @@ class SE3Encoder(nn.Module):
         pooled = torch.cat([g.mean(-1), keypts], dim=1)  # (B, C + K, 3)
         v = self.r_out(self.r_head(pooled.unsqueeze(-1))).squeeze(-1)  # (B, 3, 3): three vectors (rows)
         R_raw = v.transpose(1, 2)  # columns are the vectors
-        R = gram_schmidt(v[:, 0], v[:, 1])
+        R = rotation_from_6d(v[:, 0], v[:, 1])
         inv = torch.einsum("bci,bij->bcj", pooled, R)  # coordinates in the frame R: invariant
         return EncoderOutput(t, R_raw, R, self.code(inv.reshape(B, -1)))
 

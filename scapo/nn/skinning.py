@@ -20,41 +20,9 @@ from __future__ import annotations
 
 import torch
 
+from scapo.ops.so3 import exp_so3, make_transform, rotation_between
+
 EPS = 1e-8
-
-
-def skew(v: torch.Tensor) -> torch.Tensor:
-    """Skew-symmetric matrices ``[v]_x (..., 3, 3)`` of vectors ``v (..., 3)``."""
-    z = torch.zeros_like(v[..., 0])
-    return torch.stack([
-        torch.stack([z, -v[..., 2], v[..., 1]], -1),
-        torch.stack([v[..., 2], z, -v[..., 0]], -1),
-        torch.stack([-v[..., 1], v[..., 0], z], -1),
-    ], -2)
-
-
-def exp_so3(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
-    """``ExpSO3([d]_x a)`` by Rodrigues' formula: unit ``axis (..., 3)``, ``angle (...)`` rad -> ``(..., 3, 3)``."""
-    K = skew(axis)
-    s = torch.sin(angle)[..., None, None]
-    c = torch.cos(angle)[..., None, None]
-    eye = torch.eye(3, dtype=axis.dtype, device=axis.device).expand(K.shape)
-    return eye + s * K + (1 - c) * (K @ K)
-
-
-def make_transform(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-    """``(..., 3, 3)``, ``(..., 3)`` -> ``(..., 4, 4)``."""
-    T = torch.zeros(R.shape[:-2] + (4, 4), dtype=R.dtype, device=R.device)
-    T[..., :3, :3] = R
-    T[..., :3, 3] = t
-    T[..., 3, 3] = 1.0
-    return T
-
-
-def invert(T: torch.Tensor) -> torch.Tensor:
-    """Inverse of rigid transforms ``(..., 4, 4)``."""
-    Rt = T[..., :3, :3].transpose(-1, -2)
-    return make_transform(Rt, -(Rt @ T[..., :3, 3:4]).squeeze(-1))
 
 
 def apply(T: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
@@ -147,26 +115,6 @@ def blend(points: torch.Tensor, weights: torch.Tensor, T: torch.Tensor) -> torch
     """
     moved = torch.einsum("bpij,bnj->bnpi", T[:, :, :3, :3], points) + T[:, None, :, :3, 3]  # (B, N, P, 3)
     return (weights.unsqueeze(-1) * moved).sum(2)
-
-
-def rotation_between(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Smallest rotation ``R_r (B, 3, 3)`` with ``R_r a = b`` for unit vectors ``a, b (B, 3)``.
-
-    Rodrigues with axis ``a x b``; for (nearly) opposite vectors the limit is a 180-degree turn,
-    handled by falling back to any axis perpendicular to ``a``.
-    """
-    v = torch.cross(a, b, dim=-1)
-    c = (a * b).sum(-1).clamp(-1.0, 1.0)
-    s = v.norm(dim=-1)
-    angle = torch.atan2(s, c)
-    axis = v / (s.unsqueeze(-1) + EPS)
-    # opposite vectors: rotate by pi about an axis perpendicular to a
-    helper = torch.where((a[..., :1].abs() < 0.9), torch.tensor([1.0, 0.0, 0.0], dtype=a.dtype, device=a.device),
-                         torch.tensor([0.0, 1.0, 0.0], dtype=a.dtype, device=a.device))
-    perp = torch.cross(a, helper, dim=-1)
-    perp = perp / (perp.norm(dim=-1, keepdim=True) + EPS)
-    axis = torch.where((s < 1e-6).unsqueeze(-1) & (c < 0).unsqueeze(-1), perp, axis)
-    return exp_so3(axis, angle)
 
 
 def cross_space_transforms(joint_types, joint_parts, num_parts: int, pivot_x, axis_x, state_x, pivot_y, axis_y,

@@ -22,6 +22,7 @@ import torch.distributed
 from torch import nn
 
 from scapo.ops.groups import random_rotation
+from scapo.ops.so3 import rotation_from_6d
 
 EPS = 1e-6
 
@@ -205,14 +206,6 @@ class VNTMaxPool(nn.Module):
         return x.gather(-1, idx).squeeze(-1)
 
 
-def gram_schmidt(v1: torch.Tensor, v2: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices (B, 3, 3) with columns from two vectors (B, 3): equivariant under SO(3)."""
-    u1 = v1 / v1.norm(dim=-1, keepdim=True).clamp_min(EPS)
-    w = v2 - (v2 * u1).sum(-1, keepdim=True) * u1
-    u2 = w / w.norm(dim=-1, keepdim=True).clamp_min(EPS)
-    return torch.stack([u1, u2, torch.cross(u1, u2, dim=-1)], dim=-1)
-
-
 class VNInvariant(nn.Module):
     """VN invariant layer: a learned equivariant frame ``F (B, 3, 3)`` (columns) from the features,
     then invariant coordinates ``F^T v`` of every feature vector: ``(B, C, 3, *S) -> (B, C, 3, *S)``."""
@@ -225,7 +218,7 @@ class VNInvariant(nn.Module):
     def forward(self, x: torch.Tensor, pooled: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         src = pooled if pooled is not None else x.mean(dim=tuple(range(3, x.dim())))
         z = self.frame(self.vn1(src.unsqueeze(-1)).squeeze(-1))  # (B, 2, 3)
-        F = gram_schmidt(z[:, 0], z[:, 1])
+        F = rotation_from_6d(z[:, 0], z[:, 1])
         inv = torch.einsum("bci...,bij->bcj...", x, F)
         return inv, F
 

@@ -55,7 +55,3 @@ def random_rotation(batch: int, dtype=torch.float64, generator: torch.Generator 
     return Q
 
 
-def geodesic_angle(Ra: torch.Tensor, Rb: torch.Tensor) -> torch.Tensor:
-    """Geodesic angle (rad) between rotations ``Ra, Rb (..., 3, 3)`` -> ``(...)``."""
-    tr = (Ra.transpose(-1, -2) @ Rb).diagonal(dim1=-2, dim2=-1).sum(-1)
-    return torch.arccos(((tr - 1) / 2).clamp(-1.0, 1.0))

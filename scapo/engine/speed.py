@@ -1,0 +1,56 @@
+"""Timing a network the same way for every method (``scapo bench perf --what model``): medians over repeated
+calls after a warm-up, on partial-view-like synthetic clouds (speed does not depend on what the points show)."""
+
+from __future__ import annotations
+
+import functools
+import time
+
+import numpy as np
+
+
+def box_clouds(batch: int, n: int, seed: int = 0) -> np.ndarray:
+    """Partial-view-like test clouds: points on three faces of random boxes, 1-2 m from the camera."""
+    rng = np.random.default_rng(seed)
+    out = np.empty((batch, n, 3), dtype=np.float32)
+    for b in range(batch):
+        ext = rng.uniform(0.1, 0.4, 3)
+        face = rng.integers(0, 3, n)
+        p = rng.uniform(-0.5, 0.5, (n, 3)) * ext
+        p[np.arange(n), face] = -0.5 * ext[face]
+        out[b] = p + [0.0, 0.0, rng.uniform(1.0, 2.0)]
+    return out
+
+
+def median_seconds(fn, iters: int, cuda: bool) -> float:
+    """Median wall time (s) of ``iters`` calls of ``fn()`` after one warm-up call (CUDA synchronised)."""
+    import torch
+
+    times = []
+    for i in range(iters + 1):
+        if cuda:
+            torch.cuda.synchronize()
+        t = time.perf_counter()
+        fn()
+        if cuda:
+            torch.cuda.synchronize()
+        if i:
+            times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
+def inference_speed(fn, device, num_points: int, iters: int) -> dict:
+    """``fn(points (B, N, 3))`` timed on box clouds on ``device``: ms per cloud and clouds/s at batch 1,
+    clouds/s at batch 32 (medians over ``iters`` calls after a warm-up)."""
+    import torch
+
+    out = {}
+    for batch in (1, 32):
+        pts = torch.from_numpy(box_clouds(batch, num_points, seed=1)).to(device)
+        med = median_seconds(functools.partial(fn, pts), iters, device.type == "cuda")
+        if batch == 1:
+            out["infer_ms_per_cloud_b1"] = round(1000 * med, 2)
+            out["infer_clouds_per_s_b1"] = round(1 / med, 2)
+        else:
+            out["infer_clouds_per_s_b32"] = round(batch / med, 2)
+    return out
