@@ -29,11 +29,21 @@ def two_slabs(n: int = 300) -> tuple[torch.Tensor, torch.Tensor]:
     return torch.cat([base, screen])[None], w[None]
 
 
+class FakeOutput(dict):
+    """A slice of :class:`scapo.nn.outputs.SCAPOOutput`: its fields as attributes (and by name)."""
+
+    def __getattr__(self, name):
+        try:
+            return self[name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+
 def fake_forward(rest, w, state0, R0, t0, root0=None):
     """The slice of ``SCAPOModel.forward`` outputs that the refinement reads."""
-    return {"enc": SimpleNamespace(R=R0, t=t0), "pivot_y": torch.tensor([[[0.3, 0.0, 0.0]]]),
+    return FakeOutput({"enc": SimpleNamespace(R=R0, t=t0), "pivot_y": torch.tensor([[[0.3, 0.0, 0.0]]]),
             "axis_y": torch.tensor([[[0.0, 1.0, 0.0]]]), "Y_star": rest, "w_ystar": w,
-            "state_x": state0, "root_x": root0}
+            "state_x": state0, "root_x": root0})
 
 
 def test_posed_template_moves_only_the_child_by_the_joint_state():
@@ -193,7 +203,7 @@ def test_octahedral_starts_keep_the_network_start_unless_the_margin_is_beaten():
             for k in out}
     both.update({k: out[k].expand(2, *out[k].shape[1:]) for k in ("pivot_y", "axis_y", "Y_star", "w_ystar")})
     both["enc"] = SimpleNamespace(R=torch.cat([out["enc"].R, bad["enc"].R]), t=torch.zeros(2, 3))
-    r = refine_articulation(CFG, torch.cat([obs, obs2]), both, RefineConfig(**rc, starts="octahedral"))
+    r = refine_articulation(CFG, torch.cat([obs, obs2]), FakeOutput(both), RefineConfig(**rc, starts="octahedral"))
     assert r["start"][0].item() == 0 and r["start"][1].item() != 0
 
 

@@ -24,6 +24,7 @@ from scapo.losses.scapo_losses import (
     seg_loss,
     shape_var_loss,
 )
+from scapo.nn.outputs import SCAPOOutput, Stage1Output
 from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist
 
 #: Regularisers that can be switched off (Table 3 ablations and more).
@@ -90,65 +91,65 @@ class LossConfig:
         return 0.0 if name in self.disabled else float(getattr(self, name))
 
 
-def stage1_terms(model, X: torch.Tensor, s1: dict, cfg: LossConfig | None = None, align: bool = True
+def stage1_terms(model, X: torch.Tensor, s1: Stage1Output, cfg: LossConfig | None = None, align: bool = True
                  ) -> dict[str, torch.Tensor]:
     """Unweighted stage-1 loss terms (the two consistency terms use half of the batch, for speed).
     ``align`` False leaves out the cross-instance alignment term; ``consensus`` is computed when
     ``cfg`` gives it a positive weight."""
     terms = {
-        "rec": reconstruction_loss(X, s1["X_rec"]),
-        "ortho": orthonormality_loss(s1["enc"].R_raw),
+        "rec": reconstruction_loss(X, s1.X_rec),
+        "ortho": orthonormality_loss(s1.enc.R_raw),
         "aug_consist": augmentation_consistency_loss(model, X, s1, max_batch=max(2, X.shape[0] // 2)),
-        "can_consist": canonical_consistency_loss(model, s1["S_dec"][: max(2, X.shape[0] // 2)]),
+        "can_consist": canonical_consistency_loss(model, s1.S_dec[: max(2, X.shape[0] // 2)]),
     }
     if align:
-        terms["align"] = cross_instance_alignment_loss(X, s1["enc"].t, s1["enc"].R)
+        terms["align"] = cross_instance_alignment_loss(X, s1.enc.t, s1.enc.R)
     if cfg is not None and cfg.weight("consensus") > 0:
-        enc = s1["enc"]
+        enc = s1.enc
         terms["consensus"], _ = consensus_rotation_loss(X, enc.t, enc.R_raw, enc.R,
                                                         candidate_rotations(cfg.consensus_small_deg, X.dtype))
     return terms
 
 
-def stage2_terms(model, X: torch.Tensor, out: dict, cfg: LossConfig) -> dict[str, torch.Tensor]:
+def stage2_terms(model, X: torch.Tensor, out: SCAPOOutput, cfg: LossConfig) -> dict[str, torch.Tensor]:
     """Unweighted stage-2 loss terms (cycle, cross-space, regularisers); disabled ones are skipped."""
     mc = model.cfg
     jt, jp = mc.joint_types, mc.joint_parts
     terms = {
-        "cycle": cycle_loss(X, out["X_hat"]) + cycle_loss(out["Y"], out["Y_hat"]),
-        "recon": cross_space_loss(out["S_x2y"], out["Y"], out["S_y2x"], out["S_obj"]),
+        "cycle": cycle_loss(X, out.X_hat) + cycle_loss(out.Y, out.Y_hat),
+        "recon": cross_space_loss(out.S_x2y, out.Y, out.S_y2x, out.S_obj),
     }
     on = [r for r in REGULARISERS if r not in cfg.disabled]
     if "kp_seg" in on:
-        terms["kp_seg"] = (kp_seg_loss(out["S_obj"], out["w"], out["K"], cfg.kp_min_support)
-                           + kp_seg_loss(out["Y"], out["w_y"], out["K_y"], cfg.kp_min_support)
-                           + kp_seg_loss(out["S_star"], out["w_star"], out["K_star"], cfg.kp_min_support))
+        terms["kp_seg"] = (kp_seg_loss(out.S_obj, out.w, out.K, cfg.kp_min_support)
+                           + kp_seg_loss(out.Y, out.w_y, out.K_y, cfg.kp_min_support)
+                           + kp_seg_loss(out.S_star, out.w_star, out.K_star, cfg.kp_min_support))
     if "seg" in on:
         if cfg.seg_fixed_centres:
             from scapo.nn.skinning import skinning_weights
 
-            V, ls, g = out["V"], out["log_scale"], mc.gamma
-            w = skinning_weights(out["S_obj"].detach(), out["K"].detach(), V, ls, g)[0]
-            w_star = skinning_weights(out["S_star"].detach(), out["K_star"].detach(), V, ls, g)[0]
+            V, ls, g = out.V, out.log_scale, mc.gamma
+            w = skinning_weights(out.S_obj.detach(), out.K.detach(), V, ls, g)[0]
+            w_star = skinning_weights(out.S_star.detach(), out.K_star.detach(), V, ls, g)[0]
         else:
-            w, w_star = out["w"], out["w_star"]
+            w, w_star = out.w, out.w_star
         if cfg.seg_labels == "gaussian":  # targets from Gaussians fitted to the current soft split (no gradient)
-            y = gaussian_part_labels(out["S_obj"], out["w"])
-            terms["seg"] = seg_loss(out["S_obj"], w, out["K"], y) + seg_loss(out["S_star"], w_star, out["K_star"], y)
+            y = gaussian_part_labels(out.S_obj, out.w)
+            terms["seg"] = seg_loss(out.S_obj, w, out.K, y) + seg_loss(out.S_star, w_star, out.K_star, y)
         else:
-            terms["seg"] = seg_loss(out["S_obj"], w, out["K"]) + seg_loss(out["S_star"], w_star, out["K_star"])
+            terms["seg"] = seg_loss(out.S_obj, w, out.K) + seg_loss(out.S_star, w_star, out.K_star)
     if "shape_var" in on:
-        terms["shape_var"] = shape_var_loss(out["delta"], cfg.lambda_var)
+        terms["shape_var"] = shape_var_loss(out.delta, cfg.lambda_var)
     if "dir_align" in on:
-        terms["dir_align"] = (dir_align_loss(out["S_star"], out["w_star"], out["axis_x"], jt, jp)
-                              + dir_align_loss(out["Y"], out["w_y"], out["axis_y"], jt, jp))
+        terms["dir_align"] = (dir_align_loss(out.S_star, out.w_star, out.axis_x, jt, jp)
+                              + dir_align_loss(out.Y, out.w_y, out.axis_y, jt, jp))
     if "joint_prox" in on:
-        terms["joint_prox"] = (joint_prox_loss(out["S_star"], out["pivot_x"], jt, cfg.lambda_prox)
-                               + joint_prox_loss(out["Y"], out["pivot_y"], jt, cfg.lambda_prox))
+        terms["joint_prox"] = (joint_prox_loss(out.S_star, out.pivot_x, jt, cfg.lambda_prox)
+                               + joint_prox_loss(out.Y, out.pivot_y, jt, cfg.lambda_prox))
     if "joint_boundary" in on:
-        terms["joint_boundary"] = (joint_boundary_loss(out["S_star"], out["w_star"], out["pivot_x"], jt,
+        terms["joint_boundary"] = (joint_boundary_loss(out.S_star, out.w_star, out.pivot_x, jt,
                                                        cfg.boundary_temperature)
-                                   + joint_boundary_loss(out["Y"], out["w_y"], out["pivot_y"], jt,
+                                   + joint_boundary_loss(out.Y, out.w_y, out.pivot_y, jt,
                                                          cfg.boundary_temperature))
     return terms
 

@@ -14,6 +14,8 @@ import functools
 import numpy as np
 import torch
 
+from scapo.nn.encoder import EncoderOutput
+from scapo.nn.outputs import Stage1Output
 from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist, trimmed_one_sided_chamfer
 from scapo.ops.groups import random_rotation, rotation_group
 
@@ -32,18 +34,17 @@ def orthonormality_loss(R_raw: torch.Tensor) -> torch.Tensor:
     return ((R_raw @ R_raw.transpose(1, 2) - eye) ** 2).sum((1, 2)).mean()
 
 
-def augmentation_consistency_loss(model, X: torch.Tensor, s1: dict, keep: float = 0.75,
+def augmentation_consistency_loss(model, X: torch.Tensor, s1: Stage1Output, keep: float = 0.75,
                                   max_batch: int | None = None) -> torch.Tensor:
     """``L_aug_consist``: a re-sampled (a random ``keep`` fraction of the points), randomly rotated
     and translated copy ``X' = Q X_sub + u`` must give the same canonical shape and the
     correspondingly moved pose: ``CD(S, S') + ||R' - Q R||^2 + ||t' - (Q t + u)||^2``.
     ``max_batch`` limits the term to the first clouds of the batch (cost)."""
     if max_batch is not None and max_batch < X.shape[0]:
-        enc = s1["enc"]
-        from scapo.nn.encoder import EncoderOutput
-
-        s1 = {"enc": EncoderOutput(enc.t[:max_batch], enc.R_raw[:max_batch], enc.R[:max_batch],
-                                   enc.code[:max_batch]), "S_dec": s1["S_dec"][:max_batch]}
+        enc = s1.enc
+        s1 = Stage1Output(EncoderOutput(enc.t[:max_batch], enc.R_raw[:max_batch], enc.R[:max_batch],
+                                        enc.code[:max_batch]), s1.S_dec[:max_batch], s1.F_x[:max_batch],
+                          s1.X_rec[:max_batch])
         X = X[:max_batch]
     B, N, _ = X.shape
     n = max(16, int(keep * N))
@@ -53,8 +54,8 @@ def augmentation_consistency_loss(model, X: torch.Tensor, s1: dict, keep: float 
     u = 0.2 * torch.randn(B, 3, dtype=X.dtype, device=X.device)
     aug = sub @ Q.transpose(1, 2) + u[:, None]
     a1 = model.stage1(aug)
-    e, ea = s1["enc"], a1["enc"]
-    loss = chamfer_distance(s1["S_dec"], a1["S_dec"])
+    e, ea = s1.enc, a1.enc
+    loss = chamfer_distance(s1.S_dec, a1.S_dec)
     loss = loss + ((ea.R_raw - Q @ e.R_raw) ** 2).sum((1, 2))
     loss = loss + ((ea.t - ((Q @ e.t.unsqueeze(-1)).squeeze(-1) + u)) ** 2).sum(-1)
     return loss.mean()

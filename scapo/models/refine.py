@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import torch
 
+from scapo.nn.outputs import SCAPOOutput
 from scapo.nn.skinning import blend, bone_transforms, root_joint
 from scapo.ops.groups import octahedral_rotations
 from scapo.ops.so3 import skew
@@ -224,7 +225,8 @@ class TemplatePoser:
         return model, T, R, t
 
 
-def refine_articulation(cfg, X: torch.Tensor, out: dict, rc: RefineConfig, upright: torch.Tensor | None = None) -> dict:
+def refine_articulation(cfg, X: torch.Tensor, out: SCAPOOutput, rc: RefineConfig,
+                        upright: torch.Tensor | None = None) -> dict:
     """Fit the posed template of a SCAPO forward pass to the observed cloud (see module docstring).
 
     Args:
@@ -248,12 +250,12 @@ def refine_articulation(cfg, X: torch.Tensor, out: dict, rc: RefineConfig, uprig
     """
     if rc.steps <= 0:
         raise ValueError("refine_articulation needs rc.steps > 0")
-    enc = out["enc"]
-    R0, t0 = out.get("R", enc.R).detach(), enc.t.detach()  # the stage-2 frame (branch-corrected)
-    state0 = out["state_x"].detach()
-    root0 = out["root_x"].detach() if out.get("root_x") is not None else None
-    rest, weights = out["Y_star"].detach(), out["w_ystar"].detach()
-    pivot, axis = out["pivot_y"].detach(), out["axis_y"].detach()
+    enc = out.enc
+    R0, t0 = getattr(out, "R", enc.R).detach(), enc.t.detach()  # the stage-2 frame (branch-corrected)
+    state0 = out.state_x.detach()
+    root0 = out.root_x.detach() if out.root_x is not None else None
+    rest, weights = out.Y_star.detach(), out.w_ystar.detach()
+    pivot, axis = out.pivot_y.detach(), out.axis_y.detach()
     X = X.detach()
     if rc.starts == "network":
         return _fit(cfg, X, rest, weights, pivot, axis, R0, t0, state0, root0, rc.steps, rc.lr, rc.points, rc.seed)

@@ -19,6 +19,7 @@ cycle on ``Y_X``; cross-space maps ``S_obj -> Y`` and ``Y_X -> X``.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import torch
@@ -27,6 +28,7 @@ from torch import nn
 from scapo.models.branch import apply_branch
 from scapo.models.refine import RefineConfig, refine_articulation
 from scapo.nn.encoder import EncoderConfig, SE3Encoder, ShapeDecoder
+from scapo.nn.outputs import SCAPOOutput, Stage1Output
 from scapo.nn.skinning import (
     apply_per_part,
     blend,
@@ -186,21 +188,22 @@ class SCAPOModel(nn.Module):
         finally:
             self.train(was_training)
 
-    def stage1(self, X: torch.Tensor) -> dict:
+    def stage1(self, X: torch.Tensor) -> Stage1Output:
         """Canonicalisation on normalised points ``X (B, N, 3)``."""
         enc = self.encoder(X)
         S_dec, F_x = self.decoder(enc.code)
         X_rec = S_dec @ enc.R.transpose(1, 2) + enc.t[:, None]  # rigid: R in SO(3) (Gram-Schmidt of R_raw)
-        return {"enc": enc, "S_dec": S_dec, "F_x": F_x, "X_rec": X_rec}
+        return Stage1Output(enc=enc, S_dec=S_dec, F_x=F_x, X_rec=X_rec)
 
-    def stage2(self, X: torch.Tensor, s1: dict) -> dict:
-        """Joint-aware deformation given the stage-1 outputs (see module docstring)."""
+    def stage2(self, X: torch.Tensor, s1: Stage1Output) -> dict:
+        """Joint-aware deformation given the stage-1 outputs (see module docstring): the fields of
+        :class:`~scapo.nn.outputs.SCAPOOutput` beyond :class:`~scapo.nn.outputs.Stage1Output`'s."""
         cfg = self.cfg
-        enc = s1["enc"]
+        enc = s1.enc
         R, t = apply_branch(enc.R, self.branch, self.branch_flip), enc.t
         S_obj = (X - t[:, None]) @ R  # R^T (x - t) for row vectors
         K, V, log_s = self.keypoints(enc.code)
-        delta = self.residual(s1["F_x"]).reshape(-1, cfg.template_points, 3)
+        delta = self.residual(s1.F_x).reshape(-1, cfg.template_points, 3)
         Y = self.y_base.unsqueeze(0) + delta
         c_x, d_x, a_x, b_x = self.joints(S_obj)
         c_y, d_y, a_y, b_y = self.joints(Y)
@@ -235,11 +238,14 @@ class SCAPOModel(nn.Module):
             "S_x2y": S_x2y, "S_y2x": S_y2x,
         }
 
-    def forward(self, X: torch.Tensor, stage: int = 2) -> dict:
+    def forward(self, X: torch.Tensor, stage: int = 2) -> Stage1Output | SCAPOOutput:
+        """Normalised points ``X (B, N, 3)`` -> :class:`~scapo.nn.outputs.Stage1Output` (``stage`` 1) or
+        :class:`~scapo.nn.outputs.SCAPOOutput` (2: both stages)."""
         s1 = self.stage1(X)
         if stage == 1:
             return s1
-        return {**s1, **self.stage2(X, s1)}
+        return SCAPOOutput(**{f.name: getattr(s1, f.name) for f in dataclasses.fields(Stage1Output)},
+                           **self.stage2(X, s1))
 
     # ------------------------------------------------------------------ inference
     @torch.no_grad()
@@ -267,9 +273,9 @@ class SCAPOModel(nn.Module):
             out = self.forward(X, stage=2)
         finally:
             self.train(was_training)
-        enc = out["enc"]
-        R, t, T, pivot, axis, state = out["R"], enc.t, out["T_x"], out["pivot_x"], out["axis_x"], out["state_x"]
-        weights = out["w"]
+        enc = out.enc
+        R, t, T, pivot, axis, state = out.R, enc.t, out.T_x, out.pivot_x, out.axis_x, out.state_x
+        weights = out.w
         if refine is not None and refine.steps > 0:
             r = refine_articulation(self.cfg, X, out, refine, upright)
             R, t, T, pivot, axis, state = r["R"], r["t"], r["T"], r["pivot"], r["axis"], r["state"]
@@ -293,6 +299,6 @@ class SCAPOModel(nn.Module):
             "joint_axis": axis @ R.transpose(1, 2),
             "joint_pivot": (pivot @ R.transpose(1, 2) + t[:, None]) * sc,
             "joint_state": state,
-            "canonical_shape": out["S_star"] * sc,
-            "template": out["Y"] * sc,
+            "canonical_shape": out.S_star * sc,
+            "template": out.Y * sc,
         }

@@ -58,11 +58,11 @@ def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict
 
         extra = {}
         if "part_label" in sup:
-            extra["sup_seg"] = seg_nll(out["w"], sup["part_label"])
+            extra["sup_seg"] = seg_nll(out.w, sup["part_label"])
         if "joint_axis" in sup and model.cfg.joint_types:
-            R, t = out["R"], out["enc"].t
-            axis = out["axis_x"] @ R.transpose(1, 2)
-            pivot = out["pivot_x"] @ R.transpose(1, 2) + t[:, None]
+            R, t = out.R, out.enc.t
+            axis = out.axis_x @ R.transpose(1, 2)
+            pivot = out.pivot_x @ R.transpose(1, 2) + t[:, None]
             extra["sup_joint"] = joint_loss(axis, pivot, sup["joint_axis"].to(X), sup["joint_pivot"].to(X)
                                             / scale[:, None, None], model.cfg.joint_types)
         terms.update(extra)

@@ -1,5 +1,6 @@
-"""Typed outputs of SCAPO's forward pass (:class:`~scapo.models.scapo_model.SCAPOModel`), read by the losses
-(:mod:`scapo.losses`), the trainer and the test-time refinement (:mod:`scapo.models.refine`).
+"""Typed outputs of SCAPO's forward pass (:class:`scapo.models.scapo_model.SCAPOModel`), read by the losses
+(:mod:`scapo.losses`), the trainer and the test-time refinement (:mod:`scapo.models.refine`). They live
+below the losses (in :mod:`scapo.nn`) so that the losses can name them.
 
 Shapes: ``B`` clouds of ``N`` points, ``P`` parts, ``J`` joints, ``M`` template points, ``D`` the encoder's
 code width; every point set is in units of the normalised cloud (``SCAPOModel.normalize``: 2 x RMS radius),
@@ -32,6 +33,14 @@ class Stage1Output:
     S_dec: torch.Tensor
     F_x: torch.Tensor
     X_rec: torch.Tensor
+
+    def __getitem__(self, name: str):
+        """``out["S_star"]`` is ``out.S_star``: read access by name, for code written against the dict outputs
+        of earlier versions (raises KeyError for an unknown name)."""
+        try:
+            return getattr(self, name)
+        except AttributeError:
+            raise KeyError(name) from None
 
 
 @dataclass(frozen=True)
