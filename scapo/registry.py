@@ -62,6 +62,10 @@ class Registry(Generic[T]):
         """Registered names in registration order."""
         return list(self._entries)
 
+    def __getitem__(self, name: str) -> T:
+        """``registry[name]`` is :meth:`get` (UnknownNameError, a KeyError, for an unknown name)."""
+        return self.get(name)
+
     def __contains__(self, name: object) -> bool:
         return name in self._entries
 

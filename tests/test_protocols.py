@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from scapo.data import generate, load, make_config
-from scapo.errors import PredictionError
+from scapo.errors import UnknownNameError
 from scapo.eval import Predictions, evaluate
 from scapo.eval.alignment import ransac_sample_means
 from scapo.eval.protocols import PROTOCOLS, get_protocol
@@ -49,7 +49,7 @@ def eyeglasses(tmp_path_factory):
 def test_protocols_are_named_frozen_and_unknown_names_listed():
     assert list(PROTOCOLS) == ["scapo", "scapo-per-category", "op-align", "eap"]
     assert get_protocol("per-sample").name == "scapo"  # the name used before protocols had names
-    with pytest.raises(PredictionError, match="known protocols: scapo, scapo-per-category, op-align, eap"):
+    with pytest.raises(UnknownNameError, match="known protocols: scapo, scapo-per-category, op-align, eap"):
         get_protocol("nope")
     with pytest.raises(dataclasses.FrozenInstanceError):
         PROTOCOLS["scapo"].units = "cm"
@@ -200,3 +200,34 @@ def test_evaluate_cli_prints_the_paper_table_then_medians_and_flip_rates(laptop_
     assert "Protocol: op-align" in out
     md = (tmp_path / "t" / "table1.md").read_text()
     assert "protocol: op-align" in md and "## Medians and rates" in md
+
+
+@pytest.fixture
+def toy_protocol():
+    """A protocol defined outside the package: a new pivot rule (a function) and a new entry naming it."""
+    from scapo.eval.protocols import PIVOT_DISTANCES, Protocol, register_protocol
+
+    @PIVOT_DISTANCES.register("pivot-point-distance")
+    def pivot_point_distance(case):  # the distance between the two pivot points, ignoring the axes
+        return np.linalg.norm(case.pivot - case.gt_pivot, axis=-1)
+
+    register_protocol(Protocol("toy", pivot="pivot-point-distance", fold_rotation=True))
+    yield "toy"
+    PROTOCOLS.remove("toy")
+    PIVOT_DISTANCES.remove("pivot-point-distance")
+
+
+def test_a_protocol_defined_outside_the_package_scores_through_the_cli(toy_protocol, laptop_data, tmp_path, capsys):
+    from scapo.cli.main import main
+
+    def edit(arr, _):  # every pivot moved 5 cm along its own axis: the same line, another point
+        arr["joint_pivot"] = arr["joint_pivot"] + 0.05 * arr["joint_axis"]
+
+    preds = ground_truth_predictions(laptop_data, edit=edit)
+    preds.save(tmp_path / "p.npz")
+    toy = evaluate(laptop_data, tmp_path / "p.npz", protocol="toy")
+    scapo = evaluate(laptop_data, tmp_path / "p.npz", protocol="scapo")
+    assert toy.summary["C_cm"] == pytest.approx(5.0) and scapo.summary["C_cm"] == pytest.approx(0.0, abs=1e-6)
+    assert toy.info["protocol"] == "toy"
+    assert main(["evaluate", "--data", str(laptop_data), "--pred", str(tmp_path / "p.npz"), "--protocol", "toy"]) == 0
+    assert "toy" in capsys.readouterr().out

@@ -27,22 +27,13 @@ from scapo.eval.metrics import (
     AP_THRESHOLDS,
     SEG_THRESHOLDS,
     axis_error_deg,
-    fixed_order_match,
-    fold_rotation_error,
-    iou_matrix,
-    line_distance,
-    match_parts,
-    mean_centroid_distance,
-    origin_offset_difference,
-    point_line_distance,
     precision_under,
     relabel,
-    rotation_error_deg,
     segmentation_iou,
     translation_error,
 )
 from scapo.eval.predictions import Predictions
-from scapo.eval.protocols import PROTOCOLS, Protocol, fixed_orders, get_protocol
+from scapo.eval.protocols import PROTOCOLS, PivotCase, Protocol, get_protocol
 
 __all__ = ["PROTOCOLS", "EvalResult", "evaluate", "robust_summary"]
 
@@ -82,22 +73,7 @@ def _rows_for(preds: Predictions, ds: ArticulationDataset, split: str) -> np.nda
 
 def _match(preds: Predictions, rows: np.ndarray, gt_label: np.ndarray, P: int, proto: Protocol) -> np.ndarray:
     """(M, P) slot of each GT part per sample, by the protocol's matching rule."""
-    S = preds.part_pose.shape[1]
-    if proto.matching == "hungarian-category":
-        total = sum(iou_matrix(preds.part_label[r], g, S, P) for r, g in zip(rows, gt_label))
-        from scipy.optimize import linear_sum_assignment
-
-        r_idx, c_idx = linear_sum_assignment(-total)
-        one = np.full(P, -1, dtype=np.int64)
-        one[c_idx] = r_idx
-        return np.tile(one, (len(rows), 1))
-    if proto.matching == "fixed-orders":
-        if S != P:
-            raise PredictionError(f"the {proto.name} protocol matches parts by fixed orders and needs as many "
-                                  f"slots as parts ({P}), got {S}")
-        orders = fixed_orders(P)
-        return np.stack([fixed_order_match(preds.part_label[r], g, orders) for r, g in zip(rows, gt_label)])
-    return np.stack([match_parts(preds.part_label[r], g, P, S) for r, g in zip(rows, gt_label)])
+    return proto.match(preds.part_label[rows], gt_label, P, preds.part_pose.shape[1])
 
 
 #: Ground-truth fields that differ between the two valid ground truths of a symmetric category's view.
@@ -133,13 +109,6 @@ def _use_twins(gt: dict, slots: np.ndarray, sym) -> tuple[dict, np.ndarray, np.n
     slots = slots.copy()
     slots[swapped] = np.arange(slots.shape[1])
     return gt, slots, swapped
-
-
-def _unit(proto: Protocol, points: np.ndarray, labels: np.ndarray, bbox_diag: np.ndarray) -> np.ndarray:
-    """(M,) metres per reported unit of t and C: the bbox diagonal, or OP-Align's cloud scale."""
-    if proto.units == "centroid-0.25":
-        return mean_centroid_distance(points, labels) / 0.25
-    return np.asarray(bbox_diag, dtype=np.float64)
 
 
 def _gather(preds: Predictions, rows: np.ndarray, slots: np.ndarray, gt_joint_parts: np.ndarray):
@@ -223,7 +192,7 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     if sym is not None:
         gt, slots, twinned = _use_twins(gt, slots, sym)
     pose, axis, pivot, state, matched = _gather(preds, rows, slots, gt_jp)
-    unit = _unit(proto, gt["points"], gt["part_label"], gt["bbox_diag"])  # metres per reported unit
+    unit = proto.unit(gt["points"], gt["part_label"], gt["bbox_diag"])  # metres per reported unit
 
     alignment = None
     if preds.needs_alignment:
@@ -239,7 +208,7 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
             raise PredictionError(f"no training prediction of {preds.method!r} has all parts and joints matched; "
                                   "cannot estimate the canonical-frame alignment")
         t_unit = None if proto.alignment == "ransac-offsets" else \
-            _unit(proto, gtr["points"], gtr["part_label"], gtr["bbox_diag"])[good]
+            proto.unit(gtr["points"], gtr["part_label"], gtr["bbox_diag"])[good]
         alignment = estimate_alignment(tpose[good], gtr["part_pose"][good], taxis[good], gtr["joint_axis"][good],
                                        tstate[good], gtr["joint_state"][good], inlier_deg=proto.alignment_deg,
                                        method=proto.alignment, unit=t_unit, inlier_t=proto.alignment_t)
@@ -251,23 +220,15 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     diag = gt["bbox_diag"]
     M = len(rows)
     seg_pred = np.stack([relabel(preds.part_label[r], s) for r, s in zip(rows, slots)]) if M else np.zeros((0, 0))
-    ignore_bg = proto.seg_background == "ignored"
+    ignore_bg = proto.ignores_background
     iou = np.stack([segmentation_iou(sp, g, P, ignore_bg) for sp, g in zip(seg_pred, gt["part_label"])]) if M else \
         np.zeros((0, P))
-    R_err = rotation_error_deg(pose[..., :3, :3], gt["part_pose"][..., :3, :3])
-    if proto.fold_rotation:
-        R_err = fold_rotation_error(R_err)
+    R_err = proto.rotation_error(pose[..., :3, :3], gt["part_pose"][..., :3, :3])
     t_abs = translation_error(pose[..., :3, 3], gt["part_pose"][..., :3, 3])
     D = np.where(matched, axis_error_deg(axis, gt["joint_axis"]), 90.0)
     safe_axis = np.where(matched[..., None], axis, gt["joint_axis"])
-    if proto.pivot == "point-line":
-        C_raw = point_line_distance(pivot, gt["joint_pivot"], gt["joint_axis"])
-    elif proto.pivot == "origin-offset":
-        obj = (gt["part_label"] >= 0)[..., None]
-        centroid = (gt["points"] * obj).sum(1) / np.maximum(obj.sum(1), 1)
-        C_raw = origin_offset_difference(centroid[:, None], pivot, safe_axis, gt["joint_pivot"], gt["joint_axis"])
-    else:
-        C_raw = line_distance(pivot, safe_axis, gt["joint_pivot"], gt["joint_axis"])
+    C_raw = proto.pivot_distance(PivotCase(pivot, safe_axis, gt["joint_pivot"], gt["joint_axis"], gt["points"],
+                                           gt["part_label"]))
     C_abs = np.where(matched, C_raw, diag[:, None])
     jt = gt["joint_type"]
     revolute = jt == 0
