@@ -169,6 +169,35 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     t0 = time.perf_counter()
     proto = get_protocol(protocol)
     root = dataset.root if isinstance(dataset, ArticulationDataset) else Path(dataset)
+    test, preds = _open(root, predictions, split, check_hash)
+    P, J = test.num_parts, test.num_joints
+    gt, rows, slots, sym, twinned = _matched_ground_truth(test, preds, split, proto)
+    gt_jp = gt["joint_parts"][0] if J else np.zeros((0, 2), dtype=np.int64)
+    pose, axis, pivot, state, matched = _gather(preds, rows, slots, gt_jp)
+    unit = proto.unit(gt["points"], gt["part_label"], gt["bbox_diag"])  # metres per reported unit
+    alignment = None
+    if preds.needs_alignment:
+        alignment = _alignment(root, preds, proto, sym, gt_jp, P)
+        t_unit = None if proto.alignment == "ransac-offsets" else unit
+        pose = alignment.apply_poses(pose, t_unit)
+        state = alignment.apply_states(state, axis_sign(axis, gt["joint_axis"]))
+    elif J:
+        state = axis_sign(axis, gt["joint_axis"]) * state
+    per_sample, errors = _score_samples(proto, preds, rows, slots, gt, pose, axis, pivot, state, matched, unit)
+    summary = _summarise(per_sample, errors, proto, gt["joint_type"], P, J)
+    if sym is not None:  # share of test samples scored against their twin ground truth (%)
+        summary["twin_rate"] = 100.0 * float(twinned.mean()) if len(rows) else float("nan")
+    summary["joint_match_rate"] = float(matched.mean()) if J and len(rows) else float("nan")
+    info = {"protocol": proto.name, "dataset_hash": test.dataset_hash, "seconds": round(time.perf_counter() - t0, 3),
+            "needs_alignment": preds.needs_alignment, "supervision": preds.supervision, **preds.info}
+    if alignment is not None:
+        info["alignment_inlier_ratio"] = alignment.inlier_ratio.round(3).tolist()
+    info["split"] = split
+    return EvalResult(preds.method, test.category, split, per_sample, summary, alignment, info)
+
+
+def _open(root: Path, predictions, split: str, check_hash: bool) -> tuple[ArticulationDataset, Predictions]:
+    """The split to score and the predictions, checked against each other (see :func:`evaluate`'s errors)."""
     if split not in ("test", "val"):
         raise PredictionError(f"evaluate scores the 'test' or 'val' split, not {split!r}")
     test = load(root, split)
@@ -180,43 +209,53 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     if check_hash and preds.dataset_hash and preds.dataset_hash != test.dataset_hash:
         raise PredictionError(f"predictions of {preds.method!r} were made on dataset {preds.dataset_hash[:12]}..., "
                               f"not on {root} ({test.dataset_hash[:12]}...)")
-    P, J = test.num_parts, test.num_joints
+    return test, preds
+
+
+def _matched_ground_truth(test: ArticulationDataset, preds: Predictions, split: str, proto: Protocol):
+    """The split's ground truth, the predictions' row of each sample, the slot of each GT part (the protocol's
+    matching), the dataset's symmetry when the protocol scores twins, and which samples were scored against
+    their twin ground truth: ``(gt, rows (M,), slots (M, P), sym, twinned (M,) bool)``."""
     gt = test.arrays()
     rows = _rows_for(preds, test, split)
     if preds.part_label.shape[1] != gt["points"].shape[1]:
         raise PredictionError(f"predictions have {preds.part_label.shape[1]} labels per sample, the dataset "
                               f"{gt['points'].shape[1]} points")
-    gt_jp = gt["joint_parts"][0] if J else np.zeros((0, 2), dtype=np.int64)
-    slots = _match(preds, rows, gt["part_label"], P, proto)
+    slots = _match(preds, rows, gt["part_label"], test.num_parts, proto)
     sym = _symmetry(test, proto)
+    twinned = np.zeros(len(rows), dtype=bool)
     if sym is not None:
         gt, slots, twinned = _use_twins(gt, slots, sym)
-    pose, axis, pivot, state, matched = _gather(preds, rows, slots, gt_jp)
-    unit = proto.unit(gt["points"], gt["part_label"], gt["bbox_diag"])  # metres per reported unit
+    return gt, rows, slots, sym, twinned
 
-    alignment = None
-    if preds.needs_alignment:
-        train = load(root, "train")
-        gtr = train.arrays(["part_label", "part_pose", "joint_axis", "joint_state", "points", "bbox_diag"])
-        trows = _rows_for(preds, train, "train")
-        tslots = _match(preds, trows, gtr["part_label"], P, proto)
-        if sym is not None:
-            gtr, tslots, _ = _use_twins(gtr, tslots, sym)
-        tpose, taxis, _, tstate, tmatched = _gather(preds, trows, tslots, gt_jp)
-        good = tmatched.all(1) & (tslots >= 0).all(1)
-        if not good.any():
-            raise PredictionError(f"no training prediction of {preds.method!r} has all parts and joints matched; "
-                                  "cannot estimate the canonical-frame alignment")
-        t_unit = None if proto.alignment == "ransac-offsets" else \
-            proto.unit(gtr["points"], gtr["part_label"], gtr["bbox_diag"])[good]
-        alignment = estimate_alignment(tpose[good], gtr["part_pose"][good], taxis[good], gtr["joint_axis"][good],
-                                       tstate[good], gtr["joint_state"][good], inlier_deg=proto.alignment_deg,
-                                       method=proto.alignment, unit=t_unit, inlier_t=proto.alignment_t)
-        pose = alignment.apply_poses(pose, None if t_unit is None else unit)
-        state = alignment.apply_states(state, axis_sign(axis, gt["joint_axis"]))
-    elif J:
-        state = axis_sign(axis, gt["joint_axis"]) * state
 
+def _alignment(root: Path, preds: Predictions, proto: Protocol, sym, gt_jp: np.ndarray, P: int) -> CanonicalAlignment:
+    """The canonical-frame offsets of a method whose frame is arbitrary, from its training-split predictions
+    (:func:`~scapo.eval.alignment.estimate_alignment`, the protocol's estimator)."""
+    train = load(root, "train")
+    gtr = train.arrays(["part_label", "part_pose", "joint_axis", "joint_state", "points", "bbox_diag"])
+    trows = _rows_for(preds, train, "train")
+    tslots = _match(preds, trows, gtr["part_label"], P, proto)
+    if sym is not None:
+        gtr, tslots, _ = _use_twins(gtr, tslots, sym)
+    tpose, taxis, _, tstate, tmatched = _gather(preds, trows, tslots, gt_jp)
+    good = tmatched.all(1) & (tslots >= 0).all(1)
+    if not good.any():
+        raise PredictionError(f"no training prediction of {preds.method!r} has all parts and joints matched; "
+                              "cannot estimate the canonical-frame alignment")
+    t_unit = None if proto.alignment == "ransac-offsets" else \
+        proto.unit(gtr["points"], gtr["part_label"], gtr["bbox_diag"])[good]
+    return estimate_alignment(tpose[good], gtr["part_pose"][good], taxis[good], gtr["joint_axis"][good],
+                              tstate[good], gtr["joint_state"][good], inlier_deg=proto.alignment_deg,
+                              method=proto.alignment, unit=t_unit, inlier_t=proto.alignment_t)
+
+
+def _score_samples(proto: Protocol, preds: Predictions, rows, slots, gt: dict, pose, axis, pivot, state, matched,
+                   unit) -> tuple[pd.DataFrame, dict]:
+    """The metrics of every sample (one row each, with per-part and per-joint columns) and the arrays the summary
+    needs (``iou (M, P)``, ``R_err (M, P)``, ``t_abs (M, P)`` m, ``D (M, J)``, ``C_abs (M, J)`` m, ``scored (M, J)``
+    joints with a pivot score)."""
+    P, J = slots.shape[1], gt["joint_axis"].shape[1]
     diag = gt["bbox_diag"]
     M = len(rows)
     seg_pred = np.stack([relabel(preds.part_label[r], s) for r, s in zip(rows, slots)]) if M else np.zeros((0, 0))
@@ -261,22 +300,23 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
         rows_out[f"C_cm_j{j}"] = 100.0 * C_abs[:, j] if scored[0, j] else np.full(M, np.nan)
         rows_out[f"state_err_j{j}"] = np.where(matched[:, j], np.degrees(state_err[:, j]) if revolute[0, j]
                                                else 100.0 * state_err[:, j], np.nan)
-    per_sample = pd.DataFrame(rows_out)
+    return pd.DataFrame(rows_out), {"iou": iou, "R_err": R_err, "t_abs": t_abs, "D": D, "C_abs": C_abs,
+                                    "scored": scored, "matched": matched}
+
+
+def _summarise(per_sample: pd.DataFrame, e: dict, proto: Protocol, joint_type: np.ndarray, P: int, J: int) -> dict:
+    """Means of the per-sample metrics, AP (:func:`_average_precision`) and the robust statistics
+    (:func:`robust_summary`)."""
+    iou, R_err, t_abs, D, C_abs, scored = (e[k] for k in ("iou", "R_err", "t_abs", "D", "C_abs", "scored"))
+    M = len(per_sample)
+    jt = joint_type
     summary = {k: float(np.nanmean(per_sample[k])) if per_sample[k].notna().any() else float("nan")
                for k in ("S", "D", "C", "R", "t", "t_cm", "C_cm", "state_deg", "state_cm")}
     summary.update(_average_precision(iou, R_err, 100.0 * t_abs, D, 100.0 * C_abs, scored[0] if J else
                                       np.zeros(0, dtype=bool), proto.min_ap))
     summary.update(robust_summary(per_sample, P, jt[0] if J else []))
     summary["samples"] = M
-    if sym is not None:  # share of test samples scored against their twin ground truth (%)
-        summary["twin_rate"] = 100.0 * float(twinned.mean()) if M else float("nan")
-    summary["joint_match_rate"] = float(matched.mean()) if J and M else float("nan")
-    info = {"protocol": proto.name, "dataset_hash": test.dataset_hash, "seconds": round(time.perf_counter() - t0, 3),
-            "needs_alignment": preds.needs_alignment, "supervision": preds.supervision, **preds.info}
-    if alignment is not None:
-        info["alignment_inlier_ratio"] = alignment.inlier_ratio.round(3).tolist()
-    info["split"] = split
-    return EvalResult(preds.method, test.category, split, per_sample, summary, alignment, info)
+    return summary
 
 
 #: Robust statistics in every summary: medians of the per-part / per-joint errors, and part rates.
