@@ -10,11 +10,12 @@ from scapo.errors import ConfigError, MissingMeshError, UnknownNameError, URDFEr
 from scapo.sim.assets import build_instance, design_instance, list_categories, load_template, parse_urdf
 from scapo.sim.assets.templates import parse_template
 
-CATEGORIES = ["laptop", "safe", "oven", "washer", "eyeglasses", "basket", "drawer", "scissors", "suitcase"]
+SPEC_CATEGORIES = ["laptop", "safe", "oven", "washer", "eyeglasses", "basket", "drawer", "scissors", "suitcase"]
+CATEGORIES = list_categories()  # every registered category: a new one is covered without an edit here
 
 
 def test_all_spec_categories_are_registered():
-    assert list_categories() == CATEGORIES
+    assert CATEGORIES[: len(SPEC_CATEGORIES)] == SPEC_CATEGORIES
 
 
 @pytest.mark.parametrize("category", CATEGORIES)

@@ -21,14 +21,18 @@ from scapo.ops.groups import GROUP_ORDERS, octahedral_rotations, rotation_group
 from scapo.ops.rigid import as_transform, joint_motion
 from scapo.ops.sampling import farthest_point_sample
 
-ALL = ["icp", "npcs", "eap", "op-align", "scapo"]
+ALL = METHODS.names()  # every registered method: a new one is covered without an edit here
+#: the learned baselines (registered through scapo.methods.learned.register_learned)
+LEARNED = [n for n in ALL if getattr(METHODS.get(n).factory, "spec", None) is not None]
+PAPER = ["icp", "npcs", "eap", "op-align", "scapo"]
 
 
 def test_registry_has_the_five_methods_with_their_marks(capsys):
-    assert sorted(METHODS.names()) == sorted(ALL)
-    marks = {n: METHODS.get(n).marks() for n in ALL}
+    assert set(PAPER) <= set(METHODS.names()) and set(LEARNED) >= {"npcs", "eap", "op-align"}
+    marks = {n: METHODS.get(n).marks() for n in PAPER}
     assert marks == {"icp": "-S-", "npcs": "PSJ", "eap": "---", "op-align": "---", "scapo": "---"}
-    assert {n for n in ALL if METHODS.get(n).needs_alignment} == {"eap", "op-align", "scapo"}
+    assert {n for n in PAPER if METHODS.get(n).needs_alignment} == {"eap", "op-align", "scapo"}
+    assert all("test" in METHODS.get(n).presets for n in ALL if METHODS.get(n).trained)  # the quick run
     assert main(["list"]) == 0
     out = capsys.readouterr().out
     for n in ALL:
@@ -65,8 +69,7 @@ def trained_runs(laptop_data, tmp_path_factory):
 
 @pytest.mark.parametrize("name", ALL)
 def test_every_method_trains_predicts_and_is_scored(name, laptop_data, trained_runs, tmp_path):
-    opts = {"run": trained_runs[name]} if name in trained_runs else {"max_iterations": 3, "hypotheses": "T",
-                                                                       "refine_top": 1, "template_points": 64}
+    opts = {"run": trained_runs[name]} if name in trained_runs else dict(METHODS.get(name).quick_options)
     preds = run_method(name, laptop_data, tmp_path / "p.npz", **opts)
     assert preds.needs_alignment == METHODS.get(name).needs_alignment
     assert preds.supervision == dict(METHODS.get(name).supervision)
@@ -80,7 +83,7 @@ def test_every_method_trains_predicts_and_is_scored(name, laptop_data, trained_r
         assert method_of_run(trained_runs[name]) == name
 
 
-@pytest.mark.parametrize("name", ["npcs", "eap", "op-align"])
+@pytest.mark.parametrize("name", LEARNED)
 def test_learned_runs_resume_refuse_other_configs_and_other_methods(name, laptop_data, trained_runs, tmp_path):
     run = trained_runs[name]
     ck = run / "checkpoint.pt"
@@ -160,7 +163,7 @@ def test_an_unfinished_learned_run_is_refused_by_predict(laptop_data, tmp_path, 
 def test_perf_reports_each_learned_methods_inference_time():
     from scapo.perf import bench_method
 
-    for name in ("npcs", "eap", "op-align"):
+    for name in LEARNED:
         (row,) = bench_method(name, "test", device="cpu", iters=1, num_points=256)
         assert row["method"] == name and row["infer_ms_per_cloud_b1"] > 0 and row["infer_clouds_per_s_b32"] > 0
     with pytest.raises(ConfigError, match="needs --data"):

@@ -574,8 +574,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=cmd_preview)
 
     sp = sub.add_parser("train", help="train a method (default SCAPO, both stages) on a dataset's training split")
-    sp.add_argument("--method", default="scapo", help="a trained method (see 'scapo list'): scapo, op-align, eap, "
-                    "npcs")
+    sp.add_argument("--method", default="scapo", help="a trained method (see 'scapo list'; default scapo)")
     sp.add_argument("--data", type=Path, required=True)
     sp.add_argument("--preset", default=None, help="paper | cpu | test (scapo also demo; default: an existing run's "
                     "own preset, else cpu)")

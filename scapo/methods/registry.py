@@ -78,6 +78,8 @@ class MethodEntry:
         ablations: the parts a preset can switch off as ``BASE/no-TERM`` (the paper's Table 3 for SCAPO).
         speed: ``speed(preset, device, iters, num_points, data) -> list of rows`` timing the method's inference
             (``scapo bench perf --what model --method NAME``); None for a method with nothing to time.
+        quick_options: prediction options for a quick run of a fitted method (tests, smoke runs); a trained
+            method's quick run is its ``test`` preset.
     """
 
     name: str
@@ -95,6 +97,7 @@ class MethodEntry:
     preset: Callable[[str], Any] | None = None
     ablations: tuple[str, ...] = ()
     speed: Callable[..., list] | None = None
+    quick_options: Mapping[str, Any] = field(default_factory=dict)
 
     @property
     def trained(self) -> bool:
@@ -115,7 +118,8 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
                     presets: tuple[str, ...] = (), variants: Mapping[str, str] | None = None,
                     inference: Callable[[Path], dict] | None = None,
                     run_is_current: Callable[..., bool] | None = None, preset: Callable[[str], Any] | None = None,
-                    ablations: tuple[str, ...] = (), speed: Callable[..., list] | None = None):
+                    ablations: tuple[str, ...] = (), speed: Callable[..., list] | None = None,
+                    quick_options: Mapping[str, Any] | None = None):
     """Decorator registering a method factory under ``name`` (see :class:`MethodEntry`).
 
     Raises:
@@ -130,7 +134,7 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
     def deco(factory):
         METHODS.add(name, MethodEntry(name, factory, options, display, dict(supervision), needs_alignment, summary,
                                       train, tuple(presets), dict(variants or {}), inference, run_is_current,
-                                      preset, tuple(ablations), speed))
+                                      preset, tuple(ablations), speed, dict(quick_options or {})))
         factory.options = options
         return factory
 
