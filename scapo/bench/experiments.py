@@ -1,4 +1,5 @@
-"""The paper's tables regenerated with our methods: ``scapo bench table1`` and ``scapo bench table3``.
+"""The paper's tables regenerated with our methods: ``scapo bench table1|table2|table3`` (:func:`run_table` with
+a :class:`TableSpec` of :data:`TABLES` and :class:`BenchOptions`).
 
 Both are lists of :class:`~scapo.bench.cells.Cell` computed one by one (:func:`~scapo.bench.cells.compute_cell`:
 resumable per cell, a finished cell is never recomputed), then written as tables and figures from the
@@ -19,7 +20,8 @@ and wall times), not of the moment the tables were written.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from scapo.bench.cells import (
@@ -36,6 +38,7 @@ from scapo.data import generate, load, make_config
 from scapo.errors import ConfigError
 from scapo.files import check_output_dir
 from scapo.methods import METHODS, describe
+from scapo.registry import Registry
 
 #: Categories of the paper's Table 1 (and of our Table 3), in its column order.
 TABLE1_CATEGORIES = ("laptop", "safe", "eyeglasses", "oven", "washer")
@@ -105,20 +108,20 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
 
 def table3_cells(categories: Sequence[str], preset: str, seeds: Sequence[int],
                  category_seeds: dict[str, list[int]] | None = None,
-                 ablations: Sequence[str] | None = None) -> list[Cell]:
+                 ablations: Sequence[str] | None = None, method: str = "scapo") -> list[Cell]:
     """The SCAPO ablation's cells: per category and seed, the full model and one run per ablated
-    regulariser (the method entry's ``ablations``: :data:`scapo.models.presets.ABLATIONS`), labelled
-    ``scapo-no-<term>``."""
-    entry = METHODS.get("scapo")
+    regulariser (the method entry's ``ablations``: :data:`scapo.models.presets.ABLATIONS` for SCAPO), labelled
+    ``<method>-no-<term>``."""
+    entry = METHODS.get(method)
     category_seeds = dict(category_seeds or {})
     cells = []
     for cat in categories:
-        full = method_preset("scapo", preset, cat)
+        full = method_preset(method, preset, cat)
         for s in category_seeds.get(cat, seeds):
-            cells.append(Cell("scapo", cat, int(s), full))
+            cells.append(Cell(method, cat, int(s), full))
             for term in (ablations or entry.ablations):
                 entry.preset(f"{full}/no-{term}")  # an unknown term is refused before any work
-                cells.append(Cell("scapo", cat, int(s), f"{full}/no-{term}", label=f"scapo-no-{term}"))
+                cells.append(Cell(method, cat, int(s), f"{full}/no-{term}", label=f"{method}-no-{term}"))
     return cells
 
 
@@ -273,40 +276,6 @@ def _check(methods, categories, protocol, work, out_dir):
     return protocol
 
 
-def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGORIES, instances: int = 80,
-               views: int = 16, data_seed: int = 0, work_dir: Path = Path("bench_work"), out_dir: Path | None = None,
-               preset: str = "cpu", seeds: Sequence[int] = (0,), category_seeds: dict | None = None,
-               protocol: str = "scapo", workers: int = 1, cache_dir: Path | None = None, name: str = "table1_synthetic",
-               dry_run: bool = False, progress: bool = True, device: str | None = None, figures: bool = True,
-               finished_only: bool = False, recompute_dirty: bool = False):
-    """Table 1 on our synthetic data: generate (or reuse) one dataset per category (``data_seed`` draws
-    assets, splits and views), train every trained method once per training seed, predict, evaluate
-    under ``protocol`` and write ``<name>.{csv,md,tex,json}`` (our rows: mean +- std over seeds; the
-    paper's rows beside them), ``<name>_<category>.png`` and ``<name>_errors.png`` into ``out_dir``.
-
-    ``finished_only``: compute nothing and write the tables of the cells that are done (the others are
-    listed under ``missing_cells`` in the provenance), e.g. to commit a bench that outlives a session.
-    ``recompute_dirty``: compute again (from scratch, the old files moved aside) the done cells whose record
-    names a ``-dirty`` or unknown commit (:func:`~scapo.bench.cells.compute_cell`).
-
-    Returns:
-        The plan rows with ``dry_run`` (nothing is computed or written), else the test-split
-        :class:`~scapo.eval.EvalResult` of every cell (of every done cell with ``finished_only``).
-
-    Raises:
-        ConfigError / UnknownNameError: unknown method, category, preset or protocol, bad seeds
-        (all refused before any dataset is rendered). OutputError: unwritable work or table folder.
-    """
-    cells = table1_cells(methods, categories, preset, seeds, category_seeds)
-
-    from scapo.eval.tables import write_table1
-
-    write = _writer(write_table1, name, out_dir, figures, work_dir, instances, views, data_seed)
-    return _bench("scapo bench table1", cells, methods, categories, write, instances, views, data_seed, work_dir,
-                  out_dir, preset, protocol, workers, cache_dir, dry_run, progress, device, finished_only,
-                  recompute_dirty=recompute_dirty)
-
-
 def _writer(write_table, name, out_dir, figures, work_dir, instances, views, data_seed):
     """``write(results, done cells, provenance) -> paths`` of a table with its figures (Tables 1 and 2)."""
     def write(results, done, prov):
@@ -361,26 +330,6 @@ def _figures(cells, results, work, instances, views, data_seed, protocol, out_di
     return paths
 
 
-def run_table3(categories: Sequence[str] = ("laptop", "eyeglasses"), instances: int = 80, views: int = 16,
-               data_seed: int = 0, work_dir: Path = Path("bench_work"), out_dir: Path | None = None,
-               preset: str = "cpu", seeds: Sequence[int] = (0,), category_seeds: dict | None = None,
-               protocol: str = "scapo", workers: int = 1, cache_dir: Path | None = None,
-               name: str = "table3_ablation", dry_run: bool = False, progress: bool = True,
-               device: str | None = None, ablations: Sequence[str] | None = None, finished_only: bool = False,
-               recompute_dirty: bool = False):
-    """The paper's Table 3 on our data: SCAPO full and without each of L_shape-var, L_dir-align,
-    L_joint-prox, L_joint-boundary, per category and training seed; writes
-    ``<name>.{csv,md,tex,json}`` (:func:`scapo.eval.tables.write_table3`). Same machinery, work folder
-    layout and errors as :func:`run_table1` (sharing its work folder reuses its SCAPO cells)."""
-    from scapo.eval.tables import write_table3
-
-    cells = table3_cells(categories, preset, seeds, category_seeds, ablations)
-    return _bench("scapo bench table3", cells, ["scapo"], categories,
-                  lambda results, done, prov: write_table3(results, out_dir, prov, name=name), instances, views,
-                  data_seed, work_dir, out_dir, preset, protocol, workers, cache_dir, dry_run, progress, device,
-                  finished_only, recompute_dirty=recompute_dirty)
-
-
 #: The paper's Table 2 categories (OP-Align's real data), rendered from our procedural objects.
 TABLE2_CATEGORIES = ("basket", "drawer", "laptop", "scissors", "suitcase")
 #: Trained methods that also get a semi-supervised row ("SJ", as the paper's Table 2 trains OP-Align and SCAPO).
@@ -388,39 +337,163 @@ TABLE2_SJ_METHODS = ("op-align", "scapo")
 
 
 def table2_cells(methods: Sequence[str], categories: Sequence[str], preset: str, seeds: Sequence[int],
-                 category_seeds: dict[str, list[int]] | None = None, sj: bool = True) -> list[Cell]:
+                 category_seeds: dict[str, list[int]] | None = None, sj: bool = True,
+                 sj_methods: Sequence[str] = TABLE2_SJ_METHODS) -> list[Cell]:
     """Table 1's cells of ``methods`` plus, with ``sj``, the semi-supervised rows ``<method>-sj`` (preset
-    ``<preset>/sj``) of the methods in :data:`TABLE2_SJ_METHODS` among them."""
+    ``<preset>/sj``) of the methods in ``sj_methods`` among them."""
     cells = table1_cells(methods, categories, preset, seeds, category_seeds)
     if sj:
         for cat in categories:
             for m in methods:
-                if m in TABLE2_SJ_METHODS:
+                if m in sj_methods:
                     p = method_preset(m, f"{preset}/sj", cat)
                     cells += [Cell(m, cat, int(s), p, label=f"{m}-sj")
                               for s in (category_seeds or {}).get(cat, seeds)]
     return cells
 
 
-def run_table2(methods: Sequence[str], categories: Sequence[str] = TABLE2_CATEGORIES, instances: int = 80,
-               views: int = 16, data_seed: int = 0, work_dir: Path = Path("bench_work"), out_dir: Path | None = None,
-               preset: str = "cpu", seeds: Sequence[int] = (0,), category_seeds: dict | None = None,
-               protocol: str = "op-align", workers: int = 1, cache_dir: Path | None = None,
-               name: str = "table2_real_style", dry_run: bool = False, progress: bool = True,
-               device: str | None = None, finished_only: bool = False, sj: bool = True, figures: bool = True,
-               recompute_dirty: bool = False):
-    """The paper's Table 2 in real-world style on our data: the categories of OP-Align's real scans rendered
-    from our procedural objects with the realistic sensor (:mod:`scapo.sim.sensor`; cropped views
-    rejected), every method of ``methods`` and, with ``sj``, the semi-supervised rows of OP-Align-style and
-    SCAPO (trained with segmentation and joint labels, as in the paper), evaluated under ``protocol``
-    (default ``op-align``, as the paper's Table 2) and written as ``<name>.{csv,md,tex,json}``
-    (:func:`scapo.eval.tables.write_table2`) with figures. Same machinery as :func:`run_table1`; use its
-    own work folder (the datasets differ from Table 1's)."""
-    cells = table2_cells(methods, categories, preset, seeds, category_seeds, sj)
+@dataclass(frozen=True)
+class TableSpec:
+    """One of the paper's tables as the bench makes it: which cells, on which data, scored how, written how.
 
-    from scapo.eval.tables import write_table2
+    Attributes:
+        key: ``scapo bench KEY``. name: default file stem in the table folder. title: the provenance's title.
+        categories: default categories, in the table's column order. protocol: default evaluation protocol.
+        writer: the :mod:`scapo.eval.tables` function that writes it (``write_table1`` ...). figures: also write
+            per-category figures and the error distributions.
+        data: dataset settings beyond Table 1's (:func:`~scapo.data.make_config` keywords), per category in
+            ``category_data``. sj_methods: trained methods that also get a semi-supervised row (``--no-sj`` drops
+            them). ablation_of: the method whose ablations (its entry's ``ablations``) are the rows; the table
+            then takes no ``--methods``.
+    """
 
-    write = _writer(write_table2, name, out_dir, figures, work_dir, instances, views, data_seed)
-    return _bench("scapo bench table2", cells, methods, categories, write, instances, views, data_seed, work_dir,
-                  out_dir, preset, protocol, workers, cache_dir, dry_run, progress, device, finished_only,
-                  REAL_STYLE_DATA, recompute_dirty, REAL_STYLE_CATEGORY_DATA)
+    key: str
+    name: str
+    title: str
+    categories: tuple[str, ...]
+    protocol: str
+    writer: str
+    figures: bool = True
+    data: Mapping[str, object] = field(default_factory=dict)
+    category_data: Mapping[str, Mapping[str, object]] = field(default_factory=dict)
+    sj_methods: tuple[str, ...] = ()
+    ablation_of: str | None = None
+
+    def cells(self, methods: Sequence[str], categories: Sequence[str], opts: BenchOptions) -> list[Cell]:
+        """The table's cells for ``methods`` (ignored for an ablation table) and ``categories``."""
+        seeds, per = opts.seeds, opts.category_seeds
+        if self.ablation_of is not None:
+            return table3_cells(categories, opts.preset, seeds, per, opts.ablations, method=self.ablation_of)
+        if self.sj_methods:
+            return table2_cells(methods, categories, opts.preset, seeds, per, opts.sj, self.sj_methods)
+        return table1_cells(methods, categories, opts.preset, seeds, per)
+
+
+@dataclass(frozen=True)
+class BenchOptions:
+    """How a bench runs (:func:`run_table`): the data drawn (``instances`` x ``views`` per category, assets,
+    splits and views from ``data_seed``), the training preset and seeds (``category_seeds``: category -> seeds,
+    overriding ``seeds``), where it works and writes, and what it does (``dry_run``: list the cells only;
+    ``finished_only``: compute nothing, write the done cells' tables; ``recompute_dirty``: compute again the cells
+    computed from uncommitted code). ``protocol`` and ``name`` default to the table's; ``sj`` keeps the
+    semi-supervised rows; ``ablations`` limits an ablation table's rows."""
+
+    instances: int = 80
+    views: int = 16
+    data_seed: int = 0
+    work_dir: Path = Path("bench_work")
+    out_dir: Path | None = None
+    preset: str = "cpu"
+    seeds: Sequence[int] = (0,)
+    category_seeds: Mapping[str, Sequence[int]] | None = None
+    protocol: str | None = None
+    workers: int = 1
+    cache_dir: Path | None = None
+    name: str | None = None
+    dry_run: bool = False
+    progress: bool = True
+    device: str | None = None
+    figures: bool = True
+    finished_only: bool = False
+    recompute_dirty: bool = False
+    sj: bool = True
+    ablations: Sequence[str] | None = None
+
+
+#: The paper's tables: ``scapo bench table1|table2|table3``.
+TABLES: Registry[TableSpec] = Registry("table")
+TABLES.add("table1", TableSpec("table1", "table1_synthetic", "scapo bench table1", TABLE1_CATEGORIES, "scapo",
+                               "write_table1"))
+TABLES.add("table2", TableSpec("table2", "table2_real_style", "scapo bench table2", TABLE2_CATEGORIES, "op-align",
+                               "write_table2", data=REAL_STYLE_DATA, category_data=REAL_STYLE_CATEGORY_DATA,
+                               sj_methods=TABLE2_SJ_METHODS))
+TABLES.add("table3", TableSpec("table3", "table3_ablation", "scapo bench table3", ("laptop", "eyeglasses"), "scapo",
+                               "write_table3", figures=False, ablation_of="scapo"))
+
+
+def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, categories: Sequence[str] | None = None,
+              **options):
+    """Make one of the paper's tables (:data:`TABLES`): its cells computed one by one (resumable; a finished cell
+    is never recomputed), then written from the cells' records (``<name>.{csv,md,tex,json}`` and, for Tables 1
+    and 2, figures) into ``out_dir``. ``methods`` default to every registered method in the paper's row order
+    (:func:`table_methods`), ``categories`` to the table's; ``options`` are :class:`BenchOptions` fields.
+
+    Returns:
+        The plan rows with ``dry_run`` (nothing is computed or written), else the test-split
+        :class:`~scapo.eval.EvalResult` of every cell (of every done cell with ``finished_only``).
+
+    Raises:
+        ConfigError / UnknownNameError: unknown table, method, category, preset, protocol or option; bad seeds;
+        ``--methods`` for an ablation table (all refused before any dataset is rendered). OutputError:
+        unwritable work or table folder.
+    """
+    from scapo.eval import tables as writers
+
+    spec = TABLES.get(table) if isinstance(table, str) else table
+    unknown = sorted(set(options) - {f.name for f in fields(BenchOptions)})
+    if unknown:
+        raise ConfigError(f"unknown bench option(s) {', '.join(unknown)}; known: "
+                          f"{', '.join(f.name for f in fields(BenchOptions))}")
+    opts = BenchOptions(**options)
+    if spec.ablation_of is not None:
+        if methods and list(methods) != [spec.ablation_of]:
+            raise ConfigError(f"bench {spec.key} is {spec.ablation_of}'s ablation; it takes no --methods")
+        methods = [spec.ablation_of]
+    methods = list(methods) if methods else table_methods()
+    categories = list(categories) if categories else list(spec.categories)
+    name = opts.name or spec.name
+    cells = spec.cells(methods, categories, opts)
+    write_table = getattr(writers, spec.writer)
+    if spec.figures:
+        write = _writer(write_table, name, opts.out_dir, opts.figures, opts.work_dir, opts.instances, opts.views,
+                        opts.data_seed)
+    else:
+        def write(results, done, prov):
+            return write_table(results, opts.out_dir, prov, name=name)
+    return _bench(spec.title, cells, methods, categories, write, opts.instances, opts.views, opts.data_seed,
+                  opts.work_dir, opts.out_dir, opts.preset, opts.protocol or spec.protocol, opts.workers,
+                  opts.cache_dir, opts.dry_run, opts.progress, opts.device, opts.finished_only, spec.data or None,
+                  opts.recompute_dirty, spec.category_data or None)
+
+
+def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGORIES, **options):
+    """Table 1 on our synthetic data (:func:`run_table` with :data:`TABLES` ``table1``): every method x category
+    x training seed under ``protocol`` (default ``scapo``), in the paper's layout with the robust statistics
+    (:func:`scapo.eval.tables.write_table1`), per category a figure of test views and one of the error
+    distributions."""
+    return run_table("table1", methods, categories, **options)
+
+
+def run_table2(methods: Sequence[str], categories: Sequence[str] = TABLE2_CATEGORIES, **options):
+    """The paper's Table 2 in real-world style (:func:`run_table` with ``table2``): OP-Align's real-scan
+    categories rendered from our procedural objects with the realistic sensor (:mod:`scapo.sim.sensor`; cropped
+    views rejected), every method and, with ``sj``, the semi-supervised rows of OP-Align-style and SCAPO, under
+    ``protocol`` (default ``op-align``); use its own work folder (the datasets differ from Table 1's)."""
+    return run_table("table2", methods, categories, **options)
+
+
+def run_table3(categories: Sequence[str] = ("laptop", "eyeglasses"), **options):
+    """The paper's Table 3 (:func:`run_table` with ``table3``): SCAPO full and without each of L_shape-var,
+    L_dir-align, L_joint-prox, L_joint-boundary (or ``ablations``), per category and training seed
+    (:func:`scapo.eval.tables.write_table3`); sharing Table 1's work folder reuses its SCAPO cells."""
+    return run_table("table3", None, categories, **options)

@@ -423,30 +423,18 @@ def cmd_bench(args) -> int:
 def cmd_bench_table(args) -> int:
     """``scapo bench table1|table2|table3``: the paper's tables, resumable per cell (``--dry-run`` lists the
     cells)."""
-    from scapo.bench import TABLE1_CATEGORIES, parse_category_seeds, run_table1, run_table3
-    from scapo.bench.experiments import TABLE2_CATEGORIES, run_table2, table_methods
+    from scapo.bench import parse_category_seeds
+    from scapo.bench.experiments import run_table
 
     instances, views = args.instances or 80, args.views or 16
     if min(args.workers) < 1 or instances < 1 or views < 1:
         raise ConfigError("--workers, --instances and --views must be >= 1")
-    common = dict(instances=instances, views=views, data_seed=args.seed, work_dir=args.work,
-                  out_dir=args.out or Path("results"), preset=args.preset, seeds=args.seeds,
-                  category_seeds=parse_category_seeds(args.category_seeds),
-                  protocol=args.protocol or ("op-align" if args.what == "table2" else "scapo"),
-                  workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run,
-                  progress=not args.no_progress, device=args.device, finished_only=args.finished_only,
-                  recompute_dirty=args.recompute_dirty)
-    if args.what == "table1":
-        run_table1(methods=args.methods or table_methods(), categories=args.categories or list(TABLE1_CATEGORIES),
-                   name=args.name or "table1_synthetic", **common)
-    elif args.what == "table2":
-        run_table2(methods=args.methods or table_methods(), categories=args.categories or list(TABLE2_CATEGORIES),
-                   name=args.name or "table2_real_style", sj=not args.no_sj, **common)
-    else:
-        if args.methods and args.methods != ["scapo"]:
-            raise ConfigError("bench table3 is SCAPO's ablation; it takes no --methods")
-        run_table3(categories=args.categories or ["laptop", "eyeglasses"], name=args.name or "table3_ablation",
-                   **common)
+    run_table(args.what, args.methods, args.categories, instances=instances, views=views, data_seed=args.seed,
+              work_dir=args.work, out_dir=args.out or Path("results"), preset=args.preset, seeds=args.seeds,
+              category_seeds=parse_category_seeds(args.category_seeds), protocol=args.protocol, name=args.name,
+              workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run, progress=not args.no_progress,
+              device=args.device, finished_only=args.finished_only, recompute_dirty=args.recompute_dirty,
+              sj=not args.no_sj)
     return 0
 
 
