@@ -45,7 +45,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from scapo.methods.joints import joint_from_part_poses
-from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned, train_learned
+from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned
 from scapo.methods.nets import mlp
 from scapo.nn.vn import VNInvariant, VNLinear, VNLinearLeakyReLU, gather_neighbours, knn_indices
 from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist
@@ -281,8 +281,3 @@ make_eap = register_learned(SPEC, display="EAP-style", supervision={"pose": Fals
                                                                     "joint": False},
                             needs_alignment=True, summary="self-supervised part-level equivariant poses and "
                             "canonical part shapes; joints from part transforms (Liu et al., ICLR 2023)")
-
-
-def train(data, run, preset=None, progress=True, device=None, seed=None):
-    """``scapo train --method eap``; see :func:`~scapo.methods.learned.train_learned`."""
-    return train_learned(SPEC, data, run, preset, progress=progress, device=device, seed=seed)

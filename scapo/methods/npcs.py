@@ -40,7 +40,6 @@ from scapo.methods.learned import (
     LearnedSpec,
     normalize_clouds,
     register_learned,
-    train_learned,
 )
 from scapo.methods.nets import PointResNet, mlp
 from scapo.ops.align import ransac_umeyama, umeyama
@@ -184,8 +183,3 @@ SPEC = LearnedSpec(method="npcs", presets=PRESETS, fields=("points", "part_label
 make_npcs = register_learned(SPEC, display="NPCS-style (supervised)",
                              supervision={"pose": True, "segmentation": True, "joint": True}, needs_alignment=False,
                              summary="supervised part labels + NPCS, part poses by RANSAC-Umeyama (ANCSH's NPCS)")
-
-
-def train(data, run, preset=None, progress=True, device=None, seed=None):
-    """``scapo train --method npcs``; see :func:`~scapo.methods.learned.train_learned`."""
-    return train_learned(SPEC, data, run, preset, progress=progress, device=device, seed=seed)

@@ -48,7 +48,7 @@ from torch import nn
 
 from scapo.errors import ConfigError
 from scapo.losses.supervised import joint_loss, seg_nll
-from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned, train_learned
+from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned
 from scapo.methods.nets import PointResNet, mlp
 from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist
 from scapo.ops.groups import rotation_group
@@ -292,8 +292,3 @@ make_op_align = register_learned(SPEC, display="OP-Align-style", supervision={"p
                                                                               "joint": False},
                                  needs_alignment=True, summary="self-supervised object- then part-level alignment "
                                  "to a reconstructed canonical shape (Che et al., ECCV 2024)")
-
-
-def train(data, run, preset=None, progress=True, device=None, seed=None):
-    """``scapo train --method op-align``; see :func:`~scapo.methods.learned.train_learned`."""
-    return train_learned(SPEC, data, run, preset, progress=progress, device=device, seed=seed)
