@@ -65,3 +65,22 @@ class InputError(ScapoError, ValueError):
 
 class TrainingError(ScapoError):
     """Training cannot continue (NaN/inf loss, incompatible checkpoint); the message names the cause."""
+
+
+class ScapoWarning(UserWarning):
+    """Something the user should know that does not stop the command (e.g. too few instances for a statistic);
+    the CLI prints it as ``scapo <command>: warning: ...``."""
+
+
+#: fewer instances than this in a split make its scores (or a model trained on it) unreliable: a warning says so
+MIN_INSTANCES = 5
+
+
+def warn_few_instances(n: int, split: str, root, what: str) -> None:
+    """Warn (:class:`ScapoWarning`) when a split holds fewer than :data:`MIN_INSTANCES` instances."""
+    if n < MIN_INSTANCES:
+        import warnings
+
+        warnings.warn(f"the {split} split of {root} holds only {n} instance(s) (views of one object are not "
+                      f"independent): {what} rest on too few objects to rank methods; generate at least "
+                      f"{MIN_INSTANCES} (better 30)", ScapoWarning, stacklevel=3)

@@ -251,3 +251,43 @@ class FolderLock:
             fcntl.flock(self._fd, fcntl.LOCK_UN)
             os.close(self._fd)
             self._fd = None
+
+
+#: the only globals a data file's pickle may name: numpy arrays, dtypes and scalars (numpy 1.x and 2.x names)
+SAFE_PICKLE_GLOBALS = frozenset({
+    ("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy.core.multiarray", "scalar"), ("numpy._core.multiarray", "scalar"),
+    ("numpy", "ndarray"), ("numpy", "dtype"),
+})
+
+
+def load_npz_object(path: str | Path, key: str = "arr_0"):
+    """The object stored under ``key`` of an ``.npz`` written with ``np.savez(path, obj)`` (a pickled object array,
+    e.g. OP-Align's frame dicts), unpickled without running code from the file: only numpy arrays, dtypes and
+    scalars and Python containers and literals may be built (:data:`SAFE_PICKLE_GLOBALS`).
+
+    Raises:
+        ValueError: the file is not such an npz, or its pickle names anything else (a payload is never run).
+    """
+    import pickle
+    import zipfile
+
+    import numpy as np
+
+    class _Restricted(pickle.Unpickler):
+        def find_class(self, module, name):
+            if (module, name) in SAFE_PICKLE_GLOBALS:
+                return getattr(__import__(module, fromlist=[name]), name)
+            raise ValueError(f"it names {module}.{name}, which a data file may not (only numpy arrays are read)")
+
+    with zipfile.ZipFile(path) as z, z.open(f"{key}.npy") as f:
+        version = np.lib.format.read_magic(f)
+        if version not in ((1, 0), (2, 0)):
+            raise ValueError(f"npy format version {version} is not read here")
+        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, fortran, dtype = read(f)
+        if dtype.hasobject:
+            arr = _Restricted(f).load()
+        else:
+            arr = np.frombuffer(f.read(), dtype=dtype).reshape(shape, order="F" if fortran else "C")
+    return arr.item() if isinstance(arr, np.ndarray) and arr.shape == () else arr

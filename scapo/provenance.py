@@ -10,15 +10,30 @@ from functools import lru_cache
 from pathlib import Path
 
 
+def package_version() -> str:
+    """The installed scapo's version (package metadata; ``scapo.__version__`` for a source tree never installed)."""
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+
+        return version("scapo")
+    except (ImportError, PackageNotFoundError, ValueError):
+        from scapo import __version__
+
+        return __version__
+
+
 @lru_cache(maxsize=1)
 def git_commit() -> str:
-    """``<sha>`` of the source checkout, ``<sha>-dirty`` with uncommitted changes, or "unknown".
+    """``<sha>`` of the source checkout, ``<sha>-dirty`` with uncommitted changes, or, for an installed package
+    that is not a git checkout (a wheel), ``v<version>`` (the released code it names; not dirty).
 
     Taken once per process, at the first call; every ``scapo`` command calls it as it starts (:func:`scapo.cli.
     main.main`), so a long bench records the commit of the code it loaded, not the state of the checkout
     hours later when a cell finishes (edits made meanwhile do not run in it).
     """
     root = Path(__file__).resolve().parents[1]
+    if not (root / ".git").exists():  # an installed copy (perhaps in a venv inside some other repository)
+        return f"v{package_version()}"
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
                              timeout=10, check=True).stdout.strip()
@@ -26,7 +41,7 @@ def git_commit() -> str:
                                capture_output=True, text=True, timeout=10).stdout.strip()
         return f"{sha}-dirty" if dirty else sha
     except (OSError, subprocess.SubprocessError):
-        return "unknown"
+        return f"v{package_version()}"
 
 
 def usable_cores() -> int:

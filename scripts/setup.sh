@@ -3,8 +3,9 @@
 #  1. Vulkan for SAPIEN: on Debian bookworm without a usable device, Mesa >= 24.3 (lavapipe)
 #     from bookworm-backports (SPEC section 12). Other systems: prints what to install.
 #  2. A virtual environment in .venv (override with SCAPO_VENV), torch 2.13.0 (CPU build) when no
-#     torch is importable, then this package in editable mode with its dev, ray, maniskill and viewer extras.
-#  3. Chromium (Debian package) for the browser test of the viewer, where apt can install it.
+#     torch is importable, then this package in editable mode with its dev, ray, maniskill, viewer and
+#     tensorboard extras, at the versions of constraints.txt.
+#  3. Chromium (Debian package, about 100 MB) for the browser test of the viewer, where apt can install it.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="${SCAPO_VENV:-$here/.venv}"
@@ -55,18 +56,21 @@ install_python() {
   local vpy="$venv/bin/python"
   local stamp="$venv/.scapo-installed"
   local want
-  want="$(cat "$here/pyproject.toml" | sha256sum | cut -c1-16)"
+  want="$(cat "$here/pyproject.toml" "$here/constraints.txt" | sha256sum | cut -c1-16)"
   if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && "$vpy" -c "import scapo, sapien, torch" 2>/dev/null; then
     log "python environment up to date"
     return 0
   fi
   if ! "$vpy" -c "import torch" >/dev/null 2>&1; then
-    log "installing torch==2.13.0 (CPU build)"
-    "$vpy" -m pip install -q --disable-pip-version-check torch==2.13.0 2>&1 | grep -v '^WARNING: Location' || true
+    log "installing torch==2.13.0 (CPU build) and numpy"
+    "$vpy" -m pip install -q --disable-pip-version-check -c "$here/constraints.txt" torch==2.13.0 numpy 2>&1 \
+      | grep -v '^WARNING: Location' || true
     "$vpy" -c "import torch" || { log "ERROR: torch install failed"; return 1; }
   fi
-  log "installing scapo (editable) with dev, ray, maniskill and viewer extras"
-  "$vpy" -m pip install -q --disable-pip-version-check -e "$here[dev,ray,maniskill,viewer]" 2>&1 | grep -v '^WARNING: Location' || true
+  log "installing scapo (editable) with dev, ray, maniskill, viewer and tensorboard extras, at the tested versions (constraints.txt)"
+  "$vpy" -m pip install -q --disable-pip-version-check -c "$here/constraints.txt" \
+    -e "$here[dev,ray,maniskill,viewer,tensorboard]" \
+    2>&1 | grep -v '^WARNING: Location' || true
   "$vpy" -c "import scapo, sapien, torch, ray" || { log "ERROR: package install failed"; return 1; }
   echo "$want" > "$stamp"
 }

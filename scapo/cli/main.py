@@ -7,6 +7,7 @@ inside the commands so that ``scapo --help`` is instant.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -218,9 +219,17 @@ def cmd_preview(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from scapo.methods import train_method
+    from scapo.config import override, parse_assignments, read_config
+    from scapo.methods import METHODS, train_method
 
-    ck = train_method(args.method, args.data, args.out, args.preset, progress=not args.no_progress,
+    preset = args.preset
+    values = {**(read_config(args.config) if args.config else {}), **parse_assignments(args.set)}
+    if values:  # the preset with those fields replaced (checked against its dataclass); run.json records them
+        entry = METHODS.get(args.method)
+        if entry.preset is None:
+            raise ConfigError(f"method {args.method!r} is not trained: it has no preset to --set")
+        preset = override(entry.preset(preset or "cpu"), values, f"{args.method} preset")
+    ck = train_method(args.method, args.data, args.out, preset, progress=not args.no_progress,
                       device=args.device, seed=args.seed)
     if os.environ.get("RANK", "0") == "0":  # under torchrun, rank 0 speaks for the run
         print(f"trained: {ck} (loss curves in {Path(args.out) / 'losses.png'})")
@@ -447,9 +456,49 @@ def cmd_demo(args) -> int:
 
 
 # ------------------------------------------------------------------------------ parser
+def _every_command_takes_no_progress(parser: argparse.ArgumentParser) -> None:
+    """Give every (sub)command a ``--no-progress`` flag (commands without bars of their own accept it too)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sp in action.choices.values():
+                if any(isinstance(a, argparse._SubParsersAction) for a in sp._actions):
+                    _every_command_takes_no_progress(sp)
+                elif not any("--no-progress" in a.option_strings for a in sp._actions):
+                    sp.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+@contextlib.contextmanager
+def _scapo_warnings(command: str):
+    """Inside the block, a :class:`~scapo.errors.ScapoWarning` prints as one line ``scapo COMMAND: warning: ...``
+    (each message once); other warnings as Python shows them."""
+    import warnings
+
+    from scapo.errors import ScapoWarning
+
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, ScapoWarning):
+            print(f"scapo {command}: warning: {message}", file=sys.stderr)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("default", ScapoWarning)
+        warnings.showwarning = show
+        yield
+
+
+def _version_text() -> str:
+    from scapo.provenance import git_commit, package_version
+
+    return f"scapo {package_version()} ({git_commit()})"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="scapo", description="Articulated-object data generation, baselines and "
                                 "benchmark (SCAPO, CVPR 2026).")
+    p.add_argument("--version", action="version", version=_version_text())
     sub = p.add_subparsers(dest="command", required=True)
 
     def common_cache(sp):
@@ -570,6 +619,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--device", default=None, help="cpu | cuda (default: the preset's, auto)")
     sp.add_argument("--seed", type=int, default=None, help="training seed (default: the preset's, 0); one run "
                     "folder per seed")
+    sp.add_argument("--set", action="append", metavar="FIELD=VALUE", help="replace a preset field (repeat; dotted "
+                    "for nested settings: --set stage1_epochs=40 --set losses.seg=2.0); recorded in run.json")
+    sp.add_argument("--config", type=Path, default=None, help="a TOML (or YAML) file of preset fields to replace "
+                    "(applied before --set)")
     sp.add_argument("--no-progress", action="store_true")
     sp.set_defaults(func=cmd_train)
 
@@ -659,6 +712,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--seed", type=int, default=0)
     common_cache(sp)
     sp.set_defaults(func=cmd_demo)
+    _every_command_takes_no_progress(p)
     return p
 
 
@@ -682,8 +736,12 @@ def main(argv: list[str] | None = None) -> int:
     """
     args = build_parser().parse_args(argv)
     git_commit()  # the commit of the code this process loads, recorded in provenance however long it runs
+    env_before = os.environ.get("TQDM_DISABLE")
+    if getattr(args, "no_progress", False):  # every tqdm bar, ours and the libraries', stays off
+        os.environ["TQDM_DISABLE"] = "1"
     try:
-        return int(args.func(args) or 0)
+        with _scapo_warnings(args.command):
+            return int(args.func(args) or 0)
     except ScapoError as e:
         print(f"scapo {args.command}: error: {e}", file=sys.stderr)
         return 2
@@ -703,6 +761,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"scapo {args.command}: internal error ({type(e).__name__}: {e}); this is a bug in scapo: please report "
               "it with the command line (SCAPO_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 3
+    finally:
+        if env_before is None:
+            os.environ.pop("TQDM_DISABLE", None)
+        else:
+            os.environ["TQDM_DISABLE"] = env_before
 
 
 if __name__ == "__main__":

@@ -164,6 +164,11 @@ class ArticulationDataset(Dataset):
         res["view_id"] = self.manifest["view_id"].to_numpy()
         return res
 
+    @property
+    def num_instances(self) -> int:
+        """The number of distinct object instances in this split."""
+        return int(self.manifest["instance_id"].nunique()) if len(self.manifest) else 0
+
     def keys(self) -> list[tuple[int, int]]:
         """(instance_id, view_id) of every sample in order (the sample keys used by predictions)."""
         return list(zip(self.manifest["instance_id"].astype(int), self.manifest["view_id"].astype(int)))

@@ -48,7 +48,7 @@ from scapo import __version__
 from scapo.data.config import FORMAT_VERSION
 from scapo.data.storage import write_json, write_shard
 from scapo.errors import ConfigError, DatasetError, InputError
-from scapo.files import atomic_write_bytes, check_output_dir
+from scapo.files import atomic_write_bytes, check_output_dir, load_npz_object
 from scapo.ops.rigid import invert_transform, project_to_so3
 from scapo.ops.sampling import farthest_point_indices
 
@@ -76,8 +76,7 @@ def read_frame(path: str | Path) -> dict:
     """
     path = Path(path)
     try:
-        with np.load(path, allow_pickle=True) as z:
-            raw = z["arr_0"].item()
+        raw = load_npz_object(path)  # never runs code from the file (a restricted unpickler)
     except Exception as e:  # noqa: BLE001 - np.load raises many kinds for a damaged file
         raise DatasetError(f"{path}: not an OP-Align frame file ({type(e).__name__}: {e})") from None
     if not isinstance(raw, dict):

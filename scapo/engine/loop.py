@@ -239,6 +239,7 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
         bar = tqdm(total=steps * sum(s.epochs for s in live), initial=steps * done_before, desc=job.desc, unit="it",
                    dynamic_ncols=True)
     columns = list(dict.fromkeys([*BASE_COLUMNS, *[t for s in job.stages for t in s.terms]]))
+    board = _tensorboard(folder, steps * done_before) if ctx.is_main else None
     t0 = time.perf_counter()
     before = float(state.get("seconds", 0.0)) if state is not None else 0.0  # earlier sessions' training time
     try:
@@ -255,7 +256,7 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
             if first == 0 and stage.on_start is not None:
                 stage.on_start()
             for epoch in range(first, stage.epochs):
-                run_epoch(job, stage, epoch, opt, sched, steps, folder, bar, device, ctx, columns)
+                run_epoch(job, stage, epoch, opt, sched, steps, folder, bar, device, ctx, columns, board)
                 last_stage = stage is live[-1]
                 done = last_stage and epoch == stage.epochs - 1
                 nxt = (stage.index, epoch + 1) if epoch + 1 < stage.epochs or last_stage else (
@@ -270,6 +271,8 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
     finally:
         if bar is not None:
             bar.close()
+        if board is not None:
+            board.close()
     if ctx.is_main:  # the training time over every session that trained this run (resumes included)
         folder.write_timing(before + time.perf_counter() - t0, device, ctx.world)
     return folder.checkpoint
@@ -295,9 +298,20 @@ def epoch_batches(data: CloudSet, cfg: FitConfig, seed: int, ctx: DistContext) -
                       generator=torch.Generator().manual_seed(seed))
 
 
+def _tensorboard(folder: RunFolder, start_step: int):
+    """A TensorBoard writer into ``RUN/tensorboard/`` (the ``tensorboard`` extra), or None where it is not installed.
+    A resumed run drops the events of the steps it trains again (``purge_step``)."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:  # optional: pip install 'scapo[tensorboard]'
+        return None
+    return SummaryWriter(log_dir=str(folder.path / "tensorboard"), purge_step=start_step)
+
+
 def run_epoch(job: TrainJob, stage: Stage, epoch: int, opt, sched, steps: int, folder: RunFolder, bar, device,
-              ctx: DistContext, columns: list[str]) -> None:
-    """One epoch of ``stage``: ``steps`` optimiser steps, one ``log.csv`` row each (rank 0).
+              ctx: DistContext, columns: list[str], board=None) -> None:
+    """One epoch of ``stage``: ``steps`` optimiser steps, one ``log.csv`` row each (rank 0), and the same scalars
+    as TensorBoard events where ``board`` (a ``SummaryWriter``) is given (tag ``stage<k>/<term>``).
 
     Raises:
         TrainingError: a loss term became NaN or infinite.
@@ -346,3 +360,8 @@ def run_epoch(job: TrainJob, stage: Stage, epoch: int, opt, sched, steps: int, f
                 if new_file:
                     writer.writeheader()
             writer.writerow(row)
+            if board is not None:
+                before = sum(s.epochs for s in job.stages if 0 < s.epochs and s.index < stage.index)
+                gstep = (before + epoch) * steps + step
+                for k in ("lr", "total", *terms):
+                    board.add_scalar(f"stage{stage.index}/{k}", row[k], gstep)

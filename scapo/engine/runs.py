@@ -179,9 +179,12 @@ def read_checkpoint(path: str | Path, device: torch.device | str = "cpu") -> dic
         TrainingError: the file cannot be read as a checkpoint (names it and says to delete it).
     """
     try:
-        state = torch.load(path, map_location=device, weights_only=False)
+        state = torch.load(path, map_location=device, weights_only=True)  # tensors and plain data: no code runs
     except Exception as e:  # noqa: BLE001 - torch raises many kinds for a broken file
-        raise TrainingError(f"checkpoint {path} cannot be read ({e}); delete it to start over") from e
+        why = ("it holds more than tensors and plain data; code is never run from a file"
+               if "Weights only load failed" in str(e) else (str(e).strip().splitlines() or [""])[0])
+        raise TrainingError(f"checkpoint {path} cannot be read ({type(e).__name__}: {why}); delete it to start "
+                            "over") from e
     if not isinstance(state, dict):
         raise TrainingError(f"checkpoint {path} cannot be read (not a scapo checkpoint); delete it to start over")
     return state

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from scapo.data.dataset import ArticulationDataset, load
-from scapo.errors import DatasetError, PredictionError
+from scapo.errors import DatasetError, PredictionError, warn_few_instances
 from scapo.eval.alignment import CanonicalAlignment, axis_sign, estimate_alignment
 from scapo.eval.metrics import (
     AP_THRESHOLDS,
@@ -171,6 +171,7 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     root = dataset.root if isinstance(dataset, ArticulationDataset) else Path(dataset)
     test, preds = _open(root, predictions, split, check_hash)
     P, J = test.num_parts, test.num_joints
+    warn_few_instances(test.num_instances, split, root, "its scores")
     gt, rows, slots, sym, twinned = _matched_ground_truth(test, preds, split, proto)
     gt_jp = gt["joint_parts"][0] if J else np.zeros((0, 2), dtype=np.int64)
     pose, axis, pivot, state, matched = _gather(preds, rows, slots, gt_jp)
@@ -193,6 +194,7 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     if alignment is not None:
         info["alignment_inlier_ratio"] = alignment.inlier_ratio.round(3).tolist()
     info["split"] = split
+    info["instances"] = test.num_instances
     return EvalResult(preds.method, test.category, split, per_sample, summary, alignment, info)
 
 

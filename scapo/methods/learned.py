@@ -282,10 +282,21 @@ class LearnedMethod:
         self.net = None
 
     def fit(self, train: ArticulationDataset) -> None:
-        """Load the finished run and check it against ``train``'s category and structure."""
+        """Load the finished run (:meth:`load`) and check it against ``train``'s category and structure."""
+        self.load(f"--data {train.root} ")
+        check_run_fits(self.run, self.identity, train, self.options.cross_category, f"train a run on this dataset "
+                       f"first ('scapo train --method {self.spec.method} --data {train.root} --out RUN')")
+
+    def load(self, data_hint: str = "") -> LearnedMethod:
+        """Load the finished run (no dataset needed; :func:`scapo.methods.load`); returns self.
+
+        Raises:
+            TrainingError: no checkpoint, an unreadable one (damaged, or not a scapo checkpoint), an unfinished run.
+            ConfigError: a run of another method; an unknown or unavailable device.
+        """
         o = self.options
         ck = self.run / "checkpoint.pt"
-        hint = f"train it first: scapo train --method {self.spec.method} --data {train.root} --out {self.run}"
+        hint = f"train it first: scapo train --method {self.spec.method} {data_hint or '--data DATA '}--out {self.run}"
         if not ck.is_file():
             raise TrainingError(f"{self.run} holds no checkpoint; {hint}")
         dev = resolve_device(o.device or "auto")
@@ -297,8 +308,6 @@ class LearnedMethod:
         if not state.get("done"):
             raise TrainingError(f"{self.run} is an unfinished run (epoch {state.get('epoch')}); resume it: "
                                 f"scapo train --method {self.spec.method} --out {self.run} --data ...")
-        check_run_fits(self.run, ident, train, o.cross_category, f"train a run on this dataset first ('scapo train "
-                       f"--method {self.spec.method} --data {train.root} --out RUN')")
         cls = type(self.spec.presets.get(self.spec.presets.names()[0]))
         self.preset = _preset_from_dict(cls, ident["preset"])
         self.net = self.spec.build(ident, self.preset).to(dev)
@@ -317,6 +326,26 @@ class LearnedMethod:
             self.supervision = supervision_marks(sup)
             if not o.label:
                 self.label = f"{self.spec.method}-{sup.lower()}"
+        return self
+
+    @property
+    def module(self) -> torch.nn.Module:
+        """The trained network (an ``nn.Module``, in eval mode); None before :meth:`load`."""
+        return self.net
+
+    @torch.no_grad()
+    def predict_points(self, points) -> dict[str, np.ndarray]:
+        """The network's outputs for clouds ``points (B, N, 3)`` (camera frame, metres; numpy or torch): numpy
+        arrays ``part_label (B, N)``, ``part_pose (B, P, 4, 4)``, ``joint_axis``, ``joint_pivot (B, J, 3)``,
+        ``joint_state (B, J)``, ``T_cam_obj (B, 4, 4)``.
+
+        Raises:
+            InputError: not a finite ``(B, N, 3)`` array of real numbers. TrainingError: not loaded."""
+        if self.net is None:
+            raise TrainingError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
+        X = torch.from_numpy(check_clouds(points)).to(self.device)
+        outs = [self.net.infer(X[i:i + self.options.batch_size]) for i in range(0, len(X), self.options.batch_size)]
+        return {k: np.concatenate([d[k] for d in outs]) for k in outs[0]}
 
     @torch.no_grad()
     def predict(self, dataset: ArticulationDataset) -> Predictions:
@@ -395,6 +424,29 @@ def learned_speed(spec: LearnedSpec, preset: str = "cpu", device: str | None = N
                      **inference_speed(net.infer, resolved[dev], num_points, iters),
                      "threads": torch.get_num_threads()})
     return rows
+
+
+def check_clouds(points) -> np.ndarray:
+    """``points`` as a float32 ``(B, N, 3)`` array of finite camera-frame coordinates (metres).
+
+    Raises:
+        InputError: another shape, a complex or non-numeric dtype, NaN / inf, or coordinates beyond 1 km (a
+            unit error: clouds are in metres)."""
+    from scapo.errors import InputError
+
+    if torch.is_tensor(points):
+        points = points.detach().cpu().numpy()
+    a = np.asarray(points)
+    if a.dtype.kind not in "fiu":
+        raise InputError(f"clouds must be real numbers (float32 metres), got dtype {a.dtype}")
+    if a.ndim != 3 or a.shape[-1] != 3 or a.shape[0] < 1 or a.shape[1] < 1:
+        raise InputError(f"clouds must have shape (B, N, 3), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise InputError("clouds hold NaN or infinite coordinates")
+    if np.abs(a).max() > 1e3:
+        raise InputError(f"clouds reach {np.abs(a).max():.3g} m from the camera; scapo works in metres (a depth "
+                         "camera sees up to a few metres): convert the units")
+    return np.ascontiguousarray(a, dtype=np.float32)
 
 
 def normalize_clouds(points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

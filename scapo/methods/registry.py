@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import time
 import types
 import typing
@@ -24,7 +25,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from scapo.data.dataset import ArticulationDataset, load
-from scapo.errors import ConfigError, DatasetError
+from scapo.errors import ConfigError, DatasetError, warn_few_instances
 from scapo.eval.predictions import Predictions
 from scapo.files import check_output_file
 from scapo.registry import Registry, split_supervision_label
@@ -242,6 +243,8 @@ def run_method(name: str, data: str | Path, out: str | Path | None = None, **opt
                            f"{train.card.get('config', {}).get('test_fraction')} and "
                            f"{train.card.get('config', {}).get('instances')} instances); regenerate it with test "
                            "instances")
+    if not METHODS.get(name).trained:  # a trained method's run was trained (and warned about) by train_method
+        warn_few_instances(train.num_instances, "train", data, "what it fits on them")
     t0 = time.perf_counter()
     method.fit(train)
     t_fit = time.perf_counter() - t0
@@ -276,6 +279,31 @@ def method_of_run(run: str | Path) -> str:
     return str(ident.get("method", "scapo")) if isinstance(ident, dict) else "scapo"
 
 
+def load_run(run: str | Path, device: str | None = None, **options):
+    """A finished run of any trained method, loaded for prediction (the method is read from ``run.json``):
+    the method object, with ``predict_points(points (B, N, 3) metres) -> dict`` of numpy outputs,
+    ``predict(dataset)`` and ``module`` (its trained ``nn.Module``). ``options`` are the method's prediction
+    options (:func:`options_class`).
+
+    Raises:
+        TrainingError: no run there (no checkpoint), a damaged checkpoint, an unfinished run. ConfigError: a run
+        of a method that is not trained, an unknown option, an unavailable device.
+    """
+    from scapo.errors import TrainingError
+
+    run = Path(run)
+    if not (run / "checkpoint.pt").is_file():
+        what = "is a file" if run.is_file() else ("does not exist" if not run.exists() else "holds no checkpoint.pt")
+        raise TrainingError(f"{run} {what}: not a trained run; train one with 'scapo train --method M --data DATA "
+                            f"--out {run}'")
+    name = method_of_run(run)
+    entry = METHODS.get(name)
+    if not entry.trained:
+        raise ConfigError(f"{run} names method {name!r}, which is not trained")
+    method = entry.factory(run=run, device=device, **options)
+    return method.load()
+
+
 def train_method(name: str, data: str | Path, run: str | Path, preset: str | None = None, progress: bool = True,
                  device: str | None = None, seed: int | None = None) -> Path:
     """Train (or resume) method ``name`` on ``data`` into the run folder ``run``; returns the checkpoint.
@@ -289,4 +317,6 @@ def train_method(name: str, data: str | Path, run: str | Path, preset: str | Non
         trained = [n for n in METHODS if METHODS.get(n).trained]
         raise ConfigError(f"method {name!r} is not trained ('scapo predict --method {name}' fits it); trained "
                           f"methods: {', '.join(trained)}")
+    if os.environ.get("RANK", "0") == "0":  # under torchrun, rank 0 speaks for the run
+        warn_few_instances(load(data, "train").num_instances, "train", data, "a model trained on it and its scores")
     return entry.train(data, run, preset, progress=progress, device=device, seed=seed)

@@ -66,6 +66,21 @@ class SCAPOMethod:
             ConfigError: the run's parts or joints differ from the dataset's, or its category differs
                 (allowed with ``cross_category`` when the structure is the same); names both.
         """
+        self.load()
+        ident = self.predictor.identity
+        check_run_fits(self.run, ident, train, self.options.cross_category,
+                       f"train a run on this dataset first ('scapo train --data {train.root} --out RUN')")
+        rc = self.predictor.refine
+        if rc.steps > 0 and rc.starts == "octahedral" and rc.upright_deg > 0:
+            self.predictor.fit_upright(train.arrays(["points"])["points"])
+
+    def load(self) -> SCAPOMethod:
+        """Load the run (:meth:`Predictor.load <scapo.models.predict.Predictor.load>`; no dataset needed, so the
+        refinement's upright prior, fitted on a training split, stays off); returns self.
+
+        Raises:
+            TrainingError, ConfigError: see :meth:`Predictor.load`.
+        """
         o = self.options
         self.predictor = Predictor.load(self.run, o.device, o.refine_steps, o.refine_margin)
         if o.refine_upright_deg is not None:
@@ -75,17 +90,24 @@ class SCAPOMethod:
             except ValueError as e:
                 raise ConfigError(str(e)) from None
         ident = self.predictor.identity
-        check_run_fits(self.run, ident, train, o.cross_category,
-                       f"train a run on this dataset first ('scapo train --data {train.root} --out RUN')")
         self.trained_on = ident["dataset_hash"]
         sup = ident["preset"].get("supervision", "")
         if sup:  # the semi-supervised setting: its marks, and a label of its own unless one was given
             self.supervision = supervision_marks(sup)
             if not self.options.label:
                 self.label = f"scapo-{sup.lower()}"
-        rc = self.predictor.refine
-        if rc.steps > 0 and rc.starts == "octahedral" and rc.upright_deg > 0:
-            self.predictor.fit_upright(train.arrays(["points"])["points"])
+        return self
+
+    @property
+    def module(self):
+        """The trained :class:`~scapo.models.scapo_model.SCAPOModel` (an ``nn.Module``); None before :meth:`load`."""
+        return None if self.predictor is None else self.predictor.model
+
+    def predict_points(self, points) -> dict:
+        """:meth:`Predictor.predict <scapo.models.predict.Predictor.predict>` on clouds ``(B, N, 3)`` (metres)."""
+        if self.predictor is None:
+            raise ConfigError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
+        return self.predictor.predict(points, self.options.batch_size, self.options.progress)
 
     def predict(self, dataset: ArticulationDataset) -> Predictions:
         a = dataset.arrays(["points"])

@@ -37,6 +37,10 @@ MAX_POINTS = 4096
 _BATCH_BYTES = 1 << 29
 
 
+#: the farthest coordinate (metres) a cloud may have: beyond it the units are wrong, and float32 poses break down
+MAX_RANGE_M = 1000.0
+
+
 def check_points(points) -> torch.Tensor:
     """Validate clouds for :meth:`Predictor.predict`; returns them as a float32 CPU tensor ``(B, N, 3)``.
 
@@ -44,11 +48,16 @@ def check_points(points) -> torch.Tensor:
         points: ``(B, N, 3)`` camera-frame metres, numpy or torch, any real dtype.
 
     Raises:
-        InputError: not a numeric (B, N, 3) array (a single (N, 3) cloud is named as such), an empty
-            batch, fewer than :data:`MIN_POINTS` points per cloud, NaN/inf coordinates, or a degenerate
-            cloud (all points within 0.1 mm of their centroid, or on one line); the message names the
-            cloud index.
+        InputError: not a real-valued (B, N, 3) array (a single (N, 3) cloud is named as such; complex values
+            refused), coordinates beyond :data:`MAX_RANGE_M` (a unit error), an empty batch, fewer than
+            :data:`MIN_POINTS` points per cloud, NaN/inf coordinates, or a degenerate cloud (all points within
+            0.1 mm of their centroid, or on one line); the message names the cloud index.
     """
+    kind = (torch.empty(0, dtype=points.dtype).numpy().dtype.kind if torch.is_tensor(points)
+            and not points.dtype.is_complex else ("c" if torch.is_tensor(points) else np.asarray(points).dtype.kind))
+    if kind not in "fiub":
+        raise InputError(f"points must be a real numeric array of shape (B, N, 3) in metres, got "
+                         f"{'complex' if kind == 'c' else 'non-numeric'} values")
     try:
         pts = points.detach().to("cpu", torch.float32) if torch.is_tensor(points) else \
             torch.from_numpy(np.asarray(points, dtype=np.float32))
@@ -69,6 +78,10 @@ def check_points(points) -> torch.Tensor:
         bad = torch.nonzero(~finite.all(dim=1)).flatten().tolist()
         raise InputError(f"cloud(s) {bad[:8]}{' ...' if len(bad) > 8 else ''} contain NaN or inf coordinates "
                          f"({int((~finite).sum())} points); remove those points first")
+    far = float(pts.abs().max())
+    if far > MAX_RANGE_M:
+        raise InputError(f"points reach {far:.3g} m from the camera; scapo works in metres and a depth camera sees a "
+                         f"few metres (at most {MAX_RANGE_M:g} m here): convert the units")
     c = pts.double() - pts.double().mean(dim=1, keepdim=True)
     ev = torch.linalg.eigvalsh(c.transpose(1, 2) @ c / N).clamp_min(0.0).sqrt()  # (B, 3) ascending, metres
     tiny = torch.nonzero(ev.norm(dim=1) < 1e-4).flatten().tolist()
@@ -87,6 +100,13 @@ def stored_refine(stored: dict) -> RefineConfig:
     (or is an ablation of one), and the stored settings otherwise."""
     registered = parse_preset(str(stored.get("name", ""))).base in PRESETS.names()
     return (get_preset(stored["name"]) if registered else preset_from_dict(stored)).refine
+
+
+def _first_line(e: Exception) -> str:
+    """``Type: first line of the message`` (torch's unpickling errors run over many lines)."""
+    if "Weights only load failed" in str(e):
+        return f"{type(e).__name__}: it holds more than tensors and plain data (code is never run from a file)"
+    return f"{type(e).__name__}: {(str(e).strip().splitlines() or [''])[0]}"
 
 
 class Predictor:
@@ -152,13 +172,13 @@ class Predictor:
             raise ConfigError(f"refine_steps must be >= 0, got {refine_steps}")
         dev = resolve_device(device or "auto")
         try:
-            state = torch.load(path, map_location=dev, weights_only=False)
+            state = torch.load(path, map_location=dev, weights_only=True)  # tensors and plain data: no code runs
             model = SCAPOModel(_model_config(state["model_config"]))
             model.load_checkpoint_state(state["model"])
             identity, done = state["identity"], state.get("done")
             stored = identity["preset"]
         except Exception as e:  # noqa: BLE001 - torch.load raises many kinds for a damaged file
-            raise TrainingError(f"checkpoint {path} cannot be loaded ({type(e).__name__}: {e}); it is damaged or not "
+            raise TrainingError(f"checkpoint {path} cannot be loaded ({_first_line(e)}); it is damaged or not "
                                 f"a scapo checkpoint: retrain with 'scapo train --out {run}' (delete the damaged "
                                 "file first)") from None
         if not done:

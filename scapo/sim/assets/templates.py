@@ -10,12 +10,12 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import tomllib
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 
 import numpy as np
-import tomllib
 
 from scapo.errors import ConfigError
 

@@ -1,0 +1,192 @@
+"""Overrides of a frozen settings dataclass (a training preset) from the command line and from config files.
+
+``scapo train --preset cpu --set stage1_epochs=40 --set losses.seg=2.0 --config my.toml``: each ``--set KEY=VALUE``
+names a field of the preset (a dotted path into nested settings, e.g. ``losses.seg``, ``encoder.k``), and its
+text is converted to the field's type; a config file (TOML, or YAML where PyYAML is installed) holds the same
+keys as a table (nested tables for nested settings). The file is applied first, ``--set`` after it. The result is
+the preset with those fields replaced (its own checks run again), so a run's ``run.json`` records every value it
+trained with, and a run started with overrides is refused by the same preset without them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import types
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from scapo.errors import ConfigError
+
+
+def parse_assignments(items: list[str] | None, flag: str = "--set") -> dict[str, str]:
+    """``["a=1", "b.c=x"]`` -> ``{"a": "1", "b.c": "x"}``.
+
+    Raises:
+        ConfigError: an item without ``=`` or with an empty key; a key given twice."""
+    out: dict[str, str] = {}
+    for item in items or []:
+        key, eq, value = str(item).partition("=")
+        key = key.strip()
+        if not eq or not key:
+            raise ConfigError(f"{flag} {item!r} is not of the form KEY=VALUE (e.g. {flag} stage1_epochs=40)")
+        if key in out:
+            raise ConfigError(f"{flag} gives {key!r} twice")
+        out[key] = value.strip()
+    return out
+
+
+def read_config(path: str | Path) -> dict[str, Any]:
+    """The settings in a TOML (``.toml``) or YAML (``.yaml``/``.yml``) file, flattened to dotted keys
+    (``[losses] seg = 2.0`` -> ``{"losses.seg": 2.0}``).
+
+    Raises:
+        ConfigError: missing or unreadable file, a syntax error (with the parser's message), another suffix, a
+            file that is not a table of settings, or YAML without PyYAML installed."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"--config {path}: no such file")
+    suffix = path.suffix.lower()
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"--config {path} cannot be read ({e})") from None
+    if suffix == ".toml":
+        import tomllib
+
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError(f"--config {path} is not valid TOML ({e})") from None
+    elif suffix in (".yaml", ".yml"):
+        try:
+            import yaml
+        except ImportError:
+            raise ConfigError(f"--config {path}: reading YAML needs PyYAML (pip install pyyaml); or write the "
+                              "file as TOML") from None
+        try:
+            data = yaml.safe_load(text)  # plain data only: no tags, no code
+        except yaml.YAMLError as e:
+            raise ConfigError(f"--config {path} is not valid YAML ({e})") from None
+    else:
+        raise ConfigError(f"--config {path}: give a .toml or .yaml file")
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"--config {path} holds a {type(data).__name__}, not a table of settings")
+
+    flat: dict[str, Any] = {}
+
+    def walk(prefix: str, d: dict) -> None:
+        for k, v in d.items():
+            key = f"{prefix}{k}"
+            if isinstance(v, dict):
+                walk(key + ".", v)
+            else:
+                flat[key] = v
+
+    walk("", data)
+    return flat
+
+
+def _convert(key: str, value: Any, tp: Any, what: str) -> Any:
+    """``value`` (text from the command line, or a value from a config file) as the field type ``tp``."""
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if value is None or (isinstance(value, str) and value.lower() in ("none", "null")):
+            if len(args) < len(typing.get_args(tp)):
+                return None
+        tp, origin = args[0], typing.get_origin(args[0])
+    name = getattr(tp, "__name__", str(tp))
+    bad = ConfigError(f"{what} {key}={value!r} is not a valid {name}")
+    if origin is typing.Literal:
+        allowed = typing.get_args(tp)
+        if value not in allowed:
+            raise ConfigError(f"{what} {key}={value!r} must be one of {', '.join(map(repr, allowed))}")
+        return value
+    if origin in (tuple, list):
+        items = value
+        if isinstance(value, str):
+            text = value.strip()
+            if text.startswith("["):
+                try:
+                    items = json.loads(text)
+                except ValueError:
+                    raise bad from None
+            else:
+                items = [t for t in (p.strip() for p in text.split(",")) if t]
+        if not isinstance(items, (list, tuple)):
+            raise bad
+        args = typing.get_args(tp)
+        inner = args[0] if args else str
+        return tuple(_convert(key, v, inner, what) for v in items)
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        low = str(value).strip().lower()
+        if low in ("true", "1", "yes", "on"):
+            return True
+        if low in ("false", "0", "no", "off"):
+            return False
+        raise bad
+    if tp is int:
+        if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
+            raise bad
+        try:
+            return int(value) if not isinstance(value, str) else int(value.strip())
+        except ValueError:
+            raise bad from None
+    if tp is float:
+        if isinstance(value, bool):
+            raise bad
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise bad from None
+    if tp is str:
+        if not isinstance(value, (str, int, float)) or isinstance(value, bool):
+            raise bad
+        return str(value)
+    if tp is Path:
+        return Path(str(value))
+    raise ConfigError(f"{what} {key}: a field of type {name} cannot be set here")
+
+
+def override(settings: Any, values: Mapping[str, Any], what: str = "preset") -> Any:
+    """``settings`` (a frozen dataclass) with the fields ``values`` names replaced; dotted keys reach nested
+    dataclasses. Text values are converted to the field's type.
+
+    Raises:
+        ConfigError: an unknown field (the message lists the valid ones at that level), a value that does not
+            convert, or one the dataclass's own checks refuse (their message)."""
+    if not values:
+        return settings
+    nested: dict[str, dict[str, Any]] = {}
+    direct: dict[str, Any] = {}
+    for key, value in values.items():
+        head, dot, rest = key.partition(".")
+        (nested.setdefault(head, {}).__setitem__(rest, value) if dot else direct.__setitem__(head, value))
+    fields = {f.name: f for f in dataclasses.fields(settings)}
+    hints = typing.get_type_hints(type(settings))
+    changes = {}
+    for head in [*direct, *nested]:
+        if head not in fields:
+            raise ConfigError(f"unknown {what} field {head!r}; valid fields: {', '.join(fields)}")
+    for head, value in direct.items():
+        if dataclasses.is_dataclass(getattr(settings, head)):
+            sub = getattr(settings, head)
+            raise ConfigError(f"{what} field {head!r} is a group of settings: set one of its fields, e.g. "
+                              f"{head}.{dataclasses.fields(sub)[0].name}=...")
+        changes[head] = _convert(head, value, hints[head], what)
+    for head, sub_values in nested.items():
+        sub = getattr(settings, head)
+        if not dataclasses.is_dataclass(sub):
+            raise ConfigError(f"{what} field {head!r} has no fields (set it as {head}=VALUE)")
+        changes[head] = override(sub, sub_values, f"{what} {head}")
+    try:
+        return dataclasses.replace(settings, **changes)
+    except (ValueError, TypeError) as e:
+        raise ConfigError(f"{what}: {e}") from None

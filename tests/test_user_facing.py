@@ -1,0 +1,247 @@
+"""What a user meets first: the installed package, loading any method's run, configuration from the command line
+and files, warnings about small data, data files that carry code."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from scapo.cli.main import main
+from scapo.errors import ConfigError, ScapoWarning, TrainingError
+from scapo.methods import METHODS, train_method
+
+PIN = Path(__file__).parent / "data" / "pin_laptop"  # 4 train and 2 test laptops
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_cli(*args) -> tuple[int, str, str]:
+    import contextlib
+    import io
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in args])
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.mark.slow
+def test_the_wheel_in_a_fresh_venv_reports_its_version_lists_and_generates_from_another_folder(tmp_path):
+    dist = tmp_path / "dist"
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(dist), str(ROOT)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    (wheel,) = dist.glob("scapo-*.whl")
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    # the dependencies come from this environment (no network for a second torch); scapo only from the wheel
+    site = next(venv.glob("lib/python*/site-packages"))
+    deps = [p for p in sys.path if p.endswith("site-packages") and Path(p, "torch").is_dir()]
+    (site / "deps.pth").write_text("\n".join(deps) + "\n")
+    r = subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "install", "--no-deps", "-q", str(wheel)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    env = {"PATH": f"{venv / 'bin'}:/usr/bin:/bin", "HOME": str(tmp_path), "SCAPO_CACHE": str(tmp_path / "cache")}
+    scapo = str(venv / "bin" / "scapo")
+
+    def run(*args):
+        return subprocess.run([scapo, *args], capture_output=True, text=True, timeout=600, env=env, cwd=elsewhere)
+
+    v = run("--version")
+    assert v.returncode == 0 and v.stdout.strip().startswith("scapo 0.") and "dirty" not in v.stdout, v
+    assert "(v0." in v.stdout  # outside a git checkout, provenance names the installed version
+    ls = run("list")
+    assert ls.returncode == 0 and "laptop" in ls.stdout and "scapo" in ls.stdout, ls.stderr[-2000:]
+    g = run("generate", "--category", "laptop", "--instances", "2", "--views", "1", "--test-fraction", "0.5",
+            "--val-fraction", "0", "--points", "256", "--out", "d", "--no-progress")
+    assert g.returncode == 0, g.stderr[-2000:]
+    assert json.loads((elsewhere / "d" / "card.json").read_text())["category"] == "laptop"
+    imported = subprocess.run([str(venv / "bin" / "python"), "-c", "import scapo; print(scapo.__file__)"],
+                              capture_output=True, text=True, env=env, cwd=elsewhere)
+    assert str(venv) in imported.stdout  # the wheel's copy, not the checkout
+
+
+def test_version_and_provenance_outside_a_checkout(monkeypatch):
+    from scapo import provenance
+
+    with pytest.raises(SystemExit):
+        main(["--version"])
+    provenance.git_commit.cache_clear()
+    monkeypatch.setattr(provenance.subprocess, "run", lambda *a, **k: (_ for _ in ()).throw(OSError("no git")))
+    try:
+        assert provenance.git_commit() == f"v{provenance.package_version()}"
+    finally:
+        provenance.git_commit.cache_clear()
+    from scapo.bench.cells import dirty_sha
+
+    assert not dirty_sha(f"v{provenance.package_version()}")  # a release is not uncommitted code
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("runs")
+    out = {}
+    for name in METHODS.names():
+        if METHODS.get(name).trained:
+            out[name] = root / name
+            train_method(name, PIN, out[name], "test", progress=False)
+    return out
+
+
+def test_methods_load_round_trips_every_trained_method(runs):
+    """``scapo.methods.load(run)`` gives each trained method's predictor: its nn.Module, and the same outputs as
+    the predictions ``scapo predict`` writes."""
+    from scapo.data import load as load_data
+    from scapo.methods import load, run_method
+
+    pts = load_data(PIN, "test").arrays(["points"])["points"]
+    for name, run in runs.items():
+        m = load(run, device="cpu")
+        assert isinstance(m.module, torch.nn.Module) and not m.module.training
+        out = m.predict_points(pts)
+        preds = run_method(name, PIN, None, run=run, device="cpu")
+        test = preds.split == "test"
+        np.testing.assert_allclose(out["part_pose"], preds.part_pose[test], atol=1e-5, err_msg=name)
+        np.testing.assert_array_equal(out["part_label"], preds.part_label[test], err_msg=name)
+
+
+def test_model_load_names_the_method_of_another_run_and_a_damaged_checkpoint_is_said_so(runs, tmp_path):
+    import scapo.models
+    from scapo.methods import load
+
+    with pytest.raises(ConfigError, match="a run of method 'npcs', not SCAPO; load it with scapo.methods.load"):
+        scapo.models.load(runs["npcs"])
+    for name in ("npcs", "scapo"):
+        bad = tmp_path / name
+        bad.mkdir()
+        (bad / "run.json").write_text((runs[name] / "run.json").read_text())
+        (bad / "checkpoint.pt").write_bytes((runs[name] / "checkpoint.pt").read_bytes()[:300])
+        with pytest.raises(TrainingError, match="cannot be (read|loaded)"):
+            load(bad)
+    with pytest.raises(TrainingError, match="does not exist"):
+        load(tmp_path / "nowhere")
+
+
+class _Payload:
+    def __reduce__(self):
+        return (os.system, (f"touch {Path(os.environ.get('TMPDIR', '/tmp')) / 'scapo-pwned'}",))
+
+
+def test_checkpoints_and_frame_files_are_read_without_running_their_code(runs, tmp_path):
+    from scapo.data.opalign_real import read_frame
+    from scapo.errors import DatasetError
+    from scapo.methods import load
+
+    flag = Path(os.environ.get("TMPDIR", "/tmp")) / "scapo-pwned"
+    flag.unlink(missing_ok=True)
+    for name in ("npcs", "scapo"):
+        evil = tmp_path / f"evil_{name}"
+        evil.mkdir()
+        (evil / "run.json").write_text((runs[name] / "run.json").read_text())
+        state = torch.load(runs[name] / "checkpoint.pt", weights_only=True)
+        state["payload"] = _Payload()
+        torch.save(state, evil / "checkpoint.pt")
+        with pytest.raises(TrainingError):
+            load(evil)
+        code, _, err = run_cli("predict", "--run", evil, "--data", PIN, "--out", tmp_path / "p.npz")
+        assert code == 2 and "scapo predict: error:" in err
+    np.savez(tmp_path / "frame.npz", np.array({"pc": _Payload()}, dtype=object))
+    with pytest.raises(DatasetError, match="may not"):
+        read_frame(tmp_path / "frame.npz")
+    assert not flag.exists()
+
+
+def test_set_and_config_override_preset_fields_and_are_recorded(tmp_path):
+    run = tmp_path / "r"
+    code, _, err = run_cli("train", "--data", PIN, "--preset", "test", "--set", "stage1_epochs=2", "--set",
+                           "losses.seg=2.5", "--out", run, "--no-progress")
+    assert code == 0, err
+    preset = json.loads((run / "run.json").read_text())["preset"]
+    assert preset["stage1_epochs"] == 2 and preset["losses"]["seg"] == 2.5
+    # the same folder without the override is another run
+    code, _, err = run_cli("train", "--data", PIN, "--preset", "test", "--out", run, "--no-progress")
+    assert code == 2 and "preset fields that differ: losses.seg, stage1_epochs" in err
+    cfg = tmp_path / "npcs.toml"
+    cfg.write_text("epochs = 3\nlr = 0.002\n")
+    code, _, err = run_cli("train", "--method", "npcs", "--data", PIN, "--preset", "test", "--config", cfg,
+                           "--set", "lr=0.003", "--out", tmp_path / "n", "--no-progress")
+    assert code == 0, err
+    preset = json.loads((tmp_path / "n" / "run.json").read_text())["preset"]
+    assert preset["epochs"] == 3 and preset["lr"] == 0.003  # --set after --config
+
+
+@pytest.mark.parametrize("args,fragment", [
+    (["--set", "stage1_epochz=2"], "unknown scapo preset field 'stage1_epochz'; valid fields: name, stage1_epochs"),
+    (["--set", "stage1_epochs=two"], "stage1_epochs='two' is not a valid int"),
+    (["--set", "stage1_epochs"], "is not of the form KEY=VALUE"),
+    (["--set", "losses=3"], "'losses' is a group of settings"),
+    (["--set", "losses.nope=1"], "unknown scapo preset losses field 'nope'"),
+    (["--set", "part_init=maybe"], "part_init='maybe' is not a valid bool"),
+    (["--set", "batch_size=0"], "invalid"),
+    (["--config", "missing.toml"], "no such file"),
+])
+def test_bad_overrides_are_clear_errors_before_anything_is_written(args, fragment, tmp_path):
+    code, _, err = run_cli("train", "--data", PIN, "--preset", "test", *args, "--out", tmp_path / "r", "--no-progress")
+    assert code == 2 and fragment in err and "Traceback" not in err, err
+    assert not (tmp_path / "r").exists()
+
+
+def test_bad_config_files_are_clear_errors(tmp_path):
+    for name, text, fragment in [("a.toml", "epochs = [", "not valid TOML"), ("a.json", "{}", "give a .toml"),
+                                 ("b.toml", "epochs = 'x'", "is not a valid int"),
+                                 ("c.toml", "[nope]\nx = 1", "unknown npcs preset field 'nope'")]:
+        (tmp_path / name).write_text(text)
+        code, _, err = run_cli("train", "--method", "npcs", "--data", PIN, "--preset", "test", "--config",
+                               tmp_path / name, "--out", tmp_path / "r", "--no-progress")
+        assert code == 2 and fragment in err, (name, err)
+
+
+def test_tensorboard_events_beside_the_log(tmp_path):
+    pytest.importorskip("tensorboard")
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    train_method("npcs", PIN, tmp_path / "r", "test", progress=False)
+    (events,) = (tmp_path / "r" / "tensorboard").glob("events.*")
+    acc = EventAccumulator(str(events))
+    acc.Reload()
+    assert "stage1/total" in acc.Tags()["scalars"] and len(acc.Scalars("stage1/total")) == 4
+
+
+def test_small_splits_are_warned_about_in_training_and_scoring(tmp_path):
+    from scapo.eval import evaluate
+    from scapo.methods import run_method
+
+    with pytest.warns(ScapoWarning, match="train split .* holds only 4 instance"):
+        preds = run_method("icp", PIN, tmp_path / "p.npz", **METHODS.get("icp").quick_options)
+    with pytest.warns(ScapoWarning, match="test split .* holds only 2 instance"):
+        res = evaluate(PIN, preds)
+    assert res.info["instances"] == 2
+    code, _, err = run_cli("evaluate", "--data", PIN, "--pred", tmp_path / "p.npz")
+    assert code == 0 and "scapo evaluate: warning: the test split" in err
+
+
+def test_every_command_takes_no_progress():
+    import argparse
+
+    from scapo.cli.main import build_parser
+
+    def leaves(parser, prefix=()):
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for name, sp in a.choices.items():
+                    if any(isinstance(x, argparse._SubParsersAction) for x in sp._actions):
+                        yield from leaves(sp, (*prefix, name))
+                    else:
+                        yield (*prefix, name), sp
+
+    for name, sp in leaves(build_parser()):
+        assert any("--no-progress" in a.option_strings for a in sp._actions), name
+    assert "TQDM_DISABLE" not in os.environ  # a command leaves the process's environment as it found it
