@@ -25,6 +25,7 @@ import os
 import re
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from scapo.errors import OutputError
@@ -145,16 +146,31 @@ def check_output_dir(folder: str | Path, what: str = "output folder") -> Path:
     return folder
 
 
-def check_output_file(path: str | Path, what: str = "output file", example: str = "out.npz") -> Path:
+#: the image formats a figure may be written as (matplotlib's, without its many others)
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+
+
+def check_output_file(path: str | Path, what: str = "output file", example: str = "out.npz",
+                      replaceable: Callable[[Path], bool] | None = None) -> Path:
     """Check that ``path`` can be written (creating its folder); returns it. Nothing is written to it.
 
+    ``example``'s suffix is the one the file must have (``out.npz``: ``.npz``). ``replaceable(path)``: whether an
+    existing file at ``path`` may be replaced (e.g. it is an earlier result of the same kind); without it any may.
+
     Raises:
-        OutputError: ``path`` is an existing folder, its folder is a file or cannot be created, or
-            the folder is not writable.
+        OutputError: ``path`` is an existing folder, has another suffix, is an existing file that is not
+            replaceable (e.g. a dataset's ``card.json``), its folder is a file or cannot be created, or the folder
+            is not writable.
     """
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{what} {path} is an existing folder; give a file name (e.g. {path / example})")
+    suffix = Path(example).suffix
+    allowed = FIGURE_SUFFIXES if suffix in FIGURE_SUFFIXES else (suffix,)
+    if suffix and path.suffix.lower() not in allowed:
+        raise OutputError(f"{what} {path} must end in {' or '.join(allowed)} (e.g. {path.with_suffix(suffix).name})")
+    if replaceable is not None and path.is_file() and not replaceable(path):
+        raise OutputError(f"{what} {path} exists and is not a {what} (it would be lost); give another file name")
     _make_dir(path.parent, f"folder of the {what}")
     _probe_writable(path.parent, f"folder of the {what}")
     return path
@@ -291,3 +307,21 @@ def load_npz_object(path: str | Path, key: str = "arr_0"):
         else:
             arr = np.frombuffer(f.read(), dtype=dtype).reshape(shape, order="F" if fortran else "C")
     return arr.item() if isinstance(arr, np.ndarray) and arr.shape == () else arr
+
+
+def check_own_files(paths, marker: Path, what: str, hint: str) -> None:
+    """Refuse to overwrite files scapo did not write: any of ``paths`` that exists while ``marker`` (the JSON that
+    scapo writes with them, holding its ``provenance``) does not.
+
+    Raises:
+        OutputError: naming the foreign file and ``hint`` (e.g. another --out or --name)."""
+    import json
+
+    try:
+        ours = "provenance" in json.loads(Path(marker).read_text())
+    except (OSError, ValueError, TypeError):
+        ours = False
+    foreign = [str(p) for p in paths if Path(p).exists() and not ours]
+    if foreign:
+        raise OutputError(f"{foreign[0]} exists and was not written by scapo (no {Path(marker).name} with provenance "
+                          f"beside it); {hint}")

@@ -44,6 +44,33 @@ def _matched(pred_label: np.ndarray, gt_label: np.ndarray, parts: int) -> np.nda
     return np.where(pred_label >= 0, table[np.maximum(pred_label, 0)], -1)
 
 
+def check_listen_address(host: str, port: int) -> None:
+    """Refuse, before a server starts, a port outside 1..65535, a host this machine cannot listen on (not one of
+    its addresses or a resolvable name), and a port already taken.
+
+    Raises:
+        ConfigError: naming the problem and a working example."""
+    import socket
+
+    from scapo.errors import ConfigError
+
+    if not isinstance(port, int) or not 1 <= port <= 65535:
+        raise ConfigError(f"--port {port}: a port is a number in 1..65535 (e.g. --port 8080)")
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError) as e:
+        raise ConfigError(f"--host {host!r} is not an address or name this machine knows ({e.strerror or e}); use "
+                          "127.0.0.1 (this machine) or 0.0.0.0 (every interface)") from None
+    family, _, _, _, addr = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(addr)
+        except OSError as e:
+            raise ConfigError(f"cannot listen on {host}:{port} ({e.strerror or e}); choose another --port, or "
+                              "--host 127.0.0.1") from None
+
+
 class Viewer:
     """The viewer's state and scene (see the module docstring).
 
@@ -76,6 +103,7 @@ class Viewer:
 
                 raise PredictionError(f"predictions {p.method!r} do not cover the {split} split of {data}")
             self.rows.append(rows)
+        check_listen_address(host, port)
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         # start where the camera was: behind the cloud's centre (-y in the display frame), a little above
         d = float(self.ds[0]["bbox_diag"])

@@ -149,3 +149,36 @@ def test_evaluate_twin_columns(laptop_data, tmp_path, capsys):
     per = pd.read_csv(tmp_path / "t" / "table1_twin.csv")
     assert len(per) == 3 and (per["twin_mask_iou"] > 0.8).all()
     assert "Provenance" in (tmp_path / "t" / "table1_twin.md").read_text()
+
+
+def test_twin_links_carry_mass_from_their_hull_and_a_second_export_leaves_no_stale_mesh(laptop_data, tmp_path):
+    import xml.etree.ElementTree as ET
+
+    import trimesh
+
+    from scapo.twin.export import DENSITY
+
+    out = tmp_path / "twin"
+    (out / "meshes").mkdir(parents=True)
+    (out / "twin.json").write_text("{}")  # an earlier twin, with a part this one does not have
+    (out / "meshes" / "part7.obj").write_text("v 0 0 0\n")
+    export_twin(laptop_data, oracle(laptop_data), 0, out)
+    assert not (out / "meshes" / "part7.obj").exists()
+    root = ET.parse(out / "mobility.urdf").getroot()
+    for link in root.iter("link"):
+        mesh = trimesh.load(out / link.find("visual/geometry/mesh").get("filename"), force="mesh")
+        mass = float(link.find("inertial/mass").get("value"))
+        assert mass == pytest.approx(max(mesh.volume * DENSITY, 1e-3), rel=1e-3)
+        com = [float(v) for v in link.find("inertial/origin").get("xyz").split()]
+        np.testing.assert_allclose(com, mesh.center_mass, atol=1e-6)
+        inertia = link.find("inertial/inertia")
+        assert all(float(inertia.get(k)) > 0 for k in ("ixx", "iyy", "izz"))
+
+
+def test_a_twin_without_a_moving_part_is_a_clear_error(laptop_data, tmp_path):
+    from scapo.errors import ConfigError
+
+    preds = oracle(laptop_data)
+    preds.part_label[:] = np.where(preds.part_label >= 0, 0, -1)  # every point given to the base
+    with pytest.raises(ConfigError, match="no moving part"):
+        export_twin(laptop_data, preds, 0, tmp_path / "twin")

@@ -461,6 +461,10 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
         methods = [spec.ablation_of]
     methods = list(methods) if methods else table_methods()
     categories = list(categories) if categories else list(spec.categories)
+    for what, names in (("--methods", methods), ("--categories", categories), ("--seeds", list(opts.seeds))):
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ConfigError(f"{what} names {', '.join(map(str, twice))} more than once; give each once")
     name = opts.name or spec.name
     cells = spec.cells(methods, categories, opts)
     write_table = getattr(writers, spec.writer)

@@ -143,6 +143,12 @@ def _object_sources(args) -> list:
     for p in paths:
         src = ObjectSource(p)
         opt = options.get(src.name) or options.get(p) or {}
+        if not isinstance(opt, dict):
+            raise ConfigError(f"--object-options: the entry of {src.name!r} must be a JSON object with \"parts\" "
+                              "and / or \"view\"")
+        unknown = sorted(set(opt) - {"parts", "view"})
+        if unknown:
+            raise ConfigError(f"--object-options: unknown key(s) {unknown} for {src.name!r}; known: parts, view")
         if opt:
             used.add(src.name if src.name in options else p)
             parts = opt.get("parts", "")
@@ -271,8 +277,19 @@ def cmd_evaluate(args) -> int:
     from scapo.provenance import provenance
 
     protocol = get_protocol(args.protocol).name  # an unknown name is refused before any work
+    if args.twin_limit < 0:
+        raise ConfigError(f"--twin-limit must be >= 0 (0: every sample), got {args.twin_limit}")
+    same = _duplicates(args.pred)
+    if same:
+        raise ConfigError(f"--pred {same[0]} and {same[1]} are the same predictions; give each file once (several "
+                          "files of one method are its training seeds)")
     if args.out:
+        from scapo.files import check_own_files
+
         check_output_dir(args.out, "table folder")
+        check_own_files([Path(args.out) / f"{args.name}.{k}" for k in ("csv", "md", "tex")],
+                        Path(args.out) / f"{args.name}.json", "table file",
+                        "choose another --out folder or --name")
     results = [evaluate(args.data, p, protocol=protocol, split=args.split) for p in args.pred]
     _print_summary(results, protocol)
     if args.out:
@@ -300,6 +317,22 @@ def _evaluate_twins(args, results) -> None:
                      limit=args.twin_limit, out=args.out, name=args.name))
     if args.out:
         print(f"wrote {Path(args.out) / (args.name + '_twin.md')}")
+
+
+def _duplicates(paths) -> tuple[str, str] | None:
+    """Two of ``paths`` naming the same file or files with identical content, or None."""
+    import hashlib
+
+    seen = {}
+    for p in paths:
+        try:
+            key = hashlib.sha256(Path(p).read_bytes()).hexdigest()
+        except OSError:
+            continue  # a missing file is the evaluator's error to name
+        if key in seen:
+            return seen[key], str(p)
+        seen[key] = str(p)
+    return None
 
 
 def _method_provenance(results) -> dict:
@@ -435,7 +468,8 @@ def cmd_bench_table(args) -> int:
     from scapo.bench import parse_category_seeds
     from scapo.bench.experiments import run_table
 
-    instances, views = args.instances or 80, args.views or 16
+    instances = 80 if args.instances is None else args.instances
+    views = 16 if args.views is None else args.views
     if min(args.workers) < 1 or instances < 1 or views < 1:
         raise ConfigError("--workers, --instances and --views must be >= 1")
     run_table(args.what, args.methods, args.categories, instances=instances, views=views, data_seed=args.seed,

@@ -19,6 +19,12 @@ FORMAT_VERSION = 1
 SENSOR_ADDED_FIELDS = ("max_range", "depth_margin", "flying", "ground")
 
 
+#: seeds are 63-bit (numpy's and torch's generators take them as they are)
+MAX_SEED = 2 ** 63
+#: the largest dataset one ``generate`` makes (its plan is held in memory before the first shard)
+MAX_INSTANCES = 100_000
+MAX_SAMPLES = 10_000_000
+
 @dataclass(frozen=True)
 class GenerateConfig:
     """What ``scapo generate`` renders.
@@ -74,10 +80,14 @@ class GenerateConfig:
             if self.parts or self.scale != "1":
                 raise ConfigError("--parts and --scale apply to datasets of existing objects (--object/--objects), "
                                   "not to procedural categories")
-        if self.seed < 0:
-            raise ConfigError(f"seed must be >= 0, got {self.seed}")
+        if not 0 <= self.seed < MAX_SEED:
+            raise ConfigError(f"seed must be in [0, 2**63), got {self.seed}")
         if self.instances < 1 or self.views < 1:
             raise ConfigError(f"instances and views must be >= 1, got {self.instances} and {self.views}")
+        if self.instances > MAX_INSTANCES or self.instances * self.views > MAX_SAMPLES:
+            raise ConfigError(f"{self.instances} instances x {self.views} views is beyond what one dataset holds here "
+                              f"(at most {MAX_INSTANCES} instances and {MAX_SAMPLES} samples); generate several "
+                              "datasets with different --seed")
         if not 0.0 <= self.test_fraction < 1.0:
             raise ConfigError(f"test_fraction must be in [0, 1), got {self.test_fraction}")
         if self.shard_size < 1:

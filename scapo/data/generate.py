@@ -45,6 +45,7 @@ from scapo.data.storage import (
 )
 from scapo.errors import ConfigError, DatasetError
 from scapo.files import FolderLock, atomic_write_bytes, check_output_dir, clean_stale_temps, read_json
+from scapo.provenance import usable_cores
 from scapo.sim.assets import GENERATOR_VERSION, build_category
 from scapo.sim.assets.objects import load_object
 from scapo.sim.assets.symmetry import by_view
@@ -435,6 +436,10 @@ def generate(
     t0 = time.perf_counter()
     if int(workers) < 1:
         raise ConfigError(f"workers must be >= 1, got {workers}")
+    if executor == "local" and int(workers) > 4 * usable_cores():
+        raise ConfigError(f"--workers {workers} would start {workers} SAPIEN processes on {usable_cores()} usable "
+                          f"core(s); use at most {4 * usable_cores()} (one per core is fastest), or --executor ray "
+                          "for a cluster")
     if executor not in EXECUTORS:
         raise ConfigError(f"unknown executor {executor!r}; known: {', '.join(EXECUTORS)}")
     if executor == "ray":

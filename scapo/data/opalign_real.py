@@ -118,6 +118,10 @@ def fit_intrinsics(pc: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
     x, y = pc[idx, 0] / pc[idx, 2], pc[idx, 1] / pc[idx, 2]
     fx, cx = np.linalg.lstsq(np.stack([x, np.ones_like(x)], 1), u, rcond=None)[0]
     fy, cy = np.linalg.lstsq(np.stack([y, np.ones_like(y)], 1), v, rcond=None)[0]
+    err = np.median(np.hypot(fx * x + cx - u, fy * y + cy - v))
+    if not err < 2.0:  # pixels do not sit where a pinhole camera of this size puts them
+        raise InputError(f"the organised cloud does not fit a pinhole camera of {H} x {W} pixels (median "
+                         f"reprojection error {err:.1f} px); is --image-size HxW transposed (try {W}x{H})?")
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
@@ -152,14 +156,19 @@ def frame_to_sample(frame: dict, joint_type: Sequence[int], joint_parts: Sequenc
     idx = farthest_point_indices(points_all, num_points, rng)
     points = points_all[idx].astype(np.float32)
     label = np.where(labels_all[idx] >= 0, labels_all[idx], -1).astype(np.int64)
-    label[label >= P] = -1
+    if (labels_all >= P).any():
+        raise InputError(f"segmentation ids up to {int(labels_all.max()) + 1} but the frame has {P} parts "
+                         "(ids 1..P, 0 background)")
     half = np.abs(part[:, 12:15]) / 2
     corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
     box = np.concatenate([(corners * half[p]) @ pose[p, :3, :3].T + pose[p, :3, 3] for p in range(P)])
     bbox_diag = float(np.linalg.norm(box.max(0) - box.min(0)))
     if not bbox_diag > 0:
         raise InputError("the parts' scales are zero: cannot size the object")
-    axis = joint[:, 3:6] / np.maximum(np.linalg.norm(joint[:, 3:6], axis=1, keepdims=True), 1e-12)
+    norms = np.linalg.norm(joint[:, 3:6], axis=1, keepdims=True)
+    if (norms < 1e-6).any():
+        raise InputError(f"joint(s) {np.nonzero(norms[:, 0] < 1e-6)[0].tolist()} have a zero-length axis")
+    axis = joint[:, 3:6] / norms
     state = np.zeros(J)
     for j in range(J):
         M = invert_transform(pose[jp[j, 0]]) @ pose[jp[j, 1]]
@@ -216,6 +225,10 @@ def convert_opalign_real(root: str | Path, category: str, out: str | Path, num_p
         joint_type, joint_parts = REAL_CATEGORIES[category]
     if num_points < 16:
         raise ConfigError(f"--points must be >= 16, got {num_points}")
+    if not 0 <= int(seed) < 2 ** 63:
+        raise ConfigError(f"--seed must be in [0, 2**63), got {seed}")
+    if len(image_size) != 2 or min(image_size) < 1:
+        raise ConfigError(f"--image-size must be HxW with positive sizes, got {image_size}")
     if not 0.0 <= val_fraction < 1.0:
         raise ConfigError(f"val_fraction must be in [0, 1), got {val_fraction}")
     frames = find_frames(root)
@@ -223,14 +236,21 @@ def convert_opalign_real(root: str | Path, category: str, out: str | Path, num_p
     source = {"kind": "op-align-real", "root": str(Path(root).resolve()), "num_points": num_points, "seed": seed,
               "val_fraction": val_fraction, "joint_type": list(map(int, joint_type)),
               "joint_parts": [list(map(int, p)) for p in joint_parts], "image_size": list(image_size)}
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out} is a file; give a folder")
     if out.exists() and any(p for p in out.iterdir()):
         try:
             old = json.loads((out / "card.json").read_text()).get("source")
         except (OSError, ValueError, AttributeError):
             old = None
-        if old != source:
+        half_made = not (out / "card.json").exists() and {p.name for p in out.iterdir()} <= {"shards", ".scapo.lock"} \
+            and all(p.suffix == ".npz" or p.name.startswith(".") for p in (out / "shards").glob("*"))
+        if half_made:  # a conversion that failed before its card: a corrected rerun takes the folder over
+            for p in (out / "shards").glob("*"):
+                p.unlink()
+        elif old != source:
             raise ConfigError(f"--out {out} is not empty and holds no conversion with these arguments; choose a new "
-                              "folder")
+                              f"folder (or remove it: rm -r {out})")
     check_output_dir(out, "dataset folder")
     (out / "shards").mkdir(parents=True, exist_ok=True)
     train_inst = sorted({a for a, _ in frames["train"]})

@@ -190,7 +190,7 @@ class Predictions:
             OutputError: ``path`` cannot be written (nothing is left under its name).
         """
         path = Path(path)
-        check_output_file(path, "predictions file", "predictions.npz")
+        check_output_file(path, "predictions file", "predictions.npz", replaceable=is_predictions_file)
         clean_stale_temps(path.parent, only=path.name)
         arrays = {k: getattr(self, k) for k in _FIELDS}
         arrays.update(instance_id=self.instance_id, view_id=self.view_id, split=self.split.astype("U8"),
@@ -247,3 +247,15 @@ class Predictions:
         kw = {k: np.concatenate([getattr(p, k) for p in parts]) for k in (*_FIELDS, "instance_id", "view_id", "split")}
         return Predictions(method=first.method, needs_alignment=first.needs_alignment, supervision=first.supervision,
                            dataset_hash=first.dataset_hash, info=first.info, **kw)
+
+
+def is_predictions_file(path: str | Path) -> bool:
+    """Whether ``path`` is a predictions file scapo wrote (an ``.npz`` holding its ``meta`` record), so that a new
+    prediction may replace it; a dataset shard, a checkpoint or another program's file may not be replaced."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            return "meta.npy" in z.namelist() and "part_pose.npy" in z.namelist()
+    except (OSError, zipfile.BadZipFile):
+        return False

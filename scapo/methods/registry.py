@@ -235,7 +235,9 @@ def run_method(name: str, data: str | Path, out: str | Path | None = None, **opt
     """
     method = METHODS.get(name).factory(**validate_options(name, options))
     if out is not None:
-        check_output_file(out, "predictions file", "predictions.npz")
+        from scapo.eval.predictions import is_predictions_file
+
+        check_output_file(out, "predictions file", "predictions.npz", replaceable=is_predictions_file)
     train = load(data, "train")
     test = load(data, "test")
     if len(test) == 0:
@@ -304,6 +306,10 @@ def load_run(run: str | Path, device: str | None = None, **options):
     return method.load()
 
 
+#: training seeds are 32-bit: the engine derives each epoch's seed from them (scapo.engine.loop)
+MAX_TRAIN_SEED = 2 ** 32
+
+
 def train_method(name: str, data: str | Path, run: str | Path, preset: str | None = None, progress: bool = True,
                  device: str | None = None, seed: int | None = None) -> Path:
     """Train (or resume) method ``name`` on ``data`` into the run folder ``run``; returns the checkpoint.
@@ -317,6 +323,13 @@ def train_method(name: str, data: str | Path, run: str | Path, preset: str | Non
         trained = [n for n in METHODS if METHODS.get(n).trained]
         raise ConfigError(f"method {name!r} is not trained ('scapo predict --method {name}' fits it); trained "
                           f"methods: {', '.join(trained)}")
+    for s in (seed, getattr(preset, "seed", None)):
+        if s is not None and not (isinstance(s, int) and 0 <= s < MAX_TRAIN_SEED):
+            raise ConfigError(f"training seed must be an integer in [0, 2**32), got {s}")
+    train = load(data, "train")
+    if not train.card.get("joint_type"):
+        raise ConfigError(f"{data} is a dataset of {train.card.get('category')!r}, which has no movable joint: the "
+                          "trained methods estimate articulated poses (parts and joints); use an articulated object")
     if os.environ.get("RANK", "0") == "0":  # under torchrun, rank 0 speaks for the run
-        warn_few_instances(load(data, "train").num_instances, "train", data, "a model trained on it and its scores")
+        warn_few_instances(train.num_instances, "train", data, "a model trained on it and its scores")
     return entry.train(data, run, preset, progress=progress, device=device, seed=seed)

@@ -13,6 +13,8 @@ joints; a trained run is not needed once its predictions exist):
   the rest frame through the parent's pose: a revolute joint turns about the line through the pivot along
   the axis, a prismatic one slides along the axis (its origin at the pivot, which locates the slide). The
   child link's frame is the joint frame at rest, so its mesh is placed relative to the pivot.
+- **Mass.** Each link has an ``<inertial>``: its hull's volume at :data:`DENSITY` (1000 kg/m^3 unless given), the
+  hull's centre of mass and inertia tensor, so a simulator does not invent them.
 - **Limits.** A joint's range is the dataset's state range for the matching joint (``joint_limit``, relative to
   rest), widened to include the observed (predicted) state; without one, the observed state +- pi (revolute) or
   +- one bbox diagonal (prismatic).
@@ -67,21 +69,46 @@ def _frame_along(axis: np.ndarray) -> np.ndarray:
     return np.stack([x, y, np.cross(x, y)], axis=1)
 
 
+#: the density (kg/m^3) a twin's links are given, over their convex hulls: about a household object's average
+#: (a laptop's 0.33 x 0.23 x 0.02 m hull then weighs 1.5 kg, as real ones do)
+DENSITY = 1000.0
+#: the least mass (kg) and inertia (kg m^2) of a link, so that a thin part's hull still simulates
+MIN_MASS, MIN_INERTIA = 1e-3, 1e-7
+
+
+def _inertial(link: ET.Element, hull, density: float) -> None:
+    """``<inertial>`` of a link from its convex hull (link frame) at ``density``: mass, centre of mass and the
+    inertia tensor about it (trimesh's mass properties; floors :data:`MIN_MASS`, :data:`MIN_INERTIA`)."""
+    hull.density = density
+    mass = max(float(hull.mass), MIN_MASS)
+    com = np.asarray(hull.center_mass, dtype=np.float64)
+    inertia = np.asarray(hull.moment_inertia, dtype=np.float64) * (mass / max(float(hull.mass), 1e-12))
+    inertia = 0.5 * (inertia + inertia.T) + MIN_INERTIA * np.eye(3)
+    ie = ET.SubElement(link, "inertial")
+    ET.SubElement(ie, "origin", xyz=" ".join(repr(float(v)) for v in com), rpy="0 0 0")
+    ET.SubElement(ie, "mass", value=repr(mass))
+    ET.SubElement(ie, "inertia", **{k: repr(float(inertia[i, j])) for k, (i, j) in
+                                    {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2),
+                                     "izz": (2, 2)}.items()})
+
+
 def export_twin(data: str | Path, predictions: str | Path | Predictions, sample: int, out: str | Path,
-                split: str = "test", min_points: int = 8) -> TwinReport:
+                split: str = "test", min_points: int = 8, density: float = DENSITY) -> TwinReport:
     """Write the articulated twin of sample ``sample`` of ``split`` of ``data`` from ``predictions`` into ``out``.
 
     Args:
         data: the dataset folder. predictions: a predictions file (``scapo predict``) or object covering that
             sample. sample: index into the split (0-based). out: the twin folder (created; a folder holding a
-            twin is replaced). min_points: a part with fewer predicted points gets no link.
+            twin is replaced). min_points: a part with fewer predicted points gets no link. density: kg/m^3 of the
+            links' convex hulls, for their ``<inertial>`` (mass, centre of mass, inertia tensor).
 
     Returns:
         :class:`TwinReport`.
 
     Raises:
-        ConfigError: ``sample`` out of range (the message gives the split's size), or a method's part split that
-            leaves the base part without points.
+        ConfigError: ``sample`` out of range (the message gives the split's size), a method's part split that
+            leaves the base part without points, or one that leaves no moving part (a one-link twin, which
+            simulators refuse); a density that is not positive.
         PredictionError: predictions of another dataset (hash), or without that sample.
         OutputError: ``out`` cannot be written or is a foreign non-empty folder.
     """
@@ -107,6 +134,8 @@ def export_twin(data: str | Path, predictions: str | Path | Predictions, sample:
         raise ConfigError(f"--out {out} is a file; give a folder for the twin")
     if out.is_dir() and any(out.iterdir()) and not (out / "twin.json").is_file():
         raise ConfigError(f"--out {out} is a non-empty folder without a twin; give a new or empty folder")
+    if not (np.isfinite(density) and density > 0):
+        raise ConfigError(f"density must be a positive number of kg/m^3, got {density}")
     check_output_dir(out, "twin folder")
     (out / "meshes").mkdir(exist_ok=True)
     points = item["points"].astype(np.float64)
@@ -145,6 +174,10 @@ def export_twin(data: str | Path, predictions: str | Path | Predictions, sample:
                        "child": b, "axis": axis.tolist(), "origin": pivot.tolist(), "limit": [lo, hi],
                        "state": state})
     kept = [s for s in kept if s in link_frame]
+    if len(kept) < 2:
+        few = {names[s]: int(counts[s]) for s in range(1, S)}
+        raise ConfigError(f"the prediction of sample {sample} leaves no moving part with {min_points} or more points "
+                          f"(points per part: {few}): a twin needs a base and at least one jointed part")
     robot = ET.Element("robot", name=f"twin_{ds.category}_{item['instance_id']}_{item['view_id']}")
     for s in kept:
         local = transform_points(invert_transform(link_frame[s]), rest_pts[s])
@@ -156,6 +189,7 @@ def export_twin(data: str | Path, predictions: str | Path | Predictions, sample:
         atomic_write_text(mesh_path, trimesh.exchange.obj.export_obj(hull, include_normals=False,
                                                                        include_texture=False))
         le = ET.SubElement(robot, "link", name=f"link{s}")
+        _inertial(le, hull, density)
         for tag in ("visual", "collision"):
             ve = ET.SubElement(le, tag)
             ET.SubElement(ve, "origin", xyz="0 0 0", rpy="0 0 0")
@@ -170,6 +204,9 @@ def export_twin(data: str | Path, predictions: str | Path | Predictions, sample:
         ET.SubElement(je, "child", link=f"link{b}")
         ET.SubElement(je, "axis", xyz="1 0 0")
         ET.SubElement(je, "limit", lower=repr(jd["limit"][0]), upper=repr(jd["limit"][1]), effort="100", velocity="1")
+    for old in (out / "meshes").glob("part*.obj"):  # an earlier twin's meshes of parts this one does not have
+        if old.stem not in {f"part{s}" for s in kept}:
+            old.unlink()
     ET.indent(robot)
     urdf = out / "mobility.urdf"
     atomic_write_text(urdf, '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n")

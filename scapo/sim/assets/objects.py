@@ -365,8 +365,29 @@ def view_overrides(view: dict | None) -> tuple[tuple[str, object], ...]:
 
     if not view:
         return ()
-    fields = {f.name for f in dataclasses.fields(ViewConfig)}
-    bad = sorted(set(view) - fields)
+    if not isinstance(view, dict):
+        raise ConfigError(f"a per-object view must be a JSON object of ViewConfig fields, got {view!r}")
+    fields = {f.name: f for f in dataclasses.fields(ViewConfig)}
+    bad = sorted(set(view) - set(fields))
     if bad:
         raise ConfigError(f"unknown view field(s) {bad}; known: {sorted(fields)}")
-    return tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in view.items()))
+    out = {}
+    for k, v in view.items():
+        default = fields[k].default
+        if isinstance(default, tuple):  # a range: [low, high], finite, low <= high
+            ok = (isinstance(v, (list, tuple)) and len(v) == 2
+                  and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+                  and v[0] <= v[1])
+            if not ok:
+                raise ConfigError(f"view field {k!r}: {v!r} is not a range [low, high] of two finite numbers with "
+                                  f"low <= high (e.g. {list(default)})")
+            if k == "distance" and v[0] <= 0:
+                raise ConfigError(f"view field 'distance': {v!r} must be positive (bbox diagonals)")
+            v = (float(v[0]), float(v[1]))
+        elif isinstance(default, bool):
+            if not isinstance(v, bool):
+                raise ConfigError(f"view field {k!r}: {v!r} is not true or false")
+        elif not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0):
+            raise ConfigError(f"view field {k!r}: {v!r} is not a non-negative number")
+        out[k] = v
+    return tuple(sorted(out.items()))

@@ -274,6 +274,13 @@ def parse_urdf(urdf: str | Path, category: str | None = None, part_names: dict[s
                 raise URDFError(f"{where}: non-numeric limits") from None
             if not (math.isfinite(limit[0]) and math.isfinite(limit[1]) and limit[0] <= limit[1]):
                 raise URDFError(f"{where}: limits must be finite with lower <= upper, got {limit}")
+            if jtype == "revolute" and limit[1] - limit[0] > 2 * math.pi + 1e-6:
+                span = limit[1] - limit[0]
+                raise URDFError(f"{where}: revolute limits {limit} span more than a full turn ({span:.1f} rad); give "
+                                "limits within 2 pi, or make it a continuous joint (states in [-pi, pi])")
+        if jtype != "fixed" and je.find("mimic") is not None:
+            raise URDFError(f"{where}: <mimic> joints (a state tied to another joint's) are not supported: their "
+                            "states would be drawn independently; make it fixed, or a joint of its own")
         joints.append(JointSpec(name, jtype, parent, child, _origin(je.find("origin"), where), axis, limit))
     children = [j.child for j in joints]
     if len(set(children)) != len(children):
