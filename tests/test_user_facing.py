@@ -245,3 +245,169 @@ def test_every_command_takes_no_progress():
     for name, sp in leaves(build_parser()):
         assert any("--no-progress" in a.option_strings for a in sp._actions), name
     assert "TQDM_DISABLE" not in os.environ  # a command leaves the process's environment as it found it
+
+
+# ---------------------------------------------------------------------------------------------- bad input
+@pytest.fixture
+def pin_copy(tmp_path):
+    import shutil
+
+    shutil.copytree(PIN, tmp_path / "pin")
+    return tmp_path / "pin"
+
+
+def assert_error(result, command: str, *fragments: str) -> str:
+    code, _, err = result
+    assert code == 2, err
+    assert "Traceback" not in err and "internal error" not in err, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith(f"scapo {command}: error: "), err
+    for f in fragments:
+        assert f in last, (f, last)
+    return last
+
+
+def test_outputs_never_replace_files_of_another_kind(pin_copy, runs, tmp_path):
+    before = {p: p.read_bytes() for p in pin_copy.rglob("*") if p.is_file()}
+    for target in (pin_copy / "card.json", runs["npcs"] / "checkpoint.pt"):
+        assert_error(run_cli("predict", "--method", "icp", "--data", pin_copy, "--out", target), "predict",
+                     "must end in .npz")
+    shard = next((pin_copy / "shards").glob("*.npz"))
+    assert_error(run_cli("predict", "--method", "icp", "--data", pin_copy, "--out", shard), "predict",
+                 "exists and is not a predictions file")
+    assert {p: p.read_bytes() for p in pin_copy.rglob("*") if p.is_file()} == before
+    # a predictions file is replaced by a new one
+    assert run_cli("predict", "--run", runs["npcs"], "--data", pin_copy, "--out", tmp_path / "p.npz")[0] == 0
+    assert run_cli("predict", "--run", runs["npcs"], "--data", pin_copy, "--out", tmp_path / "p.npz")[0] == 0
+    # evaluate --out: a folder whose table1.md scapo did not write
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "table1.md").write_text("my notes")
+    assert_error(run_cli("evaluate", "--data", pin_copy, "--pred", tmp_path / "p.npz", "--out", tmp_path / "mine"),
+                 "evaluate", "table1.md exists and was not written by scapo")
+    assert (tmp_path / "mine" / "table1.md").read_text() == "my notes"
+    assert run_cli("evaluate", "--data", pin_copy, "--pred", tmp_path / "p.npz", "--out", tmp_path / "t")[0] == 0
+    assert run_cli("evaluate", "--data", pin_copy, "--pred", tmp_path / "p.npz", "--out", tmp_path / "t")[0] == 0
+    # the same predictions twice are not two seeds
+    import shutil
+
+    shutil.copy(tmp_path / "p.npz", tmp_path / "q.npz")
+    assert_error(run_cli("evaluate", "--data", pin_copy, "--pred", tmp_path / "p.npz", "--pred", tmp_path / "q.npz"),
+                 "evaluate", "are the same predictions")
+    assert_error(run_cli("evaluate", "--data", pin_copy, "--pred", tmp_path / "p.npz", "--twin", "--twin-limit",
+                         "-3"), "evaluate", "--twin-limit must be >= 0")
+    assert_error(run_cli("preview", "--data", pin_copy, "--out", tmp_path / "x.txt"), "preview", "must end in .png")
+
+
+def test_predictions_without_a_dataset_hash_are_not_scored(pin_copy, tmp_path):
+    from scapo.errors import PredictionError
+    from scapo.eval import Predictions, evaluate
+    from scapo.methods import run_method
+
+    preds = run_method("icp", pin_copy, None, **METHODS.get("icp").quick_options)
+    preds = Predictions(**{**preds.__dict__, "dataset_hash": ""})
+    with pytest.raises(PredictionError, match="carry no dataset hash"):
+        evaluate(pin_copy, preds)
+
+
+@pytest.mark.parametrize("args,fragment", [
+    (["--workers", "10000"], "use at most"),
+    (["--instances", "1000000000000"], "beyond what one dataset holds"),
+    (["--seed", str(2 ** 66)], "seed must be in [0, 2**63)"),
+])
+def test_generate_refuses_what_would_hang_or_overflow(args, fragment, tmp_path):
+    base = {"--category": "laptop", "--instances": "2", "--views": "1"}
+    for k, v in zip(args[::2], args[1::2]):
+        base[k] = v
+    argv = [x for kv in base.items() for x in kv]
+    assert_error(run_cli("generate", *argv, "--out", tmp_path / "d", "--no-progress"), "generate", fragment)
+    assert not (tmp_path / "d").exists() or not any((tmp_path / "d").iterdir())
+
+
+def test_training_refuses_seeds_beyond_32_bits(tmp_path):
+    assert_error(run_cli("train", "--data", PIN, "--preset", "test", "--seed", str(2 ** 66), "--out", tmp_path / "r"),
+                 "train", "training seed must be an integer in [0, 2**32)")
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("args,fragment", [
+    (["--port", "-5"], "a port is a number in 1..65535"),
+    (["--port", "70000"], "a port is a number in 1..65535"),
+    (["--host", "999.1.1.1"], "is not an address or name this machine knows"),
+])
+def test_the_viewer_checks_where_it_listens_before_it_starts(args, fragment):
+    pytest.importorskip("viser")
+    assert_error(run_cli("view", "--data", PIN, *args), "view", fragment)
+
+
+def test_bench_refuses_repeated_names_and_zero_sizes(tmp_path):
+    kw = ["--work", tmp_path / "w", "--dry-run", "--preset", "test"]
+    assert_error(run_cli("bench", "table1", "--methods", "icp,icp", *kw), "bench", "names icp more than once")
+    assert_error(run_cli("bench", "table1", "--instances", "0", *kw), "bench", "must be >= 1")
+
+
+@pytest.mark.parametrize("view,fragment", [
+    ({"azimuth_deg": [300, 10]}, "low <= high"),
+    ({"azimuth_deg": "abc"}, "is not a range"),
+    ({"azimuth_deg": [0, 10, 20]}, "is not a range"),
+    ({"distance": [0, 1]}, "must be positive"),
+    ({"target_jitter": -1}, "non-negative"),
+    ({"azimuth": [0, 10]}, "unknown view field"),
+])
+def test_per_object_view_options_are_checked(view, fragment):
+    from scapo.sim.assets.objects import view_overrides
+
+    with pytest.raises(ConfigError, match=fragment):
+        view_overrides(view)
+    assert view_overrides({"azimuth_deg": [-30, 30]}) == (("azimuth_deg", (-30.0, 30.0)),)
+
+
+def test_misspelled_per_object_keys_are_refused(tmp_path, cache_dir):
+    from scapo.sim.assets import build_instance
+
+    urdf = build_instance("laptop", 0, seed=0, cache_dir=cache_dir).urdf
+    opts = tmp_path / "o.json"
+    opts.write_text(json.dumps({Path(urdf).parent.name: {"veiw": {"azimuth_deg": [0, 10]}}}))
+    code, _, err = run_cli("generate", "--object", urdf, "--views", "1", "--object-options", opts, "--out",
+                           tmp_path / "d")
+    assert code == 2 and ("unknown key(s) ['veiw']" in err or "names objects that are not" in err), err
+
+
+def _urdf(tmp_path, joint: str) -> Path:
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    link = '<link name="{0}"><visual><geometry><mesh filename="m.obj"/></geometry></visual></link>'
+    (tmp_path / "o.urdf").write_text(f'<robot name="o">{link.format("a")}{link.format("b")}{link.format("c")}'
+                                     f'{joint}</robot>')
+    return tmp_path / "o.urdf"
+
+
+def test_urdf_joints_that_would_be_sampled_wrongly_are_refused(tmp_path):
+    from scapo.errors import URDFError
+    from scapo.sim.assets import parse_urdf
+
+    hinge = ('<joint name="j{0}" type="revolute"><parent link="a"/><child link="{1}"/><axis xyz="0 0 1"/>'
+             '<limit lower="{2}" upper="{3}"/>{4}</joint>')
+    wide = _urdf(tmp_path, hinge.format(1, "b", -100, 100, ""))
+    with pytest.raises(URDFError, match="span more than a full turn"):
+        parse_urdf(wide)
+    mimic = _urdf(tmp_path, hinge.format(1, "b", 0, 1, "") + hinge.format(2, "c", 0, 1, '<mimic joint="j1"/>'))
+    with pytest.raises(URDFError, match="mimic"):
+        parse_urdf(mimic)
+    ok = _urdf(tmp_path, hinge.format(1, "b", 0, 1, "") + hinge.format(2, "c", 0, 1, ""))
+    assert parse_urdf(ok).num_joints == 2
+
+
+def test_opalign_conversion_refuses_bad_frames_and_arguments(tmp_path):
+    from scapo.data.opalign_real import convert_opalign_real, fit_intrinsics
+    from scapo.errors import InputError
+
+    with pytest.raises(ConfigError, match="--seed must be in"):
+        convert_opalign_real(tmp_path, "laptop", tmp_path / "o", seed=-1)
+    # an organised 48 x 64 image read as 64 x 48: the pixels do not sit where a pinhole camera puts them
+    H, W, f = 48, 64, 50.0
+    v, u = np.mgrid[0:H, 0:W]
+    z = np.full(H * W, 2.0)
+    pc = np.stack([(u.ravel() - W / 2) * z / f, (v.ravel() - H / 2) * z / f, z], 1)
+    K = fit_intrinsics(pc, (H, W))
+    assert K[0, 0] == pytest.approx(f)
+    with pytest.raises(InputError, match="transposed"):
+        fit_intrinsics(pc, (W, H))

@@ -629,7 +629,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("view", help="interactive 3-D viewer in the browser (viser): samples, predictions, twins")
     sp.add_argument("--data", type=Path, required=True)
-    sp.add_argument("--pred", type=Path, nargs="*", default=[], help="predictions files to colour points by")
+    sp.add_argument("--pred", type=Path, nargs="*", default=[], action="extend",
+                    help="predictions files to colour points by (repeat --pred or list several)")
     sp.add_argument("--twin", type=Path, default=None, help="a twin folder (scapo export) to show and articulate")
     sp.add_argument("--split", default="test")
     sp.add_argument("--host", default="127.0.0.1", help="listen address (0.0.0.0: reachable from other machines)")
@@ -672,7 +673,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("evaluate", help="score a predictions file on a dataset's test split")
     sp.add_argument("--data", type=Path, required=True)
-    sp.add_argument("--pred", type=Path, required=True, nargs="+",
+    sp.add_argument("--pred", type=Path, required=True, nargs="+", action="extend",
                     help="one or more prediction files (one row per method in the table)")
     sp.add_argument("--protocol", default="scapo", help="evaluation protocol: scapo (the paper's; default), op-align, "
                     "eap (those papers' released evaluation code), scapo-per-category")

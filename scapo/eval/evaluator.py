@@ -208,7 +208,10 @@ def _open(root: Path, predictions, split: str, check_hash: bool) -> tuple[Articu
                            f"{test.card.get('config', {}).get(f'{split}_fraction')}); nothing to evaluate: "
                            f"regenerate it with {split} instances")
     preds = predictions if isinstance(predictions, Predictions) else Predictions.load(predictions)
-    if check_hash and preds.dataset_hash and preds.dataset_hash != test.dataset_hash:
+    if check_hash and not preds.dataset_hash:
+        raise PredictionError(f"predictions of {preds.method!r} carry no dataset hash (written by hand or by an old "
+                              f"scapo), so nothing shows they were made on {root}; predict again with 'scapo predict'")
+    if check_hash and preds.dataset_hash != test.dataset_hash:
         raise PredictionError(f"predictions of {preds.method!r} were made on dataset {preds.dataset_hash[:12]}..., "
                               f"not on {root} ({test.dataset_hash[:12]}...)")
     return test, preds

@@ -119,7 +119,7 @@ def export_twin(data: str | Path, predictions: str | Path | Predictions, sample:
         raise ConfigError(f"--sample {sample} is out of range: the {split} split of {data} has {len(ds)} samples "
                           f"(0..{len(ds) - 1})")
     preds = predictions if isinstance(predictions, Predictions) else Predictions.load(predictions)
-    if preds.dataset_hash and preds.dataset_hash != ds.dataset_hash:
+    if preds.dataset_hash != ds.dataset_hash:  # no hash: nothing shows they were made on this dataset
         raise PredictionError(f"these predictions of {preds.method!r} were made on dataset {preds.dataset_hash[:12]}"
                               f"..., not on {data} ({ds.dataset_hash[:12]}...); predict on this dataset first")
     item = ds[int(sample)]
