@@ -154,21 +154,24 @@ def check_output_file(path: str | Path, what: str = "output file", example: str 
                       replaceable: Callable[[Path], bool] | None = None) -> Path:
     """Check that ``path`` can be written (creating its folder); returns it. Nothing is written to it.
 
-    ``example``'s suffix is the one the file must have (``out.npz``: ``.npz``). ``replaceable(path)``: whether an
+    A figure (``example`` ends in ``.png``) must end in an image format's suffix. ``replaceable(path)``: whether an
     existing file at ``path`` may be replaced (e.g. it is an earlier result of the same kind); without it any may.
 
     Raises:
-        OutputError: ``path`` is an existing folder, has another suffix, is an existing file that is not
+        OutputError: ``path`` is an existing folder, a figure without an image suffix, an existing file that is not
             replaceable (e.g. a dataset's ``card.json``), its folder is a file or cannot be created, or the folder
             is not writable.
     """
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{what} {path} is an existing folder; give a file name (e.g. {path / example})")
+    for parent in path.parents:
+        if parent.exists() and not parent.is_dir():
+            raise OutputError(f"folder of the {what} {path} cannot be created: {parent} is a file; choose another path")
     suffix = Path(example).suffix
-    allowed = FIGURE_SUFFIXES if suffix in FIGURE_SUFFIXES else (suffix,)
-    if suffix and path.suffix.lower() not in allowed:
-        raise OutputError(f"{what} {path} must end in {' or '.join(allowed)} (e.g. {path.with_suffix(suffix).name})")
+    if suffix in FIGURE_SUFFIXES and path.suffix.lower() not in FIGURE_SUFFIXES:
+        raise OutputError(f"{what} {path} must end in {', '.join(FIGURE_SUFFIXES)} (an image format; e.g. "
+                          f"{path.with_suffix(suffix).name})")
     if replaceable is not None and path.is_file() and not replaceable(path):
         raise OutputError(f"{what} {path} exists and is not a {what} (it would be lost); give another file name")
     _make_dir(path.parent, f"folder of the {what}")

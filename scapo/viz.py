@@ -38,7 +38,8 @@ def render_dataset_samples(data: str | Path, split: str = "test", count: int = 4
         indices = np.linspace(0, len(ds) - 1, min(count, len(ds))).round().astype(int)
     if "source" in ds.card:  # converted from elsewhere (e.g. OP-Align's real data): nothing to re-render
         items = [ds[int(i)] for i in indices]
-        titles = [f"{ds.category} #{it['instance_id']} view {it['view_id']} (stored cloud)" for it in items]
+        titles = [f"[{ds.manifest['split'].iloc[int(i)]}] {ds.category} #{it['instance_id']} view {it['view_id']} "
+                  "(stored cloud)" for i, it in zip(indices, items)]
         return items, titles, [ds.part_names] * len(items)
     cfg = GenerateConfig.from_dict(read_json(Path(data) / "config.json", "dataset config", DatasetError,
                                              "rerun 'scapo generate' with the dataset's arguments to rewrite it"))
@@ -55,15 +56,18 @@ def render_dataset_samples(data: str | Path, split: str = "test", count: int = 4
         samples.append(s)
         state = [f"{np.degrees(v):.0f}deg" if t == 0 else f"{100 * v:.0f}cm"
                  for t, v in zip(item["joint_type"], item["joint_state"])]
-        titles.append(f"{cfg.category} #{item['instance_id']} view {item['view_id']} state {', '.join(state)}")
+        titles.append(f"[{ds.manifest['split'].iloc[int(i)]}] {cfg.category} #{item['instance_id']} view "
+                      f"{item['view_id']} state {', '.join(state)}")
     renderer.close()
     return samples, titles, [ds.part_names] * len(samples)
 
 
 def prediction_figure(data: str | Path, predictions: Predictions, path: str | Path, count: int = 4,
                       cache_dir=None) -> Path:
-    """Top row: ground truth (labelled depth image, axes). Bottom row: the method's segmentation and
-    joint axes on the same cloud (3D). Test samples spread over the split."""
+    """Top row: ground truth (labelled depth image, axes), titled as such. Bottom row: the method's segmentation
+    and joint axes on the same cloud (3D), each predicted part coloured as the ground-truth part it overlaps most
+    in that cloud (so a correct prediction reads in the ground truth's colours and the legend's part names); the
+    legend lists only the joint kinds drawn. Test samples spread over the split."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -80,19 +84,19 @@ def prediction_figure(data: str | Path, predictions: Predictions, path: str | Pa
     for c, (s, i) in enumerate(zip(samples, idx)):
         item = ds[int(i)]
         if "image_part_map" in s:
-            draw_sample(fig, s, titles[c], column=c, columns=n, show_cloud=False)
+            draw_sample(fig, s, f"ground truth: {titles[c]}", column=c, columns=n, show_cloud=False)
         else:  # a converted dataset has no image: the GT cloud in 3-D instead
             ax = fig.add_subplot(2, n, c + 1, projection="3d")
             gp, gl = np.asarray(s["points"]), np.asarray(s["part_label"])
             ax.scatter(gp[:, 0], gp[:, 2], -gp[:, 1], c=part_colors(gl), s=1.5, depthshade=False)
             _draw_axes(ax, gp[gl >= 0], s["joint_type"], s["joint_axis"], s["joint_pivot"], float(s["bbox_diag"]))
-            ax.set_title(titles[c], fontsize=8)
+            ax.set_title(f"ground truth: {titles[c]}", fontsize=8)
             frame_cloud_axes(ax, gp, float(s["bbox_diag"]))
         ax = fig.add_subplot(2, n, n + c + 1, projection="3d")
         r = rows.get((item["instance_id"], item["view_id"]))
         pts = item["points"]
         if r is not None:
-            lab = predictions.part_label[r]
+            lab = _matched_labels(predictions.part_label[r], item["part_label"])
             ax.scatter(pts[:, 0], pts[:, 2], -pts[:, 1], c=part_colors(lab), s=1.5, depthshade=False)
             diag = float(item["bbox_diag"])
             _draw_axes(ax, pts[lab >= 0], predictions.joint_type[r], predictions.joint_axis[r],
@@ -101,8 +105,7 @@ def prediction_figure(data: str | Path, predictions: Predictions, path: str | Pa
         frame_cloud_axes(ax, pts, float(item["bbox_diag"]))
     handles = [Line2D([], [], marker="o", ls="", color=c, label=nm)
                for c, nm in zip(palette(len(names[0])), part_legend(names[0]))]
-    handles += [Line2D([], [], color="k", lw=2, label="revolute axis"),
-                Line2D([], [], color="m", lw=2, label="prismatic axis")]
+    handles += _axis_handles(ds[int(idx[0])]["joint_type"] if len(idx) else ())
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     path = Path(path)
@@ -125,6 +128,15 @@ def _matched_labels(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     table = np.full(S, -1, dtype=np.int64)
     table[rows] = cols
     return np.where(pred >= 0, table[np.maximum(pred, 0)], -1)
+
+
+def _axis_handles(joint_types) -> list:
+    """Legend entries of the joint kinds among ``joint_types`` (0 revolute: black; 1 prismatic: magenta)."""
+    from matplotlib.lines import Line2D
+
+    kinds = {int(t) for t in joint_types}
+    return ([Line2D([], [], color="k", lw=2, label="revolute axis")] if 0 in kinds else []) + \
+        ([Line2D([], [], color="m", lw=2, label="prismatic axis")] if 1 in kinds else [])
 
 
 def _draw_axes(ax, pts: np.ndarray, types, axes, pivots, diag: float) -> None:
@@ -192,8 +204,7 @@ def methods_figure(data: str | Path, predictions: dict, path: str | Path, count:
             frame_cloud_axes(ax, pts, diag)
     handles = [Line2D([], [], marker="o", ls="", color=c, label=nm)
                for c, nm in zip(palette(len(ds.part_names)), part_legend(ds.part_names))]
-    handles += [Line2D([], [], color="k", lw=2, label="revolute axis"),
-                Line2D([], [], color="m", lw=2, label="prismatic axis")]
+    handles += _axis_handles(items[0]["joint_type"] if items else ())
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8)
     fig.suptitle(f"{ds.card.get('category', '')}: {split} views, ground truth and each method (parts coloured as the "
                  "GT part they overlap most)", fontsize=9)

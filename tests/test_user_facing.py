@@ -269,12 +269,10 @@ def assert_error(result, command: str, *fragments: str) -> str:
 
 def test_outputs_never_replace_files_of_another_kind(pin_copy, runs, tmp_path):
     before = {p: p.read_bytes() for p in pin_copy.rglob("*") if p.is_file()}
-    for target in (pin_copy / "card.json", runs["npcs"] / "checkpoint.pt"):
-        assert_error(run_cli("predict", "--method", "icp", "--data", pin_copy, "--out", target), "predict",
-                     "must end in .npz")
     shard = next((pin_copy / "shards").glob("*.npz"))
-    assert_error(run_cli("predict", "--method", "icp", "--data", pin_copy, "--out", shard), "predict",
-                 "exists and is not a predictions file")
+    for target in (pin_copy / "card.json", runs["npcs"] / "checkpoint.pt", shard):
+        assert_error(run_cli("predict", "--method", "icp", "--data", pin_copy, "--out", target), "predict",
+                     "exists and is not a predictions file")
     assert {p: p.read_bytes() for p in pin_copy.rglob("*") if p.is_file()} == before
     # a predictions file is replaced by a new one
     assert run_cli("predict", "--run", runs["npcs"], "--data", pin_copy, "--out", tmp_path / "p.npz")[0] == 0
@@ -296,6 +294,7 @@ def test_outputs_never_replace_files_of_another_kind(pin_copy, runs, tmp_path):
     assert_error(run_cli("evaluate", "--data", pin_copy, "--pred", tmp_path / "p.npz", "--twin", "--twin-limit",
                          "-3"), "evaluate", "--twin-limit must be >= 0")
     assert_error(run_cli("preview", "--data", pin_copy, "--out", tmp_path / "x.txt"), "preview", "must end in .png")
+    assert not (tmp_path / "x.txt").exists()
 
 
 def test_predictions_without_a_dataset_hash_are_not_scored(pin_copy, tmp_path):
@@ -312,7 +311,7 @@ def test_predictions_without_a_dataset_hash_are_not_scored(pin_copy, tmp_path):
 @pytest.mark.parametrize("args,fragment", [
     (["--workers", "10000"], "use at most"),
     (["--instances", "1000000000000"], "beyond what one dataset holds"),
-    (["--seed", str(2 ** 66)], "seed must be in [0, 2**63)"),
+    (["--seed", str(2 ** 66)], "seed must be >= 0 and < 2**63"),
 ])
 def test_generate_refuses_what_would_hang_or_overflow(args, fragment, tmp_path):
     base = {"--category": "laptop", "--instances": "2", "--views": "1"}
@@ -411,3 +410,29 @@ def test_opalign_conversion_refuses_bad_frames_and_arguments(tmp_path):
     assert K[0, 0] == pytest.approx(f)
     with pytest.raises(InputError, match="transposed"):
         fit_intrinsics(pc, (W, H))
+
+
+# ---------------------------------------------------------------------------------------------- figures
+def test_loss_plot_gives_every_term_its_own_style_and_labelled_axes():
+    import pandas as pd
+
+    from scapo.engine.runs import loss_figure
+
+    terms = [f"term{k}" for k in range(13)]
+    df = pd.DataFrame([{"stage": 1, "epoch": 0, "step": s, "lr": 1e-3, "total": 1.0 + s,
+                        **{t: 0.1 * (k + 1) + 0.01 * s for k, t in enumerate(terms)}} for s in range(6)])
+    fig = loss_figure(df)
+    (ax,) = fig.axes
+    styles = [(line.get_color(), line.get_linestyle()) for line in ax.get_lines()]
+    assert len(styles) == 14 and len(set(styles)) == 14  # 13 terms and the total, no two alike
+    assert ax.get_xlabel() and ax.get_ylabel()
+
+
+def test_prediction_figures_colour_parts_as_the_ground_truth_and_list_only_what_is_drawn():
+    from scapo.viz import _axis_handles, _matched_labels
+
+    gt = np.array([0, 0, 1, 1, 1, -1])
+    pred = np.array([1, 1, 0, 0, 0, 0])  # a correct laptop with its slots in the other order
+    np.testing.assert_array_equal(_matched_labels(pred, gt), [0, 0, 1, 1, 1, 1])
+    assert [h.get_label() for h in _axis_handles([0])] == ["revolute axis"]
+    assert [h.get_label() for h in _axis_handles([1, 0])] == ["revolute axis", "prismatic axis"]

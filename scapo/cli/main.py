@@ -639,7 +639,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("preview", help="PNG of dataset samples (re-rendered) with parts coloured and axes drawn")
     sp.add_argument("--data", type=Path, required=True)
-    sp.add_argument("--split", default="test")
+    sp.add_argument("--split", default="test", help="train, val, test or all (default test; each panel's title "
+                    "names its sample's split)")
     sp.add_argument("--count", type=int, default=4)
     sp.add_argument("--out", type=Path, default=Path("preview.png"))
     common_cache(sp)

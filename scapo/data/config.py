@@ -81,7 +81,7 @@ class GenerateConfig:
                 raise ConfigError("--parts and --scale apply to datasets of existing objects (--object/--objects), "
                                   "not to procedural categories")
         if not 0 <= self.seed < MAX_SEED:
-            raise ConfigError(f"seed must be in [0, 2**63), got {self.seed}")
+            raise ConfigError(f"seed must be >= 0 and < 2**63, got {self.seed}")
         if self.instances < 1 or self.views < 1:
             raise ConfigError(f"instances and views must be >= 1, got {self.instances} and {self.views}")
         if self.instances > MAX_INSTANCES or self.instances * self.views > MAX_SAMPLES:

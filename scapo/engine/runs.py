@@ -221,29 +221,45 @@ def truncate_log(log_csv: Path, stage: int, epoch: int) -> None:
 
 
 def plot_losses(log_csv: Path, png: Path) -> None:
-    """Loss curves (log scale, one panel per stage) from ``log.csv``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+    """Loss curves (:func:`loss_figure`) of ``log.csv`` written to ``png``; nothing for an empty log."""
     import matplotlib.pyplot as plt
     import pandas as pd
 
     df = pd.read_csv(log_csv)
     if df.empty:
         return
+    fig = loss_figure(df)
+    atomic_savefig(fig, png, dpi=90)
+    plt.close(fig)
+
+
+def loss_figure(df):
+    """One panel per stage of a ``log.csv`` table: each loss term (a column after ``lr``) as the moving mean of 5
+    steps of its absolute value, log scale, in a colour and line style of its own (``total`` thicker), with
+    labelled axes and a legend of the terms drawn. Returns the matplotlib figure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     stages = sorted(df["stage"].unique())
-    fig, axes = plt.subplots(1, len(stages), figsize=(6 * len(stages), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(stages), figsize=(6 * len(stages), 4.5), squeeze=False)
+    colors = plt.get_cmap("tab10").colors
+    styles = ("-", "--", ":", "-.")
     for ax, st in zip(axes[0], stages):
         d = df[df["stage"] == st].reset_index(drop=True)
+        k = 0
         for col in d.columns[4:]:
             v = d[col]
-            if v.notna().any() and (v.abs() > 0).any():
-                ax.plot(v.abs().rolling(5, min_periods=1).mean(), label=col, lw=1)
+            if v.notna().any() and (v.abs() > 0).any():  # a distinct colour and line style per term
+                ax.plot(v.abs().rolling(5, min_periods=1).mean(), label=col, color=colors[k % len(colors)],
+                        ls=styles[(k // len(colors)) % len(styles)], lw=1.6 if col == "total" else 1.0)
+                k += 1
         ax.set_yscale("log")
         ax.set_title(f"stage {st}")
-        ax.set_xlabel("iteration")
+        ax.set_xlabel("optimiser step in the stage")
+        ax.set_ylabel("loss term (unweighted; moving mean of 5 steps)")
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    atomic_savefig(fig, png, dpi=90)
-    plt.close(fig)
+    return fig
