@@ -1,5 +1,7 @@
 """The optional ManiSkill3 backend gives the SAPIEN backend's ground truth on the same object, state and camera."""
 
+import json
+
 import numpy as np
 import pytest
 from gt_checks import check_sample
@@ -39,3 +41,24 @@ def test_maniskill_ground_truth_equals_sapien(category, renderer):
         assert np.median(d) < 1e-5 and np.mean(d < 1e-3) > 0.98
         assert np.mean(a["part_label"][idx] == b["part_label"]) > 0.98
         check_sample(b, spec, cfg.min_part_points)
+
+
+def test_generate_with_the_maniskill_backend_gives_sapiens_dataset_to_float_rounding(tmp_path):
+    """``scapo generate --backend maniskill``: the same samples as SAPIEN's (ground truth to 1e-6, points on the same
+    surfaces); the backend is part of the config, so a SAPIEN dataset does not resume with ManiSkill."""
+    from scapo.cli.main import main
+    from scapo.data import load
+
+    args = ["generate", "--category", "laptop", "--instances", "2", "--views", "2", "--test-fraction", "0.5",
+            "--val-fraction", "0", "--points", "256", "--no-progress"]
+    assert main([*args, "--backend", "maniskill", "--out", str(tmp_path / "ms")]) == 0
+    assert main([*args, "--out", str(tmp_path / "sp")]) == 0
+    a, b = load(tmp_path / "ms", "all").arrays(), load(tmp_path / "sp", "all").arrays()
+    for k in GT_FIELDS:
+        np.testing.assert_allclose(a[k], b[k], atol=1e-6, err_msg=k)
+    d = np.concatenate([cKDTree(q).query(p)[0] for p, q in zip(a["points"], b["points"])])
+    assert np.median(d) < 1e-5 and np.mean(d < 1e-3) > 0.98
+    assert json.loads((tmp_path / "ms" / "config.json").read_text())["backend"] == "maniskill"
+    assert "backend" not in json.loads((tmp_path / "sp" / "config.json").read_text())  # as before the option
+    assert main([*args, "--backend", "maniskill", "--out", str(tmp_path / "sp")]) == 2
+    assert main([*args, "--num-envs", "4", "--out", str(tmp_path / "x")]) == 2  # sub-scenes are ManiSkill's

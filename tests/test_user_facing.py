@@ -40,13 +40,14 @@ def test_the_wheel_in_a_fresh_venv_reports_its_version_lists_and_generates_from_
     (wheel,) = dist.glob("scapo-*.whl")
     venv = tmp_path / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
-    # the dependencies come from this environment (no network for a second torch); scapo only from the wheel
-    site = next(venv.glob("lib/python*/site-packages"))
-    deps = [p for p in sys.path if p.endswith("site-packages") and Path(p, "torch").is_dir()]
-    (site / "deps.pth").write_text("\n".join(deps) + "\n")
     r = subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "install", "--no-deps", "-q", str(wheel)],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
+    # then the dependencies from this environment (no network for a second torch); scapo only from the wheel.
+    # (Added after the install: a pip that saw this environment's scapo would uninstall it.)
+    site = next(venv.glob("lib/python*/site-packages"))
+    deps = [p for p in sys.path if p.endswith("site-packages") and Path(p, "torch").is_dir()]
+    (site / "deps.pth").write_text("\n".join(deps) + "\n")
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     env = {"PATH": f"{venv / 'bin'}:/usr/bin:/bin", "HOME": str(tmp_path), "SCAPO_CACHE": str(tmp_path / "cache")}

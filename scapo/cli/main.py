@@ -96,9 +96,9 @@ def cmd_generate(args) -> int:
                       min_part_fraction=args.min_part_fraction,
                       shard_size=args.shard_size, cropped=args.cropped,
                       symmetric_labels=args.symmetric_labels, objects=objects, parts=args.parts or (),
-                      scale=args.scale, view=view or None)
+                      scale=args.scale, view=view or None, backend=args.backend)
     rep = generate(cfg, args.out, workers=args.workers, progress=not args.no_progress, cache_dir=args.cache,
-                   executor=args.executor, ray_address=args.ray_address)
+                   executor=args.executor, ray_address=args.ray_address, num_envs=args.num_envs)
     print(f"{rep.out}: {rep.samples} samples ({rep.rendered} rendered now, {rep.skipped_shards} shards already "
           f"done); {sum(rep.rejections.values())} rejected views {dict(rep.rejections)}; "
           f"{rep.samples_per_second:.1f} samples/s")
@@ -601,6 +601,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--shard-size", type=int, default=64)
     sp.add_argument("--no-progress", action="store_true")
     common_cache(sp)
+    sp.add_argument("--backend", default="sapien", choices=["sapien", "maniskill"],
+                    help="renderer: sapien (default) or maniskill (ManiSkill3's parallel sub-scenes; its datasets "
+                    "equal SAPIEN's to float rounding, with a config of their own)")
+    sp.add_argument("--num-envs", type=int, default=1, help="--backend maniskill: views rendered at once (GPU; the CPU "
+                    "simulation takes 1)")
     sp.set_defaults(func=cmd_generate)
 
     sp = sub.add_parser("convert", help="convert another dataset format into a scapo dataset")

@@ -212,20 +212,29 @@ class ShardWorker:
     """
 
     def __init__(self, cfg_json: str, assets: dict[int, str], digests: dict[str, str] | None = None,
-                 data: str | None = None, cache_dir: str | None = None):
+                 data: str | None = None, cache_dir: str | None = None, num_envs: int = 1):
         self.cfg = GenerateConfig.from_dict(json.loads(cfg_json))
         self.assets = {int(k): str(v) for k, v in assets.items()}
         self.digests = dict(digests or {})
         self.data = data
         self.cache_dir = None if cache_dir is None else Path(cache_dir)
         self.specs: dict = {}
-        self._renderer: Renderer | None = None
+        self._renderer = None
+        self.num_envs = int(num_envs)
         self.queue = None  # a local pool's progress queue
 
     @property
-    def renderer(self) -> Renderer:
+    def renderer(self):
+        """The scene: a SAPIEN :class:`~scapo.sim.render.Renderer`, or with ``cfg.backend == "maniskill"`` a
+        :class:`~scapo.sim.maniskill.ManiSkillRenderer` of ``num_envs`` parallel sub-scenes."""
         if self._renderer is None:
-            self._renderer = Renderer(self.cfg.render.camera, self.cfg.render.shader)
+            if self.cfg.backend == "maniskill":
+                from scapo.sim.maniskill import ManiSkillRenderer
+
+                self._renderer = ManiSkillRenderer(self.cfg.render.camera, num_envs=self.num_envs,
+                                                   shader=self.cfg.render.shader)
+            else:
+                self._renderer = Renderer(self.cfg.render.camera, self.cfg.render.shader)
         return self._renderer
 
     def ready(self) -> bool:
@@ -264,8 +273,11 @@ class ShardWorker:
             groups[-1][1].append((sample_id, spec, sample_seed_key(cfg, inst, vid)))
         samples, reasons = [], Counter()
         sym = cfg.symmetry if cfg.render.symmetric_labels == "view" else None
+        many = render_many
+        if cfg.backend == "maniskill":
+            from scapo.sim.maniskill import render_many_maniskill as many
         for inst, jobs in groups:
-            for _, s, r in render_many(self.renderer, jobs, cfg.render, cfg.view_for(inst)):
+            for _, s, r in many(self.renderer, jobs, cfg.render, cfg.view_for(inst)):
                 samples.append(s if sym is None else by_view(s, sym))
                 reasons.update(r)
                 if progress is not None:
@@ -407,6 +419,7 @@ def generate(
     on_shard_done: Callable[[str], None] | None = None,
     executor: str = "local",
     ray_address: str | None = None,
+    num_envs: int = 1,
 ) -> GenerateReport:
     """Render the dataset described by ``cfg`` into ``out`` (resuming if ``out`` holds a partial run).
 
@@ -436,6 +449,14 @@ def generate(
     t0 = time.perf_counter()
     if int(workers) < 1:
         raise ConfigError(f"workers must be >= 1, got {workers}")
+    if int(num_envs) < 1 or (int(num_envs) > 1 and cfg.backend != "maniskill"):
+        raise ConfigError(f"--num-envs {num_envs}: parallel sub-scenes (>= 1) are the ManiSkill3 backend's "
+                          "(--backend maniskill)")
+    if cfg.backend == "maniskill":
+        from scapo.sim.maniskill import available
+
+        if not available():
+            raise ConfigError("--backend maniskill needs ManiSkill3: pip install 'scapo[maniskill]'")
     if executor == "local" and int(workers) > 4 * usable_cores():
         raise ConfigError(f"--workers {workers} would start {workers} SAPIEN processes on {usable_cores()} usable "
                           f"core(s); use at most {4 * usable_cores()} (one per core is fastest), or --executor ray "
@@ -451,14 +472,15 @@ def generate(
     _check_out_folder(out)
     check_output_dir(out, "dataset folder")
     with FolderLock(out, "generate"):
-        return _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0, executor, ray_address)
+        return _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0, executor, ray_address,
+                                num_envs)
 
 
 EXECUTORS = ("local", "ray")
 
 
 def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0, executor="local",
-                     ray_address=None) -> GenerateReport:
+                     ray_address=None, num_envs: int = 1) -> GenerateReport:
     shard_dir = out / "shards"
     shard_dir.mkdir(parents=True, exist_ok=True)
     for folder in (out, shard_dir):  # leftovers of interrupted writes (we hold the folder's lock)
@@ -531,7 +553,7 @@ def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0, 
             on_shard_done(res["name"])
 
     t_render = time.perf_counter()
-    args = (cfg_json, urdfs, assets, str(out), None if cache_dir is None else str(cache_dir))
+    args = (cfg_json, urdfs, assets, str(out), None if cache_dir is None else str(cache_dir), num_envs)
     try:
         if todo and executor == "ray":
             _run_ray(args, todo, workers, bar, done, ray_address)

@@ -174,8 +174,13 @@ class ManiSkillRenderer:
         if self.spec is spec:
             return
         self.close()
+        import logging
+
         import sapien
 
+        log = logging.getLogger("mani_skill ")  # (sic: ManiSkill names its logger with a trailing space)
+        level = log.level
+        log.setLevel(logging.ERROR)  # its "no initial pose" warning: our scene sets the root pose itself
         try:
             sapien.render.set_camera_shader_dir(self.shader)  # the camera below is made with it
             with _render_device(self.render_backend) as backend:
@@ -186,6 +191,8 @@ class ManiSkillRenderer:
             self.env.reset(seed=0)
         except Exception as e:  # ManiSkill / SAPIEN raise many kinds for a broken asset or device
             raise RenderError(f"ManiSkill could not build a scene with {spec.urdf}: {e}") from e
+        finally:
+            log.setLevel(level)
         self._qindex, self._rest = qpos_layout(spec, [j.name for j in self.env.object.get_active_joints()],
                                                "ManiSkill")
         self.lut = segmentation_lut(spec, {ln.name: ln._objs[0].entity.per_scene_id
