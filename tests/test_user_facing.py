@@ -437,3 +437,50 @@ def test_prediction_figures_colour_parts_as_the_ground_truth_and_list_only_what_
     np.testing.assert_array_equal(_matched_labels(pred, gt), [0, 0, 1, 1, 1, 1])
     assert [h.get_label() for h in _axis_handles([0])] == ["revolute axis"]
     assert [h.get_label() for h in _axis_handles([1, 0])] == ["revolute axis", "prismatic axis"]
+
+
+# ---------------------------------------------------------------------------------------------- reruns
+def test_a_corrected_rerun_takes_over_a_generation_that_wrote_no_shard(tmp_path):
+    from scapo.data import make_config
+
+    out = tmp_path / "d"
+    (out / "shards").mkdir(parents=True)  # what a generation that failed before its first shard leaves
+    (out / "config.json").write_text(make_config("laptop", 2, 1, seed=1).to_json())
+    code, _, err = run_cli("generate", "--category", "laptop", "--instances", "2", "--views", "1", "--seed", "2",
+                           "--test-fraction", "0.5", "--val-fraction", "0", "--out", out, "--no-progress")
+    assert code == 0, err
+    assert json.loads((out / "config.json").read_text())["seed"] == 2
+    # a folder with rendered shards is another dataset: refused, naming the command that clears it
+    assert_error(run_cli("generate", "--category", "laptop", "--instances", "2", "--views", "1", "--seed", "3",
+                         "--test-fraction", "0.5", "--val-fraction", "0", "--out", out, "--no-progress"),
+                 "generate", "different config", f"rm -r {out}")
+
+
+def test_a_refused_run_folder_names_the_command_that_clears_it(tmp_path):
+    run = tmp_path / "r"
+    assert run_cli("train", "--method", "npcs", "--data", PIN, "--preset", "test", "--out", run, "--no-progress")[0] == 0
+    assert_error(run_cli("train", "--method", "npcs", "--data", PIN, "--preset", "test", "--seed", "4", "--out", run),
+                 "train", f"rm -r {run}")
+
+
+def test_a_twin_folder_left_by_a_failed_export_is_taken_over(laptop_data, tmp_path):
+    from test_twin import oracle
+
+    from scapo.eval import Predictions
+    from scapo.twin import export_twin
+
+    out = tmp_path / "twin"
+    (out / "meshes").mkdir(parents=True)
+    (out / "meshes" / "part0.obj").write_text("v 0 0 0\n")  # no twin.json: the export stopped half-way
+    rep = export_twin(laptop_data, oracle(laptop_data), 0, out)
+    assert (out / "twin.json").is_file() and rep.parts
+    assert isinstance(oracle(laptop_data), Predictions)
+
+
+def test_assets_check_reads_a_built_procedural_asset_folder(cache_dir):
+    from scapo.sim.assets import build_instance
+
+    rec = build_instance("laptop", 0, seed=0, cache_dir=cache_dir)
+    code, out, err = run_cli("assets", "check", Path(rec.urdf).parent)
+    assert code == 0, err
+    assert "category=laptop" in out and "joint" in out

@@ -66,7 +66,14 @@ def cmd_assets_check(args) -> int:
     from scapo.sim.assets import load_partnet_mobility, parse_urdf
 
     path = Path(args.path)
-    spec = load_partnet_mobility(path) if path.is_dir() else parse_urdf(path)
+    if path.is_dir() and (path / "model.urdf").is_file() and not (path / "mobility.urdf").is_file():
+        category = json.loads((path / "asset.json").read_text()).get("category") if (path / "asset.json").is_file() \
+            else None  # a procedural asset folder (scapo assets build): its model.urdf
+        spec = parse_urdf(path / "model.urdf", category=category)
+    elif path.is_dir():
+        spec = load_partnet_mobility(path)
+    else:
+        spec = parse_urdf(path)
     print(f"{spec.urdf}: category={spec.category} parts={list(spec.part_names)} bbox_diag={spec.bbox_diag:.3f} m")
     for j in spec.gt_joints:
         kind = "revolute" if j.type == 0 else "prismatic"

@@ -491,14 +491,19 @@ def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0, 
         old = read_json(cfg_path, "dataset config", DatasetError,
                         "if the folder was made with these same arguments, delete that file and rerun to resume; "
                         "otherwise choose another --out")
-        if old != json.loads(cfg_json):
+        started = (out / "card.json").exists() or any(shard_dir.glob("*.npz"))
+        if old != json.loads(cfg_json) and not started:  # a run that failed before its first shard: taken over
+            write_json(cfg_path, json.loads(cfg_json))
+            for stale in ("shards.jsonl", "run_log.jsonl"):
+                (out / stale).unlink(missing_ok=True)
+        elif old != json.loads(cfg_json):
             diff = dict_diff(old, json.loads(cfg_json))
             hint = ""
             if "val_fraction" in diff:
                 hint = (f" (its --val-fraction is {old.get('val_fraction', 0)}; a dataset written before val splits "
                         "existed resumes with --val-fraction 0)")
             raise ConfigError(f"{out} already holds a dataset generated with a different config (differs in "
-                              f"{', '.join(diff)}){hint}; choose another --out or delete {out}")
+                              f"{', '.join(diff)}){hint}; choose another --out, or delete it: rm -r {out}")
     else:
         write_json(cfg_path, json.loads(cfg_json))
     cfg_sha = config_sha256(cfg)

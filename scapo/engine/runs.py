@@ -123,7 +123,8 @@ class RunFolder:
             f"preset {oldp.get('name')!r} on the {old.get('category')!r} dataset "
             f"{str(old.get('dataset_hash'))[:12]}..., "
             f"not a {new.get('method', UNNAMED_METHOD)!r} run with preset {new['preset'].get('name')!r} on "
-            f"{new.get('category')!r} dataset {str(new.get('dataset_hash'))[:12]}...{what}; use another --out folder")
+            f"{new.get('category')!r} dataset {str(new.get('dataset_hash'))[:12]}...{what}; use another --out "
+            f"folder, or remove it to start over: rm -r {self.path}")
 
     # ------------------------------------------------------------------ checks (before anything is written)
     def check_target(self) -> None:

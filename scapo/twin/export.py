@@ -132,7 +132,8 @@ def export_twin(data: str | Path, predictions: str | Path | Predictions, sample:
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} is a file; give a folder for the twin")
-    if out.is_dir() and any(out.iterdir()) and not (out / "twin.json").is_file():
+    ours = {"meshes", "mobility.urdf", "semantics.txt", "twin.json"}  # what an export writes (twin.json last)
+    if out.is_dir() and not (out / "twin.json").is_file() and not {p.name for p in out.iterdir()} <= ours:
         raise ConfigError(f"--out {out} is a non-empty folder without a twin; give a new or empty folder")
     if not (np.isfinite(density) and density > 0):
         raise ConfigError(f"density must be a positive number of kg/m^3, got {density}")
