@@ -132,3 +132,22 @@ def test_cli_convert_then_icp_predict_and_evaluate(real_root, tmp_path):
     assert main(["predict", "--method", "icp", "--data", str(d), "--out", str(tmp_path / "p.npz")]) == 0
     assert main(["evaluate", "--data", str(d), "--pred", str(tmp_path / "p.npz"), "--out", str(tmp_path / "t")]) == 0
     assert main(["preview", "--data", str(d), "--count", "1", "--out", str(tmp_path / "p.png")]) == 0
+
+
+def test_frames_with_a_zero_axis_or_a_segmentation_id_beyond_the_parts_are_refused():
+    from scapo.data.opalign_real import frame_to_sample
+    from scapo.errors import InputError
+
+    raw, _ = _frame(0.5, 0.3)
+    frame = {k: np.asarray(v) for k, v in raw.items() if k != "color"}
+    frame["detection"] = frame["detection"].astype(bool)
+    rng = np.random.default_rng(0)
+    sample = frame_to_sample(frame, [0], [[0, 1]], 256, rng, (H, W))
+    assert set(np.unique(sample["part_label"])) <= {-1, 0, 1}
+    zero = {**frame, "joint": np.concatenate([frame["joint"][:, :3], np.zeros((1, 3))], 1)}
+    with pytest.raises(InputError, match="zero-length axis"):
+        frame_to_sample(zero, [0], [[0, 1]], 256, rng, (H, W))
+    seg = frame["segmentation"].copy()
+    seg[seg == 2] = 3  # a third part id on a two-part object
+    with pytest.raises(InputError, match="segmentation ids up to 3"):
+        frame_to_sample({**frame, "segmentation": seg}, [0], [[0, 1]], 256, rng, (H, W))

@@ -33,9 +33,11 @@ def run_cli(*args) -> tuple[int, str, str]:
 
 @pytest.mark.slow
 def test_the_wheel_in_a_fresh_venv_reports_its_version_lists_and_generates_from_another_folder(tmp_path):
+    """(Also what tests/test_install.py checked: a non-editable install carries the category templates and builds
+    assets anywhere.)"""
     dist = tmp_path / "dist"
-    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(dist), str(ROOT)],
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
+                        str(dist), str(ROOT)], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     (wheel,) = dist.glob("scapo-*.whl")
     venv = tmp_path / "venv"
@@ -68,6 +70,8 @@ def test_the_wheel_in_a_fresh_venv_reports_its_version_lists_and_generates_from_
     imported = subprocess.run([str(venv / "bin" / "python"), "-c", "import scapo; print(scapo.__file__)"],
                               capture_output=True, text=True, env=env, cwd=elsewhere)
     assert str(venv) in imported.stdout  # the wheel's copy, not the checkout
+    # the package data came with it (the category templates that built the assets above)
+    assert (Path(imported.stdout.strip()).parent / "sim_assets" / "categories" / "laptop.toml").is_file()
 
 
 def test_version_and_provenance_outside_a_checkout(monkeypatch):
@@ -484,3 +488,28 @@ def test_assets_check_reads_a_built_procedural_asset_folder(cache_dir):
     code, out, err = run_cli("assets", "check", Path(rec.urdf).parent)
     assert code == 0, err
     assert "category=laptop" in out and "joint" in out
+
+
+def test_scapo_refuses_complex_clouds_and_clouds_in_other_units():
+    from scapo.errors import InputError
+    from scapo.methods.learned import check_clouds
+    from scapo.models.predict import check_points
+
+    good = np.random.default_rng(0).normal(size=(2, 100, 3)) * 0.1 + [0, 0, 1]
+    for check in (check_points, check_clouds):
+        with pytest.raises(InputError, match="complex"):
+            check(good.astype(complex))
+        with pytest.raises(InputError, match="metres"):
+            check(good * 1e20)
+        assert tuple(check(good).shape) == (2, 100, 3)
+
+
+def test_training_on_an_object_without_a_movable_joint_is_refused(pin_copy, tmp_path):
+    from scapo.data.storage import write_json
+
+    card = json.loads((pin_copy / "card.json").read_text())
+    card["joint_type"], card["joint_parts"] = [], []  # as a dataset of a rigid object's card reads
+    write_json(pin_copy / "card.json", card)
+    with pytest.raises(ConfigError, match="has no movable joint"):
+        train_method("npcs", pin_copy, tmp_path / "r", "test", progress=False)
+    assert not (tmp_path / "r").exists()
