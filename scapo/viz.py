@@ -84,13 +84,13 @@ def prediction_figure(data: str | Path, predictions: Predictions, path: str | Pa
     for c, (s, i) in enumerate(zip(samples, idx)):
         item = ds[int(i)]
         if "image_part_map" in s:
-            draw_sample(fig, s, f"ground truth: {titles[c]}", column=c, columns=n, show_cloud=False)
+            draw_sample(fig, s, f"ground truth\n{titles[c]}", column=c, columns=n, show_cloud=False)
         else:  # a converted dataset has no image: the GT cloud in 3-D instead
             ax = fig.add_subplot(2, n, c + 1, projection="3d")
             gp, gl = np.asarray(s["points"]), np.asarray(s["part_label"])
             ax.scatter(gp[:, 0], gp[:, 2], -gp[:, 1], c=part_colors(gl), s=1.5, depthshade=False)
             _draw_axes(ax, gp[gl >= 0], s["joint_type"], s["joint_axis"], s["joint_pivot"], float(s["bbox_diag"]))
-            ax.set_title(f"ground truth: {titles[c]}", fontsize=8)
+            ax.set_title(f"ground truth\n{titles[c]}", fontsize=8)
             frame_cloud_axes(ax, gp, float(s["bbox_diag"]))
         ax = fig.add_subplot(2, n, n + c + 1, projection="3d")
         r = rows.get((item["instance_id"], item["view_id"]))
