@@ -120,3 +120,34 @@ def test_joint_state_error_units_and_precision():
     np.testing.assert_allclose(err, [math.degrees(0.1), 5.0])
     assert precision_under([1, 6, 2], [1, 1, 20], 5, 10) == pytest.approx(1 / 3)
     assert precision_under([np.nan], [0], 5, 5) == 0.0
+
+
+def test_symmetry_aware_rotation_error_equals_a_brute_force_minimum_over_the_symmetry():
+    """BOP-style: the error against the best symmetric ground truth. A part turned half a turn about its declared
+    axis of symmetry scores 0; the same turn about another axis still scores 180; a continuous symmetry
+    (a round door about its axis), discretised in 5 deg steps, forgives any turn about it to within 2.5 deg."""
+    from scipy.spatial.transform import Rotation
+
+    from scapo.eval.metrics import rotation_error_deg, symmetric_rotation_error_deg, symmetry_rotations
+
+    R_gt = Rotation.random(20, random_state=3).as_matrix()
+    half_z = Rotation.from_rotvec([0, 0, np.pi]).as_matrix()
+    half_x = Rotation.from_rotvec([np.pi, 0, 0]).as_matrix()
+    syms = symmetry_rotations(discrete=[half_z])
+    assert syms.shape == (2, 3, 3)
+    np.testing.assert_allclose(symmetric_rotation_error_deg(R_gt @ half_z, R_gt, syms), 0.0, atol=1e-6)
+    np.testing.assert_allclose(symmetric_rotation_error_deg(R_gt @ half_x, R_gt, syms), 180.0, atol=1e-6)
+    np.testing.assert_allclose(symmetric_rotation_error_deg(R_gt @ half_x, R_gt, syms[:1]),
+                               rotation_error_deg(R_gt @ half_x, R_gt))  # identity only: the strict error
+    # continuous: brute force over a fine sampling of turns about z agrees, and forgives any such turn
+    cont = symmetry_rotations(continuous=[[0, 0, 1]], max_step_deg=5.0)
+    assert len(cont) == 72
+    R_pred = R_gt @ Rotation.from_rotvec(np.c_[np.zeros((20, 2)), np.linspace(0, 6, 20)]).as_matrix() \
+        @ Rotation.from_rotvec([0.2, 0, 0]).as_matrix()
+    fine = np.stack([Rotation.from_rotvec([0, 0, a]).as_matrix() for a in np.linspace(0, 2 * np.pi, 3601)])
+    brute = np.min([rotation_error_deg(R_pred, R_gt @ S) for S in fine], axis=0)
+    ours = symmetric_rotation_error_deg(R_pred, R_gt, cont)
+    assert np.all(ours >= brute - 1e-6) and np.all(ours - brute < 2.6)
+    np.testing.assert_allclose(brute, np.degrees(0.2), atol=0.2)  # only the tilt about x is left
+    with pytest.raises(ValueError):
+        symmetry_rotations(discrete=[2 * np.eye(3)])

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial.transform import Rotation
 
 from scapo.ops.rigid import project_to_so3
 
@@ -225,6 +226,46 @@ def fold_rotation_error(theta_deg: np.ndarray) -> np.ndarray:
     that a part turned by 180 degrees counts as exact (trainer_unsup_arti_align.py)."""
     t = np.asarray(theta_deg, dtype=np.float64)
     return np.minimum(t, 180.0 - t)
+
+
+def symmetry_rotations(discrete=(), continuous=(), max_step_deg: float = 5.0) -> np.ndarray:
+    """The rotations ``(K, 3, 3)`` of an object's symmetries (object frame), identity first, following the BOP
+    toolkit (``misc.get_symmetry_transformations``): each continuous symmetry (a unit axis) is discretised into
+    turns of at most ``max_step_deg``, and every discrete one (a ``(3, 3)`` rotation) is combined with each of
+    them. A pose ``R`` (object -> camera) and ``R @ S`` are then indistinguishable for every ``S`` returned.
+
+    Raises:
+        ValueError: a discrete symmetry that is not a rotation, an axis of zero length, a step <= 0."""
+    if not max_step_deg > 0:
+        raise ValueError(f"max_step_deg must be > 0, got {max_step_deg}")
+    disc = [np.eye(3)]
+    for R in discrete:
+        R = np.asarray(R, dtype=np.float64)[:3, :3]
+        if not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0):
+            raise ValueError("a discrete symmetry must be a rotation matrix")
+        disc.append(R)
+    cont = [np.eye(3)]
+    for axis in continuous:
+        a = np.asarray(axis, dtype=np.float64)
+        if not np.linalg.norm(a) > 1e-9:
+            raise ValueError("a continuous symmetry needs a non-zero axis")
+        n = int(np.ceil(360.0 / max_step_deg))
+        cont = [C @ Rotation.from_rotvec(a / np.linalg.norm(a) * (2 * np.pi * k / n)).as_matrix()
+                for C in cont for k in range(n)]
+    out = [D @ C for D in disc for C in cont]
+    return np.stack(out)
+
+
+def symmetric_rotation_error_deg(R_pred: np.ndarray, R_gt: np.ndarray, symmetries: np.ndarray) -> np.ndarray:
+    """The rotation error against the symmetric ground truth that fits best: ``min_k e(R_pred, R_gt S_k)`` over
+    the object's symmetry rotations ``symmetries (K, 3, 3)`` (:func:`symmetry_rotations`, identity included), as
+    the BOP toolkit scores symmetric objects (Hodan et al., ECCV 2020 workshop; ``pose_error.py``, errors
+    minimised over ``syms``). ``R_pred, R_gt (..., 3, 3)`` -> ``(...,)`` degrees in [0, 180]; with only the
+    identity it is :func:`rotation_error_deg`."""
+    S = np.asarray(symmetries, dtype=np.float64)
+    R_gt = np.asarray(R_gt, dtype=np.float64)
+    errs = np.stack([rotation_error_deg(R_pred, R_gt @ S[k]) for k in range(len(S))], -1)
+    return errs.min(-1)
 
 
 def fixed_order_match(pred_label: np.ndarray, gt_label: np.ndarray, orders: tuple[tuple[int, ...], ...]
