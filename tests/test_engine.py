@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import csv
 import json
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -90,21 +89,12 @@ def test_a_run_folder_refuses_files_foreign_folders_and_other_identities(tmp_pat
 
 
 # ---------------------------------------------------------------------------------------------- a toy method
-@dataclass(frozen=True)
-class ToyPreset:
-    """A toy method's presets: the fields every learned preset has (scapo.methods.learned.LearnedPreset)."""
+def _toy_preset(name: str):
+    """A toy method's preset: the fields every learned preset has (scapo.methods.learned.LearnedPreset)."""
+    from scapo.methods.learned import LearnedPreset
 
-    name: str = "test"
-    epochs: int = 2
-    batch_size: int = 4
-    lr: float = 1e-2
-    min_lr: float = 1e-4
-    weight_decay: float = 0.0
-    points: int = 64
-    max_steps_per_epoch: int = 2
-    grad_clip: float = 1.0
-    seed: int = 0
-    device: str = "cpu"
+    return LearnedPreset(name=name, epochs=2, batch_size=4, lr=1e-2, min_lr=1e-4, weight_decay=0.0, points=64,
+                         max_steps_per_epoch=2, device="cpu")
 
 
 class ToyNet(torch.nn.Module):
@@ -138,8 +128,8 @@ def toy_method():
     from scapo.registry import Registry
 
     presets = Registry("toy preset")
-    presets.add("test", ToyPreset())
-    presets.add("cpu", ToyPreset(name="cpu"))
+    presets.add("test", _toy_preset("test"))
+    presets.add("cpu", _toy_preset("cpu"))
     spec = LearnedSpec(method="toy", presets=presets, fields=("points",), build=ToyNet)
     register_learned(spec, display="Toy-style", supervision={"pose": False, "segmentation": False, "joint": False},
                      needs_alignment=True, summary="a toy method defined in a test")

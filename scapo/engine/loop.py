@@ -326,6 +326,7 @@ def run_epoch(job: TrainJob, stage: Stage, epoch: int, opt, sched, steps: int, f
     log = folder.log
     new_file = not log.is_file()
     multi = len([s for s in job.stages if s.epochs > 0]) > 1
+    first_step = (sum(s.epochs for s in job.stages if s.epochs > 0 and s.index < stage.index) + epoch) * steps
     with open(log, "a", newline="") if ctx.is_main else contextlib.nullcontext() as f:
         writer = None
         for step, batch in enumerate(loader):
@@ -361,7 +362,5 @@ def run_epoch(job: TrainJob, stage: Stage, epoch: int, opt, sched, steps: int, f
                     writer.writeheader()
             writer.writerow(row)
             if board is not None:
-                before = sum(s.epochs for s in job.stages if 0 < s.epochs and s.index < stage.index)
-                gstep = (before + epoch) * steps + step
                 for k in ("lr", "total", *terms):
-                    board.add_scalar(f"stage{stage.index}/{k}", row[k], gstep)
+                    board.add_scalar(f"stage{stage.index}/{k}", row[k], first_step + step)

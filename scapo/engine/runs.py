@@ -173,6 +173,14 @@ class RunFolder:
                                                                  "world_size": world_size}) + "\n")
 
 
+def load_error_text(e: Exception) -> str:
+    """``Type: reason`` of a failed checkpoint load, on one line (torch's unpickling errors run over many lines;
+    a file that holds more than tensors and plain data is refused, never run)."""
+    if "Weights only load failed" in str(e):
+        return f"{type(e).__name__}: it holds more than tensors and plain data; code is never run from a file"
+    return f"{type(e).__name__}: {(str(e).strip().splitlines() or [''])[0]}"
+
+
 def read_checkpoint(path: str | Path, device: torch.device | str = "cpu") -> dict:
     """A checkpoint file's state dict.
 
@@ -182,10 +190,7 @@ def read_checkpoint(path: str | Path, device: torch.device | str = "cpu") -> dic
     try:
         state = torch.load(path, map_location=device, weights_only=True)  # tensors and plain data: no code runs
     except Exception as e:  # noqa: BLE001 - torch raises many kinds for a broken file
-        why = ("it holds more than tensors and plain data; code is never run from a file"
-               if "Weights only load failed" in str(e) else (str(e).strip().splitlines() or [""])[0])
-        raise TrainingError(f"checkpoint {path} cannot be read ({type(e).__name__}: {why}); delete it to start "
-                            "over") from e
+        raise TrainingError(f"checkpoint {path} cannot be read ({load_error_text(e)}); delete it to start over") from e
     if not isinstance(state, dict):
         raise TrainingError(f"checkpoint {path} cannot be read (not a scapo checkpoint); delete it to start over")
     return state

@@ -134,11 +134,6 @@ def _identity(spec: LearnedSpec, preset, card: dict) -> dict:
             "joint_type": list(card["joint_type"]), "joint_parts": [list(p) for p in card["joint_parts"]]}
 
 
-def run_identity(run: str | Path) -> dict | None:
-    """``run.json`` of a run folder, or None when it has none (or an unreadable one)."""
-    return read_run_json(run)
-
-
 def train_learned(spec: LearnedSpec, data: str | Path, run: str | Path, preset=None, progress: bool = True,
                   device: str | None = None, seed: int | None = None) -> Path:
     """Train (or resume) a learned baseline into the run folder ``run`` with the engine

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from scapo.engine.runs import resolve_device
+from scapo.engine.runs import load_error_text, resolve_device
 from scapo.errors import ConfigError, InputError, TrainingError
 from scapo.models.presets import PRESETS, get_preset
 from scapo.models.refine import RefineConfig
@@ -102,13 +102,6 @@ def stored_refine(stored: dict) -> RefineConfig:
     return (get_preset(stored["name"]) if registered else preset_from_dict(stored)).refine
 
 
-def _first_line(e: Exception) -> str:
-    """``Type: first line of the message`` (torch's unpickling errors run over many lines)."""
-    if "Weights only load failed" in str(e):
-        return f"{type(e).__name__}: it holds more than tensors and plain data (code is never run from a file)"
-    return f"{type(e).__name__}: {(str(e).strip().splitlines() or [''])[0]}"
-
-
 class Predictor:
     """A trained SCAPO model ready for inference (``scapo.models.load(run)``)."""
 
@@ -178,7 +171,7 @@ class Predictor:
             identity, done = state["identity"], state.get("done")
             stored = identity["preset"]
         except Exception as e:  # noqa: BLE001 - torch.load raises many kinds for a damaged file
-            raise TrainingError(f"checkpoint {path} cannot be loaded ({_first_line(e)}); it is damaged or not "
+            raise TrainingError(f"checkpoint {path} cannot be loaded ({load_error_text(e)}); it is damaged or not "
                                 f"a scapo checkpoint: retrain with 'scapo train --out {run}' (delete the damaged "
                                 "file first)") from None
         if not done:
