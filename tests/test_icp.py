@@ -14,7 +14,9 @@ from scapo.ops.rigid import as_transform, invert_transform, transform_points
 
 
 def test_register_part_recovers_a_known_transform(laptop_data):
-    m = ICPBaseline()
+    # 100 iterations: a laptop's base is a thin wedge slab, on which point-to-point ICP turns slowly (the method's
+    # default 30 stop it 2.3 deg short from this 20 deg start; 200 reach 0.4 deg): the registration is what is tested
+    m = ICPBaseline(max_iterations=100)
     m.fit(load(laptop_data, "train"))
     K = np.array([[300.0, 0, 128], [0, 300.0, 128], [0, 0, 1]])
     T = as_transform(Rotation.from_euler("xyz", [20, -15, 30], degrees=True).as_matrix(), [0.05, -0.02, 1.2])

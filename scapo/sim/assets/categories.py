@@ -59,26 +59,52 @@ def _assemble(ps: ParamSampler, parts: dict[str, list], joints: dict[str, tuple]
 
 @CATEGORIES.register("laptop")
 def laptop(ps: ParamSampler) -> ArticulatedDesign:
-    """Base slab with keyboard deck; screen hinged at the rear edge (rest: 90 deg opening)."""
+    """Base (thick, tapering to the front, on rubber feet, keyboard deck) and a thin lid hinged at the rear
+    edge (rest: 90 deg opening). The lid is shorter than the base is deep and its display sits a step below
+    a raised bezel; the hinge is a full-width barrel, two knuckles or flush, and the base may reach behind it."""
     W, D = ps.u("width"), ps.u("depth")
     tb, ts = ps.u("base_thickness"), ps.u("screen_thickness")
+    wedge = ps.u("front_thickness_ratio")
     H, Ws = ps.u("screen_height_ratio") * D, ps.u("screen_width_ratio") * W
     inset, hh = ps.u("hinge_inset"), ps.u("hinge_height")
     dw, dd = ps.u("deck_width_ratio"), ps.u("deck_depth_ratio")
+    fh, step = ps.u("foot_height"), ps.u("bezel_step")
     hinge, deck, bezel = ps.choice("hinge"), ps.choice("deck"), ps.choice("bezel")
-    pivot = np.array([D / 2 - inset, 0.0, tb + hh])
-    base = [box((D, W, tb), (0, 0, tb / 2))]
+    pivot = np.array([D / 2 - inset, 0.0, fh + tb + hh])
+    tf = wedge * tb  # front thickness; the top face slopes up to the rear
+    base = [hull(np.array([(x, y, z) for y in (-W / 2, W / 2) for x, z in
+                           ((-D / 2, fh), (D / 2, fh), (-D / 2, fh + tf), (D / 2, fh + tb))]))]
+    for sx in (-1, 1):  # rubber feet
+        base.append(box((0.05 if sx > 0 else 0.02, 0.8 * W if sx > 0 else 0.02, fh), (sx * (D / 2 - 0.03), 0, fh / 2)))
+    for sy in (-1, 1):
+        base.append(box((0.02, 0.02, fh), (-(D / 2 - 0.03), sy * (W / 2 - 0.04), fh / 2)))
+
+    def top(x):  # height of the base's top face at x
+        return fh + tf + (tb - tf) * (x + D / 2) / D
+
     if deck != "flat":
         kd = dd * D
-        base.append(box((kd, dw * W, 0.0015), (D / 2 - inset - 0.02 - kd / 2, 0, tb + 0.00075)))
+        xk = D / 2 - inset - 0.02 - kd / 2
+        base.append(box((kd, dw * W, 0.0015), (xk, 0, top(xk) + 0.00075)))
     if deck == "keyboard_touchpad":
         tp = 0.3 * D
-        base.append(box((0.45 * tp, tp * 1.4, 0.001), (-D / 2 + 0.02 + 0.225 * tp, 0, tb + 0.0005)))
+        xt = -D / 2 + 0.02 + 0.225 * tp
+        base.append(box((0.45 * tp, tp * 1.4, 0.001), (xt, 0, top(xt) + 0.0005)))
+    r = max(ts, 0.006) * 0.9
     if hinge == "barrel":
-        base.append(cylinder(max(ts, 0.006) * 0.75, 0.7 * W, pivot, axis="y"))
+        base.append(cylinder(r, 0.7 * W, pivot, axis="y"))
+    elif hinge == "knuckles":
+        for sy in (-1, 1):
+            base.append(cylinder(r * 1.2, 0.035, (pivot[0], sy * 0.36 * W, pivot[2]), axis="y"))
     screen = [box((ts, Ws, H), pivot + (0, 0, H / 2))]
-    if bezel == "panel":
-        screen.append(box((0.001, 0.92 * Ws, 0.84 * H), pivot + (-ts / 2 - 0.0005, 0, 0.53 * H)))
+    if bezel == "step":  # display panel a step behind the raised bezel: the bezel frame stands proud
+        b = 0.012
+        for zc, hz in ((H - b / 2, b), (0.035 / 2, 0.035)):
+            screen.append(box((step, Ws, hz), pivot + (-ts / 2 - step / 2, 0, zc)))
+        for sy in (-1, 1):
+            screen.append(box((step, b, H), pivot + (-ts / 2 - step / 2, sy * (Ws / 2 - b / 2), H / 2)))
+    else:  # flat glass panel edge to edge
+        screen.append(box((0.001, 0.96 * Ws, 0.9 * H), pivot + (-ts / 2 - 0.0005, 0, 0.52 * H)))
     return _assemble(ps, {"base": base, "screen": screen}, {"hinge": (Y, pivot)})
 
 
@@ -88,16 +114,19 @@ def safe(ps: ParamSampler) -> ArticulatedDesign:
     W, D, H = ps.u("width"), ps.u("depth"), ps.u("height")
     wt, td, g, ho = ps.u("wall"), ps.u("door_thickness"), ps.u("door_gap"), ps.u("hinge_offset")
     dial_r, hl = ps.u("dial_radius"), ps.u("handle_length")
+    hr, hlen, fh = ps.u("hinge_radius"), ps.u("hinge_length"), ps.u("foot_height")
     handle, panel, feet = ps.choice("handle"), ps.choice("panel"), ps.choice("feet")
     body = hollow_box((D, W, H), wt, "-x", (0, 0, H / 2))
     if feet == "feet":
         for sx in (-1, 1):
             for sy in (-1, 1):
-                body.append(box((0.04, 0.04, 0.02), (sx * (D / 2 - 0.03), sy * (W / 2 - 0.03), -0.01)))
+                body.append(box((0.05, 0.05, fh), (sx * (D / 2 - 0.04), sy * (W / 2 - 0.04), -fh / 2)))
+    else:  # a plinth set back from the front
+        body.append(box_between((-D / 2 + 0.04, -W / 2 + 0.02, -fh), (D / 2 - 0.02, W / 2 - 0.02, 0.0)))
     xf = -D / 2 - td  # front face of the door
     pivot = np.array([-D / 2 - td / 2, -W / 2 + g - ho, H / 2])
-    for zc in (0.2 * H, 0.8 * H):
-        body.append(cylinder(0.008, 0.06, (pivot[0], pivot[1], zc), axis="z"))
+    for zc in (0.2 * H, 0.8 * H):  # external hinge barrels on the body, leaves reaching the door
+        body.append(cylinder(hr, hlen, (pivot[0], pivot[1] - hr * 0.5, zc), axis="z"))
     door = [box_between((xf, -W / 2 + g, g), (-D / 2, W / 2 - g, H - g))]
     ys = W / 2 - g - 0.25 * W  # features on the free side
     if panel in ("dial", "dial_keypad"):
@@ -128,12 +157,24 @@ def oven(ps: ParamSampler) -> ArticulatedDesign:
     wt, td, zb = ps.u("wall"), ps.u("door_thickness"), ps.u("door_bottom")
     Hd = ps.u("door_height_ratio") * (H - zb)
     so, kr = ps.u("handle_standoff"), ps.u("knob_radius")
+    fh, bg = ps.u("foot_height"), ps.u("backguard_height")
     nk, handle, window = int(ps.choice("knobs")), ps.choice("handle"), ps.choice("window")
+    kind = ps.choice("kind")
     body = hollow_box((D, W, Hd), wt, "-x", (0, 0, zb + Hd / 2))
     ztop = zb + Hd
     body.append(box((D, W, H - ztop), (0, 0, (ztop + H) / 2)))
     if zb > 0.002:
         body.append(box((D - 0.03, W, zb), (0.015, 0, zb / 2)))
+    for sx in (-1, 1):  # levelling feet
+        for sy in (-1, 1):
+            body.append(cylinder(0.015, fh, (sx * (D / 2 - 0.05), sy * (W / 2 - 0.05), -fh / 2), axis="z", sections=12))
+    if kind == "range":  # freestanding range: backguard at the rear, burner grates on the cooktop
+        body.append(box((0.03, W, bg), (D / 2 - 0.015, 0, H + bg / 2)))
+        for sy in (-1, 1):
+            for xg in (-0.22 * D, 0.12 * D):
+                body.append(box((0.3 * D, 0.4 * W, 0.02), (xg, sy * 0.24 * W, H + 0.01)))
+    else:  # counter-top / built-in oven: a vent grille along the top's rear half
+        body.append(box((0.35 * D, 0.8 * W, 0.012), (0.25 * D, 0, H + 0.006)))
     zk = (ztop + H) / 2
     for y in np.linspace(-0.35 * W, 0.35 * W, nk):
         body.append(cylinder(kr, 0.02, (-D / 2 - 0.01, y, zk), axis="x"))
@@ -279,14 +320,36 @@ def basket(ps: ParamSampler) -> ArticulatedDesign:
 
 @CATEGORIES.register("drawer")
 def drawer(ps: ParamSampler) -> ArticulatedDesign:
-    """Cabinet carcass open at the front and one drawer sliding out along -x."""
+    """Cabinet carcass open at the front and one drawer sliding out along -x; the top is flush at the back, an open
+    shelf may sit under the drawer, and the unit stands on a toe kick, legs or a plinth."""
     W, D, H = ps.u("width"), ps.u("depth"), ps.u("height")
     wt, tf, g = ps.u("wall"), ps.u("front_thickness"), ps.u("gap")
     ddr, thr, hwr = ps.u("drawer_depth_ratio"), ps.u("tray_height_ratio"), ps.u("handle_width_ratio")
-    front, handle, top = ps.choice("front"), ps.choice("handle"), ps.choice("top")
+    kh, kd, ov, hs = ps.u("base_height"), ps.u("kick_depth"), ps.u("top_overhang"), ps.u("shelf_height")
+    br = ps.u("back_recess")
+    front, handle, base, lower = ps.choice("front"), ps.choice("handle"), ps.choice("base"), ps.choice("lower")
     cabinet = hollow_box((D, W, H), wt, "-x", (0, 0, H / 2))
-    if top == "overhang":
-        cabinet.append(box((D + 0.02, W + 0.03, wt), (-0.01, 0, H + wt / 2)))
+    # the top overhangs the front and the sides and is flush at the back (against a wall)
+    cabinet.append(box((D + ov + br, W + 2 * ov, wt), (-(ov - br) / 2, 0, H + wt / 2)))
+    z0 = 0.0
+    if lower == "shelf":  # an open compartment under the drawer (a nightstand's shelf)
+        cabinet += hollow_box((D, W, hs), wt, "-x", (0, 0, -hs / 2))
+        z0 = -hs
+    # the back panel sits in a groove: the carcass's sides, top and bottom reach ``br`` past it
+    zb, zt = z0, H
+    x0, x1 = D / 2, D / 2 + br
+    for lo, hi in (((x0, -W / 2, zb), (x1, -W / 2 + wt, zt)), ((x0, W / 2 - wt, zb), (x1, W / 2, zt)),
+                   ((x0, -W / 2, zb), (x1, W / 2, zb + wt)), ((x0, -W / 2, zt - wt), (x1, W / 2, zt))):
+        cabinet.append(box_between(lo, hi))
+    # what it stands on: a toe kick set back from the front, four legs, or a plinth set back all round
+    if base == "toe_kick":
+        cabinet.append(box_between((-D / 2 + kd, -W / 2 + 0.01, z0 - kh), (D / 2, W / 2 - 0.01, z0)))
+    elif base == "legs":
+        for sx in (-1, 1):
+            for sy in (-1, 1):
+                cabinet.append(cylinder(0.015, kh, (sx * (D / 2 - 0.03), sy * (W / 2 - 0.03), z0 - kh / 2), axis="z"))
+    else:
+        cabinet.append(box_between((-D / 2 + kd, -W / 2 + kd, z0 - kh), (D / 2 - 0.01, W / 2 - kd, z0)))
     if front == "overlay":
         lo, hi = (-D / 2 - tf, -W / 2 + g, g), (-D / 2, W / 2 - g, H - g)
         x_back_of_front = -D / 2
@@ -314,25 +377,37 @@ def drawer(ps: ParamSampler) -> ArticulatedDesign:
 
 @CATEGORIES.register("scissors")
 def scissors(ps: ParamSampler) -> ArticulatedDesign:
-    """Two stacked blades with finger rings, crossing at the screw (rest: closed)."""
+    """Two stacked blades crossing at the screw (rest: closed). Like offset-handle scissors, blade A carries the
+    large oval finger loop (with a finger rest) and blade B the small thumb loop; the tips may differ
+    (one pointed, one blunt)."""
     Lb, wb, t = ps.u("blade_length"), ps.u("blade_width"), ps.u("thickness")
     Lh, Rr, rt = ps.u("handle_length"), ps.u("ring_radius"), ps.u("ring_tube")
     ro, sr = ps.u("ring_offset"), ps.u("screw_radius")
+    fl, fr = ps.u("finger_loop_ratio"), ps.u("finger_rest_length")
     tip, ring = ps.choice("tip"), ps.choice("ring")
-    tip_w = 0.0015 if tip == "pointed" else 0.4 * wb
     parts = {}
     for name, sy, z0 in (("blade_a", -1, 0.0), ("blade_b", 1, t + 0.0003)):
         zs = (z0, z0 + t)
+        pointed = tip == "pointed" or (tip == "sharp_blunt" and name == "blade_a")
+        tip_w = 0.0015 if pointed else 0.4 * wb
         outline = [(0.012, sy * wb / 2), (0.012, -sy * 0.3 * wb / 2), (-Lb, sy * (0.25 * wb + tip_w / 2)),
                    (-Lb, sy * (0.25 * wb - tip_w / 2))]
         blade = hull(np.array([(x, y, z) for x, y in outline for z in zs]))
-        rc = (Lh, sy * (ro + 0.6 * Rr), z0 + t / 2)
-        shank = [(0.008, sy * 0.004), (0.008, -sy * 0.003), (Lh - 0.8 * Rr, rc[1] - sy * 0.004 - sy * 0.4 * Rr),
-                 (Lh - 0.8 * Rr, rc[1] + sy * 0.004 - sy * 0.4 * Rr)]
+        finger = name == "blade_a"
+        # the finger loop is longer along the handle (x) by ``fl``; the thumb loop is round or slightly oval
+        sx = fl if finger else (1.15 if ring == "oval" else 1.0)
+        xc = Lh + (sx - 1.0) * Rr * 0.8 if finger else Lh
+        rc = (xc, sy * (ro + 0.6 * Rr), z0 + t / 2)
+        shank = [(0.008, sy * 0.004), (0.008, -sy * 0.003), (xc - 0.8 * sx * Rr, rc[1] - sy * 0.004 - sy * 0.4 * Rr),
+                 (xc - 0.8 * sx * Rr, rc[1] + sy * 0.004 - sy * 0.4 * Rr)]
         meshes = [blade, hull(np.array([(x, y, z) for x, y in shank for z in zs]))]
-        meshes.append(torus(Rr, max(rt, t / 2), rc, axis="z", scale=(1.3 if ring == "oval" else 1.0, 1.0, 1.0),
-                            sections=(32, 8)))
-        if name == "blade_a":
+        meshes.append(torus(Rr, max(rt, t / 2), rc, axis="z", scale=(sx, 1.0, 1.0), sections=(32, 8)))
+        if finger:
+            # finger rest (tang): a curved spur off the far side of the finger loop
+            u = np.linspace(0.0, 1.0, 7)
+            x0, y0 = xc + 0.5 * sx * Rr, rc[1] + sy * 0.85 * Rr
+            path = np.stack([x0 + fr * u, y0 + sy * fr * (0.35 * u + 0.25 * u**2), np.full_like(u, rc[2])], 1)
+            meshes.append(tube(path, max(rt, t / 2) * 0.9, sections=8))
             meshes.append(cylinder(sr, 2 * t + 0.002, (0, 0, t), axis="z", sections=16))
         parts[name] = meshes
     return _assemble(ps, parts, {"screw": (Z, (0.0, 0.0, 0.0))})
@@ -340,13 +415,32 @@ def scissors(ps: ParamSampler) -> ArticulatedDesign:
 
 @CATEGORIES.register("suitcase")
 def suitcase(ps: ParamSampler) -> ArticulatedDesign:
-    """Hard-shell suitcase lying flat: shell and lid hinged along the back (+x) edge."""
+    """Hard-shell suitcase lying on its back: shell (the deeper back half) and lid hinged along the back long
+    edge (+x); wheels at the bottom end (-y), the telescoping handle's grip and a carry handle at the top end
+    (+y), a side carry handle and latches on the front (-x) edge (as a standing case: height along y)."""
     W, D = ps.u("width"), ps.u("depth")
     Hs, Hl, wt = ps.u("shell_height"), ps.u("lid_height"), ps.u("wall")
     ho, hw = ps.u("hinge_offset"), ps.u("handle_width")
+    wr, tgw, tgo = ps.u("wheel_radius"), ps.u("trolley_width_ratio"), ps.u("trolley_standoff")
+    tch, dvd, dome = ps.u("trolley_channel_height"), ps.u("divider_depth"), ps.u("front_dome")
     handle, wheels, latches = ps.choice("handle"), ps.choice("wheels"), int(ps.choice("latches"))
+    lining = ps.choice("lining")
     shell = hollow_box((D, W, Hs), wt, "+z", (0, 0, Hs / 2))
     lid = hollow_box((D, W, Hl), wt, "-z", (0, 0, Hs + Hl / 2))
+    # inside the back half: the telescoping handle's tube channel along the case's length (y), as wide as the grip;
+    # outside, the tubes' two ridges along the back panel (the case rests on them)
+    shell.append(box((tgw * D, W - 2 * wt, tch), (0, 0, wt + tch / 2)))
+    for sx in (-1, 1):
+        shell.append(box((0.035, W - 0.08, 0.015), (sx * (tgw * D / 2 - 0.0175), 0, -0.0075)))
+    # the front panel bulges outwards (a shallow dome over the lid's outer face)
+    zt = Hs + Hl
+    rims = ((D / 2 - wt, W / 2 - wt, zt), (0.3 * D, 0.38 * W, zt + dome))
+    lid.append(hull(np.array([(x, y, z) for (hx, hy, z) in rims for x in (-hx, hx) for y in (-hy, hy)])))
+    if lining == "divider":  # a zipped divider panel closes the front half a little below its rim
+        lid.append(box((D - 2 * wt, W - 2 * wt, 0.004), (0, 0, Hs + dvd + 0.002)))
+    else:  # compression straps across the front half
+        for y in (-0.25 * W, 0.25 * W):
+            lid.append(box((D - 2 * wt, 0.035, 0.004), (0, y, Hs + dvd + 0.002)))
     pivot = np.array([D / 2 + ho, 0.0, Hs])
     for y in (-0.3 * W, 0.3 * W):
         shell.append(cylinder(0.008, 0.08, (pivot[0], y, Hs), axis="y", sections=16))
@@ -360,9 +454,26 @@ def suitcase(ps: ParamSampler) -> ArticulatedDesign:
         u = np.linspace(0, np.pi, 13)
         path = np.stack([-D / 2 - 0.035 * np.sin(u), -(hw / 2) * np.cos(u), np.full_like(u, zh)], 1)
         shell.append(tube(path, 0.009, sections=10))
-    if wheels == "wheels":
-        for y in (-(W / 2 - 0.05), W / 2 - 0.05):
-            shell.append(cylinder(0.025, 0.02, (D / 2 - 0.04, y, -0.012), axis="y", sections=20))
+    # bottom end (-y): spinner wheels at the four corners (two on each half), or two larger inline wheels on the
+    # back half; each in a housing on the end face
+    ye = -W / 2
+    corners = [(sx * (D / 2 - 0.045), 0.03) for sx in (-1, 1)]
+    if wheels == "spinner":
+        corners += [(sx * (D / 2 - 0.045), Hs + Hl - 0.03) for sx in (-1, 1)]
+    r = wr if wheels == "spinner" else 1.2 * wr
+    for x, z in corners:
+        owner = shell if z < Hs else lid
+        owner.append(box((0.05, 0.025, 0.05), (x, ye - 0.0125, z)))
+        owner.append(cylinder(r, 0.022, (x, ye - 0.025 - r, z), axis="x", sections=20))
+    # top end (+y): the telescoping handle's grip over two tube stubs on the back half, and a carry handle
+    yt = W / 2
+    gw = tgw * D
+    for x in (-gw / 2 + 0.012, gw / 2 - 0.012):
+        shell.append(box((0.024, tgo, 0.03), (x, yt + tgo / 2, 0.035)))
+    shell.append(box((gw, 0.025, 0.035), (0, yt + tgo + 0.0125, 0.035)))
+    for x in (-0.06, 0.06):
+        lid.append(cylinder(0.006, 0.025, (x, yt + 0.0125, Hs + 0.5 * Hl), axis="y", sections=12))
+    lid.append(cylinder(0.009, 0.14, (0, yt + 0.03, Hs + 0.5 * Hl), axis="x", sections=14))
     if latches:
         for y in (-0.3 * W, 0.3 * W):
             shell.append(box((0.012, 0.04, 0.035), (-D / 2 - 0.006, y, Hs - 0.0175)))
