@@ -63,13 +63,13 @@ def test_labels_by_view_put_handle_a_on_the_cameras_side_and_the_card_records_th
         make_config("basket", 3, 4, symmetric_labels="random")
 
 
-def _gt_predictions(data, split, swap) -> Predictions:
+def _gt_predictions(data, split, swap, sym: Symmetry = BASKET) -> Predictions:
     """The ground truth as predictions; samples with ``swap`` True written in their twin's labels and poses."""
     ds = load(data, split)
     a = ds.arrays()
     arrays = {k: a[k].copy() for k in ("part_label", "part_pose", "joint_axis", "joint_pivot", "joint_state",
                                        "T_cam_obj")}
-    tw = twin({k: v[swap] for k, v in arrays.items()}, BASKET)
+    tw = twin({k: v[swap] for k, v in arrays.items()}, sym)
     for k, v in tw.items():
         arrays[k][swap] = v
     return Predictions(method="gt", instance_id=a["instance_id"], view_id=a["view_id"], split=np.full(len(ds), split),
@@ -93,3 +93,24 @@ def test_op_align_scores_a_prediction_in_the_twins_order_against_the_twin(tmp_pa
     assert sc.summary["S"] == pytest.approx(100.0)  # the same points per part: only the poses tell the twin apart
     assert (sc.per_sample["R"][swap] > 90).all() and (sc.per_sample["R"][~swap] < 1e-5).all()
     assert "twin_rate" not in sc.summary
+
+
+def test_op_align_forgives_the_laptops_declared_exchange_of_base_and_lid_and_scapo_does_not(tmp_path):
+    """The laptop's declared symmetry exchanges its base part (a half turn about the hinge's bisector, centred on the
+    pivot; OP-Align's art_metric.py ``standardization_order`` applies a fixed half turn to its laptops likewise): a
+    prediction in the twin's order and poses scores 0 deg under ``op-align`` and about 180 deg under ``scapo``. The
+    dataset's labels stay the asset's (no labels by view for the laptop)."""
+    out = tmp_path / "l"
+    generate(make_config("laptop", 2, 4, seed=4, test_fraction=0.5, val_fraction=0.0), out, progress=False)
+    card = json.loads((out / "card.json").read_text())
+    lap = SYMMETRIES["laptop"]
+    assert Symmetry.from_dict(card["symmetry"]) == lap and card["symmetry"]["front"] is None
+    assert "symmetric_labels" not in make_config("laptop", 3, 4).to_dict()["render"]  # hash as before the rule
+    n = len(load(out, "test"))
+    swap = np.arange(n) % 2 == 0
+    preds = _gt_predictions(out, "test", swap, lap)
+    op = evaluate(out, preds, protocol="op-align").summary
+    assert op["S"] == pytest.approx(100.0) and op["R"] == pytest.approx(0.0, abs=1e-5)
+    assert op["D"] == pytest.approx(0.0, abs=1e-5) and op["twin_rate"] == pytest.approx(100.0 * swap.mean())
+    sc = evaluate(out, preds, protocol="scapo")
+    assert (sc.per_sample["R"][swap] > 150).all() and (sc.per_sample["R"][~swap] < 1e-5).all()

@@ -134,7 +134,8 @@ class GenerateConfig:
         # datasets keep their config hash and resume
         if d["render"]["cropped"] == "keep":
             del d["render"]["cropped"]
-        if self.render.symmetric_labels == "asset" or self.symmetry is None:  # no effect: as before the rule
+        if self.render.symmetric_labels == "asset" or self.symmetry is None or self.symmetry.front is None:
+            # no effect (no symmetry, or one whose labels stay the asset's): as before the rule
             del d["render"]["symmetric_labels"]
         if d["render"]["sensor"]["kind"] == "clean":  # the clean sensor ignores them
             default = dataclasses.asdict(SensorConfig())

@@ -78,7 +78,7 @@ def _match(preds: Predictions, rows: np.ndarray, gt_label: np.ndarray, P: int, p
 
 #: Ground-truth fields that differ between the two valid ground truths of a symmetric category's view.
 TWIN_FIELDS = ("part_label", "npcs", "part_pose", "T_cam_obj", "joint_axis", "joint_pivot", "joint_state",
-               "joint_limit")
+               "joint_limit", "bbox_diag")
 
 
 def _symmetry(ds: ArticulationDataset, proto: Protocol):
@@ -238,7 +238,8 @@ def _alignment(root: Path, preds: Predictions, proto: Protocol, sym, gt_jp: np.n
     """The canonical-frame offsets of a method whose frame is arbitrary, from its training-split predictions
     (:func:`~scapo.eval.alignment.estimate_alignment`, the protocol's estimator)."""
     train = load(root, "train")
-    gtr = train.arrays(["part_label", "part_pose", "joint_axis", "joint_state", "points", "bbox_diag"])
+    gtr = train.arrays(["part_label", "part_pose", "joint_axis", "joint_state", "points", "bbox_diag", "T_cam_obj",
+                        "joint_pivot"])
     trows = _rows_for(preds, train, "train")
     tslots = _match(preds, trows, gtr["part_label"], P, proto)
     if sym is not None:

@@ -31,10 +31,11 @@ art_metric.py ``evaluation_segmentation`` does for real scans (``noise_exist``, 
 ``_setup_metric`` for ``dataset_type == 'Real'``); the part order is likewise chosen on object points only.
 The other protocols count such points as false positives of the part they are predicted as.
 When the swapped order wins on a symmetric category, that code multiplies the GT rotations by a fixed
-half turn of its datasets' canonical frames (``standardization_order``); here the category's own symmetry
-(the dataset card's, :mod:`scapo.sim.assets.symmetry`) gives the whole other ground truth (parts, poses
-and joints exchanged), and categories without one (its laptop, suitcase and scissors matrices concern its
-scans' frames; our procedural ones are not symmetric) get none. What differs from that code: the
+half turn of its datasets' canonical frames (``standardization_order``, for its basket, laptop, suitcase and
+scissors); here the category's own declared symmetry (the dataset card's, :mod:`scapo.sim.assets.symmetry`,
+measured by ``scapo assets symmetry``) gives the whole other ground truth (parts, poses and joints exchanged):
+the basket's half turn and the laptop's exchange of base and lid. Our suitcase and scissors have parts a view
+tells apart (wheels and handle, finger and thumb loops), so they get none. What differs from that code: the
 AP distance thresholds are centimetres (5 / 10 cm), where its code compares 0.5 / 1.0 in its
 dataset units; its typo that scores three-part "10 deg" AP with 5 deg is not reproduced; the
 rotation mean is the chordal L2 mean (scipy), where it uses its own ``so3_mean``; on real scans its code
