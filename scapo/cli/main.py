@@ -62,6 +62,34 @@ def cmd_assets_build(args) -> int:
     return 0
 
 
+def cmd_assets_symmetry(args) -> int:
+    from scapo.data.symmetry import Tolerance, measure_meshes, measure_views
+    from scapo.files import check_output_file, write_json
+
+    for name in ("instances", "views", "states"):
+        if getattr(args, name) < (0 if name == "views" else 1):
+            raise ConfigError(f"--{name} must be >= {0 if name == 'views' else 1}, got {getattr(args, name)}")
+    if args.json is not None:
+        check_output_file(args.json, "symmetry report", example="symmetry.json")
+    tol = Tolerance(args.ratio, args.slack, args.min_angle)
+    rep = measure_meshes(args.category, min(args.instances, args.mesh_instances), args.states, args.seed,
+                         tol=tol, cache_dir=args.cache)
+    if args.views:
+        rep = measure_views(args.category, args.instances, args.views, args.seed, random_rotation=args.random_rotation,
+                            tol=tol, cache_dir=args.cache, report=rep)
+    rep.instances = args.instances
+    print("\n".join(rep.lines()))
+    if args.json is not None:
+        from dataclasses import asdict
+
+        from scapo.provenance import provenance
+
+        write_json(args.json, {**rep.to_dict(), "tolerance": asdict(tol),
+                               "provenance": provenance(command="scapo assets symmetry", seed=args.seed)})
+        print(f"wrote {args.json}")
+    return 0
+
+
 def cmd_assets_check(args) -> int:
     from scapo.sim.assets import load_partnet_mobility, parse_urdf
 
@@ -560,6 +588,21 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--no-progress", action="store_true")
     common_cache(b)
     b.set_defaults(func=cmd_assets_build)
+    m = asub.add_parser("symmetry", help="measure a category's symmetries: self-maps of the posed meshes, whether "
+                        "the declared ones hold, and the share of single views another pose explains as well")
+    m.add_argument("--category", required=True)
+    m.add_argument("--instances", type=int, default=10, help="instances whose views are measured (default 10)")
+    m.add_argument("--views", type=int, default=10, help="views per instance (default 10; 0: meshes only)")
+    m.add_argument("--mesh-instances", type=int, default=4, help="instances whose meshes are measured (default 4)")
+    m.add_argument("--states", type=int, default=3, help="joint states per instance for the meshes (rest first)")
+    m.add_argument("--seed", type=int, default=5, help="seed of the instances and views (default 5)")
+    m.add_argument("--random-rotation", action="store_true", help="views of objects under uniform SO(3) rotations")
+    m.add_argument("--ratio", type=float, default=1.25, help="a pose explains as well: distance <= ratio x truth's ...")
+    m.add_argument("--slack", type=float, default=0.004, help="... + slack (bbox diagonals)")
+    m.add_argument("--min-angle", type=float, default=30.0, help="only poses this far (deg) from the truth count")
+    m.add_argument("--json", type=Path, default=None, help="also write the full report (per view) as JSON")
+    common_cache(m)
+    m.set_defaults(func=cmd_assets_symmetry)
     c = asub.add_parser("check", help="parse and validate a URDF file or a PartNet-Mobility folder")
     c.add_argument("path")
     c.set_defaults(func=cmd_assets_check)
