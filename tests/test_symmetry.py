@@ -11,6 +11,7 @@ from gt_checks import check_sample
 from scapo.data import generate, load, make_config
 from scapo.errors import ConfigError
 from scapo.eval import Predictions, evaluate
+from scapo.eval.protocols import get_protocol
 from scapo.sim.assets import build_instance, load_template, parse_urdf
 from scapo.sim.assets.symmetry import SYMMETRIES, Symmetry, by_view, twin
 from scapo.sim.render import RenderConfig, ViewConfig, render_many
@@ -114,3 +115,37 @@ def test_op_align_forgives_the_laptops_declared_exchange_of_base_and_lid_and_sca
     assert op["D"] == pytest.approx(0.0, abs=1e-5) and op["twin_rate"] == pytest.approx(100.0 * swap.mean())
     sc = evaluate(out, preds, protocol="scapo")
     assert (sc.per_sample["R"][swap] > 150).all() and (sc.per_sample["R"][~swap] < 1e-5).all()
+
+
+@pytest.mark.parametrize("category", ["laptop", "basket"])
+def test_every_protocol_scores_a_declared_flip_as_correct_and_an_undeclared_turn_as_wrong(category, tmp_path):
+    """Hand-built predictions with known answers, under each protocol: the ground truth (R = R_sym = 0); the declared
+    symmetry's twin (strict R about 180 deg under scapo, R_sym = 0 everywhere, and sym_rate counts it); the object
+    turned by 90 deg about its vertical axis, which no declaration covers (R = 90 deg; R_sym the protocol's own
+    error of that turn against the identity or the symmetry, at least 60 deg: 90 deg, or under EAP's fold at
+    180 deg the laptop's 120 deg folded to 60)."""
+    from scapo.ops.rigid import as_transform, rotation_about_axis
+
+    out = tmp_path / category
+    generate(make_config(category, 2, 4, seed=4, test_fraction=0.5, val_fraction=0.0), out, progress=False)
+    sym = SYMMETRIES[category]
+    n = len(load(out, "test"))
+    flip = np.arange(n) % 2 == 0
+    twins = _gt_predictions(out, "test", flip, sym)
+    turned = _gt_predictions(out, "test", np.zeros(n, dtype=bool), sym)
+    turn = as_transform(rotation_about_axis(np.array([0.0, 0.0, 1.0]), np.pi / 2), np.zeros(3))
+    turned.part_pose[:] = turned.part_pose @ turn  # every part's rest frame turned: a pose no symmetry explains
+    for protocol in ("scapo", "op-align", "eap"):
+        r = evaluate(out, twins, protocol=protocol)
+        assert r.summary["R_sym"] == pytest.approx(0.0, abs=1e-5), protocol
+        assert r.summary["R_sym_over90"] == pytest.approx(0.0), protocol
+        if protocol == "scapo":
+            assert (r.per_sample["R"][flip] > 150).all() and r.summary["R_over90"] > 0
+            assert r.summary["sym_rate"] == pytest.approx(100.0 * flip.mean())
+        u = evaluate(out, turned, protocol=protocol)
+        rule = get_protocol(protocol).rotation_error  # the known answer: the turn against I and against the symmetry
+        R_S = np.asarray(sym.rotation)
+        want = min(float(rule(turn[:3, :3], np.eye(3))), float(rule(turn[:3, :3], R_S.T)))
+        assert want > 59.9  # wrong under every protocol
+        assert u.summary["R"] == pytest.approx(90.0, abs=1e-4), protocol
+        assert u.summary["R_sym"] == pytest.approx(want, abs=1e-4), protocol

@@ -157,8 +157,10 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
 
     Returns:
         :class:`EvalResult`; its summary holds S (%), D, R, state_deg (deg), t and C (the protocol's
-        unit: bbox diagonals, or OP-Align's), t_cm, C_cm, state_cm (cm), AP (%), and the robust
-        statistics of :func:`robust_summary`.
+        unit: bbox diagonals, or OP-Align's), t_cm, C_cm, state_cm (cm), AP (%), the robust
+        statistics of :func:`robust_summary`, and the symmetry-aware R_sym (deg, against the best of the
+        dataset's declared symmetric ground truths, :func:`symmetric_part_errors`) with sym_rate (% of samples
+        whose best ground truth is a symmetric one); the strict R stays the paper's column.
 
     Raises:
         PredictionError: missing samples, wrong shapes or values (see
@@ -185,7 +187,14 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     elif J:
         state = axis_sign(axis, gt["joint_axis"]) * state
     per_sample, errors = _score_samples(proto, preds, rows, slots, gt, pose, axis, pivot, state, matched, unit)
+    R_sym, choice = symmetric_part_errors(proto, pose, gt["part_pose"], declared_rotations(test.card))
+    per_sample["R_sym"] = R_sym.mean(1) if len(rows) else np.zeros(0)
+    per_sample["symmetry"] = choice
+    for p in range(P):
+        per_sample[f"R_sym_p{p}"] = R_sym[:, p]
     summary = _summarise(per_sample, errors, proto, gt["joint_type"], P, J)
+    summary["R_sym"] = float(per_sample["R_sym"].mean()) if len(rows) else float("nan")
+    summary["sym_rate"] = 100.0 * float((choice > 0).mean()) if len(rows) else float("nan")
     if sym is not None:  # share of test samples scored against their twin ground truth (%)
         summary["twin_rate"] = 100.0 * float(twinned.mean()) if len(rows) else float("nan")
     summary["joint_match_rate"] = float(matched.mean()) if J and len(rows) else float("nan")
@@ -196,6 +205,41 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     info["split"] = split
     info["instances"] = test.num_instances
     return EvalResult(preds.method, test.category, split, per_sample, summary, alignment, info)
+
+
+def declared_rotations(card: dict) -> np.ndarray:
+    """``(K, 3, 3)``: the identity, then the rotation of each symmetry the dataset's card declares (object frame at
+    rest; :mod:`scapo.sim.assets.symmetry`). A twin ground truth poses the points of GT part p by
+    ``part_pose[p] @ S^-1``, so its part rotations are ``R_gt R_S^T``, whatever the symmetry's centre."""
+    out = [np.eye(3)]
+    if card.get("symmetry"):
+        from scapo.sim.assets.symmetry import Symmetry
+
+        out.append(np.asarray(Symmetry.from_dict(card["symmetry"]).rotation, dtype=np.float64))
+    return np.stack(out)
+
+
+def symmetric_part_errors(proto: Protocol, pose: np.ndarray, gt_pose: np.ndarray, rotations: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """The symmetry-aware part rotation errors: each sample scored against the symmetric ground truth that fits it
+    best, one symmetry for all its parts (BOP's symmetric pose errors, Hodan et al., ECCV 2020 workshop, bop_toolkit
+    ``pose_error.py``: the error minimised over the object's symmetries; here over the declared object symmetries,
+    whose twins exchange parts, with the protocol's own rotation error).
+
+    Args:
+        pose, gt_pose: ``(M, P, 4, 4)`` predicted (after the protocol's alignment) and GT part poses (the GT the
+            protocol scores, after its own standardisation). rotations: ``(K, 3, 3)`` from :func:`declared_rotations`.
+
+    Returns:
+        ``(R_sym (M, P) deg, choice (M,) int)``: the errors and the symmetry each sample took (0: the identity). With
+        only the identity, ``R_sym`` is the strict error.
+    """
+    M, P = pose.shape[:2]
+    if M == 0:
+        return np.zeros((0, P)), np.zeros(0, dtype=np.int64)
+    errs = np.stack([proto.rotation_error(pose[..., :3, :3], gt_pose[..., :3, :3] @ R.T) for R in rotations])
+    choice = errs.mean(2).argmin(0)
+    return errs[choice, np.arange(M)], choice
 
 
 def _open(root: Path, predictions, split: str, check_hash: bool) -> tuple[ArticulationDataset, Predictions]:
@@ -327,7 +371,7 @@ def _summarise(per_sample: pd.DataFrame, e: dict, proto: Protocol, joint_type: n
 
 #: Robust statistics in every summary: medians of the per-part / per-joint errors, and part rates.
 ROBUST_KEYS = ("R_median", "t_median", "D_median", "C_median", "R_under5", "R_under10", "R_over90",
-               "state_deg_median", "state_cm_median")
+               "state_deg_median", "state_cm_median", "R_sym_median", "R_sym_over90")
 
 
 def robust_summary(per_sample: pd.DataFrame, P: int, joint_type) -> dict:
@@ -337,7 +381,8 @@ def robust_summary(per_sample: pd.DataFrame, P: int, joint_type) -> dict:
     ``C_median``: of the per-joint errors (C of scored joints only); ``R_under5``, ``R_under10``,
     ``R_over90``: % of part poses with a rotation error under 5 / 10 deg and over 90 deg (the flip
     rate); ``state_deg_median`` / ``state_cm_median``: of the revolute / prismatic joints' state
-    errors. NaN where nothing is defined.
+    errors; ``R_sym_median``, ``R_sym_over90``: the same for the symmetry-aware errors
+    (:func:`symmetric_part_errors`), when the table has them. NaN where nothing is defined.
     """
     jt = [int(t) for t in joint_type]
 
@@ -353,6 +398,10 @@ def robust_summary(per_sample: pd.DataFrame, P: int, joint_type) -> dict:
            "state_cm_median": med([f"state_err_j{j}" for j, t in enumerate(jt) if t == 1])}
     for name, mask in (("R_under5", R < 5.0), ("R_under10", R < 10.0), ("R_over90", R > 90.0)):
         out[name] = 100.0 * float(mask.mean()) if R.size else float("nan")
+    if f"R_sym_p{P - 1}" in per_sample:  # the symmetry-aware errors beside the strict ones
+        Rs = per_sample[[f"R_sym_p{p}" for p in range(P)]].to_numpy(dtype=np.float64).ravel()
+        out["R_sym_median"] = med([f"R_sym_p{p}" for p in range(P)])
+        out["R_sym_over90"] = 100.0 * float((Rs > 90.0).mean()) if Rs.size else float("nan")
     return out
 
 
