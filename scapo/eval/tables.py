@@ -473,9 +473,9 @@ def write_table3(results: Sequence[EvalResult], out_dir: str | Path, provenance:
     legend = (f"Protocol: {protocol}. S: part segmentation IoU (%, higher is better); D: joint direction error "
               "(deg); C: joint pivot error (x bbox diagonal); R: mean part rotation error (deg); R_median: its "
               "median; R_over90: % of part rotations off by more than 90 deg (flips); R_sym, R_sym_over90: the same "
-              "against the best of the declared symmetric ground truths (the paper reports S, D, C only). Ours: mean ± std over training seeds per category; mean: "
-              "over the categories shown. Rows marked (paper): the SCAPO paper's Table 3 (its five synthetic "
-              "categories, its data and protocol).")
+              "against the best of the declared symmetric ground truths (the paper reports S, D, C only). Ours: "
+              "mean ± std over training seeds per category; mean: over the categories shown. Rows marked (paper): "
+              "the SCAPO paper's Table 3 (its five synthetic categories, its data and protocol).")
     return _write_table_files(out_dir, name, f"Table 3 (ablation of SCAPO's regularisers): {', '.join(cats[:-1])}",
                               long, header, rows, ["l", *["r"] * (len(header) - 1)], legend, provenance, results)
 
