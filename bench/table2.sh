@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Table 2 in real-world style: basket, drawer, laptop, scissors, suitcase rendered with the realistic sensor
-# (80 instances x 16 views per category, data seed 1), every registered method plus the semi-supervised
-# rows (OP-Align-style and SCAPO with preset cpu/sj), cpu presets, training seed 0 (SEEDS=0,1,2 for more),
+# (150 instances x 8 views per category, 30 of them test, upright; data seed 1), every registered method plus
+# the semi-supervised rows (OP-Align-style and SCAPO with preset cpu/sj), cpu presets, training seed 0 (SEEDS=0,1,2 for more),
 # op-align protocol. Resumable per cell; DRY_RUN=1 lists the cells and which are done. Its own work folder
 # (the datasets differ from Table 1's). Extra arguments go to scapo bench.
 set -euo pipefail

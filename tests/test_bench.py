@@ -346,4 +346,19 @@ def test_table2_per_category_render_settings_leave_the_other_datasets_alone():
         kw = data_settings(cat, REAL_STYLE_DATA, REAL_STYLE_CATEGORY_DATA)
         assert kw == REAL_STYLE_DATA
         assert make_config(cat, 80, 16, 1, **kw).to_json() == make_config(cat, 80, 16, 1, **REAL_STYLE_DATA).to_json()
-    assert data_settings("laptop") == {"cropped": "keep"}  # Tables 1 and 3: as before
+    assert data_settings("laptop")["random_rotation"]  # Tables 1 and 3: objects under arbitrary rotations
+
+
+def test_bench_datasets_have_30_test_instances_and_table1_views_are_rotated_uniformly():
+    """Issue 29's bench data at the defaults: 150 instances, a fifth of them test (30) and a tenth val; Table 1's
+    objects turned by a uniform SO(3) rotation in every view (no upright cue), Table 2 upright as real scans."""
+    from scapo.bench.experiments import REAL_STYLE_DATA, BenchOptions, data_settings
+    from scapo.data.config import make_config
+    from scapo.data.generate import split_instances
+
+    opts = BenchOptions()
+    for kw, rotated in ((data_settings("laptop"), True), (data_settings("laptop", REAL_STYLE_DATA), False)):
+        cfg = make_config("laptop", opts.instances, opts.views, 1, **kw)
+        splits = split_instances(cfg.instances, cfg.test_fraction, cfg.seed, cfg.val_fraction)
+        assert len(splits.test) == 30 and len(splits.val) == 15
+        assert cfg.view_config.random_rotation is rotated
