@@ -772,7 +772,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--categories", type=_names, default=None,
                     help="table1: default laptop,safe,eyeglasses,oven,washer; table3: default laptop,eyeglasses")
     sp.add_argument("--methods", type=_names, default=None, help="table1: default every registered method")
-    sp.add_argument("--instances", type=int, default=None, help="instances per category (tables: 150, a fifth of them test; perf: 20)")
+    sp.add_argument("--instances", type=int, default=None,
+                    help="instances per category (tables: 150, a fifth of them test; perf: 20)")
     sp.add_argument("--views", type=int, default=None, help="views per instance (tables: 8; perf: 30)")
     sp.add_argument("--workers", type=_ints, default=[1, 2])
     sp.add_argument("--seed", type=int, default=0, help="seed of the data (assets, splits, views)")
