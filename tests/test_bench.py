@@ -10,7 +10,7 @@ import pytest
 from scapo.bench import Cell, parse_category_seeds, run_table1, run_table3, table1_cells, table3_cells
 from scapo.errors import ConfigError, UnknownNameError
 
-SMALL = dict(instances=10, views=2, preset="test", progress=False)
+SMALL = dict(instances=10, views=2, preset="test", progress=False, allow_dirty=True)  # tests run from any checkout
 
 
 @pytest.fixture(scope="module")
@@ -362,3 +362,39 @@ def test_bench_datasets_have_30_test_instances_and_table1_views_are_rotated_unif
         splits = split_instances(cfg.instances, cfg.test_fraction, cfg.seed, cfg.val_fraction)
         assert len(splits.test) == 30 and len(splits.val) == 15
         assert cfg.view_config.random_rotation is rotated
+
+
+def test_the_bench_refuses_a_dirty_checkout_and_a_table_of_mixed_commits_unless_told(bench, tmp_path, monkeypatch):
+    """Every cell of a table at one clean commit (issue 29): computing from uncommitted code is refused, and so is
+    writing a table whose cells come from several commits or from a dirty one; the message names the cells."""
+    import shutil
+
+    import scapo.bench.cells as cells
+    import scapo.bench.experiments as experiments
+    from scapo.bench.experiments import check_commits
+
+    work, _, _, _ = bench
+    monkeypatch.setattr(experiments, "git_commit", lambda: "0123456789abcdef-dirty")
+    small = {**SMALL, "allow_dirty": False}
+    with pytest.raises(ConfigError, match="uncommitted changes.*--allow-dirty"):
+        run_table1(["npcs"], ["laptop"], work_dir=work, out_dir=tmp_path, seeds=[0], **small)
+    monkeypatch.setattr(experiments, "git_commit", lambda: "0123456789abcdef")
+    copy = tmp_path / "work"
+    shutil.copytree(work, copy)
+    data = copy / "laptop_i10_v2_s0"
+    for key, sha in (("npcs", "aaaaaaaaaaaaaaaa"), ("scapo", "bbbbbbbbbbbbbbbb")):
+        p = cells.cell_paths(data, Cell(key, "laptop", seed=0, preset="test"), "scapo").record
+        rec = json.loads(p.read_text())
+        rec["computed_commit"], rec["provenance"]["commit"] = sha, sha
+        p.write_text(json.dumps(rec))
+    with pytest.raises(ConfigError, match=r"computed at 2 commits \(aaaaaaaaaaaaaaaa: npcs_test_s0/laptop; "
+                                          r"bbbbbbbbbbbbbbbb: scapo_test_s0/laptop\).*--allow-mixed-commits"):
+        run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=tmp_path / "t", seeds=[0], **small)
+    assert not (tmp_path / "t" / "table1_synthetic.md").exists()
+    run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=tmp_path / "t", seeds=[0],
+               **{**small, "allow_mixed_commits": True})
+    assert (tmp_path / "t" / "table1_synthetic.md").exists()
+    recs = [{"provenance": {"commit": "cccccccccccccccc-dirty"}}]
+    with pytest.raises(ConfigError, match="uncommitted code"):
+        check_commits([Cell("npcs", "laptop", seed=0, preset="test")], recs)
+    assert check_commits([Cell("npcs", "laptop", seed=0, preset="test")], recs, allow_dirty=True)

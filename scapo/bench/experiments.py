@@ -38,6 +38,7 @@ from scapo.data import generate, load, make_config
 from scapo.errors import ConfigError
 from scapo.files import check_output_dir
 from scapo.methods import METHODS, describe
+from scapo.provenance import git_commit
 from scapo.registry import Registry
 
 #: Categories of the paper's Table 1 (and of our Table 3), in its column order.
@@ -294,9 +295,10 @@ def _writer(write_table, name, out_dir, figures, work_dir, instances, views, dat
 
 def _bench(title, cells, methods, categories, write, instances, views, data_seed, work_dir, out_dir, preset, protocol,
            workers, cache_dir, dry_run, progress, device, finished_only, data_kwargs=None, recompute_dirty=False,
-           category_data=None):
+           category_data=None, allow_dirty=False, allow_mixed_commits=False):
     """What both tables do: check names and outputs, list the cells (dry run) or compute them, and
-    ``write(results, done cells, provenance) -> paths`` into ``out_dir``."""
+    ``write(results, done cells, provenance) -> paths`` into ``out_dir`` (one clean commit for every cell unless
+    allowed: :func:`check_commits`)."""
     if finished_only and recompute_dirty:
         raise ConfigError("--finished-only computes nothing and --recompute-dirty recomputes cells: use one of them")
     protocol = _check(methods, categories, protocol, None if dry_run else work_dir,
@@ -305,14 +307,54 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
         rows = plan(cells, work_dir, instances, views, data_seed, protocol, recompute_dirty)
         print_plan(rows)
         return rows
+    here = git_commit()
+    if dirty_sha(here) and not allow_dirty:
+        raise ConfigError(f"this checkout has uncommitted changes (commit {here}): cells computed or scored now could "
+                          "not be traced to a commit; commit first (or run the bench from a worktree of a commit: git "
+                          "worktree add), or pass --allow-dirty")
     results, records, hashes, done, missing = _compute(cells, work_dir, instances, views, data_seed, protocol,
                                                        workers, cache_dir, progress, device, finished_only,
                                                        data_kwargs, recompute_dirty, category_data)
     if out_dir is not None:
+        check_commits(done, records, allow_dirty, allow_mixed_commits)
         prov = _provenance(title, done, records, hashes, instances, views, data_seed, protocol, preset, missing)
         for p in write(results, done, prov):
             print(f"wrote {p}")
     return results
+
+
+def check_commits(done: Sequence[Cell], records: Sequence[dict], allow_dirty: bool = False,
+                  allow_mixed_commits: bool = False) -> dict[str, dict[str, list[str]]]:
+    """The commits behind a table's cells: ``{"computed": {commit: cells}, "scored": {commit: cells}}``, the code that
+    trained and predicted each cell (:func:`computed_commit`) and the code that scored it (the same, or a later one
+    when only the evaluator changed since); a cell is named ``"<key>/<category>"``.
+
+    Raises:
+        ConfigError: a cell from a checkout with uncommitted changes (``-dirty`` or unknown) without
+            ``allow_dirty``, or cells computed (or scored) at several commits without ``allow_mixed_commits``; the
+            message names the cells of each commit.
+    """
+    out: dict[str, dict[str, list[str]]] = {"computed": {}, "scored": {}}
+    for c, rec in zip(done, records):
+        name = f"{c.key}/{c.category}"
+        out["computed"].setdefault(computed_commit(rec), []).append(name)
+        out["scored"].setdefault(str(rec.get("provenance", {}).get("commit", "unknown")), []).append(name)
+
+    def listing(group: dict[str, list[str]], shas) -> str:
+        return "; ".join(f"{sha[:16]}: {', '.join(group[sha][:6])}"
+                         + (f" and {len(group[sha]) - 6} more" if len(group[sha]) > 6 else "") for sha in shas)
+
+    for what, group in out.items():
+        dirty = [sha for sha in group if dirty_sha(sha)]
+        if dirty and not allow_dirty:
+            raise ConfigError(f"cells of this table were {what} from uncommitted code ({listing(group, dirty)}); "
+                              "compute them again at a commit (--recompute-dirty) or pass --allow-dirty")
+        if len(group) > 1 and not allow_mixed_commits:
+            raise ConfigError(f"the cells of this table were {what} at {len(group)} commits ({listing(group, group)});"
+                              " make every cell at one commit (run the bench from a worktree of it, after setting the "
+                              "others' records aside) or pass --allow-mixed-commits (the provenance lists each cell's "
+                              "commit)")
+    return out
 
 
 def _figures(cells, results, work, instances, views, data_seed, protocol, out_dir, name) -> list[Path]:
@@ -423,6 +465,12 @@ class BenchOptions:
     recompute_dirty: bool = False
     sj: bool = True
     ablations: Sequence[str] | None = None
+    allow_dirty: bool = False
+    """Compute or score cells from a checkout with uncommitted changes, and write tables holding such cells (their
+    records say ``<sha>-dirty``: the code behind them cannot be recovered); refused otherwise."""
+    allow_mixed_commits: bool = False
+    """Write a table whose cells were computed at several commits (the provenance lists each cell's); refused
+    otherwise, naming the cells of each commit."""
 
 
 #: The paper's tables: ``scapo bench table1|table2|table3``.
@@ -482,7 +530,7 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
     return _bench(spec.title, cells, methods, categories, write, opts.instances, opts.views, opts.data_seed,
                   opts.work_dir, opts.out_dir, opts.preset, opts.protocol or spec.protocol, opts.workers,
                   opts.cache_dir, opts.dry_run, opts.progress, opts.device, opts.finished_only, spec.data or None,
-                  opts.recompute_dirty, spec.category_data or None)
+                  opts.recompute_dirty, spec.category_data or None, opts.allow_dirty, opts.allow_mixed_commits)
 
 
 def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGORIES, **options):

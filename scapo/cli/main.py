@@ -501,10 +501,10 @@ def cmd_bench_table(args) -> int:
     """``scapo bench table1|table2|table3``: the paper's tables, resumable per cell (``--dry-run`` lists the
     cells)."""
     from scapo.bench import parse_category_seeds
-    from scapo.bench.experiments import run_table
+    from scapo.bench.experiments import BenchOptions, run_table
 
-    instances = 80 if args.instances is None else args.instances
-    views = 16 if args.views is None else args.views
+    instances = BenchOptions.instances if args.instances is None else args.instances
+    views = BenchOptions.views if args.views is None else args.views
     if min(args.workers) < 1 or instances < 1 or views < 1:
         raise ConfigError("--workers, --instances and --views must be >= 1")
     run_table(args.what, args.methods, args.categories, instances=instances, views=views, data_seed=args.seed,
@@ -512,6 +512,7 @@ def cmd_bench_table(args) -> int:
               category_seeds=parse_category_seeds(args.category_seeds), protocol=args.protocol, name=args.name,
               workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run, progress=not args.no_progress,
               device=args.device, finished_only=args.finished_only, recompute_dirty=args.recompute_dirty,
+              allow_dirty=args.allow_dirty, allow_mixed_commits=args.allow_mixed_commits,
               sj=not args.no_sj)
     return 0
 
@@ -790,6 +791,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--recompute-dirty", action="store_true", help="table1/2/3: compute again, from scratch, the done "
                     "cells whose record names a -dirty commit (computed from uncommitted code; the old files are "
                     "moved to <dataset>/dirty/)")
+    sp.add_argument("--allow-dirty", action="store_true", help="table1/2/3: compute or score cells from a checkout "
+                    "with uncommitted changes (refused otherwise: their code could not be recovered)")
+    sp.add_argument("--allow-mixed-commits", action="store_true", help="table1/2/3: write a table whose cells come "
+                    "from several commits (refused otherwise, naming the cells of each commit)")
     sp.add_argument("--name", default=None, help="table1/3: file name stem (table1_synthetic, table3_ablation)")
     sp.add_argument("--no-progress", action="store_true")
     sp.add_argument("--out", type=Path, default=None, help="write result files here (table1/3: default results/)")
