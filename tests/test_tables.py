@@ -116,3 +116,33 @@ def test_self_supervised_ordering_checks_samples_and_seeds():
     other = "b" if o["metrics"]["S"]["best"] == "a" else "a"
     assert o["metrics"]["S"]["against"][other]["seeds_separate"] is False
     assert self_supervised_ordering([r for r in res if r.method == "good"])["methods"] == []
+
+
+def test_pairwise_bootstrap_supports_clear_differences_only():
+    """Every pair of methods, supervised rows included: a clearly better method is supported on every metric (its
+    interval of the difference excludes 0); two methods drawn around the same values are not; deterministic; the
+    table's Markdown says so and its JSON holds it."""
+    import numpy as np
+
+    from scapo.eval.tables import pairwise_bootstrap, pairwise_markdown
+
+    rng = np.random.default_rng(1)
+    res = []
+    for cat in ("laptop", "eyeglasses"):
+        for s in range(2):
+            res.append(_synthetic_result("good", cat, s, 80, 5, rng))
+            res.append(_synthetic_result("weak", cat, s, 50, 40, rng))
+            res.append(_synthetic_result("twin", cat, s, 50, 40, rng))
+    boot = pairwise_bootstrap(res, draws=300)
+    assert set(boot["metrics"]) == {"S", "D", "C", "R_median"}  # no R_sym columns in these results
+    for metric, pairs in boot["metrics"].items():
+        by = {(p["a"], p["b"]): p for p in pairs}
+        assert by[("good", "weak")]["supported"] and by[("good", "weak")]["better"] == "good", metric
+        assert by[("good", "twin")]["better"] == "good", metric
+        close = by[("weak", "twin")]
+        assert close["interval"][0] < 0 < close["interval"][1] and close["better"] is None, metric
+    s = {(p["a"], p["b"]): p for p in boot["metrics"]["S"]}[("good", "weak")]
+    assert s["diff"] == pytest.approx(s["a_value"] - s["b_value"]) and s["diff"] > 25
+    assert boot == pairwise_bootstrap(res, draws=300)
+    md = "\n".join(pairwise_markdown(boot))
+    assert "- mean S: good better than weak (+" in md and "Not supported: weak vs twin" in md

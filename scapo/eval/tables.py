@@ -219,6 +219,118 @@ def _weighted_stat(values: np.ndarray, weights: np.ndarray, median: bool) -> np.
     return v[order][k]
 
 
+def _instance_weights(results: Sequence[EvalResult], cats: Sequence[str], draws: int, seed: int) -> dict:
+    """Per category: its test instances (sorted) and ``draws`` multinomial resampling counts of them, shared by every
+    method (the pairing of a paired bootstrap)."""
+    rng = np.random.default_rng(seed)
+    weights = {}
+    for c in cats:
+        inst = np.unique(np.concatenate([r.per_sample["instance_id"].to_numpy() for r in results if r.category == c]))
+        weights[c] = (inst, rng.multinomial(len(inst), np.full(len(inst), 1.0 / len(inst)), size=draws))
+    return weights
+
+
+def _method_bootstrap(results: Sequence[EvalResult], method: str, cats: Sequence[str], metric: str, weights: dict
+                      ) -> tuple[np.ndarray, float, dict[str, list[float]]]:
+    """One method's value on ``metric`` as the table's Mean column has it (per category the mean over training seeds
+    of the cell statistic, then the mean over ``cats``) under each resample of ``weights``: ``(draws (B,), value,
+    {category: per-seed values})``. A ``*_median`` metric is the median over all parts of the per-part columns
+    (``R_median``: ``R_p*``; ``R_sym_median``: ``R_sym_p*``); others the per-sample column's mean."""
+    draws = next(iter(weights.values()))[1].shape[0]
+    boot = np.zeros(draws)
+    cat_vals, per_seed = [], {}
+    for c in cats:
+        inst, counts = weights[c]
+        seeds_b, seeds_v = [], []
+        for r in (r for r in results if r.method == method and r.category == c):
+            ps = r.per_sample
+            if metric.endswith("_median"):
+                prefix = metric[: -len("_median")] + "_p"
+                cols = [k for k in ps.columns if k.startswith(prefix) and k[len(prefix):].isdigit()]
+                vals = ps[cols].to_numpy(np.float64).ravel()
+                rows = np.repeat(ps["instance_id"].to_numpy(), len(cols))
+            else:
+                vals, rows = ps[metric].to_numpy(np.float64), ps["instance_id"].to_numpy()
+            w = counts[:, np.searchsorted(inst, rows)].astype(np.float64)
+            seeds_b.append(_weighted_stat(vals, w, metric.endswith("_median")))
+            seeds_v.append(float(r.summary.get(metric, math.nan)))
+        boot += np.nanmean(np.stack(seeds_b), 0) / len(cats)
+        cat_vals.append(float(np.nanmean(seeds_v)))
+        per_seed[c] = [v for v in seeds_v if math.isfinite(v)]
+    return boot, float(np.mean(cat_vals)), per_seed
+
+
+#: The metrics of the pairwise bootstrap (:func:`pairwise_bootstrap`): metric -> (name, higher is better).
+PAIRWISE_METRICS = {"S": ("mean S", True), "D": ("mean D", False), "C": ("mean C", False),
+                    "R_median": ("median R", False), "R_sym_median": ("median R sym", False)}
+
+
+def pairwise_bootstrap(results: Sequence[EvalResult], draws: int = 1000, seed: int = 0, level: float = 0.95) -> dict:
+    """Which differences between methods the test instances support: for every pair of methods and every metric of
+    :data:`PAIRWISE_METRICS`, a paired bootstrap over test instances (``draws`` resamples of each category's
+    instances, shared by both methods; training seeds pooled as in the table) of the difference of their table
+    values on the categories both have (Efron and Tibshirani, "An Introduction to the Bootstrap", 1993, ch. 13:
+    percentile intervals).
+
+    Returns ``{"draws", "level", "metrics": {metric: [{"a", "b", "categories", "a_value", "b_value", "diff" (a - b),
+    "interval" [lo, hi] of the difference, "p_a_better" (share of resamples in which a is better), "supported"
+    (the interval excludes 0), "better" (the better method when supported, else None)}]}}``; pairs without a
+    shared category, or a metric a method lacks, are left out. Deterministic.
+    """
+    methods = list(dict.fromkeys(r.method for r in results))
+    cats_of = {m: {r.category for r in results if r.method == m} for m in methods}
+    all_cats = sorted({r.category for r in results},
+                      key=lambda c: CATEGORY_ORDER.index(c) if c in CATEGORY_ORDER else 99)
+    weights = _instance_weights(results, all_cats, draws, seed) if results else {}
+    lo_q, hi_q = 100 * (1 - level) / 2, 100 * (1 + level) / 2
+    out = {"draws": draws, "level": level, "metrics": {}}
+    for metric, (_, higher) in PAIRWISE_METRICS.items():
+        if not all(metric in r.summary or metric in r.per_sample or any(
+                k.startswith(metric[: -len("_median")] + "_p") for k in r.per_sample.columns) for r in results):
+            continue
+        pairs = []
+        for i, a in enumerate(methods):
+            for b in methods[i + 1:]:
+                cats = [c for c in all_cats if c in cats_of[a] and c in cats_of[b]]
+                if not cats:
+                    continue
+                ba, va, _ = _method_bootstrap(results, a, cats, metric, weights)
+                bb, vb, _ = _method_bootstrap(results, b, cats, metric, weights)
+                d = ba - bb
+                if not np.isfinite(d).any():
+                    continue
+                lo, hi = (float(x) for x in np.nanpercentile(d, [lo_q, hi_q]))
+                supported = lo > 0 or hi < 0
+                a_better = np.mean(d > 0) if higher else np.mean(d < 0)
+                better = None if not supported else (a if (lo > 0) == higher else b)
+                pairs.append({"a": a, "b": b, "categories": cats, "a_value": va, "b_value": vb, "diff": va - vb,
+                              "interval": [lo, hi], "p_a_better": float(a_better), "supported": bool(supported),
+                              "better": better})
+        out["metrics"][metric] = pairs
+    return out
+
+
+def pairwise_markdown(boot: dict, display: Callable[[str], str] = str) -> list[str]:
+    """The "Differences the test instances support" lines under a table (:func:`pairwise_bootstrap`)."""
+    if not boot.get("metrics") or not any(boot["metrics"].values()):
+        return []
+    lines = ["## Differences the test instances support", ""]
+    for metric, pairs in boot["metrics"].items():
+        if not pairs:
+            continue
+        name = PAIRWISE_METRICS[metric][0]
+        yes = [f"{display(p['better'])} better than {display(p['b'] if p['better'] == p['a'] else p['a'])} "
+               f"({p['diff']:+.3g} [{p['interval'][0]:+.3g}, {p['interval'][1]:+.3g}])"
+               for p in pairs if p["supported"]]
+        no = [f"{display(p['a'])} vs {display(p['b'])}" for p in pairs if not p["supported"]]
+        lines.append(f"- {name}: " + ("; ".join(yes) if yes else "no supported difference")
+                     + (f". Not supported: {', '.join(no)}" if no else "") + ".")
+    lines += ["", f"A difference is supported when the {100 * boot['level']:.0f} % interval of the difference of the "
+              f"two methods' table values (first minus second, over {boot['draws']} paired resamples of the test "
+              "instances of the categories both have, training seeds pooled) excludes 0.", ""]
+    return lines
+
+
 def self_supervised_ordering(results: Sequence[EvalResult], describe: Describe | None = None, draws: int = 1000,
                              seed: int = 0) -> dict:
     """Is one self-supervised method best on mean S, D, C and median R, averaged over the categories?
@@ -251,34 +363,12 @@ def self_supervised_ordering(results: Sequence[EvalResult], describe: Describe |
     out = {"methods": methods, "categories": cats, "draws": draws, "metrics": {}}
     if len(methods) < 2 or not cats:
         return {**out, "methods": []}
-    rng = np.random.default_rng(seed)
-    weights = {}
-    for c in cats:
-        inst = np.unique(np.concatenate([r.per_sample["instance_id"].to_numpy() for r in results if r.category == c]))
-        weights[c] = (inst, rng.multinomial(len(inst), np.full(len(inst), 1.0 / len(inst)), size=draws))
+    weights = _instance_weights(results, cats, draws, seed)
     for metric, (_, higher) in ORDERING_METRICS.items():
-        boot = {m: np.zeros(draws) for m in methods}
-        value, per_seed = {}, {}
+        boot, value, per_seed = {}, {}, {}
         for m in methods:
-            cat_vals = []
-            for c in cats:
-                inst, counts = weights[c]
-                seeds_b, seeds_v = [], []
-                for r in (r for r in results if r.method == m and r.category == c):
-                    ps = r.per_sample
-                    if metric == "R_median":
-                        cols = [k for k in ps.columns if k.startswith("R_p")]
-                        vals = ps[cols].to_numpy(np.float64).ravel()
-                        rows = np.repeat(ps["instance_id"].to_numpy(), len(cols))
-                    else:
-                        vals, rows = ps[metric].to_numpy(np.float64), ps["instance_id"].to_numpy()
-                    w = counts[:, np.searchsorted(inst, rows)].astype(np.float64)
-                    seeds_b.append(_weighted_stat(vals, w, metric == "R_median"))
-                    seeds_v.append(float(r.summary.get(metric, math.nan)))
-                boot[m] += np.nanmean(np.stack(seeds_b), 0) / len(cats)
-                cat_vals.append(float(np.nanmean(seeds_v)))
-                per_seed[(m, c)] = [v for v in seeds_v if math.isfinite(v)]
-            value[m] = float(np.mean(cat_vals))
+            boot[m], value[m], seeds = _method_bootstrap(results, m, cats, metric, weights)
+            per_seed.update({(m, c): v for c, v in seeds.items()})
         finite = [m for m in methods if math.isfinite(value[m])]
         if not finite:
             continue
@@ -359,6 +449,7 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
     prov = "; ".join(f"{k}: {v}" for k, v in provenance.items() if k != "cells")
     partial = _partial_note(provenance)
     order = self_supervised_ordering(results, describe)
+    pairs = pairwise_bootstrap(results)
 
     def display(label: str) -> str:
         known = describe(label) if describe is not None else None
@@ -367,7 +458,8 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
     md = [f"# Table 1 (synthetic): {', '.join(cats[:-1])}", "", *partial,
           markdown_table(header, md_rows, ["l", "l", "c", "c", "c", *["r"] * len(cats)]), "", legend, "",
           "## Medians and rates", "", markdown_table(rob_header, rob_rows, ["l", "l", *["r"] * len(ROBUST_METRICS)]),
-          "", rob_legend, "", *ordering_markdown(order, display), f"Provenance: {prov}", "",
+          "", rob_legend, "", *ordering_markdown(order, display), *pairwise_markdown(pairs, display),
+          f"Provenance: {prov}", "",
           *cells_markdown(provenance.get("cells"))]
     if markdown_only:
         return "\n".join(md[:md.index(f"Provenance: {prov}")])
@@ -393,7 +485,7 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
             *[" & ".join(latex_escape(c).replace("±", r"$\pm$") for c in r) + r" \\" for r in rob_rows],
             r"\bottomrule", r"\end{tabular}", ""]
     atomic_write_text(paths["tex"], "\n".join(tex))
-    payload = {"provenance": provenance, "self_supervised_ordering": order,
+    payload = {"provenance": provenance, "self_supervised_ordering": order, "pairwise_bootstrap": pairs,
                "results": [{"method": r.method, "category": r.category, "split": r.split,
                             "seed": r.info.get("seed"), "summary": r.summary, "info": r.info} for r in results]}
     atomic_write_text(paths["json"], json.dumps(payload, indent=1, default=str) + "\n")
@@ -488,8 +580,9 @@ def _write_table_files(out_dir, name: str, title: str, long: pd.DataFrame, heade
     prov = "; ".join(f"{k}: {v}" for k, v in provenance.items() if k != "cells")
     paths = {k: Path(out_dir) / f"{name}.{k}" for k in ("csv", "md", "tex", "json")}
     atomic_write_text(paths["csv"], long.to_csv(index=False))
+    pairs = pairwise_bootstrap(results)
     md = [f"# {title}", "", *_partial_note(provenance), markdown_table(header, rows, align), "", legend, "",
-          f"Provenance: {prov}", "", *cells_markdown(provenance.get("cells"))]
+          *pairwise_markdown(pairs), f"Provenance: {prov}", "", *cells_markdown(provenance.get("cells"))]
     atomic_write_text(paths["md"], "\n".join(md))
     cols = "".join("r" if a == "r" else ("c" if a == "c" else "l") for a in align)
     tex = ["% generated by scapo; " + latex_escape(prov), r"\begin{tabular}{" + cols + "}",
@@ -497,7 +590,7 @@ def _write_table_files(out_dir, name: str, title: str, long: pd.DataFrame, heade
            *[" & ".join(latex_escape(c).replace("±", r"$\pm$") for c in r) + r" \\" for r in rows],
            r"\bottomrule", r"\end{tabular}", ""]
     atomic_write_text(paths["tex"], "\n".join(tex))
-    payload = {"provenance": provenance,
+    payload = {"provenance": provenance, "pairwise_bootstrap": pairs,
                "results": [{"method": r.method, "category": r.category, "split": r.split, "seed": r.info.get("seed"),
                             "summary": r.summary, **({"info": r.info} if with_info else {})} for r in results]}
     atomic_write_text(paths["json"], json.dumps(payload, indent=1, default=str) + "\n")
