@@ -10,7 +10,8 @@ import pytest
 from scapo.bench import Cell, parse_category_seeds, run_table1, run_table3, table1_cells, table3_cells
 from scapo.errors import ConfigError, UnknownNameError
 
-SMALL = dict(instances=10, views=2, preset="test", progress=False, allow_dirty=True)  # tests run from any checkout
+# tests run from any checkout; the "+refine" rows have their own test
+SMALL = dict(instances=10, views=2, preset="test", progress=False, allow_dirty=True, refine_rows=False)
 
 
 @pytest.fixture(scope="module")
@@ -148,9 +149,11 @@ def test_table3_reuses_table1s_scapo_cell_and_names_the_ablations(bench, monkeyp
 
 
 def test_cells_and_their_errors():
-    cells = table1_cells(["icp", "scapo"], ["laptop", "safe"], "cpu", [0, 1, 2], {"safe": [0]})
+    cells = table1_cells(["icp", "scapo"], ["laptop", "safe"], "cpu", [0, 1, 2], {"safe": [0]}, refine_rows=False)
     assert [c.key for c in cells] == ["icp", "scapo_cpu_s0", "scapo_cpu_s1", "scapo_cpu_s2", "icp", "scapo_cpu_s0"]
     assert [c.category for c in cells] == ["laptop"] * 4 + ["safe"] * 2
+    with_refine = table1_cells(["icp", "scapo"], ["safe"], "cpu", [0])
+    assert [c.key for c in with_refine] == ["icp", "scapo_cpu_s0", "scapo+refine_cpu_s0"]
     t3 = table3_cells(["laptop"], "cpu", [0])
     assert [c.label for c in t3] == ["scapo", "scapo-no-shape_var", "scapo-no-dir_align", "scapo-no-joint_prox",
                                      "scapo-no-joint_boundary"]
@@ -398,3 +401,39 @@ def test_the_bench_refuses_a_dirty_checkout_and_a_table_of_mixed_commits_unless_
     with pytest.raises(ConfigError, match="uncommitted code"):
         check_commits([Cell("npcs", "laptop", seed=0, preset="test")], recs)
     assert check_commits([Cell("npcs", "laptop", seed=0, preset="test")], recs, allow_dirty=True)
+
+
+def test_table1_rows_are_one_pass_and_the_refined_prediction_is_a_row_of_its_own(bench, tmp_path):
+    """Equal treatment (issue 29): SCAPO's Table 1 row predicts without its test-time refinement, as every other
+    method does; "SCAPO (ours) + refine" is a separate row predicted from the same trained run (trained once);
+    Table 3's rows are one-pass too."""
+    import shutil
+
+    from scapo.bench.cells import cell_paths
+    from scapo.eval import Predictions
+
+    cells = table1_cells(["icp", "scapo"], ["laptop"], "test", [0])
+    by = {c.label: c for c in cells}
+    assert set(by) == {"icp", "scapo", "scapo+refine"}
+    assert by["scapo"].options == (("refine_steps", 0),) and by["scapo+refine"].options == ()
+    assert by["scapo+refine"].run_key == by["scapo"].key
+    assert all(c.options == (("refine_steps", 0),) for c in table3_cells(["laptop"], "test", [0]))
+    work, _, _, _ = bench
+    copy = tmp_path / "work"
+    shutil.copytree(work, copy)
+    res = run_table1(["scapo"], ["laptop"], work_dir=copy, out_dir=tmp_path / "t", seeds=[0],
+                     **{**SMALL, "refine_rows": True})
+    assert sorted(r.method for r in res) == ["scapo", "scapo+refine"]
+    data = copy / "laptop_i10_v2_s0"
+    one, refined = (Predictions.load(cell_paths(data, by[k], "scapo").predictions) for k in ("scapo", "scapo+refine"))
+    # one run (the one-pass row's predictions were made in the fixture's folder, this copy's origin)
+    assert Path(one.info["run"]).name == Path(refined.info["run"]).name == "run_scapo_test_s0"
+    assert not list(data.glob("run_scapo+refine*"))
+    from scapo.methods.scapo import inference_settings
+    from scapo.models.presets import get_preset
+
+    run = data / "run_scapo_test_s0"
+    assert one.info["inference"] == inference_settings(run, {"refine_steps": 0}) and one.info["inference"]["steps"] == 0
+    assert refined.info["inference"] == inference_settings(run)  # the preset's own (the test preset refines 0 steps;
+    assert get_preset("cpu").refine.steps > 0                     # the cpu preset's +refine row refines)
+    assert "SCAPO (ours) + refine" in (tmp_path / "t" / "table1_synthetic.md").read_text()

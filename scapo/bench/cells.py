@@ -59,7 +59,10 @@ class Cell:
             ``<preset>-<category>`` when the method registers one, or a SCAPO ablation
             ``cpu/no-shape_var``); None for a fitted method.
         label: the predictions' method label (the table row): the method name, or e.g.
-            ``scapo-no-shape_var`` for an ablation.
+            ``scapo-no-shape_var`` for an ablation, ``scapo+refine`` for the refined prediction of a run.
+        options: prediction options as sorted ``(name, value)`` pairs (e.g. the method's ``one_pass`` options).
+        run_label: the label whose trained run the cell predicts from (default its own): the ``+refine`` row shares
+            the run of its method's one-pass row.
     """
 
     method: str
@@ -67,10 +70,15 @@ class Cell:
     seed: int | None = None
     preset: str | None = None
     label: str = ""
+    options: tuple[tuple[str, object], ...] = ()
+    run_label: str = ""
 
     def __post_init__(self):
         if not self.label:
             object.__setattr__(self, "label", self.method)
+        if not self.run_label:
+            object.__setattr__(self, "run_label", self.label)
+        object.__setattr__(self, "options", tuple(sorted((str(k), v) for k, v in self.options)))
         if (self.seed is None) != (self.preset is None):
             raise ConfigError(f"cell {self.method}/{self.category}: a trained cell needs both a seed and a preset")
 
@@ -84,6 +92,12 @@ class Cell:
         if not self.trained:
             return self.label
         return f"{self.label}_{self.preset.replace('/', '+')}_s{self.seed}"
+
+    @property
+    def run_key(self) -> str:
+        """File-name key of the trained run the cell predicts from (its own key unless ``run_label`` differs)."""
+        return self.key if self.run_label == self.label else f"{self.run_label}_{self.preset.replace('/', '+')}" \
+            f"_s{self.seed}"
 
 
 def method_preset(method: str, preset: str, category: str) -> str:
@@ -145,7 +159,7 @@ class CellPaths:
 
 def cell_paths(data: Path, cell: Cell, protocol: str) -> CellPaths:
     data = Path(data)
-    return CellPaths(run=data / f"run_{cell.key}", predictions=data / f"predictions_{cell.key}.npz",
+    return CellPaths(run=data / f"run_{cell.run_key}", predictions=data / f"predictions_{cell.key}.npz",
                      record=data / "cells" / f"{cell.key}.{protocol}.json",
                      per_sample=data / "cells" / f"{cell.key}.{protocol}.parquet")
 
@@ -166,7 +180,8 @@ def _read_record(paths: CellPaths, dataset_hash: str) -> dict | None:
         return None
     entry = METHODS.get(cell.get("method", "")) if cell.get("method") in METHODS else None
     if entry is not None and entry.inference is not None and cell.get("seed") is not None:
-        if rec.get("info", {}).get("inference") != json.loads(json.dumps(entry.inference(paths.run))):
+        options = {str(k): v for k, v in cell.get("options", [])}
+        if rec.get("info", {}).get("inference") != json.loads(json.dumps(entry.inference(paths.run, options))):
             return None
     return rec
 
@@ -198,7 +213,8 @@ def _set_aside(paths: CellPaths, cell: Cell, why: str) -> Path:
     """Move the cell's run, predictions and records into ``<dataset>/<why>/<key>-<UTC time>/``."""
     dest = paths.run.parent / why / f"{cell.key}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}"
     dest.mkdir(parents=True, exist_ok=False)
-    for p in (paths.run, paths.predictions, paths.record, paths.per_sample):
+    own_run = cell.run_label == cell.label  # a run shared with another row stays for that row (set aside by it)
+    for p in ((paths.run,) if own_run else ()) + (paths.predictions, paths.record, paths.per_sample):
         if p.exists():
             p.rename(dest / p.name)
     return dest
@@ -262,7 +278,7 @@ def _predictions_fit(path: Path, dataset_hash: str, cell: Cell, run: Path) -> bo
     if not cell.trained:
         return True
     inference = METHODS.get(cell.method).inference
-    if inference is not None and p.info.get("inference") != inference(run):
+    if inference is not None and p.info.get("inference") != inference(run, dict(cell.options)):
         return False  # made under other inference settings (e.g. a preset's refinement changed since)
     return Path(p.info.get("run", "")).resolve() == run.resolve()
 
@@ -339,7 +355,7 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
             wall["predict_s"] = float(preds.info.get("predict_seconds_total", preds.info.get("fit_seconds", 0.0)
                                                  + preds.info.get("predict_seconds_test", 0.0)))
     else:
-        opts = {"run": paths.run, "label": cell.label} if cell.trained else {}
+        opts = {"run": paths.run, "label": cell.label, **dict(cell.options)} if cell.trained else dict(cell.options)
         if device is not None and cell.trained:
             opts["device"] = device
         preds = run_method(cell.method, data, paths.predictions, progress=progress, **opts)

@@ -79,9 +79,12 @@ def parse_category_seeds(specs: Sequence[str]) -> dict[str, list[int]]:
 
 
 def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str, seeds: Sequence[int],
-                 category_seeds: dict[str, list[int]] | None = None) -> list[Cell]:
+                 category_seeds: dict[str, list[int]] | None = None, refine_rows: bool = True) -> list[Cell]:
     """Every cell of Table 1: per category, per method, per training seed of a trained method
-    (``category_seeds[cat]`` overrides ``seeds`` for that category).
+    (``category_seeds[cat]`` overrides ``seeds`` for that category). Every row is a one-pass prediction: a method
+    with a test-time refinement (its entry's ``one_pass`` options) predicts without it, and with ``refine_rows`` its
+    refined prediction of the same run is a row of its own, labelled ``<method>+refine`` (issue 29: equal
+    treatment).
 
     Raises:
         UnknownNameError: unknown method. ConfigError: a preset a trained method does not have, a
@@ -103,7 +106,10 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
                 cells.append(Cell(m, cat))
                 continue
             p = method_preset(m, preset, cat)
-            cells += [Cell(m, cat, s, p) for s in cat_seeds]
+            one = tuple(entry.one_pass.items())
+            cells += [Cell(m, cat, s, p, options=one) for s in cat_seeds]
+            if one and refine_rows:
+                cells += [Cell(m, cat, s, p, label=f"{m}+refine", run_label=m) for s in cat_seeds]
     return cells
 
 
@@ -118,11 +124,12 @@ def table3_cells(categories: Sequence[str], preset: str, seeds: Sequence[int],
     cells = []
     for cat in categories:
         full = method_preset(method, preset, cat)
+        one = tuple(entry.one_pass.items())  # every row one-pass, as Table 1's (its "Full" rows are those cells)
         for s in category_seeds.get(cat, seeds):
-            cells.append(Cell(method, cat, int(s), full))
+            cells.append(Cell(method, cat, int(s), full, options=one))
             for term in (ablations or entry.ablations):
                 entry.preset(f"{full}/no-{term}")  # an unknown term is refused before any work
-                cells.append(Cell(method, cat, int(s), f"{full}/no-{term}", label=f"{method}-no-{term}"))
+                cells.append(Cell(method, cat, int(s), f"{full}/no-{term}", label=f"{method}-no-{term}", options=one))
     return cells
 
 
@@ -433,7 +440,7 @@ class TableSpec:
             return table3_cells(categories, opts.preset, seeds, per, opts.ablations, method=self.ablation_of)
         if self.sj_methods:
             return table2_cells(methods, categories, opts.preset, seeds, per, opts.sj, self.sj_methods)
-        return table1_cells(methods, categories, opts.preset, seeds, per)
+        return table1_cells(methods, categories, opts.preset, seeds, per, opts.refine_rows)
 
 
 @dataclass(frozen=True)
@@ -465,6 +472,8 @@ class BenchOptions:
     recompute_dirty: bool = False
     sj: bool = True
     ablations: Sequence[str] | None = None
+    refine_rows: bool = True
+    """Table 1: a ``<method>+refine`` row beside the one-pass row of every method with a test-time refinement."""
     allow_dirty: bool = False
     """Compute or score cells from a checkout with uncommitted changes, and write tables holding such cells (their
     records say ``<sha>-dirty``: the code behind them cannot be recovered); refused otherwise."""

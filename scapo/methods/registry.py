@@ -68,8 +68,9 @@ class MethodEntry:
         presets: preset names of a trained method (``scapo train --method NAME --preset P``).
         variants: other labels its predictions may carry (e.g. a second row of one run) -> display name.
         inference: for trained methods whose predictions depend on settings that are not part of the
-            run (SCAPO's test-time refinement), ``inference(run) -> dict`` of the settings a prediction
-            from ``run`` would use now; its predictions record them as ``info["inference"]``, so that
+            run (SCAPO's test-time refinement), ``inference(run, options) -> dict`` of the settings a prediction
+            from ``run`` with the prediction ``options`` (a dict) would use now; its predictions record them as
+            ``info["inference"]``, so that
             predictions made under other settings are recognised as stale (``scapo.bench``).
         run_is_current: for trained methods, ``run_is_current(run, data, preset, seed) -> bool``: the run
             folder holds the run ``train(data, run, preset, seed=seed)`` would start now (False when
@@ -79,6 +80,10 @@ class MethodEntry:
         ablations: the parts a preset can switch off as ``BASE/no-TERM`` (the paper's Table 3 for SCAPO).
         speed: ``speed(preset, device, iters, num_points, data) -> list of rows`` timing the method's inference
             (``scapo bench perf --what model --method NAME``); None for a method with nothing to time.
+        one_pass: prediction options that turn the method's test-time refinement off (its one-pass prediction;
+            SCAPO: ``refine_steps=0``). The bench's main rows of Tables 1 and 3 use them, so that no row gets a
+            test-time search the others lack; Table 1 reports the refined prediction of the same run as its own
+            row, labelled ``<method>+refine``. Empty: the method has no test-time refinement.
         quick_options: prediction options for a quick run of a fitted method (tests, smoke runs); a trained
             method's quick run is its ``test`` preset.
     """
@@ -93,12 +98,13 @@ class MethodEntry:
     train: Callable[..., Path] | None = None
     presets: tuple[str, ...] = ()
     variants: Mapping[str, str] = field(default_factory=dict)
-    inference: Callable[[Path], dict] | None = None
+    inference: Callable[[Path, dict], dict] | None = None
     run_is_current: Callable[..., bool] | None = None
     preset: Callable[[str], Any] | None = None
     ablations: tuple[str, ...] = ()
     speed: Callable[..., list] | None = None
     quick_options: Mapping[str, Any] = field(default_factory=dict)
+    one_pass: Mapping[str, Any] = field(default_factory=dict)
 
     @property
     def trained(self) -> bool:
@@ -117,10 +123,10 @@ METHODS: Registry[MethodEntry] = Registry("method")
 def register_method(name: str, *, options: type, display: str, supervision: Mapping[str, bool],
                     needs_alignment: bool, summary: str = "", train: Callable[..., Path] | None = None,
                     presets: tuple[str, ...] = (), variants: Mapping[str, str] | None = None,
-                    inference: Callable[[Path], dict] | None = None,
+                    inference: Callable[[Path, dict], dict] | None = None,
                     run_is_current: Callable[..., bool] | None = None, preset: Callable[[str], Any] | None = None,
                     ablations: tuple[str, ...] = (), speed: Callable[..., list] | None = None,
-                    quick_options: Mapping[str, Any] | None = None):
+                    quick_options: Mapping[str, Any] | None = None, one_pass: Mapping[str, Any] | None = None):
     """Decorator registering a method factory under ``name`` (see :class:`MethodEntry`).
 
     Raises:
@@ -135,7 +141,8 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
     def deco(factory):
         METHODS.add(name, MethodEntry(name, factory, options, display, dict(supervision), needs_alignment, summary,
                                       train, tuple(presets), dict(variants or {}), inference, run_is_current,
-                                      preset, tuple(ablations), speed, dict(quick_options or {})))
+                                      preset, tuple(ablations), speed, dict(quick_options or {}),
+                                      dict(one_pass or {})))
         factory.options = options
         return factory
 

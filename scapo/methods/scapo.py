@@ -138,18 +138,24 @@ class SCAPOMethod:
         )
 
 
-def inference_settings(run) -> dict:
-    """The test-time refinement settings a prediction from ``run`` uses now
-    (:func:`~scapo.models.predict.stored_refine`), as predictions record them in ``info["inference"]``;
-    empty for a folder without a readable ``run.json``."""
+def inference_settings(run, options: dict | None = None) -> dict:
+    """The test-time refinement settings a prediction from ``run`` with the prediction ``options``
+    (:class:`SCAPOOptions` fields: ``refine_steps``, ``refine_margin``, ``refine_upright_deg``) uses now
+    (:func:`~scapo.models.predict.stored_refine`, with the options applied as :meth:`SCAPOMethod.load` applies them),
+    as predictions record them in ``info["inference"]``; empty for a folder without a readable ``run.json``."""
     import json
 
     from scapo.models.predict import stored_refine
 
     try:
-        return dataclasses.asdict(stored_refine(json.loads((Path(run) / "run.json").read_text())["preset"]))
+        rc = stored_refine(json.loads((Path(run) / "run.json").read_text())["preset"])
     except (OSError, ValueError, KeyError, TypeError):
         return {}
+    o = options or {}
+    for key, name in (("refine_steps", "steps"), ("refine_margin", "margin"), ("refine_upright_deg", "upright_deg")):
+        if o.get(key) is not None:
+            rc = dataclasses.replace(rc, **{name: type(getattr(rc, name))(o[key])})
+    return dataclasses.asdict(rc)
 
 
 def _run_is_current(run, data, preset, seed=None) -> bool:
@@ -173,8 +179,9 @@ def _speed(preset: str = "cpu", device: str | None = None, iters: int = 5, num_p
 @register_method("scapo", options=SCAPOOptions, display="SCAPO (ours)", supervision=SCAPOMethod.supervision,
                  needs_alignment=True, summary="self-supervised SE(3)-equivariant skinning (the paper's method)",
                  train=_train, presets=tuple(PRESETS.names()),
-                 variants={"scapo-no-refine": "SCAPO (ours, no refinement)"}, inference=inference_settings,
-                 run_is_current=_run_is_current, preset=get_preset, ablations=ABLATIONS, speed=_speed)
+                 variants={"scapo-no-refine": "SCAPO (ours, no refinement)", "scapo+refine": "SCAPO (ours) + refine"},
+                 inference=inference_settings, run_is_current=_run_is_current, preset=get_preset,
+                 ablations=ABLATIONS, speed=_speed, one_pass={"refine_steps": 0})
 def make_scapo(**options) -> SCAPOMethod:
     """SCAPO (ours) from a trained run; options are :class:`SCAPOOptions` fields."""
     return SCAPOMethod(**options)
