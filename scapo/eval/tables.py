@@ -445,7 +445,9 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
     rob_rows = _robust_rows(long)
     rob_legend = ("Robust statistics (ours): medians over all parts / joints of all test samples, % of part "
                   "rotations under 5 and 10 deg and over 90 deg (flips), revolute joint-state error. A mean "
-                  "far above its median means a few large errors (usually flipped parts).")
+                  "far above its median means a few large errors (usually flipped parts). R sym: the part rotation "
+                  "error against the declared symmetric ground truth that fits each sample best (the dataset card's "
+                  "symmetry; equal to R where none is declared), mean, median and share over 90 deg.")
     prov = "; ".join(f"{k}: {v}" for k, v in provenance.items() if k != "cells")
     partial = _partial_note(provenance)
     order = self_supervised_ordering(results, describe)
