@@ -275,6 +275,9 @@ def test_table2_real_style_with_semi_supervised_rows(tmp_path, monkeypatch):
     assert "| Laptop | OP-Align-style (SJ) |  | x | x |" in md and "| Laptop | OP-Align(SJ) (paper) |" in md
     assert "Protocol: op-align" in md and "(background points, label -1, left out" in md
     assert "(every joint, prismatic ones included)" in md and "Basket (symmetric" not in md  # no basket here
+    # strict and symmetry-aware rotation errors side by side (the AP layout has no rotation column)
+    assert "## Medians and rates" in md and "| R (deg) | R med (deg) |" in md and "R sym (deg)" in md
+    assert "## Differences the test instances support" in md
     for r in results:
         assert {"seg_75", "ap_joint_5", "ap_part_15", "min_ap_part_5"} <= set(r.summary)
     before = {s: (out / f"table2_real_style.{s}").read_text() for s in ("csv", "md", "tex")}
