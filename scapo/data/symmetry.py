@@ -75,6 +75,15 @@ class Tolerance:
     mesh_share: float = 0.02
     """... and a map is a self-map when at most this share of either surface does not coincide"""
 
+    def __post_init__(self):
+        bad = [k for k, ok in {"ratio": self.ratio >= 1.0, "slack": self.slack >= 0.0,
+                                "min_angle_deg": 0.0 < self.min_angle_deg < 180.0,
+                                "mesh_distance": self.mesh_distance > 0.0,
+                                "mesh_share": 0.0 <= self.mesh_share < 1.0}.items() if not ok]
+        if bad:
+            raise ConfigError(f"invalid symmetry tolerance {', '.join(f'{k}={getattr(self, k)!r}' for k in bad)}: need "
+                              "ratio >= 1, slack >= 0, 0 < min_angle_deg < 180, mesh_distance > 0, 0 <= mesh_share < 1")
+
     def same(self, distance: float, reference: float) -> bool:
         return bool(distance <= self.ratio * reference + self.slack)
 
@@ -227,6 +236,7 @@ def object_self_maps(surface: Surface, state: np.ndarray, rng: np.random.Generat
     c = 0.5 * (X.min(0) + X.max(0))
     found: list[SelfMap] = []
     src = A[rng.choice(len(A), min(len(A), icp_points), replace=False)]
+    declared_R = [declared_rotation(s, part_motions(surface.spec, state)) for s in declared]
     for R in rotation_group("O")[1:]:
         T = icp(src, tree_b, B, _about(R, c), iters)
         ang = _angle_deg(T)
@@ -245,9 +255,8 @@ def object_self_maps(surface: Surface, state: np.ndarray, rng: np.random.Generat
         parts = tuple(int(np.bincount(land[la == p], minlength=1).argmax()) if np.any(la == p) else p
                       for p in range(surface.spec.num_parts))
         name = ""
-        motion = part_motions(surface.spec, state)
-        for k, s in enumerate(declared):
-            if _angle_deg(T[:3, :3] @ declared_rotation(s, motion).T) < tol.min_angle_deg:
+        for k, D in enumerate(declared_R):
+            if _angle_deg(T[:3, :3] @ D.T) < tol.min_angle_deg:
                 name = f"declared {k}"
         found.append(SelfMap(T, ang, dist, reference, parts, name))
     return sorted(found, key=lambda f: f.distance)
@@ -605,7 +614,6 @@ def measure_meshes(category: str, instances: int = 4, states: int = 3, seed: int
             rep.self_maps.append({"instance": i, "state": q.tolist(), "maps": [
                 {"angle_deg": m.angle_deg, "distance": m.distance, "reference": m.reference, "parts": list(m.parts),
                  "rotation": m.T[:3, :3].tolist()} for m in maps]})
-            errs = []
 
         errs = []
         for s in decl:

@@ -285,8 +285,7 @@ def pairwise_bootstrap(results: Sequence[EvalResult], draws: int = 1000, seed: i
     lo_q, hi_q = 100 * (1 - level) / 2, 100 * (1 + level) / 2
     out = {"draws": draws, "level": level, "metrics": {}}
     for metric, (_, higher) in PAIRWISE_METRICS.items():
-        if not all(metric in r.summary or metric in r.per_sample or any(
-                k.startswith(metric[: -len("_median")] + "_p") for k in r.per_sample.columns) for r in results):
+        if not all(metric in r.summary for r in results):  # e.g. results scored before R_sym existed
             continue
         pairs = []
         for i, a in enumerate(methods):
@@ -452,10 +451,7 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
     partial = _partial_note(provenance)
     order = self_supervised_ordering(results, describe)
     pairs = pairwise_bootstrap(results)
-
-    def display(label: str) -> str:
-        known = describe(label) if describe is not None else None
-        return known[0] if known else label
+    display = _display(describe)
 
     md = [f"# Table 1 (synthetic): {', '.join(cats[:-1])}", "", *partial,
           markdown_table(header, md_rows, ["l", "l", "c", "c", "c", *["r"] * len(cats)]), "", legend, "",
