@@ -83,6 +83,33 @@ def test_every_method_trains_predicts_and_is_scored(name, laptop_data, trained_r
         assert method_of_run(trained_runs[name]) == name
 
 
+@pytest.mark.parametrize("name", [n for n in ALL if METHODS.get(n).refinable])
+def test_every_refinable_method_predicts_with_the_test_time_refinement(name, laptop_data, trained_runs, tmp_path):
+    preds = run_method(name, laptop_data, tmp_path / "p.npz", run=trained_runs[name], refine=True)
+    assert preds.method == f"{name}+refine" and preds.info["refine"]["steps"] > 0
+    assert preds.info["refine"]["upright_deg"] == 0  # no gravity cue
+    assert 0 <= preds.info["refine_start_rate"] <= 1
+    res = evaluate(laptop_data, tmp_path / "p.npz")
+    for k in ("S", "R", "D", "C", "R_sym"):
+        assert math.isfinite(res.summary[k]), (name, k)
+
+
+def test_eap_template_posed_by_its_part_poses_is_its_own_reconstruction():
+    from scapo.methods import eap
+    from scapo.methods.learned import normalize_clouds
+
+    torch.manual_seed(0)
+    net = eap.EAPNet(2, [0], [(0, 1)], eap.PRESETS.get("test")).eval()
+    pts = torch.rand(3, 64, 3) * torch.tensor([0.4, 0.3, 0.2]) + torch.tensor([0.1, -0.2, 1.5])
+    o = net.infer(pts)
+    X, c, sc = normalize_clouds(pts)
+    with torch.no_grad():
+        want = (sc[:, None, None, None] * net.posed(net(X)) + c[:, None, None]).reshape(3, -1, 3).double().numpy()
+    T = o["part_pose"][np.arange(3)[:, None], o["template_label"]]  # (B, M, 4, 4)
+    got = np.einsum("bmij,bmj->bmi", T[..., :3, :3], o["template"]) + T[..., :3, 3]
+    np.testing.assert_allclose(got, want, atol=1e-5)
+
+
 @pytest.mark.parametrize("name", LEARNED)
 def test_learned_runs_resume_refuse_other_configs_and_other_methods(name, laptop_data, trained_runs, tmp_path):
     run = trained_runs[name]

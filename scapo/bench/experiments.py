@@ -82,9 +82,10 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
                  category_seeds: dict[str, list[int]] | None = None, refine_rows: bool = True) -> list[Cell]:
     """Every cell of Table 1: per category, per method, per training seed of a trained method
     (``category_seeds[cat]`` overrides ``seeds`` for that category). Every row is a one-pass prediction: a method
-    with a test-time refinement (its entry's ``one_pass`` options) predicts without it, and with ``refine_rows`` its
-    refined prediction of the same run is a row of its own, labelled ``<method>+refine`` (issue 29: equal
-    treatment).
+    with a test-time refinement of its own (its entry's ``one_pass`` options) predicts without it, and with
+    ``refine_rows`` every method with a whole-object model (``MethodEntry.refinable``) gets the method-independent
+    refinement (:mod:`scapo.methods.refine`) of the same run's one-pass prediction as a row of its own, labelled
+    ``<method>+refine`` (issue 29: equal treatment).
 
     Raises:
         UnknownNameError: unknown method. ConfigError: a preset a trained method does not have, a
@@ -108,8 +109,9 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
             p = method_preset(m, preset, cat)
             one = tuple(entry.one_pass.items())
             cells += [Cell(m, cat, s, p, options=one) for s in cat_seeds]
-            if one and refine_rows:
-                cells += [Cell(m, cat, s, p, label=f"{m}+refine", run_label=m) for s in cat_seeds]
+            if entry.refinable and refine_rows:  # the method-independent refinement, its own row
+                cells += [Cell(m, cat, s, p, label=f"{m}+refine", run_label=m, options=one + (("refine", True),))
+                          for s in cat_seeds]
     return cells
 
 
@@ -392,10 +394,11 @@ TABLE2_SJ_METHODS = ("op-align", "scapo")
 
 def table2_cells(methods: Sequence[str], categories: Sequence[str], preset: str, seeds: Sequence[int],
                  category_seeds: dict[str, list[int]] | None = None, sj: bool = True,
-                 sj_methods: Sequence[str] = TABLE2_SJ_METHODS) -> list[Cell]:
-    """Table 1's cells of ``methods`` plus, with ``sj``, the semi-supervised rows ``<method>-sj`` (preset
-    ``<preset>/sj``) of the methods in ``sj_methods`` among them."""
-    cells = table1_cells(methods, categories, preset, seeds, category_seeds)
+                 sj_methods: Sequence[str] = TABLE2_SJ_METHODS, refine_rows: bool = True) -> list[Cell]:
+    """Table 1's cells of ``methods`` (with their ``+refine`` rows unless ``refine_rows`` is False) plus, with
+    ``sj``, the semi-supervised rows ``<method>-sj`` (preset ``<preset>/sj``) of the methods in ``sj_methods``
+    among them."""
+    cells = table1_cells(methods, categories, preset, seeds, category_seeds, refine_rows)
     if sj:
         for cat in categories:
             for m in methods:
@@ -439,7 +442,8 @@ class TableSpec:
         if self.ablation_of is not None:
             return table3_cells(categories, opts.preset, seeds, per, opts.ablations, method=self.ablation_of)
         if self.sj_methods:
-            return table2_cells(methods, categories, opts.preset, seeds, per, opts.sj, self.sj_methods)
+            return table2_cells(methods, categories, opts.preset, seeds, per, opts.sj, self.sj_methods,
+                                opts.refine_rows)
         return table1_cells(methods, categories, opts.preset, seeds, per, opts.refine_rows)
 
 
@@ -473,7 +477,8 @@ class BenchOptions:
     sj: bool = True
     ablations: Sequence[str] | None = None
     refine_rows: bool = True
-    """Table 1: a ``<method>+refine`` row beside the one-pass row of every method with a test-time refinement."""
+    """Tables 1 and 2: a ``<method>+refine`` row (:mod:`scapo.methods.refine`) beside the one-pass row of every
+    method with a whole-object model (``MethodEntry.refinable``)."""
     allow_dirty: bool = False
     """Compute or score cells from a checkout with uncommitted changes, and write tables holding such cells (their
     records say ``<sha>-dirty``: the code behind them cannot be recovered); refused otherwise."""

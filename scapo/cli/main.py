@@ -47,6 +47,7 @@ def cmd_list(args) -> int:
     for name in METHODS:
         e = METHODS.get(name)
         how = f"trained (presets: {', '.join(e.presets)})" if e.trained else "fitted at predict time"
+        how += ", takes --refine" if e.refinable else ""
         print(f"  {name:9s} {e.marks()}  {e.display:28s} {how}; {e.summary}")
     return 0
 
@@ -297,6 +298,14 @@ def cmd_predict(args) -> int:
         opts["device"] = args.device
     if method is None:
         raise ScapoError("give --method NAME (see 'scapo list') or --run RUN (a folder written by 'scapo train')")
+    if args.refine:
+        from scapo.methods import METHODS
+        from scapo.methods.learned import refinable_methods
+
+        if not METHODS.get(method).refinable:
+            raise ConfigError(f"method {method!r} has no canonical shape or template for the test-time refinement; "
+                              f"--refine applies to: {', '.join(refinable_methods())}")
+        opts["refine"] = True
     preds = run_method(method, args.data, args.out, **opts)
     print(f"wrote {args.out}: {len(preds)} predictions of {preds.method} "
           f"({preds.info.get('ms_per_cloud_test', float('nan')):.1f} ms per test cloud)")
@@ -726,6 +735,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--data", type=Path, required=True)
     sp.add_argument("--out", type=Path, required=True)
     sp.add_argument("--option", action="append", help="method option key=value (repeatable)")
+    sp.add_argument("--refine", action="store_true", help="fit the method's own whole-object model (canonical shape "
+                    "or template) to each view after its one-pass prediction (scapo.methods.refine); the "
+                    "predictions are labelled METHOD+refine")
     sp.set_defaults(func=cmd_predict)
 
     sp = sub.add_parser("evaluate", help="score a predictions file on a dataset's test split")

@@ -147,15 +147,17 @@ class EAPNet(nn.Module):
         return terms, 10 * rec + 10 * part + 10 * balance
 
     # ---------------------------------------------------------------- joints after training
-    def part_poses(self, points: torch.Tensor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(part labels (B, N), part poses (B, P, 4, 4) canonical (metres) -> camera, cloud scale (B,))."""
+    def part_poses(self, points: torch.Tensor, shapes: bool = False) -> tuple[np.ndarray, ...]:
+        """(part labels (B, N), part poses (B, P, 4, 4) canonical (metres) -> camera, cloud scale (B,)) and, with
+        ``shapes``, the decoded canonical parts ``(B, P, M, 3)`` in metres, each in its part's frame."""
         X, c, sc = normalize_clouds(points.float())
         o = self(X)
         B = X.shape[0]
         T = torch.eye(4, dtype=torch.float64).repeat(B, self.P, 1, 1)
         T[:, :, :3, :3] = o["R"].double().cpu()
         T[:, :, :3, 3] = (sc[:, None, None] * o["t"] + c[:, None]).double().cpu()
-        return o["w"].argmax(-1).cpu().numpy(), T.numpy(), sc.double().cpu().numpy()
+        out = (o["w"].argmax(-1).cpu().numpy(), T.numpy(), sc.double().cpu().numpy())
+        return out + ((sc[:, None, None, None] * o["Y"]).double().cpu().numpy(),) if shapes else out
 
     def set_extras(self, extras: dict) -> None:
         for k in ("joint_axis", "joint_pivot", "joint_ref", "joint_ok"):
@@ -163,8 +165,10 @@ class EAPNet(nn.Module):
 
     @torch.no_grad()
     def infer(self, points: torch.Tensor) -> dict:
-        """Predictions for ``points (B, N, 3)`` metres (camera frame); numpy arrays (see Predictions)."""
-        lab, T, sc = self.part_poses(points)
+        """Predictions for ``points (B, N, 3)`` metres (camera frame); numpy arrays (see Predictions), and the
+        decoded canonical parts as the whole-object model of :mod:`scapo.methods.refine`: ``template (B, P M, 3)``
+        (metres, each point in its part's frame) and ``template_label (B, P M)``."""
+        lab, T, sc, Y = self.part_poses(points, shapes=True)
         B, J = len(T), len(self.joint_types)
         axis, pivot, state = np.zeros((B, J, 3)), np.zeros((B, J, 3)), np.zeros((B, J))
         ax_c, pv_c = self.joint_axis.cpu().numpy(), self.joint_pivot.cpu().numpy()
@@ -180,8 +184,10 @@ class EAPNet(nn.Module):
                 axis[b, j] = T[b, ch, :3, :3] @ ax_c[j]
                 pivot[b, j] = T[b, ch, :3, :3] @ (pv_c[j] * sc[b]) + T[b, ch, :3, 3]
                 state[b, j] = _motion_along(invert_transform(ref[j]) @ rel, jt, ax_c[j]) * (sc[b] if jt == 1 else 1.0)
+        P, Mp = Y.shape[1:3]
         return {"part_label": lab, "part_pose": T, "joint_axis": axis, "joint_pivot": pivot, "joint_state": state,
-                "T_cam_obj": T[:, 0].copy()}
+                "T_cam_obj": T[:, 0].copy(), "template": Y.reshape(B, P * Mp, 3),
+                "template_label": np.tile(np.repeat(np.arange(P), Mp), (B, 1))}
 
 
 def _motion_along(M: np.ndarray, joint_type: int, axis: np.ndarray) -> float:
@@ -280,4 +286,5 @@ SPEC = LearnedSpec(method="eap", presets=PRESETS, fields=("points",), build=_bui
 make_eap = register_learned(SPEC, display="EAP-style", supervision={"pose": False, "segmentation": False,
                                                                     "joint": False},
                             needs_alignment=True, summary="self-supervised part-level equivariant poses and "
-                            "canonical part shapes; joints from part transforms (Liu et al., ICLR 2023)")
+                            "canonical part shapes; joints from part transforms (Liu et al., ICLR 2023)",
+                            refinable=True)

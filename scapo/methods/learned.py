@@ -222,6 +222,10 @@ class LearnedOptions:
     cross_category: bool = False
     """Allow predicting on a dataset of another category with the same kinematic structure."""
     progress: bool = False
+    refine: bool = False
+    """Fit the method's own whole-object model to each view after its one-pass prediction
+    (:mod:`scapo.methods.refine`, ``scapo predict --refine``); the label becomes ``<method>+refine``. Only for
+    methods with a canonical shape or template (``scapo list``)."""
 
     def __post_init__(self):
         if self.batch_size < 1:
@@ -273,7 +277,7 @@ class LearnedMethod:
             raise ConfigError(f"the {spec.method} method needs a trained run: --run RUN (a folder written by "
                               f"'scapo train --method {spec.method}')")
         self.run = Path(options.run)
-        self.label = options.label or spec.method
+        self.label = options.label or (f"{spec.method}+refine" if options.refine else spec.method)
         self.net = None
 
     def fit(self, train: ArticulationDataset) -> None:
@@ -320,7 +324,10 @@ class LearnedMethod:
 
             self.supervision = supervision_marks(sup)
             if not o.label:
-                self.label = f"{self.spec.method}-{sup.lower()}"
+                self.label = f"{self.spec.method}-{sup.lower()}" + ("+refine" if o.refine else "")
+        if o.refine and self.spec.method not in refinable_methods():
+            raise ConfigError(f"method {self.spec.method!r} has no canonical shape or template for the test-time "
+                              f"refinement; --refine applies to: {', '.join(refinable_methods())}")
         return self
 
     @property
@@ -332,7 +339,8 @@ class LearnedMethod:
     def predict_points(self, points) -> dict[str, np.ndarray]:
         """The network's outputs for clouds ``points (B, N, 3)`` (camera frame, metres; numpy or torch): numpy
         arrays ``part_label (B, N)``, ``part_pose (B, P, 4, 4)``, ``joint_axis``, ``joint_pivot (B, J, 3)``,
-        ``joint_state (B, J)``, ``T_cam_obj (B, 4, 4)``.
+        ``joint_state (B, J)``, ``T_cam_obj (B, 4, 4)`` (one-pass, even with the ``refine`` option), and for a
+        refinable method ``template (B, M, 3)``, ``template_label (B, M)`` (:mod:`scapo.methods.refine`).
 
         Raises:
             InputError: not a finite ``(B, N, 3)`` array of real numbers. TrainingError: not loaded."""
@@ -359,6 +367,13 @@ class LearnedMethod:
             X = torch.from_numpy(np.ascontiguousarray(a["points"][i:i + self.options.batch_size])).float()
             outs.append(self.net.infer(X.to(self.device)))
         o = {k: np.concatenate([d[k] for d in outs]) for k in outs[0]} if outs else {}
+        info = {}
+        if self.options.refine:
+            from scapo.methods.refine import refine_prediction, refine_settings
+
+            o = refine_prediction(a["points"], o, o["template"], o["template_label"], self.identity["joint_type"],
+                                  self.identity["joint_parts"], batch_size=self.options.batch_size)
+            info = {"refine": refine_settings(), "refine_start_rate": round(float((o["refine_start"] > 0).mean()), 4)}
         seconds = time.perf_counter() - t0
         jt = np.array(self.identity["joint_type"], dtype=np.int64)
         jp = np.array(self.identity["joint_parts"], dtype=np.int64).reshape(-1, 2)
@@ -371,13 +386,22 @@ class LearnedMethod:
             needs_alignment=self.needs_alignment, supervision=dict(self.supervision),
             info={"run": str(self.run), "preset": self.preset.name, "seed": self.preset.seed,
                   "trained_on": self.identity["dataset_hash"], "trained_category": self.identity["category"],
-                  "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2)},
+                  "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2), **info},
         )
 
 
-def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, needs_alignment: bool, summary: str):
+def refinable_methods() -> list[str]:
+    """Registered methods that take the method-independent test-time refinement (``MethodEntry.refinable``)."""
+    from scapo.methods.registry import METHODS
+
+    return [m for m in METHODS.names() if METHODS.get(m).refinable]
+
+
+def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, needs_alignment: bool, summary: str,
+                     refinable: bool = False):
     """Register a learned baseline (its factory takes :class:`LearnedOptions` fields; trained by
-    :func:`train_learned`)."""
+    :func:`train_learned`). ``refinable``: the network's ``infer`` also returns ``template (B, M, 3)`` and
+    ``template_label (B, M)`` (its whole-object model, :mod:`scapo.methods.refine`)."""
     from scapo.methods.registry import register_method
 
     options_cls = spec.options or LearnedOptions
@@ -395,7 +419,7 @@ def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, need
                     needs_alignment=needs_alignment, summary=summary, train=trainer,
                     presets=tuple(spec.presets.names()), run_is_current=current,
                     preset=lambda name: resolve_preset(spec, name),
-                    speed=lambda **kw: learned_speed(spec, **kw))(factory)
+                    speed=lambda **kw: learned_speed(spec, **kw), refinable=refinable)(factory)
     factory.spec = spec
     return factory
 

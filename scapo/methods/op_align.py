@@ -246,7 +246,10 @@ class OPAlignNet(nn.Module):
     # ---------------------------------------------------------------- inference
     @torch.no_grad()
     def infer(self, points: torch.Tensor) -> dict:
-        """Predictions for ``points (B, N, 3)`` metres (camera frame); numpy arrays (see Predictions).
+        """Predictions for ``points (B, N, 3)`` metres (camera frame); numpy arrays (see Predictions), and the
+        decoded canonical shape as the whole-object model of :mod:`scapo.methods.refine`: ``template (B, M, 3)``
+        (``sc Y``, metres, the canonical frame, which every part pose maps to the camera) and
+        ``template_label (B, M)`` (the part-level network's segmentation of ``Y``).
 
         Canonical coordinates are the network's, times the cloud's scale ``sc`` (metres):
         ``x_cam = sc R (S + t) + c`` and part ``p``'s alignment maps ``S`` onto ``Y``.
@@ -280,7 +283,9 @@ class OPAlignNet(nn.Module):
         return {"part_label": s["seg"].argmax(-1).cpu().numpy(), "part_pose": poses.double().cpu().numpy(),
                 "joint_axis": F.normalize(axis, dim=-1).double().cpu().numpy(),
                 "joint_pivot": pivot.double().cpu().numpy(), "joint_state": state.double().cpu().numpy(),
-                "T_cam_obj": T_obj.double().cpu().numpy()}
+                "T_cam_obj": T_obj.double().cpu().numpy(),
+                "template": (sc[:, None, None] * out["Y"]).double().cpu().numpy(),
+                "template_label": y["seg"].argmax(-1).cpu().numpy()}
 
 
 def _build(card: dict, preset: OPAlignPreset) -> OPAlignNet:
@@ -291,4 +296,4 @@ SPEC = LearnedSpec(method="op-align", presets=PRESETS, fields=("points",), build
 make_op_align = register_learned(SPEC, display="OP-Align-style", supervision={"pose": False, "segmentation": False,
                                                                               "joint": False},
                                  needs_alignment=True, summary="self-supervised object- then part-level alignment "
-                                 "to a reconstructed canonical shape (Che et al., ECCV 2024)")
+                                 "to a reconstructed canonical shape (Che et al., ECCV 2024)", refinable=True)

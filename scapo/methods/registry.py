@@ -86,6 +86,9 @@ class MethodEntry:
             row, labelled ``<method>+refine``. Empty: the method has no test-time refinement.
         quick_options: prediction options for a quick run of a fitted method (tests, smoke runs); a trained
             method's quick run is its ``test`` preset.
+        refinable: the method has a whole-object model (a canonical shape or template) and takes the
+            method-independent test-time refinement (:mod:`scapo.methods.refine`; option ``refine=True``,
+            ``scapo predict --refine``, label ``<method>+refine``); Table 1 reports it as its own row.
     """
 
     name: str
@@ -105,6 +108,7 @@ class MethodEntry:
     speed: Callable[..., list] | None = None
     quick_options: Mapping[str, Any] = field(default_factory=dict)
     one_pass: Mapping[str, Any] = field(default_factory=dict)
+    refinable: bool = False
 
     @property
     def trained(self) -> bool:
@@ -126,7 +130,8 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
                     inference: Callable[[Path, dict], dict] | None = None,
                     run_is_current: Callable[..., bool] | None = None, preset: Callable[[str], Any] | None = None,
                     ablations: tuple[str, ...] = (), speed: Callable[..., list] | None = None,
-                    quick_options: Mapping[str, Any] | None = None, one_pass: Mapping[str, Any] | None = None):
+                    quick_options: Mapping[str, Any] | None = None, one_pass: Mapping[str, Any] | None = None,
+                    refinable: bool = False):
     """Decorator registering a method factory under ``name`` (see :class:`MethodEntry`).
 
     Raises:
@@ -142,7 +147,7 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
         METHODS.add(name, MethodEntry(name, factory, options, display, dict(supervision), needs_alignment, summary,
                                       train, tuple(presets), dict(variants or {}), inference, run_is_current,
                                       preset, tuple(ablations), speed, dict(quick_options or {}),
-                                      dict(one_pass or {})))
+                                      dict(one_pass or {}), bool(refinable)))
         factory.options = options
         return factory
 
@@ -151,12 +156,17 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
 
 def describe(label: str) -> tuple[str, dict] | None:
     """(display name, supervision marks) for a predictions label: a registered name, or one of an
-    entry's variants (``scapo-no-refine``), either with a supervision suffix ``-sj`` / ``-s`` / ``-j`` (a run
+    entry's variants (``scapo-no-refine``) or ``<label>+refine`` (:mod:`scapo.methods.refine`), either with a
+    supervision suffix ``-sj`` / ``-s`` / ``-j`` (a run
     trained with those labels, :mod:`scapo.losses.supervised`: "SCAPO (ours) (SJ)" with its marks); None
     for a label no entry knows."""
     if label in METHODS:
         e = METHODS.get(label)
         return e.display, dict(e.supervision)
+    if label.endswith("+refine") and len(label) > len("+refine"):  # the method-independent refinement's rows
+        known = describe(label[:-len("+refine")])
+        if known is not None:
+            return f"{known[0]} + refine", known[1]
     for name in METHODS:
         e = METHODS.get(name)
         if label in e.variants:

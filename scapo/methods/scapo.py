@@ -41,6 +41,9 @@ class SCAPOOptions(LearnedOptions):
         super().__post_init__()
         if self.refine_steps is not None and self.refine_steps < 0:
             raise ConfigError(f"refine_steps must be >= 0, got {self.refine_steps}")
+        if self.refine and self.refine_steps:
+            raise ConfigError("refine=True (the method-independent refinement, scapo predict --refine) replaces "
+                              f"SCAPO's own; give one of them, not also refine_steps={self.refine_steps}")
 
 
 class SCAPOMethod:
@@ -55,7 +58,7 @@ class SCAPOMethod:
         if self.options.run is None:
             raise ConfigError("the scapo method needs a trained run: --run RUN (a folder written by 'scapo train')")
         self.run = Path(self.options.run)
-        self.label = str(self.options.label or "scapo")
+        self.label = str(self.options.label or ("scapo+refine" if self.options.refine else "scapo"))
         self.predictor: Predictor | None = None
 
     def fit(self, train: ArticulationDataset) -> None:
@@ -82,7 +85,8 @@ class SCAPOMethod:
             TrainingError, ConfigError: see :meth:`Predictor.load`.
         """
         o = self.options
-        self.predictor = Predictor.load(self.run, o.device, o.refine_steps, o.refine_margin)
+        # with the method-independent refinement the network predicts one-pass (SCAPO's own refinement off)
+        self.predictor = Predictor.load(self.run, o.device, 0 if o.refine else o.refine_steps, o.refine_margin)
         if o.refine_upright_deg is not None:
             try:
                 self.predictor.refine = dataclasses.replace(self.predictor.refine,
@@ -95,7 +99,7 @@ class SCAPOMethod:
         if sup:  # the semi-supervised setting: its marks, and a label of its own unless one was given
             self.supervision = supervision_marks(sup)
             if not self.options.label:
-                self.label = f"scapo-{sup.lower()}"
+                self.label = f"scapo-{sup.lower()}" + ("+refine" if self.options.refine else "")
         return self
 
     @property
@@ -113,9 +117,16 @@ class SCAPOMethod:
         a = dataset.arrays(["points"])
         t0 = time.perf_counter()
         o = self.predictor.predict(a["points"], self.options.batch_size, self.options.progress)
+        mc = self.predictor.model.cfg
+        extra = {}
+        if self.options.refine:
+            from scapo.methods.refine import refine_prediction, refine_settings
+
+            o = refine_prediction(a["points"], o, o["template_rest"], o["template_label"], mc.joint_types,
+                                  mc.joint_parts, batch_size=self.options.batch_size)
+            extra = {"refine": refine_settings(), "refine_start_rate": round(float((o["refine_start"] > 0).mean()), 4)}
         seconds = time.perf_counter() - t0
         M = len(a["points"])
-        mc = self.predictor.model.cfg
         return Predictions(
             method=self.label, instance_id=a["instance_id"], view_id=a["view_id"], split=np.full(M, dataset.split),
             part_label=o["part_label"], part_pose=o["part_pose"].astype(np.float64),
@@ -134,7 +145,7 @@ class SCAPOMethod:
                   "upright": None if self.predictor.upright is None else
                   np.round(self.predictor.upright.cpu().double().numpy(), 6).tolist(),
                   "upright_support": self.predictor.upright_support,
-                  "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2)},
+                  "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2), **extra},
         )
 
 
@@ -151,7 +162,9 @@ def inference_settings(run, options: dict | None = None) -> dict:
         rc = stored_refine(json.loads((Path(run) / "run.json").read_text())["preset"])
     except (OSError, ValueError, KeyError, TypeError):
         return {}
-    o = options or {}
+    o = dict(options or {})
+    if str(o.get("refine", False)).lower() in ("true", "1", "yes"):  # the method-independent step replaces SCAPO's own
+        o["refine_steps"] = 0
     for key, name in (("refine_steps", "steps"), ("refine_margin", "margin"), ("refine_upright_deg", "upright_deg")):
         if o.get(key) is not None:
             rc = dataclasses.replace(rc, **{name: type(getattr(rc, name))(o[key])})
@@ -179,9 +192,9 @@ def _speed(preset: str = "cpu", device: str | None = None, iters: int = 5, num_p
 @register_method("scapo", options=SCAPOOptions, display="SCAPO (ours)", supervision=SCAPOMethod.supervision,
                  needs_alignment=True, summary="self-supervised SE(3)-equivariant skinning (the paper's method)",
                  train=_train, presets=tuple(PRESETS.names()),
-                 variants={"scapo-no-refine": "SCAPO (ours, no refinement)", "scapo+refine": "SCAPO (ours) + refine"},
+                 variants={"scapo-no-refine": "SCAPO (ours, no refinement)"},
                  inference=inference_settings, run_is_current=_run_is_current, preset=get_preset,
-                 ablations=ABLATIONS, speed=_speed, one_pass={"refine_steps": 0})
+                 ablations=ABLATIONS, speed=_speed, one_pass={"refine_steps": 0}, refinable=True)
 def make_scapo(**options) -> SCAPOMethod:
     """SCAPO (ours) from a trained run; options are :class:`SCAPOOptions` fields."""
     return SCAPOMethod(**options)

@@ -200,7 +200,8 @@ class Predictor:
 
         Returns numpy arrays (float32 / int64): ``T_cam_obj (B,4,4)``, ``part_label (B,N)``,
         ``weights (B,N,P)``, ``part_pose (B,P,4,4)``, ``joint_axis (B,J,3)``, ``joint_pivot (B,J,3)``,
-        ``joint_state (B,J)``, ``canonical_shape (B,N,3)``, ``template (B,M,3)``.
+        ``joint_state (B,J)``, ``canonical_shape (B,N,3)``, ``template (B,M,3)``, ``template_rest (B,M,3)``,
+        ``template_label (B,M)`` (:meth:`SCAPOModel.predict <scapo.models.scapo_model.SCAPOModel.predict>`).
 
         Raises:
             InputError: see :func:`check_points` (also a ``ValueError``).

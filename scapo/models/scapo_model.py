@@ -264,7 +264,10 @@ class SCAPOModel(nn.Module):
         int64 (argmax of the skinning weights) and ``weights (B, N, P)``; ``part_pose (B, P, 4, 4)``
         (canonical rest -> camera, metres); ``joint_axis (B, J, 3)``, ``joint_pivot (B, J, 3)``
         (camera frame, m), ``joint_state (B, J)`` (rad / m from the canonical rest state);
-        ``canonical_shape (B, N, 3)`` (``S*`` in metres) and ``template (B, M, 3)``.
+        ``canonical_shape (B, N, 3)`` (``S*`` in metres) and ``template (B, M, 3)``; the template in its rest
+        state ``template_rest (B, M, 3)`` (``Y*`` in metres, the canonical rest frame that every ``part_pose``
+        maps to the camera) with ``template_label (B, M)`` int64 (argmax of its skinning weights): the
+        whole-object model of :mod:`scapo.methods.refine`.
         """
         was_training = self.training
         self.eval()
@@ -301,4 +304,6 @@ class SCAPOModel(nn.Module):
             "joint_state": state,
             "canonical_shape": out.S_star * sc,
             "template": out.Y * sc,
+            "template_rest": out.Y_star * sc,
+            "template_label": out.w_ystar.argmax(-1),
         }
