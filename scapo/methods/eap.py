@@ -1,13 +1,13 @@
 """EAP-style self-supervised baseline: part-level SE(3)-equivariant features, per-part latent rigid
 transforms and canonical part shapes learned by reconstruction; joints derived afterwards.
 
-Follows EAP (Liu, Chen, Shen, Yi, Chen and Guibas, "Self-Supervised Category-Level Articulated
-Object Pose Estimation with Part-Level SE(3) Equivariance", ICLR 2023; public code
-Meowuu7/equi-articulated-pose): a network with part-level equivariance groups the points into
-parts, predicts for every part a rigid transform from its canonical (pose-free) shape to the
-observation and decodes that canonical shape from part-level invariant features; the only training
-signal is that the posed canonical parts reconstruct the input. It has no joint heads: as in that
-paper's evaluation, joint axes, pivots and states are computed from the predicted part transforms.
+Follows EAP (Liu, Zhang, Hu, Huang, Wang and Yi, "Self-Supervised Category-Level Articulated Object Pose
+Estimation with Part-Level SE(3) Equivariance", ICLR 2023; the citation of the public code
+Meowuu7/equi-articulated-pose): a network with part-level equivariance groups the points into parts, predicts
+for every part a rigid transform from its canonical (pose-free) shape to the observation and decodes that
+canonical shape from part-level invariant features; the training signal is that the posed canonical parts
+reconstruct the input. The original also predicts each joint's axis and pivot with their own heads
+(``--pred-axis 1``); ours derives joints from the part transforms after training (see below and the table).
 
 Here:
 
@@ -33,6 +33,40 @@ Here:
 What differs from EAP: its pose-aware equivariant point convolution and slot attention are replaced
 by the VN layers and a segmentation head above (pure PyTorch, CPU-sized); no part-shape symmetry
 handling or multi-stage schedule; Chamfer distances are plain.
+
+Fidelity (read against Meowuu7/equi-articulated-pose at 8cceb65: the model
+``SPConvNets/models/unsup_seg_so3_pose_conv_pn_40_multi_stage.py`` (``M40`` below), the trainer
+``SPConvNets/trainer_unsup_arti_align.py`` and ``scripts/train/*.sh``; "same", "simplified" (the component's
+role kept in another form) or "absent"; issue 30 closes the gaps):
+
+=======================================  ================================================  ========================
+component                                original (file: lines)                            ours
+=======================================  ================================================  ========================
+stage 0: a whole-shape pose network      trainer 335-341 (a second model with              absent: one stage
+canonicalises the input first (frozen)   ``stage = 0``, loaded from ``*_stage_0.pth``);
+                                         ``M40`` 1366-1534 (global orbit by Chamfer)
+SE(3)-equivariant point convolution      ``M40`` 48-53, ``--kanchor 60``                    simplified: VN-DGCNN
+over 60 anchors                                                                            (continuous SO(3), no
+                                                                                           anchors), 32 channels in
+                                                                                           ``cpu``
+grouping by slot attention               ``M40`` 156-195 (``SlotAttention``,               simplified: a softmax
+                                         ``--slot-iters 7``)                                segmentation head
+part rotation over the anchors, orbit    ``M40`` 1132-1152 (``select_slot_orbits``:         simplified: one frame per
+chosen by Chamfer of the reconstruction  ``torch.min`` of each slot's per-anchor distance) part from two VN vectors
+                                                                                           (Gram-Schmidt)
+canonical part shapes decoded from       ``M40`` 240-300 (slot shape reconstruction; with  same role (MLP decoder,
+invariant part codes                     ``--recon-prior 6`` also a pivot point, 266-270)  ``shape_points``)
+joint axis head, pivot head              ``M40`` 309-372 (``pred_axis``, pivot             absent: joints estimated
+                                         prediction), ``--pred-axis 1``                     after training from part
+                                                                                           transforms of pairs
+reconstruction losses                    ``M40`` 1473-1507 (global), slot terms;           simplified: plain Chamfer
+                                         ``--glb-recon-factor 1 --slot-recon-factor 0.5``  + segmentation-weighted
+                                                                                           part term + balance
+input points                             ``scripts/train/*.sh``: 380-512                   ``cpu``: 256, ``paper``:
+                                         (``--input-num``), 128-256 per part               1024
+schedule                                 ``scripts/train/*.sh``: lr 1e-4, batch 1 per GPU  ``cpu``: 30 epochs at lr
+                                         on 8 GPUs                                         1e-3, batch 16
+=======================================  ================================================  ========================
 """
 
 from __future__ import annotations

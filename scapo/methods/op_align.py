@@ -35,6 +35,50 @@ What differs (and why):
   by the cloud's normalisation) to the camera through the inverse of its part alignment and the
   object pose; joint axes and pivots are the input-side predictions mapped to the camera; the state is
   the input's relative state minus the canonical shape's.
+
+Fidelity (read against YC-Che/OP-Align at f3323dd; "same" = same component and rule, "simplified" = the
+component's role kept with a different form, "absent" = not implemented; issue 30 closes the gaps):
+
+=========================================  ==============================================  ==========================
+component                                  original (file: lines)                          ours
+=========================================  ==============================================  ==========================
+SE(3)-equivariant backbone over 60 anchors ``art_so3net_pn.py`` 21-45, E2PN                simplified: PointResNet on
+                                           (``vgtk``, CUDA), ``--kanchor 60``               the cloud rotated into each
+                                                                                           anchor (24 in ``cpu``, 60
+                                                                                           in ``paper``)
+input points                               ``options.py`` 28 (``--input-num 1024``)        ``cpu``: 256, and 96 to the
+                                                                                           anchor backbone; ``paper``:
+                                                                                           1024 / 512
+residual rotation per anchor, bounded      ``art_so3net_pn.py`` 273-278 (angle within      simplified: bound 45 deg
+                                           +-pi/10 of the anchor)                          (``max_residual_deg``)
+anchor chosen by Chamfer, no gradient      ``art_so3net_pn.py`` 101-142                    same (mean nearest distance)
+attention on the chosen anchor             ``art_metric.py`` 99, 184-187 (attention x      simplified: cross-entropy on
+                                           distance)                                       the chosen index
+learnable category shape ``y_base`` plus   ``art_so3net_pn.py`` 305-357 (``y_base`` 340,  absent: a free MLP decoder
+a per-instance offset                      offset 349)                                     (no shared template)
+variance penalty on the offset             ``art_metric.py`` 83, 302-307                   absent
+density-aware Chamfer (``1 - exp(-a d)``)  ``art_metric.py`` 77-78, 169-178, 234-239       absent: plain squared
+                                                                                           Chamfer
+local-density term on the canonical shape  ``art_metric.py`` 82, 241-254                   absent
+rigid term halving on a schedule           ``art_metric.py`` 72-74 (every 5000 iters)      same rule, every 15 % of
+                                                                                           training
+part-level network on S and on Y, joint    ``art_so3net_pn.py`` 52-55 (``ResnetPointnet``) same outline
+pivot, direction and two states per side
+segmentation-weighted part alignment       ``art_metric.py`` 78, 189-232                   simplified: plain Chamfer
+                                                                                           with a segmentation margin
+canonical joints fixed across instances    ``art_metric.py`` 86, 256-265                   simplified: pulled to the
+                                                                                           batch mean
+pivot near the shape                       ``art_metric.py`` 87-88, 267-274                same role (squared, no
+                                                                                           exp)
+part populated / probability floor         ``art_metric.py`` 101, 317-325                  simplified: balance hinge
+translation offset small                   ``art_metric.py`` 100                           same
+colour channel                             ``art_metric.py`` 78 (``color_w``)              absent (depth only)
+schedule                                   ``options.py`` 89-127: 20,000 iterations,       ``cpu``: 20 epochs (about
+                                           batch 16, lr 1e-4 halved every 5,000            1,300 iterations), lr 1e-3;
+                                                                                           ``paper``: 200 epochs
+evaluation: half-turn forgiven on laptop   ``art_metric.py`` 391-455, 513-545              our ``op-align`` protocol
+and eyeglasses                                                                             (``scapo.eval.protocols``)
+=========================================  ==============================================  ==========================
 """
 
 from __future__ import annotations
