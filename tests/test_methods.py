@@ -331,3 +331,62 @@ def test_eap_part_poses_are_rotation_equivariant():
     torch.testing.assert_close(b["R"], Q @ a["R"], atol=1e-6, rtol=1e-6)
     torch.testing.assert_close(b["t"], a["t"] @ Q.T + 0.3, atol=1e-6, rtol=1e-6)
     torch.testing.assert_close(b["Y"], a["Y"], atol=1e-6, rtol=1e-6)
+
+
+def test_op_align_density_aware_chamfer_matches_the_original_rule_and_bounds_outliers():
+    """OP-Align's ``1 - exp(-alpha d)`` Chamfer (art_metric.py 169-178, 234-239) on hand-made clouds."""
+    from scapo.methods.op_align import density_chamfer
+    from scapo.ops.chamfer import chamfer_distance
+
+    a = torch.tensor([[[0.0, 0, 0]]])
+    b = torch.tensor([[[0.1, 0, 0]]])
+    want = (1 - math.exp(-30 * 0.01)) + 30 / 120 * (1 - math.exp(-120 * 0.01))
+    assert float(density_chamfer(a, b, 30, 120)) == pytest.approx(want, rel=1e-5)
+    torch.manual_seed(0)
+    x, y = torch.rand(2, 50, 3), torch.rand(2, 60, 3)
+    torch.testing.assert_close(density_chamfer(x, y, 0.0, 0.0), chamfer_distance(x, y))  # alpha 0: plain
+    far = torch.cat([x, torch.full((2, 1, 3), 100.0)], 1)  # one outlier: plain Chamfer explodes, density does not
+    assert float((chamfer_distance(far, y) - chamfer_distance(x, y)).min()) > 100
+    gap = density_chamfer(far, y, 30, 120) - density_chamfer(x, y, 30, 120)
+    assert float(gap.max()) < 1.0 / 51 + 1e-3
+
+
+def test_op_align_local_density_is_zero_for_even_spacing_and_grows_with_clumps():
+    from scapo.methods.op_align import local_density
+
+    u = torch.linspace(0, 2 * math.pi, 65)[:-1]
+    ring = torch.stack([torch.cos(u), torch.sin(u), torch.zeros_like(u)], -1)[None]  # equal neighbour distances
+    assert float(local_density(ring, 4)) < 1e-8
+    clumped = ring.clone()
+    clumped[0, :32] *= 0.1  # half of the points crowd near the centre
+    assert float(local_density(clumped, 4)) > 1e-3
+
+
+def test_op_align_template_prior_variance_penalty_and_bounded_residual():
+    """The category template ``y_base`` is shared: with a zero offset every instance's shape is ``y_base`` and the
+    variance penalty is 0, a large offset costs close to 1 (art_metric.py 302-307); the anchors' residual
+    rotations stay within +-18 deg (art_so3net_pn.py 273-278); the expected-distance attention term moves the
+    attention to the nearest anchor."""
+    from scapo.methods import op_align
+
+    torch.manual_seed(0)
+    pc = op_align.PRESETS.get("test")
+    net = op_align.OPAlignNet(2, [0], [(0, 1)], pc)
+    with torch.no_grad():
+        net.decoder[-1].weight.zero_()
+        net.decoder[-1].bias.zero_()
+    o = net.object_level(torch.rand(3, 64, 3) - 0.5)
+    torch.testing.assert_close(o["Y"], net.y_base.expand(3, -1, -1))
+    assert float(op_align.offset_variance(o["offset"].detach(), pc.var_alpha).max()) == 0.0
+    assert float(op_align.offset_variance(torch.ones(1, 5, 3), 60.0)) == pytest.approx(1.0, abs=1e-6)
+    for _ in range(3):
+        with torch.no_grad():
+            net.anchor_head[-1].weight.normal_(0, 10.0)
+        r = net.object_level(torch.rand(2, 64, 3) - 0.5)
+        rel = net.anchors.transpose(1, 2).unsqueeze(0) @ r["R"]  # G^T R: the residual
+        cos = ((rel.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)
+        assert float(torch.rad2deg(torch.arccos(cos)).max()) <= pc.max_residual_deg + 1e-3
+    logits = torch.zeros(1, 3, requires_grad=True)
+    dist = torch.tensor([[1.0, 0.1, 0.5]])
+    (torch.softmax(logits, -1) * dist).sum().backward()
+    assert int(logits.grad.argmin()) == 1  # gradient descent raises the nearest anchor's attention

@@ -26,8 +26,9 @@ What differs (and why):
   rotated into every anchor frame (group lifting: exactly equivariant to the group, approximately to
   SO(3) through the residual rotation), pure PyTorch. The ``cpu`` preset uses the 24 cube rotations,
   ``paper`` the 60 icosahedral ones.
-- Chamfer distances are plain (squared, batched matrix products) instead of pytorch3d's
-  density-aware ones; no colour channel (the datasets are depth only); the decoder is an MLP.
+- Chamfer distances are density-aware as OP-Align's (``1 - exp(-alpha d)`` per nearest squared distance,
+  batched matrix products instead of pytorch3d's kNN); no colour channel (the datasets are depth only); the
+  canonical shape is a learnable category template plus an MLP-decoded per-instance offset.
 - The canonical shape's joint parameters are pulled to their batch mean (OP-Align regresses them to
   a fixed canonical joint); parts that appear on several joints (the base of a star) are aligned once
   per joint, with a consistency term as in OP-Align's three-part case.
@@ -49,23 +50,25 @@ SE(3)-equivariant backbone over 60 anchors ``art_so3net_pn.py`` 21-45, E2PN     
 input points                               ``options.py`` 28 (``--input-num 1024``)        ``cpu``: 256, and 96 to the
                                                                                            anchor backbone; ``paper``:
                                                                                            1024 / 512
-residual rotation per anchor, bounded      ``art_so3net_pn.py`` 273-278 (angle within      simplified: bound 45 deg
-                                           +-pi/10 of the anchor)                          (``max_residual_deg``)
+residual rotation per anchor, bounded      ``art_so3net_pn.py`` 273-278 (angle within      same: unit axis x angle
+                                           +-pi/10 of the anchor)                          within +-18 deg
 anchor chosen by Chamfer, no gradient      ``art_so3net_pn.py`` 101-142                    same (mean nearest distance)
-attention on the chosen anchor             ``art_metric.py`` 99, 184-187 (attention x      simplified: cross-entropy on
-                                           distance)                                       the chosen index
-learnable category shape ``y_base`` plus   ``art_so3net_pn.py`` 305-357 (``y_base`` 340,  absent: a free MLP decoder
-a per-instance offset                      offset 349)                                     (no shared template)
-variance penalty on the offset             ``art_metric.py`` 83, 302-307                   absent
-density-aware Chamfer (``1 - exp(-a d)``)  ``art_metric.py`` 77-78, 169-178, 234-239       absent: plain squared
-                                                                                           Chamfer
-local-density term on the canonical shape  ``art_metric.py`` 82, 241-254                   absent
+attention on the chosen anchor             ``art_metric.py`` 99, 184-187 (attention x      same (``attention =
+                                           distance)                                       "expected"``)
+learnable category shape ``y_base`` plus   ``art_so3net_pn.py`` 305-357 (``y_base`` 340,  same (``template_prior``;
+a per-instance offset                      offset 349)                                     an MLP decoder, no BN)
+variance penalty on the offset             ``art_metric.py`` 83, 302-307                   same (weight 10, alpha 60)
+density-aware Chamfer (``1 - exp(-a d)``)  ``art_metric.py`` 77-78, 169-178, 234-239       same (alpha 30 / 120) in
+                                                                                           the rigid and part terms
+local-density term on the canonical shape  ``art_metric.py`` 82, 241-254                   same (weight 200, k 64)
+canonical shape centred                    ``art_metric.py`` 84, 295-300                   same
 rigid term halving on a schedule           ``art_metric.py`` 72-74 (every 5000 iters)      same rule, every 15 % of
                                                                                            training
 part-level network on S and on Y, joint    ``art_so3net_pn.py`` 52-55 (``ResnetPointnet``) same outline
 pivot, direction and two states per side
-segmentation-weighted part alignment       ``art_metric.py`` 78, 189-232                   simplified: plain Chamfer
-                                                                                           with a segmentation margin
+segmentation-weighted part alignment       ``art_metric.py`` 78, 189-232                   same: each moved part
+                                                                                           against all of Y, weighted
+                                                                                           by each side's segmentation
 canonical joints fixed across instances    ``art_metric.py`` 86, 256-265                   simplified: pulled to the
                                                                                            batch mean
 pivot near the shape                       ``art_metric.py`` 87-88, 267-274                same role (squared, no
@@ -94,7 +97,7 @@ from scapo.errors import ConfigError
 from scapo.losses.supervised import joint_loss, seg_nll
 from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned
 from scapo.methods.nets import PointResNet, mlp
-from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist
+from scapo.ops.chamfer import pairwise_sq_dist
 from scapo.ops.groups import rotation_group
 from scapo.ops.so3 import rotation_from_rotvec as exp_so3
 from scapo.registry import Registry
@@ -113,15 +116,35 @@ class OPAlignPreset(LearnedPreset):
     part_width: int = 128
     template_points: int = 512
     """Points of the reconstructed canonical shape."""
-    max_residual_deg: float = 45.0
-    """Largest residual rotation per anchor."""
+    max_residual_deg: float = 18.0
+    """Largest residual rotation per anchor: a unit axis times an angle within +-this (OP-Align:
+    ``(sigmoid - 0.5) pi / 5``, +-18 deg, ``art_so3net_pn.py`` 273-278)."""
+    template_prior: bool = True
+    """Canonical shape = a learnable category template ``y_base`` plus a decoded per-instance offset
+    (``art_so3net_pn.py`` 340-349); False: the decoder gives the shape itself."""
+    var_weight: float = 10.0
+    """Weight of the offset's variance penalty ``mean(1 - exp(-var_alpha |offset|^2))`` (``art_metric.py`` 83,
+    302-307); used with ``template_prior``."""
+    var_alpha: float = 60.0
+    density_alpha: float = 30.0
+    """Density-aware Chamfer: each nearest squared distance ``d`` counts as ``1 - exp(-alpha d)``, the direction
+    from the canonical shape with ``density_alpha_inv`` and weight ``alpha / alpha_inv`` (``art_metric.py``
+    77-78, 169-178, 234-239); 0: plain squared Chamfer."""
+    density_alpha_inv: float = 120.0
+    gather_weight: float = 200.0
+    """Weight of the canonical shape's local-density term: the variance over its points of the distance to the
+    k-th nearest neighbour, averaged over k = 1..``gather_k`` (``art_metric.py`` 82, 241-254)."""
+    gather_k: int = 64
+    center_weight: float = 1.0
+    """Weight of ``|mean(Y)|^2``, the canonical shape centred (``art_metric.py`` 84, 295-300)."""
+    attention: str = "expected"
+    """Attention term: ``"expected"`` the anchors' softmax times their Chamfer distances, summed (OP-Align,
+    ``art_metric.py`` 99, 184-187); ``"ce"`` cross-entropy on the chosen anchor."""
     rotation_range_deg: float = 180.0
     """Range of each articulation state (revolute; a prismatic state spans range / 180 cloud scales)."""
     rigid_weight: float = 0.5
     rigid_halve: float = 0.15
     """The rigid term's weight halves every this fraction of training."""
-    seg_margin: float = 0.1
-    """Segmentation cost in the part-alignment term (normalised units squared)."""
     min_part: float = 0.1
     """Smallest mean segmentation probability of a part before the balance term acts."""
     supervision: str = ""
@@ -133,6 +156,13 @@ class OPAlignPreset(LearnedPreset):
     def __post_init__(self):
         super().__post_init__()
         from scapo.losses.supervised import check_supervision
+
+        if self.attention not in ("expected", "ce"):
+            raise ConfigError(f"preset {self.name!r}: attention must be 'expected' or 'ce', got {self.attention!r}")
+        if not 0 < self.max_residual_deg <= 180 or self.density_alpha < 0 or self.density_alpha_inv < 0 \
+                or self.gather_k < 1:
+            raise ConfigError(f"preset {self.name!r}: needs 0 < max_residual_deg <= 180, density alphas >= 0, "
+                              "gather_k >= 1")
 
         if check_supervision(self.supervision) != self.supervision:
             raise ConfigError(f"preset {self.name!r}: write supervision as one of '', 'S', 'J', 'SJ', got "
@@ -157,6 +187,43 @@ def direction_rotation(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return exp_so3(v / s * angle)
 
 
+def _density(d: torch.Tensor, alpha: float) -> torch.Tensor:
+    """Density-aware distance ``1 - exp(-alpha d)`` of squared nearest distances ``d``; ``d`` itself for 0."""
+    return 1.0 - torch.exp(-alpha * d) if alpha > 0 else d
+
+
+def _inv_weight(alpha: float, alpha_inv: float) -> float:
+    """Weight of the direction from the canonical shape: ``alpha / alpha_inv`` (OP-Align), 1 for plain Chamfer."""
+    return alpha / alpha_inv if alpha > 0 and alpha_inv > 0 else 1.0
+
+
+def density_chamfer(a: torch.Tensor, b: torch.Tensor, alpha: float, alpha_inv: float) -> torch.Tensor:
+    """OP-Align's density-aware Chamfer distance (``art_metric.py`` 169-178, 234-239) per batch element ``(B,)``:
+    ``mean_a (1 - exp(-alpha d_a)) + alpha / alpha_inv mean_b (1 - exp(-alpha_inv d_b))`` with ``d`` the squared
+    distance to the nearest point of the other cloud; ``a (B, N, 3)`` the input side, ``b (B, M, 3)`` the
+    canonical shape. ``alpha = 0``: the plain squared Chamfer distance. Each term lies in [0, 1): a far outlier
+    costs at most 1, so the loss follows the density of the matched points rather than their extremes."""
+    d = pairwise_sq_dist(a, b)
+    return _density(d.min(-1).values, alpha).mean(-1) + _inv_weight(alpha, alpha_inv) * \
+        _density(d.min(1).values, alpha_inv if alpha > 0 else 0.0).mean(-1)
+
+
+def local_density(Y: torch.Tensor, k: int) -> torch.Tensor:
+    """OP-Align's local-density term of a point set ``Y (B, M, 3)`` (``art_metric.py`` 241-254) per batch element
+    ``(B,)``: for each k' = 1..k the variance over the points of the distance to their k'-th nearest neighbour,
+    averaged over k'. 0 for evenly spread points; it keeps the canonical shape from clumping."""
+    k = min(int(k), Y.shape[1] - 1)
+    d = pairwise_sq_dist(Y, Y).clamp_min(1e-12).sqrt()
+    knn = d.topk(k + 1, dim=-1, largest=False).values[..., 1:]  # (B, M, k), self excluded
+    return knn.var(dim=1).mean(-1)
+
+
+def offset_variance(offset: torch.Tensor, alpha: float) -> torch.Tensor:
+    """OP-Align's penalty on the per-instance offset of the category template (``art_metric.py`` 302-307) per
+    batch element ``(B,)``: ``mean_m (1 - exp(-alpha |offset_m|^2))``; ``offset (B, M, 3)``."""
+    return (1.0 - torch.exp(-alpha * (offset ** 2).sum(-1))).mean(-1)
+
+
 class OPAlignNet(nn.Module):
     """The two-level network (see the module docstring). Points are rows: ``x' = x R^T + t``."""
 
@@ -169,8 +236,11 @@ class OPAlignNet(nn.Module):
         self.register_buffer("anchors", torch.from_numpy(np.array(rotation_group(preset.group))).float())
         w = preset.width
         self.obj = PointResNet(3, w, preset.blocks)
-        self.anchor_head = mlp([w, w, 3 + 3 + 1])  # residual rotation, translation, attention logit
+        self.anchor_head = mlp([w, w, 3 + 1 + 3 + 1])  # residual axis, angle, translation, attention logit
         self.decoder = mlp([w, 2 * w, 4 * w, 3 * preset.template_points])
+        # the learnable category template y_base (OP-Align: Xavier-initialised); the decoder gives its offset
+        self.y_base = nn.Parameter(nn.init.xavier_uniform_(torch.zeros(preset.template_points, 3))) \
+            if preset.template_prior else None
         self.part = PointResNet(3, preset.part_width, preset.blocks + 1)
         self.seg = mlp([preset.part_width, preset.part_width // 2, num_parts])
         self.joint = mlp([preset.part_width, preset.part_width, 8 * self.J])
@@ -190,21 +260,26 @@ class OPAlignNet(nn.Module):
         f = f.view(B, A, -1)
         h = self.anchor_head(f)
         rmax = np.radians(self.pc.max_residual_deg)
-        res = exp_so3(rmax * torch.tanh(h[..., :3]))
+        angle = 2 * rmax * (torch.sigmoid(h[..., 3:4]) - 0.5)  # within +-rmax
+        res = exp_so3(F.normalize(h[..., :3] + 1e-8, dim=-1) * angle)
         R = G.unsqueeze(0) @ res  # (B, A, 3, 3)
-        t = 0.5 * torch.tanh(h[..., 3:6])  # canonical-frame translation of the aligned cloud
-        Y = self.decoder(f.max(1).values).view(B, -1, 3)
-        return {"R": R, "t": t, "attn": h[..., 6], "Y": Y}
+        t = 0.5 * torch.tanh(h[..., 4:7])  # canonical-frame translation of the aligned cloud
+        out = self.decoder(f.max(1).values).view(B, -1, 3)
+        if self.y_base is None:
+            return {"R": R, "t": t, "attn": h[..., 7], "Y": out, "offset": None}
+        return {"R": R, "t": t, "attn": h[..., 7], "Y": self.y_base.unsqueeze(0) + out, "offset": out}
 
-    def select(self, X: torch.Tensor, o: dict) -> torch.Tensor:
-        """Index (B,) of the anchor whose pose brings ``X`` closest to ``Y`` (no gradient)."""
+    def select(self, X: torch.Tensor, o: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """Index (B,) of the anchor whose pose brings ``X`` closest to ``Y``, and every anchor's distance (B, A):
+        the mean squared distance of the input to ``Y`` (no gradient; ``art_so3net_pn.py`` 101-142)."""
         with torch.no_grad():
             B, A = o["R"].shape[:2]
             n = min(256, X.shape[1])
             sub = X[:, torch.linspace(0, X.shape[1] - 1, n, device=X.device).long()]
             S = torch.einsum("bni,baij->banj", sub, o["R"]) - o["t"][:, :, None]
             d = pairwise_sq_dist(S.reshape(B * A, n, 3), o["Y"].detach().repeat_interleave(A, 0)).min(-1).values
-            return d.mean(-1).view(B, A).argmin(1)
+            dist = d.mean(-1).view(B, A)
+            return dist.argmin(1), dist
 
     # ---------------------------------------------------------------- part level
     def part_level(self, P: torch.Tensor) -> dict:
@@ -233,42 +308,60 @@ class OPAlignNet(nn.Module):
 
     def forward(self, X: torch.Tensor) -> dict:
         o = self.object_level(X)
-        idx = self.select(X, o)
+        idx, dist = self.select(X, o)
         ar = torch.arange(X.shape[0], device=X.device)
         R, t = o["R"][ar, idx], o["t"][ar, idx]
         S = X @ R - t[:, None]  # R^T x - t
-        return {**o, "idx": idx, "R_sel": R, "t_sel": t, "S": S, "s": self.part_level(S), "y": self.part_level(o["Y"])}
+        return {**o, "idx": idx, "anchor_dist": dist, "R_sel": R, "t_sel": t, "S": S, "s": self.part_level(S),
+                "y": self.part_level(o["Y"])}
 
     # ---------------------------------------------------------------- training
     def losses(self, batch: dict, progress: float) -> tuple[dict, torch.Tensor]:
+        """Training terms and total (the module docstring; weights as ``art_metric.py`` 75-101)."""
         X, _, _ = normalize_clouds(batch["points"].float())
         out = self(X)
         S, Y, s, y = out["S"], out["Y"], out["s"], out["y"]
         pc = self.pc
-        rigid = chamfer_distance(S, Y).mean()
-        art, parts_seen, copies = 0.0, {}, []
-        for j, a, p in self.sides:
-            R, t = self.side_motion(s, y, j, a)
+        a, a_inv = pc.density_alpha, pc.density_alpha_inv
+        rigid = density_chamfer(S, Y, a, a_inv).mean()
+        # each part's side of S moved onto Y (a part on several joints: the mean of its copies, as OP-Align's
+        # eyeglasses case), then matched against the whole of Y, weighted by the segmentations (art_metric 189-232)
+        moved, copies = {}, []
+        for j, side, p in self.sides:
+            R, t = self.side_motion(s, y, j, side)
             Sp = S @ R.transpose(1, 2) + t[:, None]
-            ws, wy = s["seg"][..., p], y["seg"][..., p]
-            d = pairwise_sq_dist(Sp, Y)  # (B, N, M)
-            fwd = ((d + pc.seg_margin * (1 - wy)[:, None, :]).min(-1).values * ws).sum(1) / ws.sum(1).clamp_min(1e-6)
-            bwd = ((d + pc.seg_margin * (1 - ws)[:, :, None]).min(1).values * wy).sum(1) / wy.sum(1).clamp_min(1e-6)
-            art = art + (fwd + bwd).mean()
-            if p in parts_seen:
-                copies.append(((Sp - parts_seen[p]) ** 2).sum(-1).mean())
-            parts_seen[p] = Sp
-        art = art / len(self.sides)
+            if p in moved:
+                copies.append(((Sp - moved[p][0]) ** 2).sum(-1).mean())
+            moved.setdefault(p, []).append(Sp)
+        parts = sorted(moved)
+        Sm = {p: torch.stack(moved[p]).mean(0) for p in parts}
+        d_fwd = torch.stack([_density(pairwise_sq_dist(Sm[p], Y).min(-1).values, a) for p in parts], -1)  # (B,N,P')
+        d_inv = torch.stack([_density(pairwise_sq_dist(Y, Sm[p]).min(-1).values, a_inv) for p in parts], -1)
+        ws, wy = s["seg"][..., parts], y["seg"][..., parts]
+        art = (d_fwd * ws).sum(-1).mean(-1) + _inv_weight(a, a_inv) * (d_inv * wy).sum(-1).mean(-1)
+        art = art.mean()
         w_rigid = pc.rigid_weight * 0.5 ** int(progress / pc.rigid_halve)
         balance = sum(F.relu(pc.min_part - o["seg"].mean(1)).sum(-1).mean() for o in (s, y))
         near = sum(pairwise_sq_dist(o["pivot"], P).min(-1).values.mean() for o, P in ((s, S), (y, Y)))
         cano = sum(((y[k] - y[k].mean(0, keepdim=True).detach()) ** 2).sum(-1).mean()
                    for k in ("pivot", "drct", "state"))
-        attn = F.cross_entropy(out["attn"], out["idx"])
+        if pc.attention == "expected":  # the attention's expected Chamfer distance over the anchors
+            attn = (torch.softmax(out["attn"], -1) * out["anchor_dist"]).sum(-1).mean()
+        else:
+            attn = F.cross_entropy(out["attn"], out["idx"])
         toff = (out["t_sel"] ** 2).sum(-1).mean()
         terms = {"rigid": rigid, "art": art, "balance": balance, "pivot_near": near, "cano_joint": cano,
                  "attn": attn, "t_offset": toff}
         total = 10 * (w_rigid * rigid + (1 - w_rigid) * art) + 10 * balance + 0.1 * near + 10 * cano + attn + toff
+        if pc.gather_weight > 0:
+            terms["density"] = local_density(Y, pc.gather_k).mean()
+            total = total + pc.gather_weight * terms["density"]
+        if pc.center_weight > 0:
+            terms["center"] = (Y.mean(1) ** 2).sum(-1).mean()
+            total = total + pc.center_weight * terms["center"]
+        if out["offset"] is not None and pc.var_weight > 0:
+            terms["shape_var"] = offset_variance(out["offset"], pc.var_alpha).mean()
+            total = total + pc.var_weight * terms["shape_var"]
         if copies:
             terms["same_part"] = sum(copies) / len(copies)
             total = total + 10 * terms["same_part"]
