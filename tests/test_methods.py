@@ -390,3 +390,29 @@ def test_op_align_template_prior_variance_penalty_and_bounded_residual():
     dist = torch.tensor([[1.0, 0.1, 0.5]])
     (torch.softmax(logits, -1) * dist).sum().backward()
     assert int(logits.grad.argmin()) == 1  # gradient descent raises the nearest anchor's attention
+
+
+def test_eap_anchor_choice_picks_the_rotation_whose_posed_shape_fits_each_part():
+    """Each part's frame is off by a cube rotation (a different one per part); the anchor choice (EAP's orbit
+    selection by reconstruction distance) finds the anchors that undo it."""
+    from scapo.methods import eap
+
+    rng = np.random.default_rng(0)
+    net = eap.EAPNet(2, [0], [(0, 1)], eap.PRESETS.get("cpu"))
+    G = net.anchors
+    shapes = []
+    for size in ((0.4, 0.1, 0.05), (0.2, 0.3, 0.08)):  # boxes with an extra bump: no rotational symmetry
+        pts = (rng.random((128, 3)) - 0.5) * size
+        pts[:20] += np.array([size[0] / 2, size[1] / 2, 0.05])
+        shapes.append(pts)
+    Y = torch.tensor(np.stack(shapes), dtype=torch.float32)[None]  # (1, 2, 128, 3)
+    R_true = torch.from_numpy(Rotation.from_rotvec([[0.3, -0.8, 0.5], [1.2, 0.1, -0.4]]).as_matrix()).float()[None]
+    t = torch.tensor([[[0.2, 0.0, 0.1], [-0.3, 0.2, 0.0]]])
+    X = torch.cat([Y[0, p] @ R_true[0, p].T + t[0, p] for p in range(2)])[None]  # (1, 256, 3)
+    w = torch.zeros(1, 256, 2)
+    w[0, :128, 0], w[0, 128:, 1] = 1, 1
+    want = torch.tensor([[5, 17]])
+    R_off = R_true @ G[want[0]].transpose(1, 2)  # the frame is off by G_want^-1
+    got = net.select_anchor(X, w, R_off, t, Y)
+    assert got.tolist() == want.tolist()
+    torch.testing.assert_close(R_off @ G[got[0]], R_true, atol=1e-5, rtol=0)

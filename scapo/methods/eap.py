@@ -14,10 +14,15 @@ Here:
 - Features: vector-neuron layers (:mod:`scapo.nn.vn`; edge features over k nearest neighbours,
   a VN-DGCNN layer) give per-point SO(3)-equivariant features of the centred cloud, and a VN
   invariant layer their invariant coordinates.
-- Parts: a soft segmentation head on the invariant features (P slots, the category's part count);
-  each slot pools the equivariant features with its weights, a VN linear map gives two vectors whose
-  Gram-Schmidt frame is the part rotation, and the weighted centroid plus an equivariant offset its
+- Parts: slot attention (:class:`~scapo.nn.slot_attention.SlotAttention`, slot-specific parameters as EAP's,
+  ``slot_iters`` iterations) over the invariant point features groups the points into P slots (the category's
+  part count); each slot pools the equivariant features with its weights, a VN linear map gives two vectors
+  whose Gram-Schmidt frame ``R_p`` is the part's frame, and the weighted centroid plus an equivariant offset its
   translation (so the part poses are SE(3)-equivariant by construction).
+- Part rotations over anchors: the candidates ``R_p G_a`` for the rotations ``G_a`` of a finite group (24 in
+  ``cpu``, 60 in ``paper``) pose the decoded canonical part shape; the one that fits the part's points best
+  (weighted Chamfer, no gradient) is the part's rotation, as EAP chooses the orbit by reconstruction distance.
+  It repairs frames that are a right angle off, which a single equivariant frame cannot.
 - Canonical part shapes: an MLP decodes each slot's invariant code (pooled features in the part's
   frame) to ``shape_points`` points.
 - Losses: Chamfer between the input and the union of posed parts, a segmentation-weighted term (each
@@ -30,9 +35,8 @@ Here:
   predictions), with a reference relative pose at the median state. At test time the axis and pivot
   are mapped to the camera by the child's pose and the state is the motion from the reference.
 
-What differs from EAP: its pose-aware equivariant point convolution and slot attention are replaced
-by the VN layers and a segmentation head above (pure PyTorch, CPU-sized); no part-shape symmetry
-handling or multi-stage schedule; Chamfer distances are plain.
+What differs from EAP: its pose-aware equivariant point convolution is replaced by the VN layers above (pure
+PyTorch, CPU-sized); no part-shape symmetry handling or multi-stage schedule; Chamfer distances are plain.
 
 Fidelity (read against Meowuu7/equi-articulated-pose at 8cceb65: the model
 ``SPConvNets/models/unsup_seg_so3_pose_conv_pn_40_multi_stage.py`` (``M40`` below), the trainer
@@ -49,11 +53,14 @@ SE(3)-equivariant point convolution      ``M40`` 48-53, ``--kanchor 60``        
 over 60 anchors                                                                            (continuous SO(3), no
                                                                                            anchors), 32 channels in
                                                                                            ``cpu``
-grouping by slot attention               ``M40`` 156-195 (``SlotAttention``,               simplified: a softmax
-                                         ``--slot-iters 7``)                                segmentation head
-part rotation over the anchors, orbit    ``M40`` 1132-1152 (``select_slot_orbits``:         simplified: one frame per
-chosen by Chamfer of the reconstruction  ``torch.min`` of each slot's per-anchor distance) part from two VN vectors
-                                                                                           (Gram-Schmidt)
+grouping by slot attention               ``M40`` 156-195 (``SlotAttention``,               same (slot-specific
+                                         ``slot_attention_spec_v2.py``, ``--slot-iters 7``) parameters, 7 iterations;
+                                                                                           initial noise in training
+                                                                                           only)
+part rotation over the anchors, orbit    ``M40`` 1132-1152 (``select_slot_orbits``:         same role: candidates
+chosen by Chamfer of the reconstruction  ``torch.min`` of each slot's per-anchor distance) ``R_p G_a`` around the VN
+                                                                                           frame (24 ``cpu``, 60
+                                                                                           ``paper``), least Chamfer
 canonical part shapes decoded from       ``M40`` 240-300 (slot shape reconstruction; with  same role (MLP decoder,
 invariant part codes                     ``--recon-prior 6`` also a pivot point, 266-270)  ``shape_points``)
 joint axis head, pivot head              ``M40`` 309-372 (``pred_axis``, pivot             absent: joints estimated
@@ -81,8 +88,10 @@ from torch import nn
 from scapo.methods.joints import joint_from_part_poses
 from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned
 from scapo.methods.nets import mlp
+from scapo.nn.slot_attention import SlotAttention
 from scapo.nn.vn import VNInvariant, VNLinear, VNLinearLeakyReLU, gather_neighbours, knn_indices
 from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist
+from scapo.ops.groups import rotation_group
 from scapo.ops.rigid import invert_transform, relative_motion_to_joint
 from scapo.ops.so3 import rotation_from_6d
 from scapo.registry import Registry
@@ -100,6 +109,17 @@ class EAPPreset(LearnedPreset):
     """Points of each decoded canonical part shape."""
     seg_margin: float = 0.1
     """Segmentation cost of the part term (normalised units squared)."""
+    slot_iters: int = 7
+    """Iterations of the slot attention that groups the points into parts (EAP's scripts: ``--slot-iters 7``)."""
+    slot_dim: int = 64
+    """Width of the slot attention's features (the invariant point features projected)."""
+    anchors: str = "O"
+    """Rotation group of each part's candidate rotations ``R_p G_a``, the one whose posed canonical shape fits the
+    part's points best (Chamfer, no gradient) chosen, as EAP's orbit selection (``"O"`` 24, ``"I"`` 60;
+    ``""``: the equivariant frame alone)."""
+    anchor_points: int = 128
+    """Input points used by the anchor choice (a subsample; the shape's points likewise at most this many): its
+    cost is batch x parts x anchors x this squared."""
     min_part: float = 0.1
     pairs: int = 2000
     """Pairs of training clouds used to estimate the joints after training."""
@@ -111,9 +131,9 @@ PRESETS: Registry[EAPPreset] = Registry("eap preset")
 PRESETS.add("cpu", EAPPreset(name="cpu", epochs=30, batch_size=16, lr=1e-3, points=256, k=10, channels=32,
                              shape_points=128))
 PRESETS.add("paper", EAPPreset(name="paper", epochs=200, batch_size=24, lr=1e-3, points=1024, channels=96,
-                               shape_points=512, k=20))
+                               shape_points=512, k=20, anchors="I", anchor_points=256))
 PRESETS.add("test", EAPPreset(name="test", epochs=2, batch_size=4, points=128, channels=8, shape_points=32, k=8,
-                              max_steps_per_epoch=2, pairs=50))
+                              max_steps_per_epoch=2, pairs=50, slot_iters=2, slot_dim=16, anchors="T"))
 
 
 class EAPNet(nn.Module):
@@ -128,7 +148,10 @@ class EAPNet(nn.Module):
         self.edge = VNLinearLeakyReLU(2, C)
         self.point = VNLinearLeakyReLU(2 * C, C)
         self.inv = VNInvariant(C)
-        self.seg = mlp([3 * C, 64, num_parts])
+        self.slot_in = mlp([3 * C, preset.slot_dim, preset.slot_dim])
+        self.slots = SlotAttention(num_parts, preset.slot_dim, iters=preset.slot_iters)
+        G = np.array(rotation_group(preset.anchors)) if preset.anchors else np.eye(3)[None]
+        self.register_buffer("anchors", torch.from_numpy(G).float())
         self.frame = VNLinear(C, 3)  # two frame vectors and a translation offset per part
         self.decoder = mlp([3 * C, 128, 256, 3 * preset.shape_points])
         J = len(self.joint_types)
@@ -150,7 +173,8 @@ class EAPNet(nn.Module):
         f = self.edge(e).mean(-1)  # (B, C, 3, N)
         f = self.point(torch.cat([f, f.mean(-1, keepdim=True).expand_as(f)], 1))
         inv, _ = self.inv(f)  # (B, C, 3, N)
-        w = torch.softmax(self.seg(inv.flatten(1, 2).transpose(1, 2)), -1)  # (B, N, P)
+        _, attn = self.slots(self.slot_in(inv.flatten(1, 2).transpose(1, 2)))  # (B, P, N), over slots
+        w = attn.transpose(1, 2)  # (B, N, P)
         wn = w / w.sum(1, keepdim=True).clamp_min(1e-6)
         pooled = torch.einsum("bcin,bnp->bpci", f, wn)  # (B, P, C, 3)
         v = self.frame(pooled.reshape(B * self.P, -1, 3)).view(B, self.P, 3, 3)
@@ -158,7 +182,33 @@ class EAPNet(nn.Module):
         t = torch.einsum("bnp,bni->bpi", wn, X) + 0.1 * v[:, :, 2]
         code = torch.einsum("bpci,bpij->bpcj", pooled, R).flatten(2)  # invariant: pooled features in the part frame
         Y = self.decoder(code).view(B, self.P, -1, 3)
+        if self.anchors.shape[0] > 1:
+            R = R @ self.anchors[self.select_anchor(X, w, R, t, Y)]
         return {"w": w, "R": R, "t": t, "Y": Y}
+
+    @torch.no_grad()
+    def select_anchor(self, X: torch.Tensor, w: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
+                      Y: torch.Tensor) -> torch.Tensor:
+        """For each part, the index ``(B, P)`` of the anchor ``G_a`` whose candidate rotation ``R_p G_a`` poses the
+        canonical part shape ``Y_p`` closest to the part's points: the part-weighted mean squared distance of the
+        points to the posed shape plus the mean distance of the shape to the points (the points of other parts
+        cost ``seg_margin`` more), on subsamples of ``anchor_points``; no gradient (EAP: the orbit with the
+        least reconstruction distance, ``M40`` 1132-1152)."""
+        B, N, _ = X.shape
+        P, M = Y.shape[1], Y.shape[2]
+        G = self.anchors.to(X)
+        A = G.shape[0]
+        n, m = min(N, self.pc.anchor_points), min(M, self.pc.anchor_points)
+        xi = torch.linspace(0, N - 1, n, device=X.device).long()
+        Ys = Y[:, :, torch.linspace(0, M - 1, m, device=X.device).long()]  # (B, P, m, 3)
+        Rc = R.unsqueeze(2) @ G  # (B, P, A, 3, 3)
+        posed = torch.einsum("bpmj,bpaij->bpami", Ys, Rc) + t[:, :, None, None]  # (B, P, A, m, 3)
+        d = pairwise_sq_dist(X[:, xi].repeat_interleave(P * A, 0), posed.reshape(B * P * A, m, 3))
+        d = d.view(B, P, A, n, m)
+        wp = w[:, xi].transpose(1, 2)[:, :, None]  # (B, P, 1, n)
+        fwd = (d.min(-1).values * wp).sum(-1) / wp.sum(-1).clamp_min(1e-6)
+        bwd = (d + self.pc.seg_margin * (1 - wp)[..., None]).min(-2).values.mean(-1)
+        return (fwd + bwd).argmin(-1)
 
     def posed(self, o: dict) -> torch.Tensor:
         """Posed canonical parts ``(B, P, M, 3)``: ``Y R^T + t``."""
