@@ -416,3 +416,23 @@ def test_eap_anchor_choice_picks_the_rotation_whose_posed_shape_fits_each_part()
     got = net.select_anchor(X, w, R_off, t, Y)
     assert got.tolist() == want.tolist()
     torch.testing.assert_close(R_off @ G[got[0]], R_true, atol=1e-5, rtol=0)
+
+
+def test_npcs_vn_backbone_gives_labels_and_npcs_that_no_rotation_changes():
+    """NPCS-style's ``vn`` backbone (the cpu and paper presets; the paper's NPCS-EPN row): part logits and NPCS
+    maps, both rotation-invariant targets, are the same for a cloud and the cloud turned about its centroid."""
+    import dataclasses
+
+    from scapo.methods import npcs
+
+    torch.manual_seed(0)
+    pc = dataclasses.replace(npcs.PRESETS.get("cpu"), vn_channels=8, width=32)
+    assert npcs.PRESETS.get("cpu").backbone == "vn" and npcs.PRESETS.get("paper").backbone == "vn"
+    net = npcs.NPCSNet(2, [0], [(0, 1)], pc).double().eval()
+    X = torch.rand(2, 96, 3, dtype=torch.float64) - 0.5
+    Q = torch.from_numpy(Rotation.from_rotvec([0.4, -1.0, 2.0]).as_matrix())
+    a, b = net(X), net(X @ Q.T)
+    torch.testing.assert_close(a[0], b[0], atol=1e-8, rtol=1e-6)
+    torch.testing.assert_close(a[1], b[1], atol=1e-8, rtol=1e-6)
+    with pytest.raises(ConfigError, match="backbone"):
+        dataclasses.replace(pc, backbone="pointnet++")

@@ -87,9 +87,9 @@ from torch import nn
 
 from scapo.methods.joints import joint_from_part_poses
 from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned
-from scapo.methods.nets import mlp
+from scapo.methods.nets import VNPointEncoder, mlp
 from scapo.nn.slot_attention import SlotAttention
-from scapo.nn.vn import VNInvariant, VNLinear, VNLinearLeakyReLU, gather_neighbours, knn_indices
+from scapo.nn.vn import VNLinear
 from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist
 from scapo.ops.groups import rotation_group
 from scapo.ops.rigid import invert_transform, relative_motion_to_joint
@@ -145,9 +145,7 @@ class EAPNet(nn.Module):
         self.joint_types = [int(t) for t in joint_types]
         self.joint_parts = [tuple(int(x) for x in p) for p in joint_parts]
         C = preset.channels
-        self.edge = VNLinearLeakyReLU(2, C)
-        self.point = VNLinearLeakyReLU(2 * C, C)
-        self.inv = VNInvariant(C)
+        self.enc = VNPointEncoder(C, preset.k)
         self.slot_in = mlp([3 * C, preset.slot_dim, preset.slot_dim])
         self.slots = SlotAttention(num_parts, preset.slot_dim, iters=preset.slot_iters)
         G = np.array(rotation_group(preset.anchors)) if preset.anchors else np.eye(3)[None]
@@ -165,15 +163,8 @@ class EAPNet(nn.Module):
         """``X (B, N, 3)`` normalised -> part weights ``w (B, N, P)``, poses ``R (B, P, 3, 3)``,
         ``t (B, P, 3)`` and canonical part shapes ``Y (B, P, M, 3)``."""
         B, N, _ = X.shape
-        c = X.mean(1, keepdim=True)
-        x = (X - c).transpose(1, 2).unsqueeze(1)  # (B, 1, 3, N)
-        idx = knn_indices(X, self.pc.k)
-        nb = gather_neighbours(x, idx)  # (B, 1, 3, N, k)
-        e = torch.cat([nb - x.unsqueeze(-1), x.unsqueeze(-1).expand_as(nb)], 1)  # (B, 2, 3, N, k)
-        f = self.edge(e).mean(-1)  # (B, C, 3, N)
-        f = self.point(torch.cat([f, f.mean(-1, keepdim=True).expand_as(f)], 1))
-        inv, _ = self.inv(f)  # (B, C, 3, N)
-        _, attn = self.slots(self.slot_in(inv.flatten(1, 2).transpose(1, 2)))  # (B, P, N), over slots
+        f, inv = self.enc(X)  # (B, C, 3, N) equivariant, (B, N, 3C) invariant
+        _, attn = self.slots(self.slot_in(inv))  # (B, P, N), over slots
         w = attn.transpose(1, 2)  # (B, N, P)
         wn = w / w.sum(1, keepdim=True).clamp_min(1e-6)
         pooled = torch.einsum("bcin,bnp->bpci", f, wn)  # (B, P, C, 3)

@@ -51,3 +51,36 @@ def mlp(sizes: list[int], last_act: bool = False) -> nn.Sequential:
         if i < len(sizes) - 2 or last_act:
             layers.append(nn.ReLU())
     return nn.Sequential(*layers)
+
+
+class VNPointEncoder(nn.Module):
+    """SO(3)-equivariant point features by vector neurons (Deng et al., ICCV 2021; :mod:`scapo.nn.vn`): an edge
+    layer over the ``k`` nearest neighbours of the centred cloud (VN-DGCNN's edge features ``[x_j - x_i, x_i]``,
+    averaged over neighbours), a point layer on each point's features beside the cloud's mean, and their
+    invariant coordinates in a learned equivariant frame.
+
+    ``forward(X (B, N, 3)) -> (equivariant (B, C, 3, N), invariant (B, N, 3C))``: rotating ``X`` about its
+    centroid rotates the first and leaves the second unchanged (translation changes neither). Used by EAP-style
+    (its part-level features) and NPCS-style (the rotation-robust backbone of the paper's NPCS-EPN row).
+    """
+
+    def __init__(self, channels: int, k: int):
+        super().__init__()
+        from scapo.nn.vn import VNInvariant, VNLinearLeakyReLU
+
+        self.k = int(k)
+        self.edge = VNLinearLeakyReLU(2, channels)
+        self.point = VNLinearLeakyReLU(2 * channels, channels)
+        self.inv = VNInvariant(channels)
+
+    def forward(self, X: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        from scapo.nn.vn import gather_neighbours, knn_indices
+
+        c = X.mean(1, keepdim=True)
+        x = (X - c).transpose(1, 2).unsqueeze(1)  # (B, 1, 3, N)
+        nb = gather_neighbours(x, knn_indices(X, self.k))  # (B, 1, 3, N, k)
+        e = torch.cat([nb - x.unsqueeze(-1), x.unsqueeze(-1).expand_as(nb)], 1)  # (B, 2, 3, N, k)
+        f = self.edge(e).mean(-1)  # (B, C, 3, N)
+        f = self.point(torch.cat([f, f.mean(-1, keepdim=True).expand_as(f)], 1))
+        inv, _ = self.inv(f)  # (B, C, 3, N)
+        return f, inv.flatten(1, 2).transpose(1, 2)

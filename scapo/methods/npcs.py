@@ -10,12 +10,13 @@ rest-state joint axes of the category from the training labels).
 
 What differs from ANCSH's NPCS baseline:
 
-- Backbone: a ResNet-PointNet (:class:`~scapo.methods.nets.PointResNet`) instead of PointNet++, so
-  it trains on two CPU cores; the paper's NPCS-EPN row uses an equivariant backbone, 3DGCN a graph one.
-  Such a backbone relies on the views' orientation, so the ``cpu`` and ``paper`` presets train with every cloud
-  turned by a uniform random rotation (``rotation_augment``; the NPCS targets stay in the object frame, as NOCS
-  trains for unseen poses): Table 1's objects come under arbitrary rotations, where no row may use the upright
-  camera (issue 29).
+- Backbone: the ``cpu`` and ``paper`` presets use vector-neuron features (``backbone = "vn"``,
+  :class:`~scapo.methods.nets.VNPointEncoder`): labels and NPCS are rotation-invariant targets, and the
+  invariant part of an SO(3)-equivariant encoder gives the same outputs for any rotation of the input, as the
+  paper's NPCS-EPN row uses an equivariant backbone (EPN) where ANCSH used PointNet++. Table 1's objects come
+  under arbitrary rotations (issue 29), where a ResNet-PointNet (``backbone = "resnet"``, the ``test`` preset)
+  must learn every rotation from augmentation (``rotation_augment``, kept on in both presets; the targets stay
+  in the object frame, as NOCS trains for unseen poses).
 - Coordinates: the dataset's ``npcs`` field, rest-state object-frame coordinates divided by the bbox
   diagonal, shared by all parts (ANCSH's per-part NPCS normalises each part on its own). The network
   predicts one coordinate map per part and uses the one of the point's predicted part, as ANCSH does.
@@ -45,7 +46,7 @@ from scapo.methods.learned import (
     normalize_clouds,
     register_learned,
 )
-from scapo.methods.nets import PointResNet, mlp
+from scapo.methods.nets import PointResNet, VNPointEncoder, mlp
 from scapo.ops.align import ransac_umeyama, umeyama
 from scapo.ops.groups import random_rotation
 from scapo.ops.rigid import as_transform
@@ -65,6 +66,18 @@ class NPCSPreset(LearnedPreset):
     """RANSAC inlier distance as a fraction of the cloud's scale (2 x RMS radius)."""
     rotation_augment: bool = False
     """Turn every training cloud by a uniform random rotation (the targets, NPCS and labels, do not change)."""
+    backbone: str = "resnet"
+    """``"resnet"``: a ResNet-PointNet (``width``, ``blocks``), which must learn rotations from augmentation;
+    ``"vn"``: vector-neuron features (:class:`~scapo.methods.nets.VNPointEncoder`, ``vn_channels``, ``k``)
+    whose invariant part gives labels and NPCS (both rotation-invariant targets) that no rotation of the input
+    changes, as the paper's NPCS-EPN row uses an equivariant backbone."""
+    vn_channels: int = 32
+    k: int = 10
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.backbone not in ("resnet", "vn"):
+            raise ConfigError(f"preset {self.name!r}: backbone must be 'resnet' or 'vn', got {self.backbone!r}")
 
 
 @dataclass(frozen=True)
@@ -85,9 +98,10 @@ class NPCSOptions(LearnedOptions):
 
 
 PRESETS: Registry[NPCSPreset] = Registry("npcs preset")
-PRESETS.add("cpu", NPCSPreset(name="cpu", epochs=30, batch_size=16, lr=1e-3, points=512, rotation_augment=True))
+PRESETS.add("cpu", NPCSPreset(name="cpu", epochs=30, batch_size=16, lr=1e-3, points=512, rotation_augment=True,
+                              backbone="vn", width=128, vn_channels=32, k=10))
 PRESETS.add("paper", NPCSPreset(name="paper", epochs=200, batch_size=32, lr=1e-3, points=1024, width=256, blocks=5,
-                                device="auto", rotation_augment=True))
+                                device="auto", rotation_augment=True, backbone="vn", vn_channels=64, k=20))
 PRESETS.add("test", NPCSPreset(name="test", epochs=2, batch_size=4, points=128, width=32, blocks=2,
                                max_steps_per_epoch=2, ransac_iterations=16))
 
@@ -104,9 +118,14 @@ class NPCSNet(nn.Module):
         self.joint_types = [int(t) for t in joint_types]
         self.joint_parts = [tuple(int(x) for x in p) for p in joint_parts]
         self.preset = preset
-        self.backbone = PointResNet(3, preset.width, preset.blocks)
-        self.seg = mlp([preset.width, preset.width // 2, num_parts])
-        self.coord = mlp([preset.width, preset.width // 2, 3 * num_parts])
+        if preset.backbone == "vn":
+            self.backbone = VNPointEncoder(preset.vn_channels, preset.k)
+            feat = 3 * preset.vn_channels
+        else:
+            self.backbone = PointResNet(3, preset.width, preset.blocks)
+            feat = preset.width
+        self.seg = mlp([feat, preset.width // 2, num_parts])
+        self.coord = mlp([feat, preset.width // 2, 3 * num_parts])
         self.register_buffer("rest_axis", torch.zeros(len(self.joint_types), 3, dtype=torch.float64))
         self.register_buffer("rest_pivot", torch.zeros(len(self.joint_types), 3, dtype=torch.float64))
         self.joints = "parent"
@@ -115,7 +134,10 @@ class NPCSNet(nn.Module):
         self.joints = options.joints
 
     def forward(self, X: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        h, _ = self.backbone(X)
+        if self.preset.backbone == "vn":
+            _, h = self.backbone(X)  # (B, N, 3C) rotation-invariant
+        else:
+            h, _ = self.backbone(X)
         B, N, _ = X.shape
         return self.seg(h), self.coord(h).view(B, N, self.P, 3)
 
