@@ -444,3 +444,33 @@ def test_table1_rows_are_one_pass_and_the_refined_prediction_is_a_row_of_its_own
     assert refined.info["refine"]["steps"] > 0 and "refine" not in one.info
     assert get_preset("test").refine.steps == 0
     assert "SCAPO (ours) + refine" in (tmp_path / "t" / "table1_synthetic.md").read_text()
+
+
+def test_the_gpu_script_runs_on_cpu_with_the_test_presets_and_resumes(tmp_path):
+    """``bench/gpu.sh`` (issue 30) with ``DEVICE=cpu PRESET=test`` on a tiny dataset: it trains, predicts and
+    evaluates through ``scapo bench table1`` and writes the table with provenance; a rerun computes nothing
+    again; without CUDA the GPU run refuses with a scapo: message."""
+    import os
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parent.parent
+    scapo_bin = Path(sys.executable).parent / "scapo"
+    env = {**os.environ, "DEVICE": "cpu", "PRESET": "test", "INSTANCES": "10", "VIEWS": "2", "METHODS": "icp,npcs",
+           "WORK": str(tmp_path / "work"), "OUT": str(tmp_path / "out"), "SCAPO": str(scapo_bin)}
+    run = subprocess.run(["bash", str(root / "bench" / "gpu.sh"), "--allow-dirty"], env=env, capture_output=True,
+                         text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    table = json.loads((tmp_path / "out" / "table1_gpu_test_laptop.json").read_text())
+    cells = table["provenance"]["cells"]
+    assert {c["cell"] for c in cells} == {"icp", "npcs_test_s0"} and table["provenance"]["preset"] == "test"
+    assert all(c["device"].startswith("cpu") for c in cells)
+    again = subprocess.run(["bash", str(root / "bench" / "gpu.sh"), "--allow-dirty"], env=env, capture_output=True,
+                           text=True, timeout=600)
+    assert again.returncode == 0 and "computed" not in again.stdout
+    import torch
+
+    if not torch.cuda.is_available():
+        gpu = subprocess.run(["bash", str(root / "bench" / "gpu.sh")], env={**env, "DEVICE": "cuda"},
+                             capture_output=True, text=True, timeout=60)
+        assert gpu.returncode == 2 and "scapo: bench/gpu.sh: no CUDA device" in gpu.stderr
