@@ -436,3 +436,34 @@ def test_npcs_vn_backbone_gives_labels_and_npcs_that_no_rotation_changes():
     torch.testing.assert_close(a[1], b[1], atol=1e-8, rtol=1e-6)
     with pytest.raises(ConfigError, match="backbone"):
         dataclasses.replace(pc, backbone="pointnet++")
+
+
+def test_eap_joint_terms_vanish_on_a_consistent_joint_and_not_on_a_wrong_one():
+    """EAP-style's joint heads (issue 30): for two parts related by a rotation about a known axis through a known
+    pivot, the true axis and pivot in each part's frame make the axis and pivot terms 0; a wrong axis or pivot
+    does not; a prismatic joint has no pivot term."""
+    from scapo.methods.eap import joint_consistency
+
+    rng = np.random.default_rng(0)
+    u, p = np.array([0.0, 0.6, 0.8]), np.array([0.1, -0.2, 0.3])  # the joint in the parent's frame
+    Ra = Rotation.from_rotvec(rng.normal(size=(4, 3))).as_matrix()
+    ta = rng.normal(size=(4, 3))
+    Rrel = Rotation.from_rotvec(np.outer(rng.uniform(0.3, 1.5, 4), u)).as_matrix()  # child = parent turned about u
+    Rc = Ra @ Rrel
+    tc = np.einsum("bij,j->bi", Ra, p) + ta - np.einsum("bij,j->bi", Rc, p)  # the pivot stays where it was
+    # so in the child's frame the pivot is p and the axis u as well (the relative rotation fixes both)
+
+    def t(x):
+        return torch.tensor(np.asarray(x), dtype=torch.float64)
+
+    def terms(u_a, p_a, u_c, p_c, jt=0):
+        head = t(np.concatenate([u_a, p_a, u_c, p_c]))[None, None].expand(4, 1, 12)
+        return joint_consistency(t(Ra)[:, None], t(ta)[:, None], t(Rc)[:, None], t(tc)[:, None], head,
+                                 torch.tensor([jt]))
+
+    good = terms(u, p, u, p)
+    assert float(good["axis"]) < 1e-12 and float(good["pivot"]) < 1e-12 and float(good["joint_var"]) < 1e-12
+    np.testing.assert_allclose(good["pivot_posed"][:, 0].numpy(), np.einsum("bij,j->bi", Ra, p) + ta, atol=1e-9)
+    assert float(terms([1.0, 0, 0], p, [1.0, 0, 0], p)["axis"]) > 1e-2
+    assert float(terms(u, p + 0.1, u, p + 0.1)["pivot"]) > 1e-4
+    assert float(terms(u, p + 0.1, u, p + 0.1, jt=1)["pivot"]) == 0.0

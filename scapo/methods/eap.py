@@ -28,12 +28,14 @@ Here:
 - Losses: Chamfer between the input and the union of posed parts, a segmentation-weighted term (each
   point explained by its own part's shape, each part's shape lying on its own points), and a balance
   term that keeps every slot populated.
-- Joints: for a joint (parent, child) the child's transform relative to the parent,
-  ``T_rel = T_parent^-1 T_child``, differs across clouds by a motion about the joint, so the axis and
-  pivot in the child's canonical frame are estimated once after training from pairs of training
-  clouds (medians over pairs whose relative motion is large enough; unlabelled, the method's own
-  predictions), with a reference relative pose at the median state. At test time the axis and pivot
-  are mapped to the camera by the child's pose and the state is the motion from the reference.
+- Joints: heads predict each joint's axis and pivot in the parent's and the child's frames from the two parts'
+  codes (``joint_heads``), trained without labels by :func:`joint_consistency` (the axis and pivot seen from both
+  parts agree in the camera frame, and stay the category's in each part's frame); they give the predicted axis
+  and pivot. The state is the child's motion relative to the parent measured from a reference relative pose:
+  for a joint (parent, child), ``T_rel = T_parent^-1 T_child`` differs across clouds by a motion about the
+  joint, so an axis, a pivot and the reference (at the median state) are also estimated once after training
+  from pairs of training clouds (unlabelled, the method's own predictions); the state is the motion along that
+  axis, whose sign the heads' axis takes.
 
 What differs from EAP: its pose-aware equivariant point convolution is replaced by the VN layers above (pure
 PyTorch, CPU-sized); no part-shape symmetry handling or multi-stage schedule; Chamfer distances are plain.
@@ -63,9 +65,10 @@ chosen by Chamfer of the reconstruction  ``torch.min`` of each slot's per-anchor
                                                                                            ``paper``), least Chamfer
 canonical part shapes decoded from       ``M40`` 240-300 (slot shape reconstruction; with  same role (MLP decoder,
 invariant part codes                     ``--recon-prior 6`` also a pivot point, 266-270)  ``shape_points``)
-joint axis head, pivot head              ``M40`` 309-372 (``pred_axis``, pivot             absent: joints estimated
-                                         prediction), ``--pred-axis 1``                     after training from part
-                                                                                           transforms of pairs
+joint axis head, pivot head              ``M40`` 309-372 (``pred_axis``, pivot             simplified: one head per
+                                         prediction), ``--pred-axis 1``                     joint on the two parts'
+                                                                                           codes, consistency terms;
+                                                                                           state from part pairs
 reconstruction losses                    ``M40`` 1473-1507 (global), slot terms;           simplified: plain Chamfer
                                          ``--glb-recon-factor 1 --slot-recon-factor 0.5``  + segmentation-weighted
                                                                                            part term + balance
@@ -125,6 +128,12 @@ class EAPPreset(LearnedPreset):
     """Pairs of training clouds used to estimate the joints after training."""
     min_motion_deg: float = 10.0
     """Pairs whose relative motion is below this angle (prismatic: 0.05 cloud scales) are skipped."""
+    joint_heads: bool = True
+    """Predict each joint's axis and pivot with their own heads (EAP: ``--pred-axis 1``, pivot points decoded
+    with the part shapes), from the two parts' invariant codes, in each part's frame, trained by
+    :func:`joint_consistency`; False: axis and pivot from the pairs of training clouds only."""
+    joint_weight: float = 1.0
+    """Weight of the joint heads' terms."""
 
 
 PRESETS: Registry[EAPPreset] = Registry("eap preset")
@@ -134,6 +143,32 @@ PRESETS.add("paper", EAPPreset(name="paper", epochs=200, batch_size=24, lr=1e-3,
                                shape_points=512, k=20, anchors="I", anchor_points=256))
 PRESETS.add("test", EAPPreset(name="test", epochs=2, batch_size=4, points=128, channels=8, shape_points=32, k=8,
                               max_steps_per_epoch=2, pairs=50, slot_iters=2, slot_dim=16, anchors="T"))
+
+
+def joint_consistency(R_a: torch.Tensor, t_a: torch.Tensor, R_c: torch.Tensor, t_c: torch.Tensor,
+                      head: torch.Tensor, joint_types: torch.Tensor) -> dict:
+    """Self-supervised terms of the joint heads (EAP-style) for J joints between parent parts ``a`` and child
+    parts ``c``: ``R_a, R_c (B, J, 3, 3)``, ``t_a, t_c (B, J, 3)`` part poses (part frame -> normalised camera),
+    ``head (B, J, 12)`` = axis ``u_a``, pivot ``p_a`` in the parent's frame and ``u_c``, ``p_c`` in the child's,
+    ``joint_types (J,)`` (0 revolute, 1 prismatic). Returns the batch means of
+
+    - ``axis``: the axis seen from both parts agrees in the camera frame, ``|R_a u_a - R_c u_c|^2`` (unit axes);
+    - ``pivot``: (revolute) the pivot seen from both parts is one point, ``|R_a p_a + t_a - R_c p_c - t_c|^2``;
+    - ``joint_var``: each head output's variance over the batch (its distance to the batch mean, which carries
+      no gradient): the joint is the category's, fixed in each part's frame, so with the two terms above the
+      axis is the one the parts' relative rotations share and the pivot the point they leave fixed;
+
+    and ``pivot_posed (B, J, 3)``, the pivot in the camera frame (the mean of both parts' views of it)."""
+    u_a, p_a = F.normalize(head[..., 0:3] + 1e-8, dim=-1), head[..., 3:6]
+    u_c, p_c = F.normalize(head[..., 6:9] + 1e-8, dim=-1), head[..., 9:12]
+    A_a, A_c = (R_a @ u_a[..., None])[..., 0], (R_c @ u_c[..., None])[..., 0]
+    P_a, P_c = (R_a @ p_a[..., None])[..., 0] + t_a, (R_c @ p_c[..., None])[..., 0] + t_c
+    revolute = (joint_types == 0).to(head.dtype)
+    parts = torch.stack([u_a, p_a, u_c, p_c], -2)  # (B, J, 4, 3)
+    return {"axis": ((A_a - A_c) ** 2).sum(-1).mean(),
+            "pivot": (((P_a - P_c) ** 2).sum(-1) * revolute).mean(),
+            "joint_var": ((parts - parts.mean(0, keepdim=True).detach()) ** 2).sum(-1).mean(),
+            "pivot_posed": 0.5 * (P_a + P_c)}
 
 
 class EAPNet(nn.Module):
@@ -153,6 +188,9 @@ class EAPNet(nn.Module):
         self.frame = VNLinear(C, 3)  # two frame vectors and a translation offset per part
         self.decoder = mlp([3 * C, 128, 256, 3 * preset.shape_points])
         J = len(self.joint_types)
+        # per joint, from the parent's and the child's codes: axis and pivot in the parent's and the child's frames
+        self.joint_head = mlp([6 * C, 128, 12]) if preset.joint_heads and J else None
+        self._last_joints = None
         # joints in the child's canonical frame and the reference relative pose (set after training)
         self.register_buffer("joint_axis", torch.zeros(J, 3, dtype=torch.float64))
         self.register_buffer("joint_pivot", torch.zeros(J, 3, dtype=torch.float64))
@@ -175,7 +213,12 @@ class EAPNet(nn.Module):
         Y = self.decoder(code).view(B, self.P, -1, 3)
         if self.anchors.shape[0] > 1:
             R = R @ self.anchors[self.select_anchor(X, w, R, t, Y)]
-        return {"w": w, "R": R, "t": t, "Y": Y}
+        out = {"w": w, "R": R, "t": t, "Y": Y}
+        if self.joint_head is not None:  # (B, J, 12): u_parent, p_parent, u_child, p_child (each part's frame)
+            pa = [a for a, _ in self.joint_parts]
+            ch = [c for _, c in self.joint_parts]
+            out["joint"] = self.joint_head(torch.cat([code[:, pa], code[:, ch]], -1))
+        return out
 
     @torch.no_grad()
     def select_anchor(self, X: torch.Tensor, w: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
@@ -219,7 +262,18 @@ class EAPNet(nn.Module):
         part = (fwd + bwd).mean()
         balance = F.relu(self.pc.min_part - o["w"].mean(1)).sum(-1).mean()
         terms = {"rec": rec, "part": part, "balance": balance}
-        return terms, 10 * rec + 10 * part + 10 * balance
+        total = 10 * rec + 10 * part + 10 * balance
+        if "joint" in o:
+            pa = [a for a, _ in self.joint_parts]
+            ch = [c for _, c in self.joint_parts]
+            jt = torch.tensor(self.joint_types, device=X.device)
+            jterms = joint_consistency(o["R"][:, pa], o["t"][:, pa], o["R"][:, ch], o["t"][:, ch], o["joint"], jt)
+            # the pivot lies on the object: near its nearest input point
+            piv = jterms.pop("pivot_posed")
+            jterms["pivot_near"] = pairwise_sq_dist(piv, X).min(-1).values.mean()
+            terms.update(jterms)
+            total = total + self.pc.joint_weight * sum(jterms.values())
+        return terms, total
 
     # ---------------------------------------------------------------- joints after training
     def part_poses(self, points: torch.Tensor, shapes: bool = False) -> tuple[np.ndarray, ...]:
@@ -232,6 +286,19 @@ class EAPNet(nn.Module):
         T[:, :, :3, :3] = o["R"].double().cpu()
         T[:, :, :3, 3] = (sc[:, None, None] * o["t"] + c[:, None]).double().cpu()
         out = (o["w"].argmax(-1).cpu().numpy(), T.numpy(), sc.double().cpu().numpy())
+        self._last_joints = None
+        if "joint" in o:  # the joint heads' axis (camera frame) and pivot (metres), for infer
+            pa = [a for a, _ in self.joint_parts]
+            ch = [c_ for _, c_ in self.joint_parts]
+            jt = torch.tensor(self.joint_types, device=X.device)
+            piv = joint_consistency(o["R"][:, pa], o["t"][:, pa], o["R"][:, ch], o["t"][:, ch], o["joint"],
+                                    jt)["pivot_posed"]
+            u_a = F.normalize(o["joint"][..., 0:3] + 1e-8, dim=-1)
+            u_c = F.normalize(o["joint"][..., 6:9] + 1e-8, dim=-1)
+            A = F.normalize((o["R"][:, pa] @ u_a[..., None])[..., 0] + (o["R"][:, ch] @ u_c[..., None])[..., 0]
+                            + 1e-8, dim=-1)
+            self._last_joints = (A.double().cpu().numpy(),
+                                 (sc[:, None, None] * piv + c[:, None]).double().cpu().numpy())
         return out + ((sc[:, None, None, None] * o["Y"]).double().cpu().numpy(),) if shapes else out
 
     def set_extras(self, extras: dict) -> None:
@@ -244,6 +311,7 @@ class EAPNet(nn.Module):
         decoded canonical parts as the whole-object model of :mod:`scapo.methods.refine`: ``template (B, P M, 3)``
         (metres, each point in its part's frame) and ``template_label (B, P M)``."""
         lab, T, sc, Y = self.part_poses(points, shapes=True)
+        heads = self._last_joints  # (axis (B, J, 3), pivot (B, J, 3)) from the joint heads, or None
         B, J = len(T), len(self.joint_types)
         axis, pivot, state = np.zeros((B, J, 3)), np.zeros((B, J, 3)), np.zeros((B, J))
         ax_c, pv_c = self.joint_axis.cpu().numpy(), self.joint_pivot.cpu().numpy()
@@ -259,6 +327,9 @@ class EAPNet(nn.Module):
                 axis[b, j] = T[b, ch, :3, :3] @ ax_c[j]
                 pivot[b, j] = T[b, ch, :3, :3] @ (pv_c[j] * sc[b]) + T[b, ch, :3, 3]
                 state[b, j] = _motion_along(invert_transform(ref[j]) @ rel, jt, ax_c[j]) * (sc[b] if jt == 1 else 1.0)
+        if heads is not None:  # axis and pivot from the heads; the axis signed as the state's (extras') axis
+            sign = np.where(np.einsum("bji,bji->bj", heads[0], axis) < 0, -1.0, 1.0)[..., None]
+            axis, pivot = heads[0] * sign, heads[1]
         P, Mp = Y.shape[1:3]
         return {"part_label": lab, "part_pose": T, "joint_axis": axis, "joint_pivot": pivot, "joint_state": state,
                 "T_cam_obj": T[:, 0].copy(), "template": Y.reshape(B, P * Mp, 3),
