@@ -168,3 +168,38 @@ def test_a_method_defined_outside_the_package_trains_predicts_and_is_scored_thro
     out = capsys.readouterr().out
     assert "Toy-style" in out
     assert "toy" not in METHODS.names() or METHODS.get("toy").trained
+
+
+def test_a_step_schedule_halves_the_rate_every_decay_steps_and_iterations_set_the_epochs(laptop_data):
+    """OP-Align's schedule (lr halved every 5,000 iterations, 20,000 iterations) as a preset can state it: the
+    engine's step schedule and a learned preset's ``iterations``."""
+    import dataclasses
+
+    from scapo.data import load
+    from scapo.engine.loop import Stage
+    from scapo.errors import ConfigError
+    from scapo.methods import op_align
+    from scapo.methods.learned import learned_job
+
+    p = torch.nn.Parameter(torch.zeros(1))
+    stage = Stage(index=1, epochs=1, lr=1.0, params=lambda: [p], losses=None, schedule="step", decay=0.5,
+                  decay_steps=3)
+    opt = torch.optim.SGD([p], lr=1.0)
+    sched = stage.scheduler(opt, steps=100, min_lr=0.0)
+    rates = []
+    for _ in range(7):
+        rates.append(opt.param_groups[0]["lr"])
+        opt.step()
+        sched.step()
+    assert rates == [1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.25]
+    with pytest.raises(ValueError, match="schedule"):
+        Stage(index=1, epochs=1, lr=1.0, params=lambda: [], losses=None, schedule="linear")
+    pc = dataclasses.replace(op_align.PRESETS.get("test"), iterations=7, lr_schedule="step", lr_decay_steps=2,
+                             max_steps_per_epoch=0, batch_size=4)
+    train = load(laptop_data, split="train")
+    job = learned_job(op_align.SPEC, pc, train, torch.device("cpu"))
+    per_epoch = job.steps_per_epoch(1)
+    assert job.stages[0].epochs == -(-7 // per_epoch) and job.stages[0].schedule == "step"
+    assert op_align.PRESETS.get("paper").iterations == 20000 and op_align.PRESETS.get("paper").lr == 1e-4
+    with pytest.raises(ConfigError, match="lr_schedule"):
+        dataclasses.replace(pc, lr_schedule="linear")

@@ -109,6 +109,9 @@ class Stage:
             the log's header, written at the first step, holds the later stages' columns too).
         on_start: called once when the stage starts from its first epoch (not on a resume inside it),
             e.g. SCAPO's template initialisation before stage 2.
+        schedule: ``"cosine"`` (annealed to ``FitConfig.min_lr`` over the stage) or ``"step"`` (multiplied by
+            ``decay`` every ``decay_steps`` optimiser steps, as OP-Align's ``exp_decay`` schedule:
+            ``options.py`` 121-127 of YC-Che/OP-Align).
     """
 
     index: int
@@ -118,6 +121,20 @@ class Stage:
     losses: LossFn
     terms: tuple[str, ...] = ()
     on_start: Callable[[], None] | None = None
+    schedule: str = "cosine"
+    decay: float = 0.5
+    decay_steps: int = 5000
+
+    def __post_init__(self):
+        if self.schedule not in ("cosine", "step") or not 0 < self.decay <= 1 or self.decay_steps < 1:
+            raise ValueError(f"stage {self.index}: schedule must be 'cosine' or 'step' with 0 < decay <= 1 and "
+                             f"decay_steps >= 1, got {self.schedule!r}, {self.decay}, {self.decay_steps}")
+
+    def scheduler(self, opt: torch.optim.Optimizer, steps: int, min_lr: float):
+        """The stage's learning-rate scheduler for ``steps`` optimiser steps per epoch (stepped once per step)."""
+        if self.schedule == "step":
+            return torch.optim.lr_scheduler.StepLR(opt, step_size=self.decay_steps, gamma=self.decay)
+        return torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, self.epochs * steps), eta_min=min_lr)
 
 
 @dataclass(frozen=True)
@@ -248,8 +265,7 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                 continue
             first = start[1] if stage.index == start[0] else 0
             opt = torch.optim.Adam(stage.params(), lr=stage.lr, weight_decay=cfg.weight_decay)
-            sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, stage.epochs * steps),
-                                                               eta_min=cfg.min_lr)
+            sched = stage.scheduler(opt, steps, cfg.min_lr)
             if state is not None and stage.index == start[0] and first > 0 and "optimizer" in state:
                 opt.load_state_dict(state["optimizer"])
                 sched.load_state_dict(state["scheduler"])

@@ -56,14 +56,28 @@ class LearnedPreset:
     grad_clip: float = 1.0
     seed: int = 0
     device: str = "auto"
+    iterations: int = 0
+    """> 0: train this many optimiser steps (the epochs follow from the training split's size; the originals'
+    schedules count iterations) instead of ``epochs``."""
+    lr_schedule: str = "cosine"
+    """``"cosine"`` to ``min_lr``, or ``"step"``: ``lr_decay`` every ``lr_decay_steps`` steps
+    (:class:`~scapo.engine.loop.Stage`)."""
+    lr_decay: float = 0.5
+    lr_decay_steps: int = 5000
 
     def __post_init__(self):
         bad = [k for k, ok in {"epochs": self.epochs >= 1, "batch_size": self.batch_size >= 1, "lr": self.lr > 0,
                                 "points": self.points >= 64, "seed": self.seed >= 0,
-                                "max_steps_per_epoch": self.max_steps_per_epoch >= 0}.items() if not ok]
+                                "max_steps_per_epoch": self.max_steps_per_epoch >= 0,
+                                "iterations": self.iterations >= 0,
+                                "lr_schedule": self.lr_schedule in ("cosine", "step"),
+                                "lr_decay": 0 < self.lr_decay <= 1, "lr_decay_steps": self.lr_decay_steps >= 1,
+                                }.items() if not ok]
         if bad:
             raise ConfigError(f"invalid preset value(s) {', '.join(f'{k}={getattr(self, k)!r}' for k in bad)}: need "
-                              "epochs >= 1, batch_size >= 1, lr > 0, points >= 64, seed >= 0, max_steps_per_epoch >= 0")
+                              "epochs >= 1, batch_size >= 1, lr > 0, points >= 64, seed >= 0, "
+                              "max_steps_per_epoch >= 0, iterations >= 0, lr_schedule cosine | step, "
+                              "0 < lr_decay <= 1, lr_decay_steps >= 1")
 
 
 @dataclass(frozen=True)
@@ -189,10 +203,16 @@ def learned_job(spec: LearnedSpec, pc, train: ArticulationDataset, dev: torch.de
         net.eval()
         return {"extras": spec.extras(net, train.arrays(list(spec.extras_fields or spec.fields)))}
 
-    stage = Stage(index=1, epochs=pc.epochs, lr=pc.lr, params=lambda: list(net.parameters()), losses=net.losses)
     cfg = FitConfig(batch_size=pc.batch_size, weight_decay=pc.weight_decay, min_lr=pc.min_lr, grad_clip=pc.grad_clip,
                     max_steps_per_epoch=pc.max_steps_per_epoch, seed=pc.seed, order="permutation")
-    return TrainJob(model=net, data=CloudSet(tensors, pc.points), stages=[stage], config=cfg, extras=extras,
+    data = CloudSet(tensors, pc.points)
+    epochs = pc.epochs
+    if pc.iterations > 0:  # the original's iteration count on one process: epochs of this training split
+        per_epoch = TrainJob(model=net, data=data, stages=[], config=cfg).steps_per_epoch(1)
+        epochs = max(1, -(-pc.iterations // per_epoch))
+    stage = Stage(index=1, epochs=epochs, lr=pc.lr, params=lambda: list(net.parameters()), losses=net.losses,
+                  schedule=pc.lr_schedule, decay=pc.lr_decay, decay_steps=pc.lr_decay_steps)
+    return TrainJob(model=net, data=data, stages=[stage], config=cfg, extras=extras,
                     desc=f"train {spec.method} {train.card['category']} ({pc.name})")
 
 

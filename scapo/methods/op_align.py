@@ -49,7 +49,7 @@ SE(3)-equivariant backbone over 60 anchors ``art_so3net_pn.py`` 21-45, E2PN     
                                                                                            in ``paper``)
 input points                               ``options.py`` 28 (``--input-num 1024``)        ``cpu``: 256, and 96 to the
                                                                                            anchor backbone; ``paper``:
-                                                                                           1024 / 512
+                                                                                           1024 / 1024
 residual rotation per anchor, bounded      ``art_so3net_pn.py`` 273-278 (angle within      same: unit axis x angle
                                            +-pi/10 of the anchor)                          within +-18 deg
 anchor chosen by Chamfer, no gradient      ``art_so3net_pn.py`` 101-142                    same (mean nearest distance)
@@ -62,8 +62,9 @@ density-aware Chamfer (``1 - exp(-a d)``)  ``art_metric.py`` 77-78, 169-178, 234
                                                                                            the rigid and part terms
 local-density term on the canonical shape  ``art_metric.py`` 82, 241-254                   same (weight 200, k 64)
 canonical shape centred                    ``art_metric.py`` 84, 295-300                   same
-rigid term halving on a schedule           ``art_metric.py`` 72-74 (every 5000 iters)      same rule, every 15 % of
-                                                                                           training
+rigid term halving on a schedule           ``art_metric.py`` 72-74 (every 5000 iters)      same rule: ``paper`` every
+                                                                                           5,000 iterations, ``cpu``
+                                                                                           every 15 % of training
 part-level network on S and on Y, joint    ``art_so3net_pn.py`` 52-55 (``ResnetPointnet``) same outline
 pivot, direction and two states per side
 segmentation-weighted part alignment       ``art_metric.py`` 78, 189-232                   same: each moved part
@@ -76,9 +77,9 @@ pivot near the shape                       ``art_metric.py`` 87-88, 267-274     
 part populated / probability floor         ``art_metric.py`` 101, 317-325                  simplified: balance hinge
 translation offset small                   ``art_metric.py`` 100                           same
 colour channel                             ``art_metric.py`` 78 (``color_w``)              absent (depth only)
-schedule                                   ``options.py`` 89-127: 20,000 iterations,       ``cpu``: 20 epochs (about
-                                           batch 16, lr 1e-4 halved every 5,000            1,300 iterations), lr 1e-3;
-                                                                                           ``paper``: 200 epochs
+schedule                                   ``options.py`` 89-127: 20,000 iterations,       ``paper``: same; ``cpu``:
+                                           batch 16, lr 1e-4 halved every 5,000            20 epochs (about 1,300
+                                                                                           iterations), lr 1e-3
 evaluation: half-turn forgiven on laptop   ``art_metric.py`` 391-455, 513-545              our ``op-align`` protocol
 and eyeglasses                                                                             (``scapo.eval.protocols``)
 =========================================  ==============================================  ==========================
@@ -172,8 +173,12 @@ class OPAlignPreset(LearnedPreset):
 PRESETS: Registry[OPAlignPreset] = Registry("op-align preset")
 PRESETS.add("cpu", OPAlignPreset(name="cpu", epochs=20, batch_size=16, lr=1e-3, points=256, anchor_points=96,
                                  width=64, part_width=96, template_points=256))
-PRESETS.add("paper", OPAlignPreset(name="paper", epochs=200, batch_size=24, lr=1e-3, points=1024, group="I",
-                                   anchor_points=512, width=128, blocks=3, part_width=256, template_points=1024))
+# paper: the original's schedule (options.py 28, 89-127: 1024 points, 20,000 iterations of batch 16, lr 1e-4 halved
+# every 5,000; the 60 icosahedral anchors), the rigid term halving every 5,000 iterations (art_metric.py 72-74)
+PRESETS.add("paper", OPAlignPreset(name="paper", batch_size=16, lr=1e-4, points=1024, group="I",
+                                   anchor_points=1024, width=128, blocks=3, part_width=256, template_points=1024,
+                                   iterations=20000, lr_schedule="step", lr_decay=0.5, lr_decay_steps=5000,
+                                   rigid_halve=0.25))
 PRESETS.add("test", OPAlignPreset(name="test", epochs=2, batch_size=4, points=128, anchor_points=64, width=32,
                                   blocks=2, part_width=32, template_points=64, max_steps_per_epoch=2, group="T"))
 
