@@ -48,9 +48,15 @@ role kept in another form) or "absent"; issue 30 closes the gaps):
 =======================================  ================================================  ========================
 component                                original (file: lines)                            ours
 =======================================  ================================================  ========================
-stage 0: a whole-shape pose network      trainer 335-341 (a second model with              absent: one stage
-canonicalises the input first (frozen)   ``stage = 0``, loaded from ``*_stage_0.pth``);
-                                         ``M40`` 1366-1534 (global orbit by Chamfer)
+stage 0: a whole-shape pose network      trainer 335-341 (a second model with              absent: the VN encoder is
+canonicalises the input first (frozen)   ``stage = 0``, loaded from ``*_stage_0.pth``);    equivariant to every
+                                         ``M40`` 1366-1534 (global orbit by Chamfer)       rotation, so turning the
+                                                                                           input into a canonical
+                                                                                           frame first would not
+                                                                                           change its outputs; EAP's
+                                                                                           anchor-based convolution
+                                                                                           is equivariant to 60
+                                                                                           rotations only
 SE(3)-equivariant point convolution      ``M40`` 48-53, ``--kanchor 60``                    simplified: VN-DGCNN
 over 60 anchors                                                                            (continuous SO(3), no
                                                                                            anchors), 32 channels in
