@@ -65,13 +65,15 @@ def test_tables_figures_and_per_cell_provenance(bench):
     for key, c in cells.items():
         timing = json.loads((work / "laptop_i10_v2_s0" / f"run_{key}" / "timing.json").read_text())
         assert c["train_s"] == timing["seconds"]  # training time summed over the run's sessions
+        with open(work / "laptop_i10_v2_s0" / f"run_{key}" / "log.csv") as f:
+            assert c["train_steps"] == timing["steps"] == sum(1 for _ in f) - 1  # one log row per optimiser step
         assert c["predict_s"] > 0 and c["evaluate_s"] > 0 and c["commit"] and c["device"].startswith("cpu")
     from scapo.methods import METHODS
 
     rec = json.loads((work / "laptop_i10_v2_s0" / "cells" / "scapo_test_s0.scapo.json").read_text())
     assert rec["info"]["inference"] == METHODS.get("scapo").inference(work / "laptop_i10_v2_s0" / "run_scapo_test_s0")
     md = (out / "table1_synthetic.md").read_text()
-    assert "## Cells (wall time, minutes)" in md and "scapo_test_s0" in md and "SCAPO (paper)" in md
+    assert "## Cells (wall time, minutes; training steps)" in md and "scapo_test_s0" in md and "SCAPO (paper)" in md
 
 
 def test_rerun_recomputes_nothing_and_rewrites_identical_tables(bench, monkeypatch):

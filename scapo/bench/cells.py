@@ -341,6 +341,8 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
             train_method(cell.method, data, paths.run, cell.preset, progress=progress, device=device, seed=cell.seed)
         timing = json.loads((paths.run / "timing.json").read_text())
         wall.update(train_s=float(timing["seconds"]), train_device=timing.get("device"))
+        if timing.get("steps") is not None:
+            wall["train_steps"] = int(timing["steps"])
     t0 = time.perf_counter()
     if fit:
         preds = Predictions.load(paths.predictions)

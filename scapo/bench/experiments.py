@@ -260,7 +260,7 @@ def _provenance(name: str, cells, records, hashes, instances, views, data_seed, 
                          "commit": computed_commit(r), "device": r["provenance"]["device"],
                          **({"evaluated_at": r["provenance"]["commit"]}
                             if r["provenance"]["commit"] != computed_commit(r) else {}),
-                         **{k: w[k] for k in ("train_s", "predict_s", "evaluate_s") if k in w}})
+                         **{k: w[k] for k in ("train_s", "train_steps", "predict_s", "evaluate_s") if k in w}})
     seeds: dict[str, list[int]] = {}
     for c in cells:
         if c.seed is not None and c.seed not in seeds.setdefault(c.category, []):

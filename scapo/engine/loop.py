@@ -290,7 +290,8 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
         if board is not None:
             board.close()
     if ctx.is_main:  # the training time over every session that trained this run (resumes included)
-        folder.write_timing(before + time.perf_counter() - t0, device, ctx.world)
+        folder.write_timing(before + time.perf_counter() - t0, device, ctx.world,
+                            steps=sum(stage.epochs * steps for stage in live))
     return folder.checkpoint
 
 

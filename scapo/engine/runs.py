@@ -7,7 +7,7 @@
                         written atomically after every epoch
     RUN/log.csv         one row per optimiser step: stage, epoch, step, lr, total, then one column per loss term
     RUN/losses.png      the loss curves (:func:`plot_losses`)
-    RUN/timing.json     training seconds over every session that trained the run, device, world size
+    RUN/timing.json     training seconds over every session that trained the run, device, world size, steps
 
 A run folder belongs to one identity. :class:`RunFolder` refuses, before anything is written, a path that is
 a file, a non-empty folder holding no run, and a folder whose ``run.json`` or checkpoint has another identity
@@ -168,9 +168,11 @@ class RunFolder:
         torch.save({**state, "identity": self.identity, "identity_hash": self.hash()}, buf)
         atomic_write_bytes(self.checkpoint, buf.getvalue())
 
-    def write_timing(self, seconds: float, device, world_size: int) -> None:
+    def write_timing(self, seconds: float, device, world_size: int, steps: int | None = None) -> None:
+        """``timing.json``: training seconds (every session), device, world size and the optimiser steps of the
+        whole schedule (per rank; None when unknown)."""
         atomic_write_text(self.path / "timing.json", json.dumps({"seconds": round(seconds, 1), "device": str(device),
-                                                                 "world_size": world_size}) + "\n")
+                                                                 "world_size": world_size, "steps": steps}) + "\n")
 
 
 def load_error_text(e: Exception) -> str:

@@ -192,10 +192,11 @@ def cells_markdown(cells: Sequence[dict] | None) -> list[str]:
         return short(c["commit"]) + (f" (evaluated {short(c['evaluated_at'])})" if c.get("evaluated_at") else "")
 
     rows = [[c["category"], c["cell"], commit(c), c["device"], minutes(c, "train_s"),
+             "-" if c.get("train_steps") is None else str(c["train_steps"]),
              minutes(c, "predict_s"), minutes(c, "evaluate_s")] for c in cells]
-    return ["## Cells (wall time, minutes)", "",
-            markdown_table(["Category", "Cell", "Commit", "Device", "Train", "Predict", "Evaluate"], rows,
-                           ["l", "l", "l", "l", "r", "r", "r"]), ""]
+    return ["## Cells (wall time, minutes; training steps)", "",
+            markdown_table(["Category", "Cell", "Commit", "Device", "Train", "Steps", "Predict", "Evaluate"], rows,
+                           ["l", "l", "l", "l", "r", "r", "r", "r"]), ""]
 
 
 #: The ordering check of the self-supervised rows: metric -> (the statistic of a cell, higher is better).
