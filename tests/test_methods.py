@@ -467,3 +467,19 @@ def test_eap_joint_terms_vanish_on_a_consistent_joint_and_not_on_a_wrong_one():
     assert float(terms([1.0, 0, 0], p, [1.0, 0, 0], p)["axis"]) > 1e-2
     assert float(terms(u, p + 0.1, u, p + 0.1)["pivot"]) > 1e-4
     assert float(terms(u, p + 0.1, u, p + 0.1, jt=1)["pivot"]) == 0.0
+
+
+def test_perf_train_times_every_trained_methods_step_and_refuses_icp(tmp_path):
+    """``scapo bench perf --what train`` (issue 30): clouds/s of one training step per stage for every trained
+    method (two stages for SCAPO), written with provenance; ICP, which is not trained, is refused."""
+    from scapo.perf import bench_train
+
+    rows = bench_train(["npcs", "scapo"], "test", iters=1)
+    by = {r["method"]: r for r in rows}
+    assert by["npcs"]["stage1_clouds_per_s"] > 0 and by["scapo"]["stage2_clouds_per_s"] > 0
+    assert by["npcs"]["points"] == 128 and by["scapo"]["threads"] >= 1
+    with pytest.raises(ConfigError, match="not trained"):
+        bench_train(["icp"], "test")
+    assert main(["bench", "perf", "--what", "train", "--method", "npcs", "--preset", "test",
+                 "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "train_test_npcs.json").is_file()

@@ -488,6 +488,11 @@ def cmd_bench(args) -> int:
 
         rows = bench_generate(args.category, instances, views, tuple(args.workers), args.seed, args.cache)
         name = f"generate_{args.category}"
+    elif args.target == "train":
+        from scapo.perf import bench_train
+
+        rows = bench_train([args.method] if args.method else None, args.preset, device=args.device)
+        name = f"train_{args.preset}" + (f"_{args.method}" if args.method else "")
     elif args.method is None:  # SCAPO's training and inference speed
         from scapo.perf import bench_method
 
@@ -771,10 +776,11 @@ def build_parser() -> argparse.ArgumentParser:
                     "table2: default op-align, as the paper's Table 2")
     sp.add_argument("--limit", type=int, default=0, help="perf --what icp: time the first N test clouds (0: all)")
     sp.add_argument("--sizes", type=_ints, default=[100, 1000, 10000], help="perf --what growth: dataset sizes")
-    sp.add_argument("--what", dest="target", choices=["generate", "model", "icp", "maniskill", "growth"],
+    sp.add_argument("--what", dest="target", choices=["generate", "model", "train", "icp", "maniskill", "growth"],
                     default="generate",
                     help="perf: generation throughput (generate), SCAPO's or a method's training/inference speed "
-                    "(model), ICP's two searches (icp, with --data), the ManiSkill3 backend against SAPIEN "
+                    "(model), every trained method's training clouds/s per stage (train; --method for one), "
+                    "ICP's two searches (icp, with --data), the ManiSkill3 backend against SAPIEN "
                     "(maniskill), generation and evaluation time against dataset size (growth)")
     sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3; a "
                     "method's per-category preset PRESET-CATEGORY is used where it has one)")
