@@ -280,87 +280,38 @@ def bench_method(method: str, preset: str = "cpu", device: str | None = None, da
                                                           num_points=num_points, data=data)]
 
 
+
 def bench_train(methods=None, preset: str = "cpu", device: str | None = None, iters: int = 5,
                 threads: int | None = None) -> list[dict]:
     """Training speed of every trained method (issue 30: ``scapo bench perf --what train``): clouds per second of
     one optimiser step (loss, backward, Adam step) at ``preset``'s batch size and training points, per training
     stage (SCAPO has two), on the given device (default CPU), with ``threads`` torch threads (default: torch's).
-
-    Freshly initialised networks of the preset's size for a two-part, one-revolute-joint structure, on the
-    partial-view-like box clouds of :func:`scapo.engine.speed.box_clouds` (the supervised NPCS-style gets labels
-    and NPCS derived from them: the left and right halves as parts); speed does not depend on the weights or on
-    what the points show. Medians over ``iters`` steps after a warm-up (:func:`scapo.engine.speed.median_seconds`).
-    Compare two commits by running this at each on the same idle machine (the rows record the threads).
+    Each method times itself through its entry's ``train_speed`` hook (:class:`~scapo.methods.registry.MethodEntry`:
+    freshly initialised networks of the preset's size for a two-part, one-revolute-joint structure on box clouds,
+    medians over ``iters`` steps after a warm-up). Compare two commits by running this at each on the same idle
+    machine (the rows record the threads).
 
     Raises:
         UnknownNameError: an unknown method or preset. ConfigError: a method that is not trained, an unavailable
         device, ``threads < 1``.
     """
-    import dataclasses
-    import functools
-
     import torch
 
-    from scapo.engine.runs import resolve_device
-    from scapo.engine.speed import box_clouds, median_seconds
     from scapo.errors import ConfigError
     from scapo.methods import METHODS
 
     names = list(methods) if methods else [m for m in METHODS.names() if METHODS.get(m).trained]
     for m in names:
-        if not METHODS.get(m).trained:
+        if not METHODS.get(m).trained or METHODS.get(m).train_speed is None:
             raise ConfigError(f"method {m!r} is not trained; --what train times: "
                               f"{', '.join(n for n in METHODS.names() if METHODS.get(n).trained)}")
     if threads is not None:
         if threads < 1:
             raise ConfigError(f"--threads must be >= 1, got {threads}")
         torch.set_num_threads(threads)
-    dev_name = device or "cpu"
-    dev = resolve_device(dev_name)
-    card = {"part_names": ["base", "lid"], "joint_type": [0], "joint_parts": [[0, 1]], "category": "perf"}
     rows = []
     for m in names:
-        entry = METHODS.get(m)
-        torch.manual_seed(0)
-        if m == "scapo":
-            from scapo.models.presets import get_preset
-            from scapo.models.scapo_model import ModelConfig, SCAPOModel
-            from scapo.models.speed import train_step
-
-            pc = get_preset(preset)
-            cfg = ModelConfig(2, (0,), ((0, 1),), encoder=pc.encoder, template_points=pc.template_points,
-                              gamma=pc.gamma, root_motion=pc.root_motion)
-            model = SCAPOModel(cfg).to(dev)
-            opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-            pts = torch.from_numpy(box_clouds(pc.batch_size, pc.train_points)).to(dev)
-            row = {"method": m, "preset": preset, "batch_size": pc.batch_size, "points": pc.train_points}
-            for stage in (1, 2):
-                sec = median_seconds(functools.partial(train_step, model, opt, pts, stage, pc.losses), iters,
-                                     dev.type == "cuda")
-                row[f"stage{stage}_clouds_per_s"] = round(pc.batch_size / sec, 2)
-        else:
-            spec = entry.factory.spec
-            pc = entry.preset(preset)
-            pc = dataclasses.replace(pc, supervision="") if hasattr(pc, "supervision") else pc
-            net = spec.build(card, pc).to(dev)
-            net.train()
-            opt = torch.optim.Adam(net.parameters(), lr=1e-4)
-            pts = torch.from_numpy(box_clouds(pc.batch_size, pc.points)).to(dev)
-            batch = {"points": pts}
-            if "part_label" in spec.fields or "npcs" in spec.fields:
-                x = pts - pts.mean(1, keepdim=True)
-                batch["part_label"] = (x[..., 0] > 0).long()
-                batch["npcs"] = x / (2 * x.norm(dim=-1).amax(1)[:, None, None])
-
-            def step(net=net, opt=opt, batch=batch):
-                _, total = net.losses(batch, 0.5)
-                opt.zero_grad()
-                total.backward()
-                opt.step()
-
-            sec = median_seconds(step, iters, dev.type == "cuda")
-            row = {"method": m, "preset": preset, "batch_size": pc.batch_size, "points": pc.points,
-                   "stage1_clouds_per_s": round(pc.batch_size / sec, 2)}
-        row.update(device=dev_name, threads=torch.get_num_threads())
+        row = {"method": m, "preset": preset, **METHODS.get(m).train_speed(preset, device or "cpu", iters)}
+        row.update(device=device or "cpu", threads=torch.get_num_threads())
         rows.append(row)
     return rows

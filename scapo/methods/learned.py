@@ -439,7 +439,8 @@ def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, need
                     needs_alignment=needs_alignment, summary=summary, train=trainer,
                     presets=tuple(spec.presets.names()), run_is_current=current,
                     preset=lambda name: resolve_preset(spec, name),
-                    speed=lambda **kw: learned_speed(spec, **kw), refinable=refinable)(factory)
+                    speed=lambda **kw: learned_speed(spec, **kw), refinable=refinable,
+                    train_speed=lambda preset, device, iters: learned_train_speed(spec, preset, device, iters))(factory)
     factory.spec = spec
     return factory
 
@@ -495,3 +496,42 @@ def normalize_clouds(points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, 
     x = points - c[:, None]
     s = 2.0 * (x ** 2).sum(-1).mean(-1).sqrt().clamp_min(1e-6)
     return x / s[:, None, None], c, s
+
+
+def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "cpu", iters: int = 5) -> dict:
+    """Clouds/s of one training step (loss, backward, Adam) of a freshly initialised ``spec`` network of ``preset``'s
+    size (``scapo bench perf --what train``): a two-part, one-revolute structure, the preset's batch of box clouds
+    (:func:`scapo.engine.speed.box_clouds`) at its training points; a supervised method gets labels and NPCS
+    derived from the clouds (left and right halves as parts). ``{"batch_size", "points", "stage1_clouds_per_s"}``.
+
+    Raises:
+        UnknownNameError: unknown preset. ConfigError: an unavailable device."""
+    import dataclasses
+
+    from scapo.engine.runs import resolve_device
+    from scapo.engine.speed import box_clouds, median_seconds
+
+    dev = resolve_device(device)
+    pc = resolve_preset(spec, preset)
+    if getattr(pc, "supervision", ""):
+        pc = dataclasses.replace(pc, supervision="")
+    card = {"part_names": ["base", "lid"], "joint_type": [0], "joint_parts": [[0, 1]], "category": "perf"}
+    torch.manual_seed(0)
+    net = spec.build(card, pc).to(dev)
+    net.train()
+    opt = torch.optim.Adam(net.parameters(), lr=1e-4)
+    pts = torch.from_numpy(box_clouds(pc.batch_size, pc.points)).to(dev)
+    batch = {"points": pts}
+    if "part_label" in spec.fields or "npcs" in spec.fields:
+        x = pts - pts.mean(1, keepdim=True)
+        batch["part_label"] = (x[..., 0] > 0).long()
+        batch["npcs"] = x / (2 * x.norm(dim=-1).amax(1)[:, None, None])
+
+    def step():
+        _, total = net.losses(batch, 0.5)
+        opt.zero_grad()
+        total.backward()
+        opt.step()
+
+    sec = median_seconds(step, iters, dev.type == "cuda")
+    return {"batch_size": pc.batch_size, "points": pc.points, "stage1_clouds_per_s": round(pc.batch_size / sec, 2)}

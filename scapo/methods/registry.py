@@ -89,6 +89,9 @@ class MethodEntry:
         refinable: the method has a whole-object model (a canonical shape or template) and takes the
             method-independent test-time refinement (:mod:`scapo.methods.refine`; option ``refine=True``,
             ``scapo predict --refine``, label ``<method>+refine``); Table 1 reports it as its own row.
+        train_speed: for trained methods, ``train_speed(preset, device, iters) -> dict`` of one training step's
+            clouds/s per stage (``stage1_clouds_per_s``, ...) with ``batch_size`` and ``points``
+            (``scapo bench perf --what train``).
     """
 
     name: str
@@ -109,6 +112,7 @@ class MethodEntry:
     quick_options: Mapping[str, Any] = field(default_factory=dict)
     one_pass: Mapping[str, Any] = field(default_factory=dict)
     refinable: bool = False
+    train_speed: Callable[[str, str, int], dict] | None = None
 
     @property
     def trained(self) -> bool:
@@ -131,7 +135,7 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
                     run_is_current: Callable[..., bool] | None = None, preset: Callable[[str], Any] | None = None,
                     ablations: tuple[str, ...] = (), speed: Callable[..., list] | None = None,
                     quick_options: Mapping[str, Any] | None = None, one_pass: Mapping[str, Any] | None = None,
-                    refinable: bool = False):
+                    refinable: bool = False, train_speed: Callable[[str, str, int], dict] | None = None):
     """Decorator registering a method factory under ``name`` (see :class:`MethodEntry`).
 
     Raises:
@@ -147,7 +151,7 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
         METHODS.add(name, MethodEntry(name, factory, options, display, dict(supervision), needs_alignment, summary,
                                       train, tuple(presets), dict(variants or {}), inference, run_is_current,
                                       preset, tuple(ablations), speed, dict(quick_options or {}),
-                                      dict(one_pass or {}), bool(refinable)))
+                                      dict(one_pass or {}), bool(refinable), train_speed))
         factory.options = options
         return factory
 

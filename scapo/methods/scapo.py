@@ -183,6 +183,13 @@ def _train(data, run, preset=None, progress=True, device=None, seed=None):
     return train(data, run, preset, progress=progress, device=device, seed=seed)
 
 
+def _train_speed(preset: str = "cpu", device: str = "cpu", iters: int = 5) -> dict:
+    """Clouds/s of one training step per stage (:func:`scapo.models.speed.bench_train_step`)."""
+    from scapo.models.speed import bench_train_step
+
+    return bench_train_step(preset, device, iters)
+
+
 def _speed(preset: str = "cpu", device: str | None = None, iters: int = 5, num_points: int = 1024, data=None):
     from scapo.models.speed import bench_model
 
@@ -194,7 +201,8 @@ def _speed(preset: str = "cpu", device: str | None = None, iters: int = 5, num_p
                  train=_train, presets=tuple(PRESETS.names()),
                  variants={"scapo-no-refine": "SCAPO (ours, no refinement)"},
                  inference=inference_settings, run_is_current=_run_is_current, preset=get_preset,
-                 ablations=ABLATIONS, speed=_speed, one_pass={"refine_steps": 0}, refinable=True)
+                 ablations=ABLATIONS, speed=_speed, one_pass={"refine_steps": 0}, refinable=True,
+                 train_speed=_train_speed)
 def make_scapo(**options) -> SCAPOMethod:
     """SCAPO (ours) from a trained run; options are :class:`SCAPOOptions` fields."""
     return SCAPOMethod(**options)

@@ -67,3 +67,21 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
         row["threads"] = torch.get_num_threads()
         rows.append(row)
     return rows
+
+
+def bench_train_step(preset: str = "cpu", device: str = "cpu", iters: int = 5) -> dict:
+    """Clouds/s of one SCAPO training step (loss, backward, Adam) per stage at ``preset``'s batch size and training
+    points on box clouds, a two-part one-revolute model (``scapo bench perf --what train``)."""
+    pc = get_preset(preset)
+    d = resolve_device(device)
+    torch.manual_seed(0)
+    cfg = ModelConfig(2, (0,), ((0, 1),), encoder=pc.encoder, template_points=pc.template_points, gamma=pc.gamma,
+                      root_motion=pc.root_motion)
+    model = SCAPOModel(cfg).to(d)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+    pts = torch.from_numpy(box_clouds(pc.batch_size, pc.train_points)).to(d)
+    row = {"batch_size": pc.batch_size, "points": pc.train_points}
+    for stage in (1, 2):
+        sec = median_seconds(functools.partial(train_step, model, opt, pts, stage, pc.losses), iters, d.type == "cuda")
+        row[f"stage{stage}_clouds_per_s"] = round(pc.batch_size / sec, 2)
+    return row
