@@ -169,7 +169,8 @@ def joint_consistency(R_a: torch.Tensor, t_a: torch.Tensor, R_c: torch.Tensor, t
       no gradient): the joint is the category's, fixed in each part's frame, so with the two terms above the
       axis is the one the parts' relative rotations share and the pivot the point they leave fixed;
 
-    and ``pivot_posed (B, J, 3)``, the pivot in the camera frame (the mean of both parts' views of it)."""
+    and ``pivot_posed (B, J, 3)``, the pivot in the camera frame (the mean of both parts' views of it), and
+    ``axis_posed (B, J, 3)``, the unit axis there (the normalised sum of both parts' views of it)."""
     u_a, p_a = F.normalize(head[..., 0:3] + 1e-8, dim=-1), head[..., 3:6]
     u_c, p_c = F.normalize(head[..., 6:9] + 1e-8, dim=-1), head[..., 9:12]
     A_a, A_c = (R_a @ u_a[..., None])[..., 0], (R_c @ u_c[..., None])[..., 0]
@@ -179,7 +180,7 @@ def joint_consistency(R_a: torch.Tensor, t_a: torch.Tensor, R_c: torch.Tensor, t
     return {"axis": ((A_a - A_c) ** 2).sum(-1).mean(),
             "pivot": (((P_a - P_c) ** 2).sum(-1) * revolute).mean(),
             "joint_var": ((parts - parts.mean(0, keepdim=True).detach()) ** 2).sum(-1).mean(),
-            "pivot_posed": 0.5 * (P_a + P_c)}
+            "pivot_posed": 0.5 * (P_a + P_c), "axis_posed": F.normalize(A_a + A_c + 1e-8, dim=-1)}
 
 
 class EAPNet(nn.Module):
@@ -201,7 +202,8 @@ class EAPNet(nn.Module):
         J = len(self.joint_types)
         # per joint, from the parent's and the child's codes: axis and pivot in the parent's and the child's frames
         self.joint_head = mlp([6 * C, 128, 12]) if preset.joint_heads and J else None
-        self._last_joints = None
+        self.joint_parent = [a for a, _ in self.joint_parts]  # each joint's parent and child part
+        self.joint_child = [c for _, c in self.joint_parts]
         # joints in the child's canonical frame and the reference relative pose (set after training)
         self.register_buffer("joint_axis", torch.zeros(J, 3, dtype=torch.float64))
         self.register_buffer("joint_pivot", torch.zeros(J, 3, dtype=torch.float64))
@@ -226,10 +228,14 @@ class EAPNet(nn.Module):
             R = R @ self.anchors[self.select_anchor(X, w, R, t, Y)]
         out = {"w": w, "R": R, "t": t, "Y": Y}
         if self.joint_head is not None:  # (B, J, 12): u_parent, p_parent, u_child, p_child (each part's frame)
-            pa = [a for a, _ in self.joint_parts]
-            ch = [c for _, c in self.joint_parts]
-            out["joint"] = self.joint_head(torch.cat([code[:, pa], code[:, ch]], -1))
+            out["joint"] = self.joint_head(torch.cat([code[:, self.joint_parent], code[:, self.joint_child]], -1))
         return out
+
+    def joint_terms(self, o: dict) -> dict:
+        """:func:`joint_consistency` of a forward pass ``o`` that has joint heads."""
+        pa, ch = self.joint_parent, self.joint_child
+        jt = torch.tensor(self.joint_types, device=o["R"].device)
+        return joint_consistency(o["R"][:, pa], o["t"][:, pa], o["R"][:, ch], o["t"][:, ch], o["joint"], jt)
 
     @torch.no_grad()
     def select_anchor(self, X: torch.Tensor, w: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
@@ -275,10 +281,8 @@ class EAPNet(nn.Module):
         terms = {"rec": rec, "part": part, "balance": balance}
         total = 10 * rec + 10 * part + 10 * balance
         if "joint" in o:
-            pa = [a for a, _ in self.joint_parts]
-            ch = [c for _, c in self.joint_parts]
-            jt = torch.tensor(self.joint_types, device=X.device)
-            jterms = joint_consistency(o["R"][:, pa], o["t"][:, pa], o["R"][:, ch], o["t"][:, ch], o["joint"], jt)
+            jterms = self.joint_terms(o)
+            jterms.pop("axis_posed")
             # the pivot lies on the object: near its nearest input point
             piv = jterms.pop("pivot_posed")
             jterms["pivot_near"] = pairwise_sq_dist(piv, X).min(-1).values.mean()
@@ -287,9 +291,11 @@ class EAPNet(nn.Module):
         return terms, total
 
     # ---------------------------------------------------------------- joints after training
-    def part_poses(self, points: torch.Tensor, shapes: bool = False) -> tuple[np.ndarray, ...]:
-        """(part labels (B, N), part poses (B, P, 4, 4) canonical (metres) -> camera, cloud scale (B,)) and, with
-        ``shapes``, the decoded canonical parts ``(B, P, M, 3)`` in metres, each in its part's frame."""
+    def part_poses(self, points: torch.Tensor, shapes: bool = False, joints: bool = False) -> tuple:
+        """(part labels (B, N), part poses (B, P, 4, 4) canonical (metres) -> camera, cloud scale (B,)); with
+        ``shapes`` also the decoded canonical parts ``(B, P, M, 3)`` in metres, each in its part's frame; with
+        ``joints`` also the joint heads' ``(axis (B, J, 3) camera frame, pivot (B, J, 3) metres)`` (None without
+        heads)."""
         X, c, sc = normalize_clouds(points.float())
         o = self(X)
         B = X.shape[0]
@@ -297,20 +303,16 @@ class EAPNet(nn.Module):
         T[:, :, :3, :3] = o["R"].double().cpu()
         T[:, :, :3, 3] = (sc[:, None, None] * o["t"] + c[:, None]).double().cpu()
         out = (o["w"].argmax(-1).cpu().numpy(), T.numpy(), sc.double().cpu().numpy())
-        self._last_joints = None
-        if "joint" in o:  # the joint heads' axis (camera frame) and pivot (metres), for infer
-            pa = [a for a, _ in self.joint_parts]
-            ch = [c_ for _, c_ in self.joint_parts]
-            jt = torch.tensor(self.joint_types, device=X.device)
-            piv = joint_consistency(o["R"][:, pa], o["t"][:, pa], o["R"][:, ch], o["t"][:, ch], o["joint"],
-                                    jt)["pivot_posed"]
-            u_a = F.normalize(o["joint"][..., 0:3] + 1e-8, dim=-1)
-            u_c = F.normalize(o["joint"][..., 6:9] + 1e-8, dim=-1)
-            A = F.normalize((o["R"][:, pa] @ u_a[..., None])[..., 0] + (o["R"][:, ch] @ u_c[..., None])[..., 0]
-                            + 1e-8, dim=-1)
-            self._last_joints = (A.double().cpu().numpy(),
-                                 (sc[:, None, None] * piv + c[:, None]).double().cpu().numpy())
-        return out + ((sc[:, None, None, None] * o["Y"]).double().cpu().numpy(),) if shapes else out
+        if shapes:
+            out += ((sc[:, None, None, None] * o["Y"]).double().cpu().numpy(),)
+        if joints:
+            heads = None
+            if "joint" in o:
+                jt = self.joint_terms(o)
+                heads = (jt["axis_posed"].double().cpu().numpy(),
+                         (sc[:, None, None] * jt["pivot_posed"] + c[:, None]).double().cpu().numpy())
+            out += (heads,)
+        return out
 
     def set_extras(self, extras: dict) -> None:
         for k in ("joint_axis", "joint_pivot", "joint_ref", "joint_ok"):
@@ -321,8 +323,7 @@ class EAPNet(nn.Module):
         """Predictions for ``points (B, N, 3)`` metres (camera frame); numpy arrays (see Predictions), and the
         decoded canonical parts as the whole-object model of :mod:`scapo.methods.refine`: ``template (B, P M, 3)``
         (metres, each point in its part's frame) and ``template_label (B, P M)``."""
-        lab, T, sc, Y = self.part_poses(points, shapes=True)
-        heads = self._last_joints  # (axis (B, J, 3), pivot (B, J, 3)) from the joint heads, or None
+        lab, T, sc, Y, heads = self.part_poses(points, shapes=True, joints=True)  # heads: (axis, pivot) or None
         B, J = len(T), len(self.joint_types)
         axis, pivot, state = np.zeros((B, J, 3)), np.zeros((B, J, 3)), np.zeros((B, J))
         ax_c, pv_c = self.joint_axis.cpu().numpy(), self.joint_pivot.cpu().numpy()

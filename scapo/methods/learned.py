@@ -389,11 +389,11 @@ class LearnedMethod:
         o = {k: np.concatenate([d[k] for d in outs]) for k in outs[0]} if outs else {}
         info = {}
         if self.options.refine:
-            from scapo.methods.refine import refine_prediction, refine_settings
+            from scapo.methods.refine import refine_info, refine_prediction
 
             o = refine_prediction(a["points"], o, o["template"], o["template_label"], self.identity["joint_type"],
                                   self.identity["joint_parts"], batch_size=self.options.batch_size)
-            info = {"refine": refine_settings(), "refine_start_rate": round(float((o["refine_start"] > 0).mean()), 4)}
+            info = refine_info(o)
         seconds = time.perf_counter() - t0
         jt = np.array(self.identity["joint_type"], dtype=np.int64)
         jp = np.array(self.identity["joint_parts"], dtype=np.int64).reshape(-1, 2)
@@ -445,6 +445,10 @@ def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, need
     return factory
 
 
+#: The kinematic structure the speed measurements build networks for: two parts, one revolute joint.
+SPEED_CARD = {"part_names": ["base", "lid"], "joint_type": [0], "joint_parts": [[0, 1]], "category": "perf"}
+
+
 def learned_speed(spec: LearnedSpec, preset: str = "cpu", device: str | None = None, iters: int = 5,
                   num_points: int = 1024, data=None) -> list[dict]:
     """Inference speed of a freshly initialised network of ``preset``'s size (a two-part, one-revolute-joint
@@ -455,11 +459,10 @@ def learned_speed(spec: LearnedSpec, preset: str = "cpu", device: str | None = N
     pc = resolve_preset(spec, preset)
     devices = [device] if device else ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     resolved = {dev: resolve_device(dev) for dev in devices}
-    card = {"part_names": ["base", "lid"], "joint_type": [0], "joint_parts": [[0, 1]]}
     rows = []
     for dev in devices:
         torch.manual_seed(0)
-        net = spec.build(card, pc).to(resolved[dev]).eval()
+        net = spec.build(SPEED_CARD, pc).to(resolved[dev]).eval()
         rows.append({"preset": preset, "device": dev, "points": num_points,
                      **inference_speed(net.infer, resolved[dev], num_points, iters),
                      "threads": torch.get_num_threads()})
@@ -515,9 +518,8 @@ def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "c
     pc = resolve_preset(spec, preset)
     if getattr(pc, "supervision", ""):
         pc = dataclasses.replace(pc, supervision="")
-    card = {"part_names": ["base", "lid"], "joint_type": [0], "joint_parts": [[0, 1]], "category": "perf"}
     torch.manual_seed(0)
-    net = spec.build(card, pc).to(dev)
+    net = spec.build(SPEED_CARD, pc).to(dev)
     net.train()
     opt = torch.optim.Adam(net.parameters(), lr=1e-4)
     pts = torch.from_numpy(box_clouds(pc.batch_size, pc.points)).to(dev)

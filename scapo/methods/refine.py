@@ -48,9 +48,12 @@ TEST_TIME_REFINE = RefineConfig(steps=20, lr=0.06, starts="octahedral", margin=0
 """The settings of the method-independent step (see the module docstring)."""
 
 
-def refine_settings() -> dict:
-    """The settings of :data:`TEST_TIME_REFINE` as a plain dict (recorded in predictions' ``info["refine"]``)."""
-    return dataclasses.asdict(TEST_TIME_REFINE)
+def refine_info(refined: dict) -> dict:
+    """What predictions record of the step (their ``info``): ``refine``, the settings of :data:`TEST_TIME_REFINE`,
+    and ``refine_start_rate``, the share of views where a cube start replaced the one-pass one (``refined``: the
+    output of :func:`refine_prediction`)."""
+    return {"refine": dataclasses.asdict(TEST_TIME_REFINE),
+            "refine_start_rate": round(float((np.asarray(refined["refine_start"]) > 0).mean()), 4)}
 
 
 def _check(name: str, a: np.ndarray, shape: tuple) -> np.ndarray:

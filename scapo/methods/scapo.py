@@ -120,11 +120,11 @@ class SCAPOMethod:
         mc = self.predictor.model.cfg
         extra = {}
         if self.options.refine:
-            from scapo.methods.refine import refine_prediction, refine_settings
+            from scapo.methods.refine import refine_info, refine_prediction
 
             o = refine_prediction(a["points"], o, o["template_rest"], o["template_label"], mc.joint_types,
                                   mc.joint_parts, batch_size=self.options.batch_size)
-            extra = {"refine": refine_settings(), "refine_start_rate": round(float((o["refine_start"] > 0).mean()), 4)}
+            extra = refine_info(o)
         seconds = time.perf_counter() - t0
         M = len(a["points"])
         return Predictions(

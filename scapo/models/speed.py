@@ -39,16 +39,9 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
     rows = []
     for dev in devices:
         d = resolved[dev]
-        cfg = ModelConfig(2, (0,), ((0, 1),), encoder=pc.encoder, template_points=pc.template_points, gamma=pc.gamma,
-                          root_motion=pc.root_motion)
-        model = SCAPOModel(cfg).to(d)
-        opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-        train_pts = torch.from_numpy(box_clouds(pc.batch_size, pc.train_points)).to(d)
+        model, steps = _train_speed(pc, d, iters)
         row = {"preset": preset, "device": dev, "batch_size": pc.batch_size, "train_points": pc.train_points}
-        for stage in (1, 2):
-            med = median_seconds(functools.partial(train_step, model, opt, train_pts, stage, pc.losses), iters,
-                                  dev == "cuda")
-            row[f"train_stage{stage}_samples_per_s"] = round(pc.batch_size / med, 2)
+        row.update({f"train_stage{k}_samples_per_s": v for k, v in steps.items()})
         model.eval()
         row.update(inference_speed(model.predict, d, num_points, iters))
         for batch in (1, 32):
@@ -69,19 +62,26 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
     return rows
 
 
-def bench_train_step(preset: str = "cpu", device: str = "cpu", iters: int = 5) -> dict:
-    """Clouds/s of one SCAPO training step (loss, backward, Adam) per stage at ``preset``'s batch size and training
-    points on box clouds, a two-part one-revolute model (``scapo bench perf --what train``)."""
-    pc = get_preset(preset)
-    d = resolve_device(device)
-    torch.manual_seed(0)
+def _train_speed(pc, d: torch.device, iters: int) -> tuple[SCAPOModel, dict]:
+    """A fresh two-part, one-revolute SCAPO model of preset ``pc`` on ``d`` and its training clouds/s per stage
+    ``{1: ..., 2: ...}`` (one optimiser step on the preset's batch of box clouds at its training points)."""
     cfg = ModelConfig(2, (0,), ((0, 1),), encoder=pc.encoder, template_points=pc.template_points, gamma=pc.gamma,
                       root_motion=pc.root_motion)
     model = SCAPOModel(cfg).to(d)
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
     pts = torch.from_numpy(box_clouds(pc.batch_size, pc.train_points)).to(d)
-    row = {"batch_size": pc.batch_size, "points": pc.train_points}
+    out = {}
     for stage in (1, 2):
         sec = median_seconds(functools.partial(train_step, model, opt, pts, stage, pc.losses), iters, d.type == "cuda")
-        row[f"stage{stage}_clouds_per_s"] = round(pc.batch_size / sec, 2)
-    return row
+        out[stage] = round(pc.batch_size / sec, 2)
+    return model, out
+
+
+def bench_train_step(preset: str = "cpu", device: str = "cpu", iters: int = 5) -> dict:
+    """Clouds/s of one SCAPO training step (loss, backward, Adam) per stage at ``preset``'s batch size and training
+    points on box clouds, a two-part one-revolute model (``scapo bench perf --what train``)."""
+    pc = get_preset(preset)
+    torch.manual_seed(0)
+    _, steps = _train_speed(pc, resolve_device(device), iters)
+    return {"batch_size": pc.batch_size, "points": pc.train_points,
+            **{f"stage{k}_clouds_per_s": v for k, v in steps.items()}}
