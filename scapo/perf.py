@@ -132,6 +132,83 @@ def write_perf(rows: list[dict], out_dir: Path, name: str, **prov) -> list[Path]
     return paths
 
 
+def compare_train(rows: list[dict], baseline: str | Path) -> tuple[list[dict], dict]:
+    """Speed-up of ``--what train`` rows over an earlier run's JSON (``scapo bench perf --what train --baseline
+    FILE``): each row of the same method and preset gains, per stage, ``<stage>_before`` (the baseline's clouds/s)
+    and ``<stage>_speedup`` (now / before); also returns the baseline's provenance under ``baseline_*`` keys
+    (commit, time, device) for the output's provenance. Compare runs from the same idle machine and threads.
+
+    Raises:
+        ConfigError: an unreadable or malformed baseline file, or one with other threads or batch sizes (a
+        different measurement, not a before/after)."""
+    from scapo.errors import ConfigError
+
+    try:
+        data = json.loads(Path(baseline).read_text())
+        before = {(r["method"], r["preset"]): r for r in data["rows"]}
+        prov = data.get("provenance", {})
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise ConfigError(f"cannot read the baseline {baseline} ({e}); give the .json that an earlier "
+                          "'scapo bench perf --what train --out DIR' wrote") from None
+    out = []
+    for r in rows:
+        b = before.get((r["method"], r["preset"]))
+        r = dict(r)
+        if b is not None:
+            for k in ("threads", "batch_size", "points"):
+                if k in b and b[k] != r.get(k):
+                    raise ConfigError(f"baseline {baseline}: {r['method']} was timed with {k}={b[k]}, now {r.get(k)}; "
+                                      "a before/after comparison needs the same setting")
+            for k in [k for k in r if k.endswith("_clouds_per_s")]:
+                if k in b:
+                    r[f"{k}_before"] = b[k]
+                    r[f"{k}_speedup"] = round(r[k] / b[k], 2) if b[k] else float("nan")
+        out.append(r)
+    return out, {f"baseline_{k}": prov[k] for k in ("commit", "time", "device") if k in prov}
+
+
+def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list[dict]:
+    """Issue 30's equal training budget from measured speeds: for each ``--what train`` row (its clouds/s per stage
+    and its preset's schedule: ``stage<k>_epochs``, ``max_steps_per_epoch``, ``iterations``), the wall time of a
+    training run on ``train_clouds`` clouds at that schedule (``planned_min``: steps per epoch ``ceil(clouds /
+    batch)``, capped by ``max_steps_per_epoch``; each step at the measured clouds/s) and the epochs per stage
+    that fill ``minutes`` (``stage<k>_epochs_for_budget``: every stage scaled by the same factor, at least 1).
+    The tables' cells run one torch thread per core, so measure with one thread. Rows without a schedule pass
+    unchanged.
+
+    Raises:
+        ConfigError: ``minutes <= 0`` or ``train_clouds < 1``."""
+    import math
+
+    from scapo.errors import ConfigError
+
+    if minutes <= 0 or train_clouds < 1:
+        raise ConfigError(f"--budget-minutes must be > 0 and --train-clouds >= 1, got {minutes} and {train_clouds}")
+    out = []
+    for r in rows:
+        r = dict(r)
+        stages = [k for k in (1, 2) if f"stage{k}_clouds_per_s" in r and f"stage{k}_epochs" in r]
+        if not stages:
+            out.append(r)
+            continue
+        per_epoch = math.ceil(train_clouds / r["batch_size"])
+        if r.get("max_steps_per_epoch"):
+            per_epoch = min(per_epoch, r["max_steps_per_epoch"])
+        sec_per_epoch = {k: per_epoch * r["batch_size"] / r[f"stage{k}_clouds_per_s"] for k in stages}
+        if r.get("iterations"):  # one stage of a fixed step count
+            sec = r["iterations"] * r["batch_size"] / r["stage1_clouds_per_s"]
+        else:
+            sec = sum(r[f"stage{k}_epochs"] * sec_per_epoch[k] for k in stages)
+        r["train_clouds"], r["planned_min"] = train_clouds, round(sec / 60, 2)
+        if not r.get("iterations"):
+            f = minutes * 60 / sec
+            for k in stages:
+                r[f"stage{k}_epochs_for_budget"] = max(1, round(r[f"stage{k}_epochs"] * f))
+            r["budget_min"] = minutes
+        out.append(r)
+    return out
+
+
 def bench_icp(data: str | Path, limit: int = 0) -> list[dict]:
     """ICP's two searches (``ICPConfig.search``: "exhaustive", the reference, and "batched") on the same test
     clouds of ``data`` in one run: ms per cloud, the speed-up over the reference, and what each gets under the

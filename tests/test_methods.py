@@ -469,7 +469,7 @@ def test_eap_joint_terms_vanish_on_a_consistent_joint_and_not_on_a_wrong_one():
     assert float(terms(u, p + 0.1, u, p + 0.1, jt=1)["pivot"]) == 0.0
 
 
-def test_perf_train_times_every_trained_methods_step_and_refuses_icp(tmp_path):
+def test_perf_train_times_every_trained_methods_step_and_refuses_icp(tmp_path, capsys):
     """``scapo bench perf --what train`` (issue 30): clouds/s of one training step per stage for every trained
     method (two stages for SCAPO), written with provenance; ICP, which is not trained, is refused."""
     from scapo.perf import bench_train
@@ -483,3 +483,43 @@ def test_perf_train_times_every_trained_methods_step_and_refuses_icp(tmp_path):
     assert main(["bench", "perf", "--what", "train", "--method", "npcs", "--preset", "test",
                  "--out", str(tmp_path)]) == 0
     assert (tmp_path / "train_test_npcs.json").is_file()
+    # --baseline: each stage's clouds/s before and the speed-up, the baseline's commit in the provenance
+    assert main(["bench", "perf", "--what", "train", "--method", "npcs", "--preset", "test", "--out",
+                 str(tmp_path / "after"), "--baseline", str(tmp_path / "train_test_npcs.json")]) == 0
+    import json
+
+    out = json.loads((tmp_path / "after" / "train_test_npcs_vs_baseline.json").read_text())
+    row = out["rows"][0]
+    assert row["stage1_clouds_per_s_speedup"] == pytest.approx(
+        row["stage1_clouds_per_s"] / row["stage1_clouds_per_s_before"], rel=0.01)
+    assert out["provenance"]["baseline_commit"]
+    from scapo.perf import compare_train
+
+    with pytest.raises(ConfigError, match="points=128, now 64"):
+        compare_train([{**row, "points": 64}], tmp_path / "train_test_npcs.json")
+    with pytest.raises(ConfigError, match="cannot read the baseline"):
+        compare_train([row], tmp_path / "nothing.json")
+    assert main(["bench", "perf", "--what", "model", "--baseline", str(tmp_path / "train_test_npcs.json")]) != 0
+    assert "--baseline and --budget-minutes go with" in capsys.readouterr().err
+
+
+def test_training_budget_turns_measured_speeds_into_epochs_that_fill_the_budget():
+    """``perf --what train --budget-minutes``: the planned minutes of each preset's schedule on the tables'
+    training clouds, and the epochs per stage (same factor for every stage) that fill the budget; a fixed
+    iteration count is planned but not rescaled; bad budgets are refused."""
+    from scapo.perf import training_budget
+
+    rows = [{"method": "a", "batch_size": 16, "stage1_clouds_per_s": 32.0, "stage1_epochs": 10,
+             "max_steps_per_epoch": 0, "iterations": 0},
+            {"method": "b", "batch_size": 16, "stage1_clouds_per_s": 32.0, "stage2_clouds_per_s": 16.0,
+             "stage1_epochs": 2, "stage2_epochs": 2, "max_steps_per_epoch": 10, "iterations": 0},
+            {"method": "c", "batch_size": 16, "stage1_clouds_per_s": 16.0, "stage1_epochs": 1,
+             "max_steps_per_epoch": 0, "iterations": 100},
+            {"method": "icp"}]
+    a, b, c, d = training_budget(rows, 530 / 60, 840)
+    assert a["planned_min"] == pytest.approx(53 * 10 * 0.5 / 60, abs=0.01) and a["stage1_epochs_for_budget"] == 20
+    assert b["planned_min"] == 0.5 and (b["stage1_epochs_for_budget"], b["stage2_epochs_for_budget"]) == (35, 35)
+    assert c["planned_min"] == pytest.approx(100 / 60, abs=0.01) and "stage1_epochs_for_budget" not in c
+    assert d == {"method": "icp"}
+    with pytest.raises(ConfigError, match="budget-minutes"):
+        training_budget(rows, 0, 840)

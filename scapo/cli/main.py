@@ -464,6 +464,10 @@ def cmd_bench(args) -> int:
         check_output_dir(args.out, "benchmark output folder")
     from scapo.perf import write_perf
 
+    if (args.baseline or args.budget_minutes is not None) and args.target != "train":
+        raise ConfigError("--baseline and --budget-minutes go with 'bench perf --what train'; leave them out for "
+                          f"--what {args.target}")
+    extra_prov: dict = {}
     if args.target == "growth":
         from scapo.perf import bench_growth
 
@@ -493,6 +497,16 @@ def cmd_bench(args) -> int:
 
         rows = bench_train([args.method] if args.method else None, args.preset, device=args.device)
         name = f"train_{args.preset}" + (f"_{args.method}" if args.method else "")
+        if args.budget_minutes is not None:
+            from scapo.perf import training_budget
+
+            rows = training_budget(rows, args.budget_minutes, args.train_clouds)
+            extra_prov.update(budget_minutes=args.budget_minutes, train_clouds=args.train_clouds)
+        if args.baseline:
+            from scapo.perf import compare_train
+
+            rows, extra_prov = compare_train(rows, args.baseline)
+            name += "_vs_baseline"
     elif args.method is None:  # SCAPO's training and inference speed
         from scapo.perf import bench_method
 
@@ -506,7 +520,7 @@ def cmd_bench(args) -> int:
     for r in rows:
         print(r)
     if args.out:
-        paths = write_perf(rows, args.out, name)
+        paths = write_perf(rows, args.out, name, **extra_prov)
         print("wrote " + ", ".join(str(p) for p in paths))
     return 0
 
@@ -782,6 +796,13 @@ def build_parser() -> argparse.ArgumentParser:
                     "(model), every trained method's training clouds/s per stage (train; --method for one), "
                     "ICP's two searches (icp, with --data), the ManiSkill3 backend against SAPIEN "
                     "(maniskill), generation and evaluation time against dataset size (growth)")
+    sp.add_argument("--budget-minutes", type=float, default=None, help="perf --what train: the training budget per "
+                    "cell in minutes (one torch thread); adds each preset's planned minutes and the epochs per stage "
+                    "that fill the budget")
+    sp.add_argument("--train-clouds", type=int, default=840, help="perf --what train --budget-minutes: training "
+                    "clouds of a cell (default 840: the tables' 150 instances x 8 views, 105 training instances)")
+    sp.add_argument("--baseline", default=None, help="perf --what train: an earlier run's .json (e.g. at another "
+                    "commit, same machine and threads): adds each stage's clouds/s before and the speed-up")
     sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3; a "
                     "method's per-category preset PRESET-CATEGORY is used where it has one)")
     sp.add_argument("--method", default=None, help="perf --what model: time this method's inference (default: "

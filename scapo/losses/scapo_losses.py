@@ -16,7 +16,7 @@ import torch
 
 from scapo.nn.encoder import EncoderOutput
 from scapo.nn.outputs import Stage1Output
-from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist, trimmed_one_sided_chamfer
+from scapo.ops.chamfer import chamfer_distance, nearest_sq_dist, pairwise_sq_dist, trimmed_one_sided_chamfer
 from scapo.ops.groups import random_rotation, rotation_group
 
 EPS = 1e-8
@@ -255,7 +255,7 @@ def joint_prox_loss(points: torch.Tensor, pivot: torch.Tensor, joint_types, lam:
     rev = [j for j, t in enumerate(joint_types) if t == 0]
     if not rev:
         return pivot.sum() * 0.0
-    d = pairwise_sq_dist(pivot[:, rev], points).min(-1).values  # (B, J_rev)
+    d = nearest_sq_dist(pivot[:, rev], points)  # (B, J_rev)
     return (1.0 - torch.exp(-lam * d.mean(-1))).mean()
 
 

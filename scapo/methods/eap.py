@@ -101,7 +101,7 @@ from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, 
 from scapo.methods.nets import VNPointEncoder, mlp
 from scapo.nn.slot_attention import SlotAttention
 from scapo.nn.vn import VNLinear
-from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist
+from scapo.ops.chamfer import chamfer_distance, matched_sq_dist, nearest_sq_dist, pairwise_sq_dist
 from scapo.ops.groups import rotation_group
 from scapo.ops.rigid import invert_transform, relative_motion_to_joint
 from scapo.ops.so3 import rotation_from_6d
@@ -272,10 +272,16 @@ class EAPNet(nn.Module):
         Xp = self.posed(o)  # (B, P, M, 3)
         M = Xp.shape[2]
         rec = chamfer_distance(X, Xp.reshape(B, -1, 3)).mean()
-        d = pairwise_sq_dist(X.repeat_interleave(self.P, 0), Xp.reshape(B * self.P, M, 3)).view(B, self.P, N, M)
         w = o["w"].permute(0, 2, 1)  # (B, P, N)
-        fwd = (d.min(-1).values * w).sum(-1) / w.sum(-1).clamp_min(1e-6)
-        bwd = (d + self.pc.seg_margin * (1 - w)[..., None]).min(2).values.mean(-1)
+        Xr, Xpf = X.repeat_interleave(self.P, 0), Xp.reshape(B * self.P, M, 3)
+        with torch.no_grad():  # the matches; their distances are recomputed with gradient (scapo.ops.chamfer)
+            d = pairwise_sq_dist(Xr, Xpf).view(B, self.P, N, M)
+            i_fwd = d.argmin(-1).view(B * self.P, N)
+            i_bwd = (d + self.pc.seg_margin * (1 - w.detach())[..., None]).argmin(2).view(B * self.P, M)
+        d_fwd = matched_sq_dist(Xr, Xpf, i_fwd).view(B, self.P, N)
+        d_bwd = matched_sq_dist(Xpf, Xr, i_bwd).view(B, self.P, M)
+        fwd = (d_fwd * w).sum(-1) / w.sum(-1).clamp_min(1e-6)
+        bwd = (d_bwd + self.pc.seg_margin * (1 - w).gather(2, i_bwd.view(B, self.P, M))).mean(-1)
         part = (fwd + bwd).mean()
         balance = F.relu(self.pc.min_part - o["w"].mean(1)).sum(-1).mean()
         terms = {"rec": rec, "part": part, "balance": balance}
@@ -285,7 +291,7 @@ class EAPNet(nn.Module):
             jterms.pop("axis_posed")
             # the pivot lies on the object: near its nearest input point
             piv = jterms.pop("pivot_posed")
-            jterms["pivot_near"] = pairwise_sq_dist(piv, X).min(-1).values.mean()
+            jterms["pivot_near"] = nearest_sq_dist(piv, X).mean()
             terms.update(jterms)
             total = total + self.pc.joint_weight * sum(jterms.values())
         return terms, total

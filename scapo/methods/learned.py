@@ -505,7 +505,8 @@ def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "c
     """Clouds/s of one training step (loss, backward, Adam) of a freshly initialised ``spec`` network of ``preset``'s
     size (``scapo bench perf --what train``): a two-part, one-revolute structure, the preset's batch of box clouds
     (:func:`scapo.engine.speed.box_clouds`) at its training points; a supervised method gets labels and NPCS
-    derived from the clouds (left and right halves as parts). ``{"batch_size", "points", "stage1_clouds_per_s"}``.
+    derived from the clouds (left and right halves as parts). ``{"batch_size", "points", "stage1_clouds_per_s",
+    "stage1_epochs", "max_steps_per_epoch", "iterations"}`` (the last three: the preset's schedule).
 
     Raises:
         UnknownNameError: unknown preset. ConfigError: an unavailable device."""
@@ -536,4 +537,5 @@ def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "c
         opt.step()
 
     sec = median_seconds(step, iters, dev.type == "cuda")
-    return {"batch_size": pc.batch_size, "points": pc.points, "stage1_clouds_per_s": round(pc.batch_size / sec, 2)}
+    return {"batch_size": pc.batch_size, "points": pc.points, "stage1_clouds_per_s": round(pc.batch_size / sec, 2),
+            "stage1_epochs": pc.epochs, "max_steps_per_epoch": pc.max_steps_per_epoch, "iterations": pc.iterations}

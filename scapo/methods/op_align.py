@@ -98,7 +98,7 @@ from scapo.errors import ConfigError
 from scapo.losses.supervised import joint_loss, seg_nll
 from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned
 from scapo.methods.nets import PointResNet, mlp
-from scapo.ops.chamfer import pairwise_sq_dist
+from scapo.ops.chamfer import nearest_sq_dist, pairwise_sq_dist
 from scapo.ops.groups import rotation_group
 from scapo.ops.so3 import rotation_from_rotvec as exp_so3
 from scapo.registry import Registry
@@ -208,9 +208,9 @@ def density_chamfer(a: torch.Tensor, b: torch.Tensor, alpha: float, alpha_inv: f
     distance to the nearest point of the other cloud; ``a (B, N, 3)`` the input side, ``b (B, M, 3)`` the
     canonical shape. ``alpha = 0``: the plain squared Chamfer distance. Each term lies in [0, 1): a far outlier
     costs at most 1, so the loss follows the density of the matched points rather than their extremes."""
-    d = pairwise_sq_dist(a, b)
-    return _density(d.min(-1).values, alpha).mean(-1) + _inv_weight(alpha, alpha_inv) * \
-        _density(d.min(1).values, alpha_inv if alpha > 0 else 0.0).mean(-1)
+    da, db = nearest_sq_dist(a, b, both=True)
+    return _density(da, alpha).mean(-1) + _inv_weight(alpha, alpha_inv) * \
+        _density(db, alpha_inv if alpha > 0 else 0.0).mean(-1)
 
 
 def local_density(Y: torch.Tensor, k: int) -> torch.Tensor:
@@ -340,14 +340,15 @@ class OPAlignNet(nn.Module):
             moved.setdefault(p, []).append(Sp)
         parts = sorted(moved)
         Sm = {p: torch.stack(moved[p]).mean(0) for p in parts}
-        d_fwd = torch.stack([_density(pairwise_sq_dist(Sm[p], Y).min(-1).values, a) for p in parts], -1)  # (B,N,P')
-        d_inv = torch.stack([_density(pairwise_sq_dist(Y, Sm[p]).min(-1).values, a_inv) for p in parts], -1)
+        near_p = [nearest_sq_dist(Sm[p], Y, both=True) for p in parts]
+        d_fwd = torch.stack([_density(df, a) for df, _ in near_p], -1)  # (B, N, P')
+        d_inv = torch.stack([_density(di, a_inv) for _, di in near_p], -1)  # (B, M, P')
         ws, wy = s["seg"][..., parts], y["seg"][..., parts]
         art = (d_fwd * ws).sum(-1).mean(-1) + _inv_weight(a, a_inv) * (d_inv * wy).sum(-1).mean(-1)
         art = art.mean()
         w_rigid = pc.rigid_weight * 0.5 ** int(progress / pc.rigid_halve)
         balance = sum(F.relu(pc.min_part - o["seg"].mean(1)).sum(-1).mean() for o in (s, y))
-        near = sum(pairwise_sq_dist(o["pivot"], P).min(-1).values.mean() for o, P in ((s, S), (y, Y)))
+        near = sum(nearest_sq_dist(o["pivot"], P).mean() for o, P in ((s, S), (y, Y)))
         cano = sum(((y[k] - y[k].mean(0, keepdim=True).detach()) ** 2).sum(-1).mean()
                    for k in ("pivot", "drct", "state"))
         if pc.attention == "expected":  # the attention's expected Chamfer distance over the anchors

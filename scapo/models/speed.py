@@ -79,9 +79,12 @@ def _train_speed(pc, d: torch.device, iters: int) -> tuple[SCAPOModel, dict]:
 
 def bench_train_step(preset: str = "cpu", device: str = "cpu", iters: int = 5) -> dict:
     """Clouds/s of one SCAPO training step (loss, backward, Adam) per stage at ``preset``'s batch size and training
-    points on box clouds, a two-part one-revolute model (``scapo bench perf --what train``)."""
+    points on box clouds, a two-part one-revolute model (``scapo bench perf --what train``), with the preset's
+    epochs per stage."""
     pc = get_preset(preset)
     torch.manual_seed(0)
     _, steps = _train_speed(pc, resolve_device(device), iters)
     return {"batch_size": pc.batch_size, "points": pc.train_points,
-            **{f"stage{k}_clouds_per_s": v for k, v in steps.items()}}
+            **{f"stage{k}_clouds_per_s": v for k, v in steps.items()},
+            "stage1_epochs": pc.stage1_epochs, "stage2_epochs": pc.stage2_epochs,
+            "max_steps_per_epoch": pc.max_steps_per_epoch, "iterations": 0}

@@ -22,6 +22,7 @@ from scapo.nn.vn import (
     VNTLinearLeakyReLU,
     gather_neighbours,
     knn_indices,
+    vn_mean_pool,
 )
 from scapo.ops.so3 import rotation_from_6d
 
@@ -81,7 +82,7 @@ class SE3Encoder(nn.Module):
         idx = knn_indices(points, self.cfg.k)  # translation/rotation invariant, shared by both branches
         x = points.transpose(1, 2).unsqueeze(1)  # (B, 1, 3, N)
         nb = gather_neighbours(x, idx)  # (B, 1, 3, N, k)
-        f = self.t_edge(torch.cat([x.unsqueeze(-1).expand_as(nb), nb], dim=1)).mean(-1)
+        f = vn_mean_pool(self.t_edge(torch.cat([x.unsqueeze(-1).expand_as(nb), nb], dim=1)))
         for layer in self.t_layers:
             f = layer(f)
         t = self.t_out(f.mean(-1, keepdim=True)).reshape(B, 3)
@@ -89,7 +90,7 @@ class SE3Encoder(nn.Module):
         nbc = nb - t.reshape(B, 1, 3, 1, 1)
         xe = xc.unsqueeze(-1).expand_as(nbc)
         edge = torch.cat([nbc - xe, xe, torch.cross(nbc, xe, dim=2)], dim=1)  # (B, 3, 3, N, k)
-        g = self.r_edge(edge).mean(-1)
+        g = vn_mean_pool(self.r_edge(edge))
         for layer in self.r_layers:
             g = layer(g)
         # invariant per-point scores (norms of the VN features) -> attention-weighted points: equivariant

@@ -12,8 +12,33 @@ def pairwise_sq_dist(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     Computed as ``|a|^2 + |b|^2 - 2 a.b`` and clamped at 0, which (unlike ``torch.cdist``) has a
     finite gradient where points coincide.
     """
-    d = (a * a).sum(-1, keepdim=True) + (b * b).sum(-1).unsqueeze(1) - 2.0 * a @ b.transpose(1, 2)
-    return d.clamp_min(0.0)
+    # one fused multiply-add writes the (B, N, M) matrix (|b|^2 - 2 a.b), the rest is added in place
+    d = torch.baddbmm((b * b).sum(-1).unsqueeze(1), a, b.transpose(1, 2), alpha=-2.0)
+    return d.add_((a * a).sum(-1, keepdim=True)).clamp_min_(0.0)
+
+
+def matched_sq_dist(a: torch.Tensor, b: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+    """``|a_i - b_idx(i)|^2`` per point: ``a (B, N, D)``, ``b (B, M, D)``, ``idx (B, N)`` -> ``(B, N)``."""
+    nb = b.gather(1, idx.unsqueeze(-1).expand(-1, -1, b.shape[-1]))
+    return ((a - nb) ** 2).sum(-1)
+
+
+def nearest_sq_dist(a: torch.Tensor, b: torch.Tensor, both: bool = False):
+    """Squared distance from every point of ``a (B, N, D)`` to its nearest point of ``b (B, M, D)``: ``(B, N)``;
+    with ``both``, also from every point of ``b`` to ``a`` (``(B, M)``), from the same distance matrix.
+
+    The same values and gradients as ``pairwise_sq_dist(a, b).min(-1).values`` (almost everywhere: they differ
+    where two neighbours tie): the nearest neighbours are found without gradient and the distance of each
+    matched pair is recomputed with it, so the backward pass touches ``N + M`` pairs instead of the dense
+    ``(B, N, M)`` matrix (the part of a Chamfer term's cost that the min's backward used to take).
+    """
+    with torch.no_grad():
+        d = pairwise_sq_dist(a.detach(), b.detach())
+        ia = d.argmin(-1)
+        ib = d.argmin(1) if both else None
+    if not both:
+        return matched_sq_dist(a, b, ia)
+    return matched_sq_dist(a, b, ia), matched_sq_dist(b, a, ib)
 
 
 def chamfer_distance(a: torch.Tensor, b: torch.Tensor, squared: bool = True) -> torch.Tensor:
@@ -28,10 +53,10 @@ def chamfer_distance(a: torch.Tensor, b: torch.Tensor, squared: bool = True) -> 
     """
     if a.dim() != 3 or b.dim() != 3 or a.shape[0] != b.shape[0] or a.shape[-1] != b.shape[-1]:
         raise ValueError(f"chamfer_distance needs (B, N, D) and (B, M, D), got {tuple(a.shape)} and {tuple(b.shape)}")
-    d = pairwise_sq_dist(a, b)
+    da, db = nearest_sq_dist(a, b, both=True)
     if not squared:
-        d = (d + 1e-12).sqrt()
-    return d.min(dim=2).values.mean(dim=1) + d.min(dim=1).values.mean(dim=1)
+        da, db = (da + 1e-12).sqrt(), (db + 1e-12).sqrt()
+    return da.mean(dim=1) + db.mean(dim=1)
 
 
 def trimmed_one_sided_chamfer(a: torch.Tensor, b: torch.Tensor, keep: float = 0.7) -> torch.Tensor:
@@ -46,5 +71,5 @@ def trimmed_one_sided_chamfer(a: torch.Tensor, b: torch.Tensor, keep: float = 0.
     """
     if not 0.0 < keep <= 1.0:
         raise ValueError(f"keep must be in (0, 1], got {keep}")
-    d = pairwise_sq_dist(a, b).min(-1).values
+    d = nearest_sq_dist(a, b)
     return d.topk(max(1, int(keep * a.shape[1])), dim=-1, largest=False).values.mean(-1)
