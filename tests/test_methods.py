@@ -434,6 +434,7 @@ def test_npcs_vn_backbone_gives_labels_and_npcs_that_no_rotation_changes():
     a, b = net(X), net(X @ Q.T)
     torch.testing.assert_close(a[0], b[0], atol=1e-8, rtol=1e-6)
     torch.testing.assert_close(a[1], b[1], atol=1e-8, rtol=1e-6)
+    torch.testing.assert_close(a[2], b[2], atol=1e-8, rtol=1e-6)  # the per-part NPCS (cpu preset: part_npcs)
     with pytest.raises(ConfigError, match="backbone"):
         dataclasses.replace(pc, backbone="pointnet++")
 
@@ -501,6 +502,88 @@ def test_perf_train_times_every_trained_methods_step_and_refuses_icp(tmp_path, c
         compare_train([row], tmp_path / "nothing.json")
     assert main(["bench", "perf", "--what", "model", "--baseline", str(tmp_path / "train_test_npcs.json")]) != 0
     assert "--baseline and --budget-minutes go with" in capsys.readouterr().err
+
+
+def _two_part_object(rng):
+    """Rest-frame points (metres) of a two-part object, its bbox diagonal and part labels."""
+    base = rng.uniform([-0.2, -0.15, -0.02], [0.2, 0.15, 0.02], (300, 3))
+    lid = rng.uniform([-0.2, 0.13, 0.0], [0.2, 0.15, 0.25], (200, 3))
+    x = np.concatenate([base, lid])
+    diag = float(np.linalg.norm(x.max(0) - x.min(0)))
+    return x, diag, np.repeat([0, 1], [300, 200])
+
+
+def test_npcs_part_pose_from_per_part_npcs_recovers_each_parts_pose_and_the_scale():
+    """ANCSH's per-part NPCS route (``part_pose_from_coords``): from exact NAOCS and per-part NPCS, every part's
+    pose (object rest frame -> camera, the lid moved about a hinge) and the bbox diagonal come back; with 20 %
+    of the NPCS replaced by outliers RANSAC still finds them; without per-part NPCS the NAOCS route gives the
+    same pose."""
+    from scapo.methods.npcs import part_pose_from_coords
+
+    rng = np.random.default_rng(0)
+    x, diag, lab = _two_part_object(rng)
+    naocs = x / diag
+    R0 = Rotation.from_rotvec([0.3, -1.2, 0.5]).as_matrix()
+    hinge = as_transform(Rotation.from_rotvec([0.8, 0, 0]).as_matrix(), [0, 0.15 - 0.15 * np.cos(0.8), 0])
+    poses = [as_transform(R0, [0.1, -0.2, 1.5]), as_transform(R0, [0.1, -0.2, 1.5]) @ hinge]
+    for p in (0, 1):
+        sel = lab == p
+        cam = x[sel] @ poses[p][:3, :3].T + poses[p][:3, 3]
+        lo, hi = naocs[sel].min(0), naocs[sel].max(0)
+        npcs_p = (naocs[sel] - (lo + hi) / 2) / np.linalg.norm(hi - lo)
+        for part, tol in ((npcs_p, 1e-6), (None, 1e-6)):
+            T, d = part_pose_from_coords(cam, naocs[sel], part, 0.005, 64, np.random.default_rng(1))
+            np.testing.assert_allclose(T, poses[p], atol=tol)
+            assert abs(d - diag) < 1e-6
+        noisy = npcs_p.copy()
+        bad = rng.random(len(noisy)) < 0.2
+        noisy[bad] += rng.normal(0, 0.3, (bad.sum(), 3))
+        T, d = part_pose_from_coords(cam, naocs[sel], noisy, 0.005, 128, np.random.default_rng(1))
+        assert np.degrees(Rotation.from_matrix(T[:3, :3] @ poses[p][:3, :3].T).magnitude()) < 0.5
+        assert np.linalg.norm(T[:3, 3] - poses[p][:3, 3]) < 0.01 and abs(d - diag) / diag < 0.02
+
+
+def test_npcs_part_boxes_are_each_parts_box_over_the_views_of_its_instance():
+    """The per-part NPCS targets' boxes (``part_boxes``, NPCS-style's ``derive``): per instance and part, the box of
+    that part's points over all its views (so each view of an instance gets the same box), the NAOCS box for a
+    part no view shows; nothing when the preset has no per-part NPCS."""
+    from scapo.methods import npcs
+
+    pc = npcs.PRESETS.get("cpu")
+    assert pc.part_npcs and npcs.PRESETS.get("paper").part_npcs and not npcs.PRESETS.get("test").part_npcs
+    card = {"part_names": ["base", "lid", "knob"]}
+    npc = np.zeros((3, 4, 3), np.float32)
+    lab = np.full((3, 4), -1)
+    npc[0, :2], lab[0, :2] = [[0, 0, 0], [0.2, 0.1, 0]], 0  # instance 7, view 0: two base points
+    npc[1, :3], lab[1, :3] = [[-0.2, 0.3, 0.1], [0, 0, 0.4], [0.1, 0.1, 0.1]], 0  # instance 7, view 1
+    npc[2, :4], lab[2, :4] = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], 1  # instance 9: four lid points
+    a = {"npcs": npc, "part_label": lab, "instance_id": np.array([7, 7, 9])}
+    box = npcs.part_boxes(a, card, pc)["part_box"]
+    assert box.shape == (3, 3, 4) and box.dtype == np.float32
+    lo, hi = np.array([-0.2, 0, 0]), np.array([0.2, 0.3, 0.4])
+    for v in (0, 1):
+        np.testing.assert_allclose(box[v, 0], [*(lo + hi) / 2, np.linalg.norm(hi - lo)], atol=1e-6)
+        np.testing.assert_allclose(box[v, 1], [0, 0, 0, 1])  # lid never seen in instance 7
+    np.testing.assert_allclose(box[2, 1], [0.5, 0.5, 0.5, 3 ** 0.5], atol=1e-6)
+    np.testing.assert_allclose(box[2, 2], [0, 0, 0, 1])
+    assert npcs.part_boxes(a, card, npcs.PRESETS.get("test")) == {}
+
+
+def test_npcs_with_per_part_npcs_trains_and_predicts(laptop_data, tmp_path):
+    """The ``part_npcs`` setting end to end: training logs the per-part NPCS term and predictions are scored."""
+    import csv
+
+    from scapo.methods import npcs
+    from scapo.methods.learned import train_learned
+
+    preset = dataclasses.replace(npcs.PRESETS.get("test"), part_npcs=True)
+    train_learned(npcs.SPEC, laptop_data, tmp_path / "run", preset, progress=False)
+    with open(tmp_path / "run" / "log.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert rows and all(math.isfinite(float(r["part_npcs"])) for r in rows)
+    run_method("npcs", laptop_data, tmp_path / "p.npz", run=tmp_path / "run")
+    res = evaluate(laptop_data, tmp_path / "p.npz")
+    assert math.isfinite(res.summary["R"]) and math.isfinite(res.summary["D"])
 
 
 def test_training_budget_turns_measured_speeds_into_epochs_that_fill_the_budget():

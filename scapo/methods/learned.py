@@ -96,6 +96,10 @@ class LearnedSpec:
         extras_fields: dataset fields ``extras`` reads (default: ``fields``).
         options: the method's prediction options (a :class:`LearnedOptions` subclass); a network with a
             ``configure(options)`` method gets them after loading.
+        derive: optional ``derive(train_arrays, card, preset) -> dict`` of per-cloud training targets computed once
+            from the training split's arrays (with ``instance_id`` and ``view_id``), e.g. statistics over all
+            views of an instance (NPCS-style's per-part boxes); each value is ``(M, ...)`` over the ``M`` clouds
+            and reaches ``losses`` in the batch whole (not subsampled with the points).
     """
 
     method: str
@@ -105,6 +109,7 @@ class LearnedSpec:
     extras: Callable[[torch.nn.Module, dict], dict] | None = None
     extras_fields: tuple[str, ...] | None = None
     options: type | None = None
+    derive: Callable[[dict, dict, Any], dict] | None = None
 
 
 def _preset_from_dict(cls: type, d: dict):
@@ -114,7 +119,7 @@ def _preset_from_dict(cls: type, d: dict):
 
 #: preset fields added after runs were trained, with the value those runs had: left out of a run's identity
 #: at that value, so older runs keep their identity
-ADDED_FIELDS = {"supervision": "", "sup_weight": 1.0}
+ADDED_FIELDS = {"supervision": "", "sup_weight": 1.0, "part_npcs": False}
 
 
 def resolve_preset(spec: LearnedSpec, preset):
@@ -194,6 +199,9 @@ def learned_job(spec: LearnedSpec, pc, train: ArticulationDataset, dev: torch.de
     fields = list(dict.fromkeys([*spec.fields, *supervised_fields(getattr(pc, "supervision", ""))]))
     arrays = train.arrays(fields)
     tensors = {k: torch.from_numpy(np.ascontiguousarray(arrays[k])) for k in fields}
+    if spec.derive is not None:
+        derived = spec.derive(arrays, train.card, pc)
+        tensors.update({k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in derived.items()})
     torch.manual_seed(pc.seed)  # parameter initialisation is part of the run's identity
     net = spec.build(train.card, pc).to(dev)
 
@@ -529,6 +537,10 @@ def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "c
         x = pts - pts.mean(1, keepdim=True)
         batch["part_label"] = (x[..., 0] > 0).long()
         batch["npcs"] = x / (2 * x.norm(dim=-1).amax(1)[:, None, None])
+    if spec.derive is not None:  # each box cloud its own instance
+        a = {k: v.cpu().numpy() for k, v in batch.items()}
+        a.update(instance_id=np.arange(pc.batch_size), view_id=np.zeros(pc.batch_size, dtype=np.int64))
+        batch.update({k: torch.from_numpy(v).to(dev) for k, v in spec.derive(a, SPEED_CARD, pc).items()})
 
     def step():
         _, total = net.losses(batch, 0.5)

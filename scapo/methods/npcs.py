@@ -8,7 +8,35 @@ inside RANSAC; joints are derived from the part poses. It is the supervised ceil
 (all three supervision marks: it trains on segmentation and NPCS, i.e. part poses, and takes the
 rest-state joint axes of the category from the training labels).
 
-What differs from ANCSH's NPCS baseline:
+Fidelity to ANCSH's NPCS baseline (public code: ``dragonlong/articulated-pose``; read for facts, no code taken):
+
+=============================  ==========================================================  =========================
+component                      ANCSH (file, function)                                      ours
+=============================  ==========================================================  =========================
+per-part NPCS (3 per part)     ``evaluation/baseline_npcs.py`` ``__main__``: part j's      same (``part_npcs``, cpu
+                               source is ``nocs_per_point[:, 3j:3j+3]`` of the points       and paper presets); box of
+                               predicted as part j; each part normalised by its tight box   the part's points over the
+                                                                                            instance's training views
+                                                                                            (no part meshes stored)
+NAOCS (object-level coords)    ANCSH's second map (``lib/network.py``)                     same: the ``npcs`` field
+part pose                      ``ransac`` + ``single_transformation_estimator`` (Umeyama    simplified: 128 (cpu)
+                               on 3-point samples, 1000 hypotheses, inlier 0.1)            hypotheses of 4 points,
+                                                                                            inlier 3 % of the scale
+part in the object frame       compared in each part's NPCS frame                          the part's NAOCS box from
+                                                                                            the two predicted maps
+                                                                                            (our part_pose is object
+                                                                                            frame -> camera)
+joints                         the NPCS baseline derives them from part motion; the full   same (``joints`` option;
+                               ANCSH fits them jointly (``joint_transformation_*``)         default from the val split)
+backbone                       PointNet++                                                  vector neurons (the paper's
+                                                                                            NPCS-EPN row is
+                                                                                            equivariant); ResNet in
+                                                                                            ``test``
+losses                         soft-IoU segmentation, L2 coordinates                       cross-entropy, smooth L1
+rotation robustness            none (views of upright objects)                             uniform rotation augment
+=============================  ==========================================================  =========================
+
+Details:
 
 - Backbone: the ``cpu`` and ``paper`` presets use vector-neuron features (``backbone = "vn"``,
   :class:`~scapo.methods.nets.VNPointEncoder`): labels and NPCS are rotation-invariant targets, and the
@@ -17,15 +45,16 @@ What differs from ANCSH's NPCS baseline:
   under arbitrary rotations (issue 29), where a ResNet-PointNet (``backbone = "resnet"``, the ``test`` preset)
   must learn every rotation from augmentation (``rotation_augment``, kept on in both presets; the targets stay
   in the object frame, as NOCS trains for unseen poses).
-- Coordinates: the dataset's ``npcs`` field, rest-state object-frame coordinates divided by the bbox
-  diagonal, shared by all parts (ANCSH's per-part NPCS normalises each part on its own). The network
-  predicts one coordinate map per part and uses the one of the point's predicted part, as ANCSH does.
-- Losses: cross-entropy on parts and a smooth-L1 coordinate loss on the true part's map (ANCSH uses
-  a soft IoU segmentation loss and L2 coordinates).
+- Coordinates (``part_npcs``): two maps per part, the part's own NPCS (its rest-state points centred on the
+  part's box and divided by the box diagonal) and the articulation-aware object coordinates NAOCS (rest-state
+  object-frame coordinates divided by the bbox diagonal). Each part's rotation, translation and scale come
+  from its NPCS by RANSAC-Umeyama (:func:`part_pose_from_coords`); its box in NAOCS (centre, size) from the
+  least-squares relation between the two predicted maps on the inliers, which places the part in the object
+  frame. The network uses the maps of the point's predicted part. Without ``part_npcs`` (the ``test``
+  preset): NAOCS alone.
 - Joints: from the relative motion of the child's pose against the parent's
   (:func:`~scapo.methods.joints.joint_from_part_poses`), signed by the training rest axes (which also
-  stand in for an undefined axis at a tiny motion); ANCSH's NPCS baseline does the same, its full
-  model predicts joints directly.
+  stand in for an undefined axis at a tiny motion), or the rest joint carried by the parent (``joints``).
 """
 
 from __future__ import annotations
@@ -73,6 +102,8 @@ class NPCSPreset(LearnedPreset):
     changes, as the paper's NPCS-EPN row uses an equivariant backbone."""
     vn_channels: int = 32
     k: int = 10
+    part_npcs: bool = False
+    """ANCSH's per-part NPCS besides NAOCS (the module docstring); False: NAOCS alone (one object-level NPCS)."""
 
     def __post_init__(self):
         super().__post_init__()
@@ -99,9 +130,10 @@ class NPCSOptions(LearnedOptions):
 
 PRESETS: Registry[NPCSPreset] = Registry("npcs preset")
 PRESETS.add("cpu", NPCSPreset(name="cpu", epochs=30, batch_size=16, lr=1e-3, points=512, rotation_augment=True,
-                              backbone="vn", width=128, vn_channels=32, k=10))
+                              backbone="vn", width=128, vn_channels=32, k=10, part_npcs=True))
 PRESETS.add("paper", NPCSPreset(name="paper", epochs=200, batch_size=32, lr=1e-3, points=1024, width=256, blocks=5,
-                                device="auto", rotation_augment=True, backbone="vn", vn_channels=64, k=20))
+                                device="auto", rotation_augment=True, backbone="vn", vn_channels=64, k=20,
+                                part_npcs=True))
 PRESETS.add("test", NPCSPreset(name="test", epochs=2, batch_size=4, points=128, width=32, blocks=2,
                                max_steps_per_epoch=2, ransac_iterations=16))
 
@@ -126,6 +158,7 @@ class NPCSNet(nn.Module):
             feat = preset.width
         self.seg = mlp([feat, preset.width // 2, num_parts])
         self.coord = mlp([feat, preset.width // 2, 3 * num_parts])
+        self.part_coord = mlp([feat, preset.width // 2, 3 * num_parts]) if preset.part_npcs else None
         self.register_buffer("rest_axis", torch.zeros(len(self.joint_types), 3, dtype=torch.float64))
         self.register_buffer("rest_pivot", torch.zeros(len(self.joint_types), 3, dtype=torch.float64))
         self.joints = "parent"
@@ -133,13 +166,15 @@ class NPCSNet(nn.Module):
     def configure(self, options: NPCSOptions) -> None:
         self.joints = options.joints
 
-    def forward(self, X: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, X: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """``(logits (B, N, P), NAOCS (B, N, P, 3), part NPCS (B, N, P, 3) or None)`` for normalised ``X``."""
         if self.preset.backbone == "vn":
             _, h = self.backbone(X)  # (B, N, 3C) rotation-invariant
         else:
             h, _ = self.backbone(X)
         B, N, _ = X.shape
-        return self.seg(h), self.coord(h).view(B, N, self.P, 3)
+        part = self.part_coord(h).view(B, N, self.P, 3) if self.part_coord is not None else None
+        return self.seg(h), self.coord(h).view(B, N, self.P, 3), part
 
     def losses(self, batch: dict, progress: float) -> tuple[dict, torch.Tensor]:
         """Cross-entropy on part labels and smooth-L1 on the true part's NPCS map (object points only); with
@@ -149,14 +184,21 @@ class NPCSNet(nn.Module):
             Q = random_rotation(pts.shape[0], torch.float32).to(pts.device)
             pts = pts @ Q.transpose(1, 2)
         X, _, _ = normalize_clouds(pts)
-        logits, coords = self(X)
+        logits, coords, part = self(X)
         lab = batch["part_label"].long()
         obj = lab >= 0
         ce = F.cross_entropy(logits[obj], lab[obj])
-        pred = coords.gather(2, lab.clamp_min(0)[..., None, None].expand(-1, -1, 1, 3)).squeeze(2)
-        co = F.smooth_l1_loss(pred[obj], batch["npcs"].float()[obj], beta=0.02)
+        at = lab.clamp_min(0)[..., None, None].expand(-1, -1, 1, 3)
+        naocs = batch["npcs"].float()
+        co = F.smooth_l1_loss(coords.gather(2, at).squeeze(2)[obj], naocs[obj], beta=0.02)
         terms = {"seg": ce, "npcs": co}
-        return terms, ce + self.preset.coord_weight * co
+        total = ce + self.preset.coord_weight * co
+        if part is not None:  # each point's NPCS in its own part's box: (NAOCS - centre) / diagonal
+            box = batch["part_box"].float().gather(1, lab.clamp_min(0)[..., None].expand(-1, -1, 4))  # (B, N, 4)
+            target = (naocs - box[..., :3]) / box[..., 3:]
+            terms["part_npcs"] = F.smooth_l1_loss(part.gather(2, at).squeeze(2)[obj], target[obj], beta=0.02)
+            total = total + self.preset.coord_weight * terms["part_npcs"]
+        return terms, total
 
     def set_extras(self, extras: dict) -> None:
         self.rest_axis.copy_(torch.as_tensor(np.asarray(extras["rest_axis"]), dtype=torch.float64))
@@ -166,11 +208,12 @@ class NPCSNet(nn.Module):
     def infer(self, points: torch.Tensor) -> dict:
         """Predictions for ``points (B, N, 3)`` metres (camera frame); numpy arrays (see Predictions)."""
         X, c, s = normalize_clouds(points.float())
-        logits, coords = self(X)
+        logits, coords, part = self(X)
         lab = logits.argmax(-1)
         pts = points.double().cpu().numpy()
         lab_np = lab.cpu().numpy()
         co = coords.double().cpu().numpy()
+        pco = part.double().cpu().numpy() if part is not None else None
         scale = s.double().cpu().numpy()
         B, N = lab_np.shape
         poses = np.tile(np.eye(4), (B, self.P, 1, 1))
@@ -184,11 +227,9 @@ class NPCSNet(nn.Module):
                 sel = lab_np[b] == p
                 if sel.sum() < 4:  # too few points: the whole cloud's coordinates under this part's map
                     sel = np.ones(N, dtype=bool)
-                T, sc, _ = ransac_umeyama(co[b, sel, p], pts[b, sel], self.preset.ransac_threshold * scale[b],
-                                          iterations=self.preset.ransac_iterations, rng=rng)
-                if not np.isfinite(sc) or sc <= 1e-9:
-                    T, sc = umeyama(co[b, sel, p], pts[b, sel], with_scale=True)
-                poses[b, p] = as_transform(T[:3, :3] / max(sc, 1e-9), T[:3, 3])
+                poses[b, p], sc = part_pose_from_coords(
+                    pts[b, sel], co[b, sel, p], pco[b, sel, p] if pco is not None else None,
+                    self.preset.ransac_threshold * scale[b], self.preset.ransac_iterations, rng)
                 diag.append(sc)
             d = float(np.median(diag))  # the object's bbox diagonal (NPCS -> metres)
             for j, (pa, ch) in enumerate(self.joint_parts):
@@ -199,6 +240,66 @@ class NPCSNet(nn.Module):
                     axis[b, j], pivot[b, j] = R @ rest_axis[j], R @ (rest_pivot[j] * d) + t
         return {"part_label": lab_np, "part_pose": poses, "joint_axis": axis, "joint_pivot": pivot,
                 "joint_state": state, "T_cam_obj": poses[:, 0].copy()}
+
+
+def part_pose_from_coords(points: np.ndarray, naocs: np.ndarray, part_npcs: np.ndarray | None, threshold: float,
+                          iterations: int = 128, rng: np.random.Generator | None = None) -> tuple[np.ndarray, float]:
+    """One part's pose from its points and their predicted coordinates (ANCSH, Sec. 4.3 and 5).
+
+    Args:
+        points: ``(n, 3)`` the part's observed points, camera frame, metres (n >= 3).
+        naocs: ``(n, 3)`` their predicted NAOCS: rest-state object-frame coordinates / bbox diagonal.
+        part_npcs: ``(n, 3)`` their predicted per-part NPCS ((NAOCS - box centre) / box diagonal of the part), or
+            None to fit the NAOCS directly (one object-level NPCS).
+        threshold: RANSAC inlier distance in metres. iterations, rng: RANSAC's hypotheses and randomness.
+
+    Returns:
+        ``(pose (4, 4), diag)``: the rigid map from the object's rest frame (metres) to the camera at the
+        sampled state, and the estimated bbox diagonal in metres (metres per NAOCS unit). With ``part_npcs``:
+        ``R, t, s`` from NPCS to the camera by RANSAC-Umeyama, then the part's box in NAOCS (``NAOCS = d NPCS
+        + c``, least squares on the inliers), so ``diag = s / d`` and ``t_obj = t - diag R c``; a degenerate
+        relation (``d <= 0``, too few inliers) falls back to NAOCS alone.
+    """
+    if part_npcs is not None:
+        T, s, inl = ransac_umeyama(part_npcs, points, threshold, iterations=iterations, rng=rng)
+        if np.isfinite(s) and s > 1e-9 and inl.sum() >= 3:
+            q, y = part_npcs[inl], naocs[inl]
+            qc, yc = q - q.mean(0), y - y.mean(0)
+            den = float((qc * qc).sum())
+            d = float((qc * yc).sum()) / den if den > 1e-12 else 0.0
+            if d > 1e-6:
+                c = y.mean(0) - d * q.mean(0)
+                R, diag = T[:3, :3] / s, s / d
+                return as_transform(R, T[:3, 3] - diag * R @ c), diag
+    T, sc, _ = ransac_umeyama(naocs, points, threshold, iterations=iterations, rng=rng)
+    if not np.isfinite(sc) or sc <= 1e-9:
+        T, sc = umeyama(naocs, points, with_scale=True)
+    return as_transform(T[:3, :3] / max(sc, 1e-9), T[:3, 3]), float(sc)
+
+
+def part_boxes(arrays: dict, card: dict, preset: NPCSPreset) -> dict:
+    """Per-cloud part boxes for the per-part NPCS targets (``LearnedSpec.derive``): for every instance and part,
+    the box of that part's points over all the instance's views in ``arrays`` (NAOCS units), as ``part_box
+    (M, P, 4) float32`` (centre xyz, diagonal) repeated on each of the instance's ``M`` clouds. A part seen by
+    fewer than 4 points, or flat to below 1e-6, gets the NAOCS box (centre 0, diagonal 1). Nothing without
+    ``preset.part_npcs``. ``arrays``: ``npcs (M, N, 3)``, ``part_label (M, N)``, ``instance_id (M,)``."""
+    if not preset.part_npcs:
+        return {}
+    P = len(card["part_names"])
+    npcs, lab, inst = np.asarray(arrays["npcs"]), np.asarray(arrays["part_label"]), np.asarray(arrays["instance_id"])
+    out = np.tile(np.array([0.0, 0.0, 0.0, 1.0], dtype=np.float32), (len(inst), P, 1))
+    for i in np.unique(inst):
+        rows = inst == i
+        pts, lb = npcs[rows], lab[rows]
+        for p in range(P):
+            x = pts[lb == p]
+            if len(x) < 4:
+                continue
+            lo, hi = x.min(0), x.max(0)
+            diag = float(np.linalg.norm(hi - lo))
+            if diag > 1e-6:
+                out[rows, p] = np.array([*(lo + hi) / 2, diag], dtype=np.float32)
+    return {"part_box": out}
 
 
 def _build(card: dict, preset: NPCSPreset) -> NPCSNet:
@@ -212,6 +313,7 @@ def _extras(net: NPCSNet, a: dict) -> dict:
 
 
 SPEC = LearnedSpec(method="npcs", presets=PRESETS, fields=("points", "part_label", "npcs"), build=_build,
+                   derive=part_boxes,
                    extras=_extras, extras_fields=("part_pose", "joint_axis", "joint_pivot", "joint_parts",
                                                   "joint_type", "bbox_diag"), options=NPCSOptions)
 make_npcs = register_learned(SPEC, display="NPCS-style (supervised)",
