@@ -145,7 +145,8 @@ class EAPPreset(LearnedPreset):
 
 
 PRESETS: Registry[EAPPreset] = Registry("eap preset")
-PRESETS.add("cpu", EAPPreset(name="cpu", epochs=30, batch_size=16, lr=1e-3, points=256, k=10, channels=32,
+PRESETS.add("cpu", EAPPreset(name="cpu", epochs=30, batch_size=16, lr=1e-3, points=256, max_steps_per_epoch=100,
+                             k=10, channels=32,
                              shape_points=128))
 # paper: EAP's scripts (scripts/train/*.sh): 512 input points, 256 per part, 60 anchors, lr 1e-4, batch 1 on each
 # of 8 GPUs (8 here); their iteration count (options.py 51: 1,000,000, stopped by hand) is not a schedule we can

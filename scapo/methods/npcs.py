@@ -129,7 +129,8 @@ class NPCSOptions(LearnedOptions):
 
 
 PRESETS: Registry[NPCSPreset] = Registry("npcs preset")
-PRESETS.add("cpu", NPCSPreset(name="cpu", epochs=30, batch_size=16, lr=1e-3, points=512, rotation_augment=True,
+PRESETS.add("cpu", NPCSPreset(name="cpu", epochs=30, batch_size=16, lr=1e-3, points=256, max_steps_per_epoch=100,
+                              rotation_augment=True,
                               backbone="vn", width=128, vn_channels=32, k=10, part_npcs=True))
 PRESETS.add("paper", NPCSPreset(name="paper", epochs=200, batch_size=32, lr=1e-3, points=1024, width=256, blocks=5,
                                 device="auto", rotation_augment=True, backbone="vn", vn_channels=64, k=20,

@@ -171,7 +171,8 @@ class OPAlignPreset(LearnedPreset):
 
 
 PRESETS: Registry[OPAlignPreset] = Registry("op-align preset")
-PRESETS.add("cpu", OPAlignPreset(name="cpu", epochs=20, batch_size=16, lr=1e-3, points=256, anchor_points=96,
+PRESETS.add("cpu", OPAlignPreset(name="cpu", epochs=20, batch_size=16, lr=1e-3, points=256, max_steps_per_epoch=100,
+                                 anchor_points=96,
                                  width=64, part_width=96, template_points=256))
 # paper: the original's schedule (options.py 28, 89-127: 1024 points, 20,000 iterations of batch 16, lr 1e-4 halved
 # every 5,000; the 60 icosahedral anchors), the rigid term halving every 5,000 iterations (art_metric.py 72-74)
