@@ -167,14 +167,83 @@ def compare_train(rows: list[dict], baseline: str | Path) -> tuple[list[dict], d
     return out, {f"baseline_{k}": prov[k] for k in ("commit", "time", "device") if k in prov}
 
 
+def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps: int = 10,
+                     work: str | Path | None = None) -> list[dict]:
+    """Training speed on a real dataset through the engine, as a table cell trains (``scapo bench perf --what train
+    --data DATASET``): each trained method's ``preset`` runs for one epoch of ``steps`` and one of ``2 * steps``
+    steps per stage (SCAPO: stage 1 alone, then both stages) on the training split, in fresh run folders under
+    ``work`` (default: a temporary folder); the differences of the recorded wall times give the seconds per step of
+    each stage and the fixed cost of a run (loading, model building, SCAPO's stage-2 initialisation), reported
+    as ``stage<k>_clouds_per_s`` and ``fixed_s`` with the preset's schedule, for :func:`training_budget`. Needs
+    ``2 * steps * batch_size`` training clouds. Measure with one torch thread on an idle core, as the cells run.
+
+    Raises:
+        UnknownNameError: an unknown method or preset. ConfigError: a method that is not trained, ``steps < 2``,
+        a training split too small for ``2 * steps`` batches. DatasetError: an unreadable dataset."""
+    import tempfile
+
+    import torch
+
+    from scapo.config import override
+    from scapo.data.dataset import load
+    from scapo.errors import ConfigError
+    from scapo.methods import METHODS, train_method
+
+    if steps < 2:
+        raise ConfigError(f"--steps must be >= 2, got {steps}")
+    names = list(methods) if methods else [m for m in METHODS.names() if METHODS.get(m).trained]
+    for m in names:
+        if not METHODS.get(m).trained or METHODS.get(m).preset is None:
+            raise ConfigError(f"method {m!r} is not trained; --what train times: "
+                              f"{', '.join(n for n in METHODS.names() if METHODS.get(n).trained)}")
+    clouds = len(load(data, "train"))
+    root = Path(work) if work is not None else Path(tempfile.mkdtemp(prefix="scapo_train_speed_"))
+    rows = []
+    for m in names:
+        base = METHODS.get(m).preset(preset)
+        two = hasattr(base, "stage2_epochs")
+        batch = base.batch_size
+        if clouds < 2 * steps * batch:
+            raise ConfigError(f"{data}: {clouds} training clouds, fewer than the {2 * steps * batch} that "
+                              f"{2 * steps} steps of {batch} need; give a larger dataset or a smaller --steps")
+
+        def seconds(k: int, stage2: bool, tag: str, m=m, base=base, two=two) -> float:
+            """Wall seconds of a fresh run of one epoch of ``k`` steps per stage (stage 2 only with ``stage2``)."""
+            values = {"max_steps_per_epoch": k}
+            values.update({"stage1_epochs": 1, "stage2_epochs": int(stage2)} if two else {"epochs": 1, "iterations": 0})
+            run = root / f"{m}_{tag}"
+            train_method(m, data, run, override(base, values, f"{m} preset"), progress=False)
+            return float(json.loads((run / "timing.json").read_text())["seconds"])
+
+        a, b = seconds(steps, False, "a"), seconds(2 * steps, False, "b")
+        p1 = max((b - a) / steps, 1e-9)
+        row = {"method": m, "preset": preset, "batch_size": batch,
+               "points": getattr(base, "train_points", getattr(base, "points", None)),
+               "stage1_clouds_per_s": round(batch / p1, 2)}
+        fixed = a - steps * p1
+        if two:
+            c, d = seconds(steps, True, "c"), seconds(2 * steps, True, "d")
+            p2 = max(((d - b) - (c - a)) / steps, 1e-9)
+            row["stage2_clouds_per_s"] = round(batch / p2, 2)
+            fixed += (c - a) - steps * p2
+            row.update(stage1_epochs=base.stage1_epochs, stage2_epochs=base.stage2_epochs)
+        else:
+            row.update(stage1_epochs=base.epochs, iterations=base.iterations)
+        row.update(max_steps_per_epoch=base.max_steps_per_epoch, fixed_s=round(max(fixed, 0.0), 1),
+                   train_clouds=clouds, data=str(data), device="cpu", threads=torch.get_num_threads())
+        rows.append(row)
+    return rows
+
+
 def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list[dict]:
     """Issue 30's equal training budget from measured speeds: for each ``--what train`` row (its clouds/s per stage
     and its preset's schedule: ``stage<k>_epochs``, ``max_steps_per_epoch``, ``iterations``), the wall time of a
     training run on ``train_clouds`` clouds at that schedule (``planned_min``: steps per epoch ``ceil(clouds /
     batch)``, capped by ``max_steps_per_epoch``; each step at the measured clouds/s) and the epochs per stage
     that fill ``minutes`` (``stage<k>_epochs_for_budget``: every stage scaled by the same factor, at least 1).
-    The tables' cells run one torch thread per core, so measure with one thread. Rows without a schedule pass
-    unchanged.
+    A row's ``fixed_s`` (from :func:`bench_train_data`: the per-run cost outside the steps) is added to the planned
+    time and left out of the budget the epochs fill. The tables' cells run one torch thread per core, so measure
+    with one thread. Rows without a schedule pass unchanged.
 
     Raises:
         ConfigError: ``minutes <= 0`` or ``train_clouds < 1``."""
@@ -195,13 +264,14 @@ def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list
         if r.get("max_steps_per_epoch"):
             per_epoch = min(per_epoch, r["max_steps_per_epoch"])
         sec_per_epoch = {k: per_epoch * r["batch_size"] / r[f"stage{k}_clouds_per_s"] for k in stages}
+        fixed = float(r.get("fixed_s", 0.0))
         if r.get("iterations"):  # one stage of a fixed step count
             sec = r["iterations"] * r["batch_size"] / r["stage1_clouds_per_s"]
         else:
             sec = sum(r[f"stage{k}_epochs"] * sec_per_epoch[k] for k in stages)
-        r["train_clouds"], r["planned_min"] = train_clouds, round(sec / 60, 2)
+        r["train_clouds"], r["planned_min"] = train_clouds, round((fixed + sec) / 60, 2)
         if not r.get("iterations"):
-            f = minutes * 60 / sec
+            f = max(minutes * 60 - fixed, 0.0) / sec
             for k in stages:
                 r[f"stage{k}_epochs_for_budget"] = max(1, round(r[f"stage{k}_epochs"] * f))
             r["budget_min"] = minutes

@@ -606,3 +606,26 @@ def test_training_budget_turns_measured_speeds_into_epochs_that_fill_the_budget(
     assert d == {"method": "icp"}
     with pytest.raises(ConfigError, match="budget-minutes"):
         training_budget(rows, 0, 840)
+
+
+def test_train_speed_on_a_dataset_separates_steps_from_fixed_costs(laptop_data, tmp_path):
+    """``perf --what train --data``: real training runs of one and two epochs' worth of steps per stage give each
+    stage's clouds/s and the run's fixed seconds; ``--budget-minutes`` turns them into epochs that fill the budget
+    (the fixed cost left out of it)."""
+    import json
+
+    from scapo.perf import bench_train_data, training_budget
+
+    (row,) = bench_train_data(laptop_data, ["scapo"], "test", steps=2, work=tmp_path / "w")
+    assert row["stage1_clouds_per_s"] > 0 and row["stage2_clouds_per_s"] > 0 and row["fixed_s"] >= 0
+    assert row["train_clouds"] > 0 and (row["stage1_epochs"], row["stage2_epochs"]) == (1, 1)
+    (b,) = training_budget([{**row, "fixed_s": 30.0}], 1.0, 16)
+    assert b["stage1_epochs_for_budget"] >= 1 and b["planned_min"] > 0.5  # 30 s fixed + the steps
+    with pytest.raises(ConfigError, match="--steps must be >= 2"):
+        bench_train_data(laptop_data, ["scapo"], "test", steps=1)
+    with pytest.raises(ConfigError, match="training clouds, fewer than"):
+        bench_train_data(laptop_data, ["npcs"], "test", steps=10_000)
+    assert main(["bench", "perf", "--what", "train", "--method", "npcs", "--preset", "test", "--data", str(laptop_data),
+                 "--steps", "2", "--budget-minutes", "1", "--out", str(tmp_path)]) == 0
+    out = json.loads((tmp_path / f"train_test_{laptop_data.name}_npcs.json").read_text())
+    assert out["rows"][0]["stage1_epochs_for_budget"] >= 1 and out["provenance"]["budget_minutes"] == 1.0

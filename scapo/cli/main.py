@@ -495,13 +495,21 @@ def cmd_bench(args) -> int:
     elif args.target == "train":
         from scapo.perf import bench_train
 
-        rows = bench_train([args.method] if args.method else None, args.preset, device=args.device)
-        name = f"train_{args.preset}" + (f"_{args.method}" if args.method else "")
+        if args.data is not None:  # real training steps on a dataset, through the engine
+            from scapo.perf import bench_train_data
+
+            rows = bench_train_data(args.data, [args.method] if args.method else None, args.preset,
+                                    steps=args.steps)
+            name = f"train_{args.preset}_{Path(args.data).name}" + (f"_{args.method}" if args.method else "")
+        else:
+            rows = bench_train([args.method] if args.method else None, args.preset, device=args.device)
+            name = f"train_{args.preset}" + (f"_{args.method}" if args.method else "")
         if args.budget_minutes is not None:
             from scapo.perf import training_budget
 
-            rows = training_budget(rows, args.budget_minutes, args.train_clouds)
-            extra_prov.update(budget_minutes=args.budget_minutes, train_clouds=args.train_clouds)
+            clouds = args.train_clouds or (rows[0].get("train_clouds") if rows else None) or 840
+            rows = training_budget(rows, args.budget_minutes, clouds)
+            extra_prov.update(budget_minutes=args.budget_minutes, train_clouds=clouds)
         if args.baseline:
             from scapo.perf import compare_train
 
@@ -799,8 +807,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--budget-minutes", type=float, default=None, help="perf --what train: the training budget per "
                     "cell in minutes (one torch thread); adds each preset's planned minutes and the epochs per stage "
                     "that fill the budget")
-    sp.add_argument("--train-clouds", type=int, default=840, help="perf --what train --budget-minutes: training "
-                    "clouds of a cell (default 840: the tables' 150 instances x 8 views, 105 training instances)")
+    sp.add_argument("--train-clouds", type=int, default=None, help="perf --what train --budget-minutes: training "
+                    "clouds of a cell (default: the --data training split, else 840: the tables' 150 instances x 8 "
+                    "views, 105 training instances)")
+    sp.add_argument("--steps", type=int, default=10, help="perf --what train --data: steps of the shorter of the two "
+                    "timed runs per stage")
     sp.add_argument("--baseline", default=None, help="perf --what train: an earlier run's .json (e.g. at another "
                     "commit, same machine and threads): adds each stage's clouds/s before and the speed-up")
     sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3; a "
