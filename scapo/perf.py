@@ -167,19 +167,21 @@ def compare_train(rows: list[dict], baseline: str | Path) -> tuple[list[dict], d
     return out, {f"baseline_{k}": prov[k] for k in ("commit", "time", "device") if k in prov}
 
 
-def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps: int = 10,
+def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps: int = 20,
                      work: str | Path | None = None) -> list[dict]:
     """Training speed on a real dataset through the engine, as a table cell trains (``scapo bench perf --what train
-    --data DATASET``): each trained method's ``preset`` runs for one epoch of ``steps`` and one of ``2 * steps``
-    steps per stage (SCAPO: stage 1 alone, then both stages) on the training split, in fresh run folders under
-    ``work`` (default: a temporary folder); the differences of the recorded wall times give the seconds per step of
-    each stage and the fixed cost of a run (loading, model building, SCAPO's stage-2 initialisation), reported
-    as ``stage<k>_clouds_per_s`` and ``fixed_s`` with the preset's schedule, for :func:`training_budget`. Needs
-    ``2 * steps * batch_size`` training clouds. Measure with one torch thread on an idle core, as the cells run.
+    --data DATASET``): each trained method's ``preset`` trains for two epochs of ``steps`` steps per stage on the
+    training split in a fresh run folder under ``work`` (default: a temporary folder), and the engine's record of
+    where the time went (``timing.json``'s breakdown, :meth:`scapo.engine.runs.RunFolder.write_timing`) gives per
+    stage the clouds/s of its steps (``stage<k>_clouds_per_s``) and the seconds each epoch adds around them
+    (``stage<k>_epoch_s``: checkpoint, loss plot), and the run's one-time seconds (``fixed_s``: stage starts such
+    as SCAPO's stage-2 initialisation, the extras after the last epoch), with the preset's schedule, for
+    :func:`training_budget`. Needs ``steps * batch_size`` training clouds. Measure as the cells run (one torch
+    thread per core, the other core busy with the other chain).
 
     Raises:
         UnknownNameError: an unknown method or preset. ConfigError: a method that is not trained, ``steps < 2``,
-        a training split too small for ``2 * steps`` batches. DatasetError: an unreadable dataset."""
+        a training split too small for ``steps`` batches. DatasetError: an unreadable dataset."""
     import tempfile
 
     import torch
@@ -203,34 +205,27 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
         base = METHODS.get(m).preset(preset)
         two = hasattr(base, "stage2_epochs")
         batch = base.batch_size
-        if clouds < 2 * steps * batch:
-            raise ConfigError(f"{data}: {clouds} training clouds, fewer than the {2 * steps * batch} that "
-                              f"{2 * steps} steps of {batch} need; give a larger dataset or a smaller --steps")
-
-        def seconds(k: int, stage2: bool, tag: str, m=m, base=base, two=two) -> float:
-            """Wall seconds of a fresh run of one epoch of ``k`` steps per stage (stage 2 only with ``stage2``)."""
-            values = {"max_steps_per_epoch": k}
-            values.update({"stage1_epochs": 1, "stage2_epochs": int(stage2)} if two else {"epochs": 1, "iterations": 0})
-            run = root / f"{m}_{tag}"
-            train_method(m, data, run, override(base, values, f"{m} preset"), progress=False)
-            return float(json.loads((run / "timing.json").read_text())["seconds"])
-
-        a, b = seconds(steps, False, "a"), seconds(2 * steps, False, "b")
-        p1 = max((b - a) / steps, 1e-9)
+        if clouds < steps * batch:
+            raise ConfigError(f"{data}: {clouds} training clouds, fewer than the {steps * batch} that {steps} "
+                              f"steps of {batch} need; give a larger dataset or a smaller --steps")
+        values = {"max_steps_per_epoch": steps}
+        values.update({"stage1_epochs": 2, "stage2_epochs": 2} if two else {"epochs": 2, "iterations": 0})
+        run = root / f"{m}_{preset.replace('/', '-')}"
+        train_method(m, data, run, override(base, values, f"{m} preset"), progress=False)
+        timing = json.loads((run / "timing.json").read_text())
         row = {"method": m, "preset": preset, "batch_size": batch,
-               "points": getattr(base, "train_points", getattr(base, "points", None)),
-               "stage1_clouds_per_s": round(batch / p1, 2)}
-        fixed = a - steps * p1
+               "points": getattr(base, "train_points", getattr(base, "points", None))}
+        fixed = float(timing.get("final_s", 0.0))
+        for k, part in sorted(timing["stages"].items()):
+            row[f"stage{k}_clouds_per_s"] = round(part["steps"] * batch / max(part["step_s"], 1e-9), 2)
+            row[f"stage{k}_epoch_s"] = round(part["epoch_s"] / max(part["epochs"], 1), 2)
+            fixed += float(part["start_s"])
         if two:
-            c, d = seconds(steps, True, "c"), seconds(2 * steps, True, "d")
-            p2 = max(((d - b) - (c - a)) / steps, 1e-9)
-            row["stage2_clouds_per_s"] = round(batch / p2, 2)
-            fixed += (c - a) - steps * p2
             row.update(stage1_epochs=base.stage1_epochs, stage2_epochs=base.stage2_epochs)
         else:
             row.update(stage1_epochs=base.epochs, iterations=base.iterations)
-        row.update(max_steps_per_epoch=base.max_steps_per_epoch, fixed_s=round(max(fixed, 0.0), 1),
-                   train_clouds=clouds, data=str(data), device="cpu", threads=torch.get_num_threads())
+        row.update(max_steps_per_epoch=base.max_steps_per_epoch, fixed_s=round(fixed, 1), train_clouds=clouds,
+                   data=str(data), device="cpu", threads=torch.get_num_threads())
         rows.append(row)
     return rows
 
@@ -241,9 +236,10 @@ def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list
     training run on ``train_clouds`` clouds at that schedule (``planned_min``: steps per epoch ``ceil(clouds /
     batch)``, capped by ``max_steps_per_epoch``; each step at the measured clouds/s) and the epochs per stage
     that fill ``minutes`` (``stage<k>_epochs_for_budget``: every stage scaled by the same factor, at least 1).
-    A row's ``fixed_s`` (from :func:`bench_train_data`: the per-run cost outside the steps) is added to the planned
-    time and left out of the budget the epochs fill. The tables' cells run one torch thread per core, so measure
-    with one thread. Rows without a schedule pass unchanged.
+    A row's ``stage<k>_epoch_s`` and ``fixed_s`` (from :func:`bench_train_data`: the seconds each epoch adds
+    around its steps, and the run's one-time seconds) are added: the epochs fill the budget less the fixed cost.
+    The tables' cells run one torch thread per core, so measure with one thread. Rows without a schedule pass
+    unchanged.
 
     Raises:
         ConfigError: ``minutes <= 0`` or ``train_clouds < 1``."""
@@ -263,7 +259,8 @@ def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list
         per_epoch = math.ceil(train_clouds / r["batch_size"])
         if r.get("max_steps_per_epoch"):
             per_epoch = min(per_epoch, r["max_steps_per_epoch"])
-        sec_per_epoch = {k: per_epoch * r["batch_size"] / r[f"stage{k}_clouds_per_s"] for k in stages}
+        sec_per_epoch = {k: per_epoch * r["batch_size"] / r[f"stage{k}_clouds_per_s"] + r.get(f"stage{k}_epoch_s", 0.0)
+                         for k in stages}
         fixed = float(r.get("fixed_s", 0.0))
         if r.get("iterations"):  # one stage of a fixed step count
             sec = r["iterations"] * r["batch_size"] / r["stage1_clouds_per_s"]

@@ -609,18 +609,25 @@ def test_training_budget_turns_measured_speeds_into_epochs_that_fill_the_budget(
 
 
 def test_train_speed_on_a_dataset_separates_steps_from_fixed_costs(laptop_data, tmp_path):
-    """``perf --what train --data``: real training runs of one and two epochs' worth of steps per stage give each
-    stage's clouds/s and the run's fixed seconds; ``--budget-minutes`` turns them into epochs that fill the budget
-    (the fixed cost left out of it)."""
+    """``perf --what train --data``: a real two-epoch run per stage and the engine's record of where its time went
+    give each stage's clouds/s, the seconds each epoch adds and the run's one-time seconds; ``--budget-minutes``
+    turns them into epochs that fill the budget (the fixed cost left out of it)."""
     import json
 
     from scapo.perf import bench_train_data, training_budget
 
     (row,) = bench_train_data(laptop_data, ["scapo"], "test", steps=2, work=tmp_path / "w")
     assert row["stage1_clouds_per_s"] > 0 and row["stage2_clouds_per_s"] > 0 and row["fixed_s"] >= 0
-    assert row["train_clouds"] > 0 and (row["stage1_epochs"], row["stage2_epochs"]) == (1, 1)
-    (b,) = training_budget([{**row, "fixed_s": 30.0}], 1.0, 16)
-    assert b["stage1_epochs_for_budget"] >= 1 and b["planned_min"] > 0.5  # 30 s fixed + the steps
+    assert row["stage1_epoch_s"] >= 0 and row["train_clouds"] > 0 and (row["stage1_epochs"], row["stage2_epochs"]) == (1, 1)
+    timing = json.loads((tmp_path / "w" / "scapo_test" / "timing.json").read_text())
+    assert timing["stages"]["1"]["steps"] == timing["stages"]["2"]["steps"] == 4 and timing["steps"] == 8
+    assert sum(p["step_s"] + p["epoch_s"] + p["start_s"] for p in timing["stages"].values()) + timing["final_s"] \
+        == pytest.approx(timing["session_s"], abs=0.05)
+    r = {**row, "fixed_s": 30.0, "stage1_epoch_s": 1.0, "stage2_epoch_s": 1.0, "max_steps_per_epoch": 2,
+         "stage1_clouds_per_s": 8.0, "stage2_clouds_per_s": 4.0, "batch_size": 4}
+    (b,) = training_budget([r], 1.5, 16)  # 30 s fixed; an epoch of each stage: 1 + 1 and 2 + 1 seconds
+    assert b["planned_min"] == pytest.approx((30 + 2 + 3) / 60, abs=0.01)
+    assert (b["stage1_epochs_for_budget"], b["stage2_epochs_for_budget"]) == (12, 12)  # 60 s / 5 s
     with pytest.raises(ConfigError, match="--steps must be >= 2"):
         bench_train_data(laptop_data, ["scapo"], "test", steps=1)
     with pytest.raises(ConfigError, match="training clouds, fewer than"):

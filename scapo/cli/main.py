@@ -810,8 +810,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--train-clouds", type=int, default=None, help="perf --what train --budget-minutes: training "
                     "clouds of a cell (default: the --data training split, else 840: the tables' 150 instances x 8 "
                     "views, 105 training instances)")
-    sp.add_argument("--steps", type=int, default=10, help="perf --what train --data: steps of the shorter of the two "
-                    "timed runs per stage")
+    sp.add_argument("--steps", type=int, default=20, help="perf --what train --data: steps per epoch of the timed "
+                    "two-epoch run (per stage)")
     sp.add_argument("--baseline", default=None, help="perf --what train: an earlier run's .json (e.g. at another "
                     "commit, same machine and threads): adds each stage's clouds/s before and the speed-up")
     sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3; a "

@@ -259,10 +259,14 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
     board = _tensorboard(folder, steps * done_before) if ctx.is_main else None
     t0 = time.perf_counter()
     before = float(state.get("seconds", 0.0)) if state is not None else 0.0  # earlier sessions' training time
+    # where this session's time went, per stage (timing.json "stages"; scapo bench perf --what train --data)
+    parts = {str(s.index): {"steps": 0, "step_s": 0.0, "epochs": 0, "epoch_s": 0.0, "start_s": 0.0} for s in live}
+    final_s = 0.0
     try:
         for stage in live:
             if stage.index < start[0]:
                 continue
+            part = parts[str(stage.index)]
             first = start[1] if stage.index == start[0] else 0
             opt = torch.optim.Adam(stage.params(), lr=stage.lr, weight_decay=cfg.weight_decay)
             sched = stage.scheduler(opt, steps, cfg.min_lr)
@@ -270,20 +274,30 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                 opt.load_state_dict(state["optimizer"])
                 sched.load_state_dict(state["scheduler"])
             if first == 0 and stage.on_start is not None:
+                ts = time.perf_counter()
                 stage.on_start()
+                part["start_s"] += time.perf_counter() - ts
             for epoch in range(first, stage.epochs):
+                ts = time.perf_counter()
                 run_epoch(job, stage, epoch, opt, sched, steps, folder, bar, device, ctx, columns, board)
+                te = time.perf_counter()
+                part["steps"], part["epochs"], part["step_s"] = part["steps"] + steps, part["epochs"] + 1, \
+                    part["step_s"] + te - ts
                 last_stage = stage is live[-1]
                 done = last_stage and epoch == stage.epochs - 1
                 nxt = (stage.index, epoch + 1) if epoch + 1 < stage.epochs or last_stage else (
                     live[live.index(stage) + 1].index, 0)
                 extras = job.extras(done) if job.extras is not None else {}
+                if done:  # the final extras (e.g. statistics over the training split) happen once per run
+                    final_s += time.perf_counter() - te
+                    te = time.perf_counter()
                 if ctx.is_main:  # every rank holds the same model, optimiser and schedule
                     folder.save({"model": job.model.state_dict(), "optimizer": opt.state_dict(),
                                  "scheduler": sched.state_dict(), "stage": nxt[0], "epoch": nxt[1], "done": done,
                                  "world_size": ctx.world, "seconds": before + time.perf_counter() - t0, **extras})
                     plot_losses(folder.log, folder.path / "losses.png")
                 ctx.barrier()
+                part["epoch_s"] += time.perf_counter() - te
     finally:
         if bar is not None:
             bar.close()
@@ -291,7 +305,11 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
             board.close()
     if ctx.is_main:  # the training time over every session that trained this run (resumes included)
         folder.write_timing(before + time.perf_counter() - t0, device, ctx.world,
-                            steps=sum(stage.epochs * steps for stage in live))
+                            steps=sum(stage.epochs * steps for stage in live),
+                            breakdown={"stages": {k: {n: round(v, 3) if isinstance(v, float) else v
+                                                      for n, v in p.items()} for k, p in parts.items()},
+                                       "final_s": round(final_s, 3),
+                                       "session_s": round(time.perf_counter() - t0, 3)})
     return folder.checkpoint
 
 

@@ -168,11 +168,17 @@ class RunFolder:
         torch.save({**state, "identity": self.identity, "identity_hash": self.hash()}, buf)
         atomic_write_bytes(self.checkpoint, buf.getvalue())
 
-    def write_timing(self, seconds: float, device, world_size: int, steps: int | None = None) -> None:
+    def write_timing(self, seconds: float, device, world_size: int, steps: int | None = None,
+                     breakdown: dict | None = None) -> None:
         """``timing.json``: training seconds (every session), device, world size and the optimiser steps of the
-        whole schedule (per rank; None when unknown)."""
+        whole schedule (per rank; None when unknown); with ``breakdown``, where the last session's time went
+        (``stages``: per stage index its ``steps`` and the seconds inside them ``step_s``, its ``epochs`` and the
+        per-epoch checkpoint, loss plot and extras ``epoch_s``, its ``start_s`` (a stage's start, e.g. SCAPO's
+        stage-2 initialisation); ``final_s``: the extras after the last epoch; ``session_s``: the session's
+        training seconds), for ``scapo bench perf --what train --data``."""
         atomic_write_text(self.path / "timing.json", json.dumps({"seconds": round(seconds, 1), "device": str(device),
-                                                                 "world_size": world_size, "steps": steps}) + "\n")
+                                                                 "world_size": world_size, "steps": steps,
+                                                                 **(breakdown or {})}) + "\n")
 
 
 def load_error_text(e: Exception) -> str:
