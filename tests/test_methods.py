@@ -636,3 +636,28 @@ def test_train_speed_on_a_dataset_separates_steps_from_fixed_costs(laptop_data, 
                  "--steps", "2", "--budget-minutes", "1", "--out", str(tmp_path)]) == 0
     out = json.loads((tmp_path / f"train_test_{laptop_data.name}_npcs.json").read_text())
     assert out["rows"][0]["stage1_epochs_for_budget"] >= 1 and out["provenance"]["budget_minutes"] == 1.0
+
+
+@pytest.mark.parametrize("name", ["scapo", "npcs", "eap", "op-align"])
+def test_cpu_presets_fill_the_equal_training_budget(name):
+    """Issue 30's equal budget: every trained method's ``cpu`` preset trains on the same 256 points and, at the
+    speed measured on the tables' data (``results/perf/train_cpu_laptop_i150_v8_s1_<method>.json``, written by
+    ``scapo bench perf --what train --data ... --budget-minutes 15``), its epochs fill the stated 15 minutes per
+    cell within 10 %."""
+    import json
+    from pathlib import Path
+
+    from scapo.perf import training_budget
+
+    measured = json.loads((Path(__file__).parents[1] / "results" / "perf" /
+                           f"train_cpu_laptop_i150_v8_s1_{name}.json").read_text())
+    (row,) = measured["rows"]
+    assert measured["provenance"]["budget_minutes"] == 15.0 and row["threads"] == 1
+    pc = METHODS.get(name).preset("cpu")
+    assert getattr(pc, "train_points", getattr(pc, "points", None)) == 256 and pc.batch_size == 16
+    epochs = {"stage1_epochs": pc.stage1_epochs, "stage2_epochs": pc.stage2_epochs} if name == "scapo" else \
+        {"stage1_epochs": pc.epochs}
+    assert pc.max_steps_per_epoch == 100 and not getattr(pc, "iterations", 0)
+    (plan,) = training_budget([{**row, **epochs, "max_steps_per_epoch": pc.max_steps_per_epoch}], 15.0,
+                              row["train_clouds"])
+    assert abs(plan["planned_min"] - 15.0) <= 1.5, plan
