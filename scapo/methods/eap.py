@@ -145,8 +145,9 @@ class EAPPreset(LearnedPreset):
 
 
 PRESETS: Registry[EAPPreset] = Registry("eap preset")
-# cpu: the equal budget of issue 30 (15 minutes of training per cell on one core, the tables' 840 training clouds); the epochs
-# fill it at the speed measured by scapo bench perf --what train --data (results/perf/train_cpu_laptop_i150_v8_s1_eap.md)
+# cpu: issue 30's equal budget (15 minutes of training per cell on one core, the tables' 840 training clouds);
+# the epochs fill it at the speed measured by scapo bench perf --what train --data
+# (results/perf/train_cpu_laptop_i150_v8_s1_eap.md)
 PRESETS.add("cpu", EAPPreset(name="cpu", epochs=38, batch_size=16, lr=1e-3, points=256, max_steps_per_epoch=100,
                              k=10, channels=32,
                              shape_points=128))

@@ -129,8 +129,9 @@ class NPCSOptions(LearnedOptions):
 
 
 PRESETS: Registry[NPCSPreset] = Registry("npcs preset")
-# cpu: the equal budget of issue 30 (15 minutes of training per cell on one core, the tables' 840 training clouds); the epochs
-# fill it at the speed measured by scapo bench perf --what train --data (results/perf/train_cpu_laptop_i150_v8_s1_npcs.md)
+# cpu: issue 30's equal budget (15 minutes of training per cell on one core, the tables' 840 training clouds);
+# the epochs fill it at the speed measured by scapo bench perf --what train --data
+# (results/perf/train_cpu_laptop_i150_v8_s1_npcs.md)
 PRESETS.add("cpu", NPCSPreset(name="cpu", epochs=89, batch_size=16, lr=1e-3, points=256, max_steps_per_epoch=100,
                               rotation_augment=True,
                               backbone="vn", width=128, vn_channels=32, k=10, part_npcs=True))

@@ -171,8 +171,9 @@ class OPAlignPreset(LearnedPreset):
 
 
 PRESETS: Registry[OPAlignPreset] = Registry("op-align preset")
-# cpu: the equal budget of issue 30 (15 minutes of training per cell on one core, the tables' 840 training clouds); the epochs
-# fill it at the speed measured by scapo bench perf --what train --data (results/perf/train_cpu_laptop_i150_v8_s1_op-align.md)
+# cpu: issue 30's equal budget (15 minutes of training per cell on one core, the tables' 840 training clouds);
+# the epochs fill it at the speed measured by scapo bench perf --what train --data
+# (results/perf/train_cpu_laptop_i150_v8_s1_op-align.md)
 PRESETS.add("cpu", OPAlignPreset(name="cpu", epochs=28, batch_size=16, lr=1e-3, points=256, max_steps_per_epoch=100,
                                  anchor_points=96,
                                  width=64, part_width=96, template_points=256))
