@@ -175,9 +175,9 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
     where the time went (``timing.json``'s breakdown, :meth:`scapo.engine.runs.RunFolder.write_timing`) gives per
     stage the clouds/s of its steps (``stage<k>_clouds_per_s``) and the seconds each epoch adds around them
     (``stage<k>_epoch_s``: checkpoint, loss plot), and the run's one-time seconds (``fixed_s``: stage starts such
-    as SCAPO's stage-2 initialisation, the extras after the last epoch), with the preset's schedule, for
-    :func:`training_budget`. Needs ``steps * batch_size`` training clouds. Measure as the cells run (one torch
-    thread per core, the other core busy with the other chain).
+    as SCAPO's stage-2 initialisation, the extras after the last epoch, the rest of the session), with the preset's
+    schedule, for :func:`training_budget`. Needs ``steps * batch_size`` training clouds. Measure as the cells run
+    (one torch thread per core, the other core busy with the other chain).
 
     Raises:
         UnknownNameError: an unknown method or preset. ConfigError: a method that is not trained, ``steps < 2``,
@@ -215,7 +215,7 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
         timing = json.loads((run / "timing.json").read_text())
         row = {"method": m, "preset": preset, "batch_size": batch,
                "points": getattr(base, "train_points", getattr(base, "points", None))}
-        fixed = float(timing.get("final_s", 0.0))
+        fixed = float(timing.get("final_s", 0.0)) + float(timing.get("other_s", 0.0))
         for k, part in sorted(timing["stages"].items()):
             row[f"stage{k}_clouds_per_s"] = round(part["steps"] * batch / max(part["step_s"], 1e-9), 2)
             row[f"stage{k}_epoch_s"] = round(part["epoch_s"] / max(part["epochs"], 1), 2)
@@ -233,9 +233,10 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
 def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list[dict]:
     """Issue 30's equal training budget from measured speeds: for each ``--what train`` row (its clouds/s per stage
     and its preset's schedule: ``stage<k>_epochs``, ``max_steps_per_epoch``, ``iterations``), the wall time of a
-    training run on ``train_clouds`` clouds at that schedule (``planned_min``: steps per epoch ``ceil(clouds /
-    batch)``, capped by ``max_steps_per_epoch``; each step at the measured clouds/s) and the epochs per stage
-    that fill ``minutes`` (``stage<k>_epochs_for_budget``: every stage scaled by the same factor, at least 1).
+    training run on ``train_clouds`` clouds at that schedule (``planned_min``: ``floor(clouds / batch)`` steps per
+    epoch, as the engine drops a last partial batch, capped by ``max_steps_per_epoch``; each step at the measured
+    clouds/s) and the epochs per stage that fill ``minutes`` (``stage<k>_epochs_for_budget``: every stage scaled
+    by the same factor, at least 1).
     A row's ``stage<k>_epoch_s`` and ``fixed_s`` (from :func:`bench_train_data`: the seconds each epoch adds
     around its steps, and the run's one-time seconds) are added: the epochs fill the budget less the fixed cost.
     The tables' cells run one torch thread per core, so measure with one thread. Rows without a schedule pass
@@ -243,8 +244,6 @@ def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list
 
     Raises:
         ConfigError: ``minutes <= 0`` or ``train_clouds < 1``."""
-    import math
-
     from scapo.errors import ConfigError
 
     if minutes <= 0 or train_clouds < 1:
@@ -256,7 +255,7 @@ def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list
         if not stages:
             out.append(r)
             continue
-        per_epoch = math.ceil(train_clouds / r["batch_size"])
+        per_epoch = max(train_clouds // r["batch_size"], 1)  # the engine drops the last partial batch
         if r.get("max_steps_per_epoch"):
             per_epoch = min(per_epoch, r["max_steps_per_epoch"])
         sec_per_epoch = {k: per_epoch * r["batch_size"] / r[f"stage{k}_clouds_per_s"] + r.get(f"stage{k}_epoch_s", 0.0)

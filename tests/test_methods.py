@@ -600,7 +600,7 @@ def test_training_budget_turns_measured_speeds_into_epochs_that_fill_the_budget(
              "max_steps_per_epoch": 0, "iterations": 100},
             {"method": "icp"}]
     a, b, c, d = training_budget(rows, 530 / 60, 840)
-    assert a["planned_min"] == pytest.approx(53 * 10 * 0.5 / 60, abs=0.01) and a["stage1_epochs_for_budget"] == 20
+    assert a["planned_min"] == pytest.approx(52 * 10 * 0.5 / 60, abs=0.01) and a["stage1_epochs_for_budget"] == 20
     assert b["planned_min"] == 0.5 and (b["stage1_epochs_for_budget"], b["stage2_epochs_for_budget"]) == (35, 35)
     assert c["planned_min"] == pytest.approx(100 / 60, abs=0.01) and "stage1_epochs_for_budget" not in c
     assert d == {"method": "icp"}
@@ -621,8 +621,9 @@ def test_train_speed_on_a_dataset_separates_steps_from_fixed_costs(laptop_data, 
     assert row["stage1_epoch_s"] >= 0 and row["train_clouds"] > 0 and (row["stage1_epochs"], row["stage2_epochs"]) == (1, 1)
     timing = json.loads((tmp_path / "w" / "scapo_test" / "timing.json").read_text())
     assert timing["stages"]["1"]["steps"] == timing["stages"]["2"]["steps"] == 4 and timing["steps"] == 8
-    assert sum(p["step_s"] + p["epoch_s"] + p["start_s"] for p in timing["stages"].values()) + timing["final_s"] \
-        == pytest.approx(timing["session_s"], abs=0.05)
+    parts = sum(p["step_s"] + p["epoch_s"] + p["start_s"] for p in timing["stages"].values()) + timing["final_s"]
+    assert parts + timing["other_s"] == pytest.approx(timing["session_s"], abs=0.01) and timing["other_s"] >= 0
+    assert parts > 0.5 * timing["session_s"]  # the steps and epochs take most of it
     r = {**row, "fixed_s": 30.0, "stage1_epoch_s": 1.0, "stage2_epoch_s": 1.0, "max_steps_per_epoch": 2,
          "stage1_clouds_per_s": 8.0, "stage2_clouds_per_s": 4.0, "batch_size": 4}
     (b,) = training_budget([r], 1.5, 16)  # 30 s fixed; an epoch of each stage: 1 + 1 and 2 + 1 seconds

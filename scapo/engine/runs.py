@@ -174,8 +174,8 @@ class RunFolder:
         whole schedule (per rank; None when unknown); with ``breakdown``, where the last session's time went
         (``stages``: per stage index its ``steps`` and the seconds inside them ``step_s``, its ``epochs`` and the
         per-epoch checkpoint, loss plot and extras ``epoch_s``, its ``start_s`` (a stage's start, e.g. SCAPO's
-        stage-2 initialisation); ``final_s``: the extras after the last epoch; ``session_s``: the session's
-        training seconds), for ``scapo bench perf --what train --data``."""
+        stage-2 initialisation); ``final_s``: the extras after the last epoch; ``other_s``: the rest, so the parts sum
+        to ``session_s``, the session's training seconds), for ``scapo bench perf --what train --data``."""
         atomic_write_text(self.path / "timing.json", json.dumps({"seconds": round(seconds, 1), "device": str(device),
                                                                  "world_size": world_size, "steps": steps,
                                                                  **(breakdown or {})}) + "\n")
