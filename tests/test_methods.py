@@ -662,3 +662,27 @@ def test_cpu_presets_fill_the_equal_training_budget(name):
     (plan,) = training_budget([{**row, **epochs, "max_steps_per_epoch": pc.max_steps_per_epoch}], 15.0,
                               row["train_clouds"])
     assert abs(plan["planned_min"] - 15.0) <= 1.5, plan
+
+
+def test_eap_joints_option_takes_the_heads_or_the_pairs_joint_carried_by_the_child(laptop_data, trained_runs, tmp_path):
+    """EAP-style's ``joints`` prediction option: ``heads`` (default, EAP's own heads) or ``pairs`` (the category joint
+    from pairs of training clouds, carried by the child part's predicted pose); anything else is refused."""
+    import torch as _torch
+
+    from scapo.eval.predictions import Predictions
+
+    heads = run_method("eap", laptop_data, tmp_path / "h.npz", run=trained_runs["eap"])
+    pairs = run_method("eap", laptop_data, tmp_path / "p.npz", run=trained_runs["eap"], joints="pairs")
+    assert isinstance(pairs, Predictions) and not np.allclose(heads.joint_axis, pairs.joint_axis)
+    np.testing.assert_allclose(heads.part_pose, pairs.part_pose)
+    np.testing.assert_allclose(heads.joint_state, pairs.joint_state)
+    ck = _torch.load(trained_runs["eap"] / "checkpoint.pt", weights_only=False)
+    ex = ck["extras"]
+    if bool(np.asarray(ex["joint_ok"])[0]):  # the laptop's hinge: parent base (0), child lid (1)
+        want = np.einsum("bij,j->bi", pairs.part_pose[:, 1, :3, :3], np.asarray(ex["joint_axis"])[0])
+        np.testing.assert_allclose(pairs.joint_axis[:, 0], want, atol=1e-6)
+    from scapo.methods.eap import EAPOptions
+
+    assert "joints" in validate_options("eap", {"joints": "pairs"})
+    with pytest.raises(ConfigError, match="joints must be 'heads' or 'pairs'"):
+        EAPOptions(joints="both")
