@@ -11,26 +11,6 @@
 #   FINISH=1 bash bench/baselines_equal_budget.sh
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
-WORK=${WORK:-bench_work/baselines_equal_budget}
-OUT=${OUT:-results/baselines_equal_budget}
-SCAPO=${SCAPO:-.venv/bin/scapo}
-METHODS=${METHODS:-npcs,eap,op-align}
-common=(--preset cpu --seed 1 --work "$WORK" --no-progress --methods "$METHODS" --name baselines_equal_budget)
-if [ -n "${FINISH:-}" ]; then
-  exec "$SCAPO" bench table1 "${common[@]}" --seeds 0,1,2 --categories laptop,eyeglasses --finished-only \
-    --out "$OUT" "$@"
-fi
-mkdir -p "$WORK/logs"
-chain() {  # CORE CATEGORY
-  local core=$1 cat=$2 s
-  for s in 0 1 2; do
-    OMP_NUM_THREADS=1 taskset -c "$core" "$SCAPO" bench table1 "${common[@]}" --seeds "$s" --categories "$cat" \
-      --out "$WORK/logs/tables_${cat}_s$s" || return 1
-  done
-}
-for pair in "0 laptop" "1 eyeglasses"; do
-  set -- $pair
-  nohup setsid bash -c "$(declare -p common SCAPO WORK); $(declare -f chain); chain $1 $2" \
-    > "$WORK/logs/chain_$2.log" 2>&1 &
-done
-echo "started; follow with: tail -f $WORK/logs/chain_*.log"
+# the same two pinned chains (and FINISH=1) as bench/table1_two_categories.sh, for these methods, folder and name
+WORK=${WORK:-bench_work/baselines_equal_budget} OUT=${OUT:-results/baselines_equal_budget} \
+  METHODS=${METHODS:-npcs,eap,op-align} NAME=baselines_equal_budget exec bash bench/table1_two_categories.sh "$@"

@@ -15,6 +15,10 @@ WORK=${WORK:-bench_work/table1_two_categories}
 OUT=${OUT:-results/table1_two_categories}
 SCAPO=${SCAPO:-.venv/bin/scapo}
 common=(--preset cpu --seed 1 --work "$WORK" --no-progress)
+# optional (bench/baselines_equal_budget.sh sets them): METHODS, a subset of the registered methods; NAME, the table's
+# file stem
+[ -n "${METHODS:-}" ] && common+=(--methods "$METHODS")
+[ -n "${NAME:-}" ] && common+=(--name "$NAME")
 if [ -n "${FINISH:-}" ]; then
   exec "$SCAPO" bench table1 "${common[@]}" --seeds 0,1,2 --categories laptop,eyeglasses --finished-only \
     --out "$OUT" "$@"
