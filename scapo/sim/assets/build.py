@@ -33,7 +33,7 @@ from scapo.sim.assets.design import ArticulatedDesign, finalize, write_asset
 from scapo.sim.assets.templates import ParamSampler, load_template
 
 #: Bump when generator code changes the output for an existing (category, seed, instance_id).
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3
 
 
 def default_cache_dir() -> Path:

@@ -110,12 +110,16 @@ def laptop(ps: ParamSampler) -> ArticulatedDesign:
 
 @CATEGORIES.register("safe")
 def safe(ps: ParamSampler) -> ArticulatedDesign:
-    """Thick-walled box; front door on a vertical hinge at its -y edge."""
+    """Thick-walled box; a front door smaller than the front, proud of the body's frame, on a vertical hinge at
+    its -y edge; handle and dial or keypad on the door, hinge barrels outside, feet or a plinth."""
     W, D, H = ps.u("width"), ps.u("depth"), ps.u("height")
-    wt, td, g, ho = ps.u("wall"), ps.u("door_thickness"), ps.u("door_gap"), ps.u("hinge_offset")
-    dial_r, hl = ps.u("dial_radius"), ps.u("handle_length")
+    wt, td, ho = ps.u("wall"), ps.u("door_thickness"), ps.u("hinge_offset")
+    g = ps.u("frame_ratio") * wt  # the body's front frame left visible around the door, on each side
+    dial_r, hl, so = ps.u("dial_radius"), ps.u("handle_length"), ps.u("handle_standoff")
     hr, hlen, fh = ps.u("hinge_radius"), ps.u("hinge_length"), ps.u("foot_height")
+    kdp = ps.u("keypad_depth")
     handle, panel, feet = ps.choice("handle"), ps.choice("panel"), ps.choice("feet")
+    hl = min(hl, 0.45 * (W - 2 * g), 0.45 * (H - 2 * g))  # small safes get smaller handles
     body = hollow_box((D, W, H), wt, "-x", (0, 0, H / 2))
     if feet == "feet":
         for sx in (-1, 1):
@@ -129,24 +133,30 @@ def safe(ps: ParamSampler) -> ArticulatedDesign:
         body.append(cylinder(hr, hlen, (pivot[0], pivot[1] - hr * 0.5, zc), axis="z"))
     door = [box_between((xf, -W / 2 + g, g), (-D / 2, W / 2 - g, H - g))]
     ys = W / 2 - g - 0.25 * W  # features on the free side
+    # the lock's controls sit in the door's upper half: a dial on its escutcheon ring, an electronic keypad in a
+    # raised housing (both on the hinge side of the handle when the safe has both)
     if panel in ("dial", "dial_keypad"):
-        door.append(cylinder(dial_r, 0.015, (xf - 0.0075, ys * 0.3, 0.62 * H), axis="x"))
+        yd = ys * 0.3 if panel == "dial" else -0.2 * W
+        door.append(cylinder(1.5 * dial_r, 0.006, (xf - 0.003, yd, 0.68 * H), axis="x", sections=32))
+        door.append(cylinder(dial_r, 0.02, (xf - 0.01, yd, 0.68 * H), axis="x"))
     if panel in ("keypad", "dial_keypad"):
-        door.append(box((0.008, 0.07, 0.09), (xf - 0.004, ys * 0.3, 0.35 * H)))
+        kw, kz = float(np.clip(0.22 * W, 0.07, 0.14)), float(np.clip(0.25 * H, 0.09, 0.16))
+        yk = ys * 0.3 if panel == "keypad" else 0.05 * W
+        door.append(box((kdp, kw, kz), (xf - kdp / 2, yk, 0.68 * H)))
     hz = 0.5 * H
     if handle == "lever":
-        door.append(cylinder(0.008, 0.03, (xf - 0.015, ys, hz), axis="x"))
-        door.append(box((0.014, hl, 0.02), (xf - 0.035, ys - hl / 2 + 0.01, hz)))
+        door.append(cylinder(0.008, so, (xf - so / 2, ys, hz), axis="x"))
+        door.append(box((0.014, hl, 0.02), (xf - so - 0.007, ys - hl / 2 + 0.01, hz)))
     elif handle == "wheel":
-        door.append(cylinder(0.01, 0.04, (xf - 0.02, ys, hz), axis="x"))
-        door.append(torus(hl / 2, 0.006, (xf - 0.04, ys, hz), axis="x"))
+        door.append(cylinder(0.01, so, (xf - so / 2, ys, hz), axis="x"))
+        door.append(torus(hl / 2, 0.006, (xf - so, ys, hz), axis="x"))
         for a in (0.0, np.pi / 3, 2 * np.pi / 3):
             c, s = np.cos(a) * hl / 2, np.sin(a) * hl / 2
-            door.append(box((0.008, max(abs(2 * c), 0.008), max(abs(2 * s), 0.008)), (xf - 0.04, ys, hz)))
+            door.append(box((0.008, max(abs(2 * c), 0.008), max(abs(2 * s), 0.008)), (xf - so, ys, hz)))
     else:
         for dz in (-hl / 2 + 0.01, hl / 2 - 0.01):
-            door.append(cylinder(0.007, 0.03, (xf - 0.015, ys, hz + dz), axis="x"))
-        door.append(cylinder(0.01, hl, (xf - 0.03, ys, hz), axis="z"))
+            door.append(cylinder(0.007, so, (xf - so / 2, ys, hz + dz), axis="x"))
+        door.append(cylinder(0.01, hl, (xf - so, ys, hz), axis="z"))
     return _assemble(ps, {"body": body, "door": door}, {"door_hinge": (Z, pivot)})
 
 
@@ -156,7 +166,7 @@ def oven(ps: ParamSampler) -> ArticulatedDesign:
     W, D, H = ps.u("width"), ps.u("depth"), ps.u("height")
     wt, td, zb = ps.u("wall"), ps.u("door_thickness"), ps.u("door_bottom")
     Hd = ps.u("door_height_ratio") * (H - zb)
-    so, kr = ps.u("handle_standoff"), ps.u("knob_radius")
+    so, kr, kd = ps.u("handle_standoff"), ps.u("knob_radius"), ps.u("knob_depth")
     fh, bg = ps.u("foot_height"), ps.u("backguard_height")
     nk, handle, window = int(ps.choice("knobs")), ps.choice("handle"), ps.choice("window")
     kind = ps.choice("kind")
@@ -177,7 +187,7 @@ def oven(ps: ParamSampler) -> ArticulatedDesign:
         body.append(box((0.35 * D, 0.8 * W, 0.012), (0.25 * D, 0, H + 0.006)))
     zk = (ztop + H) / 2
     for y in np.linspace(-0.35 * W, 0.35 * W, nk):
-        body.append(cylinder(kr, 0.02, (-D / 2 - 0.01, y, zk), axis="x"))
+        body.append(cylinder(kr, kd, (-D / 2 - kd / 2, y, zk), axis="x"))
     xf = -D / 2 - td
     door = [box_between((xf, -W / 2 + 0.004, zb), (-D / 2, W / 2 - 0.004, ztop - 0.003))]
     if window == "window":
@@ -195,21 +205,27 @@ def oven(ps: ParamSampler) -> ArticulatedDesign:
 
 @CATEGORIES.register("washer")
 def washer(ps: ParamSampler) -> ArticulatedDesign:
-    """Front loader: body with slanted control panel; round door hinged on a vertical line."""
+    """Front loader: body with a slanted control panel at the top and a recessed kick panel at the bottom; a
+    large round door below the middle, hinged on a vertical line at its -y side."""
     W, D, H = ps.u("width"), ps.u("depth"), ps.u("height")
     R = ps.u("door_radius_ratio") * W
     td, zc = ps.u("door_thickness"), ps.u("door_height_ratio") * H
     hg, ph, kr = ps.u("hinge_gap"), ps.u("panel_height"), ps.u("knob_radius")
+    kh, kd = ps.u("kick_height"), ps.u("kick_depth")
     rim, porthole, knob = ps.choice("rim"), ps.choice("porthole"), ps.choice("knob")
     zp = H - ph
-    body = [box((D, W, zp), (0, 0, zp / 2))]
+    ring_t = 0.012
+    # the door (with its ring) fits between the kick panel and the control panel, 2 cm clear of each
+    R = min(R, (zp - kh - 0.04) / 2 / 1.06 - ring_t)
+    zc = float(np.clip(zc, kh + 0.02 + 1.06 * R + ring_t, zp - 0.02 - 1.06 * R - ring_t))
+    body = [box((D, W, zp - kh), (0, 0, (kh + zp) / 2))]
+    body.append(box((D - kd, W, kh), (kd / 2, 0, kh / 2)))  # the kick panel, set back from the front
     corners = np.array([[sx, sy, sz] for sx in (-D / 2, D / 2) for sy in (-W / 2, W / 2) for sz in (zp, H)])
     corners[(corners[:, 0] < 0) & (corners[:, 2] > zp), 0] += 0.04  # slanted control panel
     body.append(hull(corners))
     if knob == "knob":
         body.append(cylinder(kr, 0.025, (-D / 2 + 0.01, 0.3 * W, zp + 0.45 * ph), axis="x"))
         body.append(box((0.01, 0.18 * W, 0.4 * ph), (-D / 2 + 0.015, -0.15 * W, zp + 0.5 * ph)))
-    ring_t = 0.012
     if porthole == "ring":
         body.append(torus(1.06 * R, ring_t, (-D / 2, 0, zc), axis="x"))
     x0 = -D / 2 - (ring_t + 0.002 if porthole == "ring" else 0.002)  # back face of the door
@@ -224,28 +240,55 @@ def washer(ps: ParamSampler) -> ArticulatedDesign:
 
 @CATEGORIES.register("eyeglasses")
 def eyeglasses(ps: ParamSampler) -> ArticulatedDesign:
-    """Front frame (rims, bridge, end pieces); temples fold about vertical hinges (rest: folded)."""
+    """Front frame (rims, bridge, nose pads, end pieces); temples fold about vertical hinges (rest: folded).
+
+    Real frames are not symmetric top to bottom: the lenses are wider above than below (``lens_taper``), the
+    bridge and the hinges sit above the lens centres, and the nose pads below the bridge behind the rims."""
     lw, lh, br = ps.u("lens_width"), ps.u("lens_height"), ps.u("bridge")
     rr, ep, tl = ps.u("rim_radius"), ps.u("end_piece_length"), ps.u("temple_length")
     th, tw = ps.u("temple_height"), ps.u("temple_width")
+    bhr, hhr, taper = ps.u("bridge_height_ratio"), ps.u("hinge_height_ratio"), ps.u("lens_taper")
     lens, tip, shape = ps.choice("lens"), ps.choice("temple_tip"), ps.choice("rim_shape")
+    pads = ps.choice("nose_pads")
     radii = {"oval": (lw / 2, lh / 2), "round": (lw / 2, min(lh, lw) / 2 * 1.05), "rect": (lw / 2, lh / 2)}[shape]
     square = 0.6 if shape == "rect" else 0.0
+    bh, zh = bhr * radii[1], hhr * radii[1]
+
+    def rim_loop(sy: float, shrink: float = 1.0) -> np.ndarray:
+        c = np.array([0.0, sy * (br / 2 + lw / 2), 0.0])
+        pts = ellipse_path(c, (radii[0] * shrink, radii[1] * shrink), plane="yz", count=48, squareness=square)
+        pts[:, 1] = c[1] + (pts[:, 1] - c[1]) * (1.0 + taper * pts[:, 2] / radii[1])  # wider above than below
+        return pts
+
+    def edge_at(z: float, inner: bool) -> float:  # |y| of the right rim's inner or outer edge at height z
+        loop = rim_loop(1.0)
+        side = loop[loop[:, 1] < br / 2 + lw / 2] if inner else loop[loop[:, 1] > br / 2 + lw / 2]
+        return float(side[np.argmin(np.abs(side[:, 2] - z)), 1])
+
     frame = []
     for sy in (-1, 1):
-        c = (0.0, sy * (br / 2 + lw / 2), 0.0)
-        loop = ellipse_path(c, radii, plane="yz", count=48, squareness=square)
-        frame.append(tube(loop, rr, sections=8, closed=True))
+        frame.append(tube(rim_loop(sy), rr, sections=8, closed=True))
         if lens == "lens":
-            pts = ellipse_path(c, (radii[0] * 0.98, radii[1] * 0.98), plane="yz", count=48, squareness=square)
+            pts = rim_loop(sy, 0.98)
             frame.append(hull(np.vstack([pts + (0.0008, 0, 0), pts - (0.0008, 0, 0)])))
+    yi = edge_at(bh, inner=True)
     u = np.linspace(0, np.pi, 9)
-    bridge = np.stack([np.zeros_like(u), -np.cos(u) * (br / 2 + rr), 0.25 * radii[1] + 0.004 * np.sin(u)], 1)
+    bridge = np.stack([np.zeros_like(u), -np.cos(u) * yi, bh + 0.004 * np.sin(u)], 1)
     frame.append(tube(bridge, rr, sections=8))
-    yh = br / 2 + lw + rr  # hinge line, |y|
-    zh = 0.2 * radii[1]
+    for sy in (-1, 1):  # nose pads below the bridge, behind the rims
+        yp = edge_at(-0.15 * radii[1], inner=True)
+        if pads == "pads":  # metal frames: a pad on a wire arm from the rim
+            frame.append(box_between((rr, sy * yp - 0.0008, -0.1 * radii[1] - 0.0008),
+                                     (rr + 0.006, sy * yp + 0.0008, -0.1 * radii[1] + 0.0008)))
+            frame.append(box((0.0015, 0.007, 0.013), (rr + 0.006, sy * (yp - 0.002), -0.25 * radii[1])))
+        else:  # plastic frames: a moulded pad along the lower inner rim
+            frame.append(box_between((0.0, sy * yp - 0.003, -0.45 * radii[1]),
+                                     (rr + 0.004, sy * yp + 0.003, 0.05 * radii[1])))
+    yo = edge_at(zh, inner=False)
+    yh = max(br / 2 + lw, yo) + rr  # hinge line, |y|
     for sy in (-1, 1):
-        frame.append(box_between((-rr, sy * yh - 0.002, zh - th / 2), (ep, sy * yh + 0.0015, zh + th / 2)))
+        lo, hi = sorted((sy * (yo - 0.002), sy * (yh + 0.0015)))
+        frame.append(box_between((-rr, lo, zh - th / 2), (ep, hi, zh + th / 2)))
     temples = {}
     for name, sy, off in (("left_temple", 1, 1.5 * tw + 0.0008), ("right_temple", -1, 0.5 * tw + 0.0003)):
         # at rest the temple lies along -sy*y behind the frame; ``off`` stacks the two folded temples
@@ -326,7 +369,7 @@ def drawer(ps: ParamSampler) -> ArticulatedDesign:
     wt, tf, g = ps.u("wall"), ps.u("front_thickness"), ps.u("gap")
     ddr, thr, hwr = ps.u("drawer_depth_ratio"), ps.u("tray_height_ratio"), ps.u("handle_width_ratio")
     kh, kd, ov, hs = ps.u("base_height"), ps.u("kick_depth"), ps.u("top_overhang"), ps.u("shelf_height")
-    br = ps.u("back_recess")
+    br, hp = ps.u("back_recess"), ps.u("handle_projection")
     front, handle, base, lower = ps.choice("front"), ps.choice("handle"), ps.choice("base"), ps.choice("lower")
     cabinet = hollow_box((D, W, H), wt, "-x", (0, 0, H / 2))
     # the top overhangs the front and the sides and is flush at the back (against a wall)
@@ -340,7 +383,8 @@ def drawer(ps: ParamSampler) -> ArticulatedDesign:
     x0, x1 = D / 2, D / 2 + br
     for lo, hi in (((x0, -W / 2, zb), (x1, -W / 2 + wt, zt)), ((x0, W / 2 - wt, zb), (x1, W / 2, zt)),
                    ((x0, -W / 2, zb), (x1, W / 2, zb + wt)), ((x0, -W / 2, zt - wt), (x1, W / 2, zt))):
-        cabinet.append(box_between(lo, hi))
+        if br >= 0.002:  # else the back panel is nailed flush to the carcass
+            cabinet.append(box_between(lo, hi))
     # what it stands on: a toe kick set back from the front, four legs, or a plinth set back all round
     if base == "toe_kick":
         cabinet.append(box_between((-D / 2 + kd, -W / 2 + 0.01, z0 - kh), (D / 2, W / 2 - 0.01, z0)))
@@ -365,12 +409,13 @@ def drawer(ps: ParamSampler) -> ArticulatedDesign:
     if handle == "bar":
         hw = hwr * W
         for y in (-hw / 2 + 0.01, hw / 2 - 0.01):
-            drawer_parts.append(cylinder(0.005, 0.025, (x_front - 0.0125, y, zc), axis="x", sections=12))
-        drawer_parts.append(cylinder(0.007, hw, (x_front - 0.025, 0, zc), axis="y", sections=16))
+            drawer_parts.append(cylinder(0.005, hp, (x_front - hp / 2, y, zc), axis="x", sections=12))
+        drawer_parts.append(cylinder(0.007, hw, (x_front - hp, 0, zc), axis="y", sections=16))
     elif handle == "knob":
-        drawer_parts.append(cylinder(0.012, 0.025, (x_front - 0.0125, 0, zc), axis="x", sections=20))
+        drawer_parts.append(cylinder(0.006, hp, (x_front - hp / 2, 0, zc), axis="x", sections=12))
+        drawer_parts.append(cylinder(0.015, 0.012, (x_front - hp + 0.006, 0, zc), axis="x", sections=20))
     else:
-        drawer_parts.append(box((0.02, hwr * W, 0.012), (x_front - 0.01, 0, hi[2] - 0.006)))
+        drawer_parts.append(box((hp, hwr * W, 0.012), (x_front - hp / 2, 0, hi[2] - 0.006)))
     parts = {"cabinet": cabinet, "drawer": drawer_parts}
     return _assemble(ps, parts, {"slide": ((-1.0, 0.0, 0.0), (x_front, 0.0, zc))}, {"drawer_depth": Dd})
 
@@ -419,7 +464,8 @@ def suitcase(ps: ParamSampler) -> ArticulatedDesign:
     edge (+x); wheels at the bottom end (-y), the telescoping handle's grip and a carry handle at the top end
     (+y), a side carry handle and latches on the front (-x) edge (as a standing case: height along y)."""
     W, D = ps.u("width"), ps.u("depth")
-    Hs, Hl, wt = ps.u("shell_height"), ps.u("lid_height"), ps.u("wall")
+    Hs, wt = ps.u("shell_height"), ps.u("wall")
+    Hl = ps.u("lid_ratio") * Hs  # the front half is at most as deep as the back half
     ho, hw = ps.u("hinge_offset"), ps.u("handle_width")
     wr, tgw, tgo = ps.u("wheel_radius"), ps.u("trolley_width_ratio"), ps.u("trolley_standoff")
     tch, dvd, dome = ps.u("trolley_channel_height"), ps.u("divider_depth"), ps.u("front_dome")
@@ -436,11 +482,12 @@ def suitcase(ps: ParamSampler) -> ArticulatedDesign:
     zt = Hs + Hl
     rims = ((D / 2 - wt, W / 2 - wt, zt), (0.3 * D, 0.38 * W, zt + dome))
     lid.append(hull(np.array([(x, y, z) for (hx, hy, z) in rims for x in (-hx, hx) for y in (-hy, hy)])))
-    if lining == "divider":  # a zipped divider panel closes the front half a little below its rim
-        lid.append(box((D - 2 * wt, W - 2 * wt, 0.004), (0, 0, Hs + dvd + 0.002)))
-    else:  # compression straps across the front half
+    # a zipped divider panel closes the front half a little below its rim (hard-shell cases pack the back half
+    # open, under compression straps, and the front half behind a divider)
+    lid.append(box((D - 2 * wt, W - 2 * wt, 0.004), (0, 0, Hs + dvd + 0.002)))
+    if lining == "straps":  # compression straps across the back half, over the handle's channel
         for y in (-0.25 * W, 0.25 * W):
-            lid.append(box((D - 2 * wt, 0.035, 0.004), (0, y, Hs + dvd + 0.002)))
+            shell.append(box((D - 2 * wt, 0.035, 0.004), (0, y, wt + tch + 0.002)))
     pivot = np.array([D / 2 + ho, 0.0, Hs])
     for y in (-0.3 * W, 0.3 * W):
         shell.append(cylinder(0.008, 0.08, (pivot[0], y, Hs), axis="y", sections=16))
@@ -461,10 +508,13 @@ def suitcase(ps: ParamSampler) -> ArticulatedDesign:
     if wheels == "spinner":
         corners += [(sx * (D / 2 - 0.045), Hs + Hl - 0.03) for sx in (-1, 1)]
     r = wr if wheels == "spinner" else 1.2 * wr
+    hd = ps.u("wheel_housing")
     for x, z in corners:
         owner = shell if z < Hs else lid
-        owner.append(box((0.05, 0.025, 0.05), (x, ye - 0.0125, z)))
-        owner.append(cylinder(r, 0.022, (x, ye - 0.025 - r, z), axis="x", sections=20))
+        owner.append(box((0.06, hd, 0.055), (x, ye - hd / 2, z)))
+        for dx in (-0.012, 0.012):  # the fork's two legs either side of the wheel
+            owner.append(box((0.004, r + 0.01, 0.03), (x + dx, ye - hd - (r + 0.01) / 2, z)))
+        owner.append(cylinder(r, 0.02, (x, ye - hd - r, z), axis="x", sections=20))
     # top end (+y): the telescoping handle's grip over two tube stubs on the back half, and a carry handle
     yt = W / 2
     gw = tgw * D
