@@ -11,6 +11,11 @@ import pytest
 _CACHE = tempfile.mkdtemp(prefix="scapo-test-cache-")
 os.environ["SCAPO_CACHE"] = _CACHE
 
+if os.environ.get("PYTEST_XDIST_WORKER"):  # one torch thread per pytest-xdist worker (scripts/test.sh runs two)
+    import torch
+
+    torch.set_num_threads(1)
+
 
 @pytest.fixture(scope="session")
 def cache_dir() -> Path:
