@@ -3,7 +3,9 @@
 Builds procedural laptop instances, renders a small train/test dataset with SAPIEN, runs the ICP
 baseline, trains SCAPO briefly (the ``demo`` preset: a few minutes, far from converged), evaluates
 both, prints Table 1 (with the paper's laptop numbers beside ours) and writes the table files and
-figures (ground truth vs. predictions) under the output folder.
+figures (ground truth vs. predictions) under the output folder. Rerunning resumes what finished; when the output
+folder was rendered from older assets (scapo was upgraded since), the demo moves that version's files into
+``<out>/older-<time>/`` and starts afresh (:func:`retire_stale_outputs`).
 """
 
 from __future__ import annotations
@@ -16,10 +18,42 @@ def _step(msg: str) -> None:
     print(f"\n== {msg}", flush=True)
 
 
+#: What a demo run writes into its output folder (glob patterns), all of it derived from ``data``.
+DEMO_OUTPUTS = ("data", "run_scapo_*", "predictions_*.npz", "table1_demo.*", "figure_demo_*.png")
+
+
+def retire_stale_outputs(out: Path) -> Path | None:
+    """Move the demo's outputs in ``out`` (:data:`DEMO_OUTPUTS`) into a new ``out/older-<YYYYmmdd-HHMMSS>/`` folder,
+    so that a demo of newer assets starts afresh and nothing already written is lost; returns that folder, or None
+    when ``out`` holds none of them.
+
+    Raises:
+        OutputError: a file cannot be moved (the message names it; what was moved stays in the new folder).
+    """
+    from scapo.errors import OutputError
+
+    found = sorted({p for pat in DEMO_OUTPUTS for p in Path(out).glob(pat)})
+    if not found:
+        return None
+    dest = Path(out) / time.strftime("older-%Y%m%d-%H%M%S")
+    k = 1
+    while dest.exists():
+        dest = Path(out) / f"{time.strftime('older-%Y%m%d-%H%M%S')}-{k}"
+        k += 1
+    dest.mkdir()
+    for p in found:
+        try:
+            p.rename(dest / p.name)
+        except OSError as e:
+            raise OutputError(f"cannot move {p} into {dest} ({e.strerror or e}); move or delete it and rerun") from e
+    return dest
+
+
 def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12, seed: int = 0,
              cache_dir: Path | None = None, category: str = "laptop", preset: str = "demo") -> dict:
     """Run the demo; returns a dict with the evaluation summary and the written paths."""
     from scapo.data import generate, make_config
+    from scapo.errors import StaleAssetsError
     from scapo.eval import evaluate
     from scapo.eval.tables import write_table1
     from scapo.files import check_output_dir
@@ -39,7 +73,12 @@ def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12,
     _step(f"rendering {instances} x {views} partial point clouds with ground truth (SAPIEN)")
     cfg = make_config(category, instances, views, seed, test_fraction=0.25)
     data = out / "data"
-    rep = generate(cfg, data, workers=1, progress=True, cache_dir=cache_dir)
+    try:
+        rep = generate(cfg, data, workers=1, progress=True, cache_dir=cache_dir)
+    except StaleAssetsError:
+        older = retire_stale_outputs(out)
+        print(f"   {out} held a demo of older assets (scapo changed since): its files are now in {older}")
+        rep = generate(cfg, data, workers=1, progress=True, cache_dir=cache_dir)
     print(f"   {rep.samples} samples in {data} ({sum(rep.rejections.values())} rejected views)")
     _step("ICP baseline: fit templates on the training split, register the test split")
     pred_path = out / "predictions_icp.npz"

@@ -18,6 +18,11 @@ class ConfigError(ScapoError, ValueError):
     """A configuration value is invalid or conflicts with data already on disk."""
 
 
+class StaleAssetsError(ConfigError):
+    """A dataset folder's finished shards were rendered from other assets than the current ones (the asset
+    generator or its templates changed since): resuming would mix two versions of the objects."""
+
+
 class AssetError(ScapoError):
     """An articulated asset (URDF + meshes) is malformed or incomplete."""
 

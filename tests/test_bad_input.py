@@ -23,6 +23,7 @@ from scapo.errors import (
     InputError,
     OutputError,
     PredictionError,
+    StaleAssetsError,
     TrainingError,
 )
 from scapo.eval import Predictions, evaluate
@@ -164,8 +165,43 @@ def test_assets_that_changed_since_the_finished_shards_are_refused(small, tmp_pa
     start["assets"]["1"] = "0" * 64  # the shards were rendered from other assets
     with open(d / "shards.jsonl", "a") as f:
         f.write(json.dumps(start) + "\n")
-    with pytest.raises(ConfigError, match=r"assets of instance\(s\) 1 differ"):
+    with pytest.raises(StaleAssetsError, match=r"assets of instance\(s\) 1 differ"):  # a ConfigError
         generate(make_config("laptop", 3, 2, seed=0, shard_size=2, test_fraction=0.34, val_fraction=0.0), d, progress=False)
+
+
+def test_the_demo_moves_the_outputs_of_older_assets_aside_and_starts_afresh(tmp_path, monkeypatch, capsys):
+    """A demo folder rendered from older assets (scapo upgraded since) makes generate raise StaleAssetsError; the
+    demo moves that version's files into ``older-<time>/`` (nothing is lost, other files stay) and renders again."""
+    import scapo.data
+    from scapo.demo import retire_stale_outputs, run_demo
+
+    out = tmp_path / "demo"
+    for name in ("data/card.json", "run_scapo_demo/checkpoint.pt", "predictions_icp.npz", "table1_demo.md",
+                 "figure_demo_icp.png", "notes.txt"):
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_text(name)
+    calls = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_generate(cfg, data, **kw):
+        calls.append(data)
+        if len(calls) == 1:
+            raise StaleAssetsError(f"{data}: the assets of instance(s) 0 differ")
+        assert not data.exists()  # the second call renders into an empty place
+        raise Stop
+
+    monkeypatch.setattr(scapo.data, "generate", fake_generate)
+    with pytest.raises(Stop):
+        run_demo(out, instances=4, views=2, preset="test")
+    older = [p for p in out.iterdir() if p.name.startswith("older-")]
+    assert len(calls) == 2 and len(older) == 1 and "demo of older assets" in capsys.readouterr().out
+    moved = sorted(str(p.relative_to(older[0])) for p in older[0].rglob("*") if p.is_file())
+    assert moved == ["data/card.json", "figure_demo_icp.png", "predictions_icp.npz", "run_scapo_demo/checkpoint.pt",
+                     "table1_demo.md"]
+    assert (out / "notes.txt").read_text() == "notes.txt"  # not the demo's: left where it was
+    assert retire_stale_outputs(out) is None  # nothing of the demo's left to move
 
 
 def test_predict_refuses_a_run_of_another_category(run, small, laptop_data, tmp_path):

@@ -43,7 +43,7 @@ from scapo.data.storage import (
     shard_bytes,
     write_json,
 )
-from scapo.errors import ConfigError, DatasetError
+from scapo.errors import ConfigError, DatasetError, StaleAssetsError
 from scapo.files import FolderLock, atomic_write_bytes, check_output_dir, clean_stale_temps, read_json
 from scapo.provenance import usable_cores
 from scapo.sim.assets import GENERATOR_VERSION, build_category
@@ -440,8 +440,8 @@ def generate(
 
     Raises:
         ConfigError: ``out`` holds a dataset made with a different config (the message names the
-            differing fields), is a file or a foreign non-empty folder, ``workers < 1``, or the assets
-            differ from those the finished shards were rendered with.
+            differing fields), is a file or a foreign non-empty folder, or ``workers < 1``.
+        StaleAssetsError: (a ConfigError) the assets differ from those the finished shards were rendered with.
         DatasetError: ``out/config.json`` is unreadable.
         OutputError: ``out`` cannot be written, or another process is generating into it.
         RenderError: a sample's views were all rejected, or no Vulkan device.
@@ -517,7 +517,7 @@ def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0, 
     if recorded and before is not None:
         changed = sorted((k for k in assets if k in before and before[k] != assets[k]), key=int)
         if changed:
-            raise ConfigError(
+            raise StaleAssetsError(
                 f"{out}: the assets of instance(s) {', '.join(changed)} differ from those its finished shards were "
                 "rendered with (the asset generator or its templates changed since); generate into a new --out")
     _append_journal(out, {"event": "start", "config_sha256": cfg_sha, "assets": assets,
