@@ -40,3 +40,13 @@ def laptop_data(tmp_path_factory) -> Path:
     generate(make_config("laptop", 8, 6, seed=3, test_fraction=0.25, shard_size=16, val_fraction=0.0), out,
              progress=False)
     return out
+
+
+# The longest self-contained integration tests start first, so that two pytest-xdist workers finish together
+# (in collection order they came last and left one worker idle for their length).
+_FIRST = ("test_ray.py::", "test_distributed.py::", "test_the_gpu_script_runs", "test_the_wheel_in_a_fresh_venv",
+          "test_viewer.py::")
+
+
+def pytest_collection_modifyitems(config, items):
+    items.sort(key=lambda it: not any(k in it.nodeid for k in _FIRST))  # stable: the rest keep their order
