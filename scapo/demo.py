@@ -35,17 +35,17 @@ def retire_stale_outputs(out: Path) -> Path | None:
     found = sorted({p for pat in DEMO_OUTPUTS for p in Path(out).glob(pat)})
     if not found:
         return None
-    dest = Path(out) / time.strftime("older-%Y%m%d-%H%M%S")
-    k = 1
-    while dest.exists():
-        dest = Path(out) / f"{time.strftime('older-%Y%m%d-%H%M%S')}-{k}"
-        k += 1
-    dest.mkdir()
-    for p in found:
-        try:
+    stamp = time.strftime("older-%Y%m%d-%H%M%S")
+    dest, k = Path(out) / stamp, 1
+    while dest.exists():  # a second upgrade within the same second
+        dest, k = Path(out) / f"{stamp}-{k}", k + 1
+    p = dest
+    try:
+        dest.mkdir()
+        for p in found:
             p.rename(dest / p.name)
-        except OSError as e:
-            raise OutputError(f"cannot move {p} into {dest} ({e.strerror or e}); move or delete it and rerun") from e
+    except OSError as e:
+        raise OutputError(f"cannot move {p} into {dest} ({e.strerror or e}); move or delete it and rerun") from e
     return dest
 
 

@@ -260,14 +260,15 @@ def eyeglasses(ps: ParamSampler) -> ArticulatedDesign:
         pts[:, 1] = c[1] + (pts[:, 1] - c[1]) * (1.0 + taper * pts[:, 2] / radii[1])  # wider above than below
         return pts
 
+    right = rim_loop(1.0)
+
     def edge_at(z: float, inner: bool) -> float:  # |y| of the right rim's inner or outer edge at height z
-        loop = rim_loop(1.0)
-        side = loop[loop[:, 1] < br / 2 + lw / 2] if inner else loop[loop[:, 1] > br / 2 + lw / 2]
+        side = right[right[:, 1] < br / 2 + lw / 2] if inner else right[right[:, 1] > br / 2 + lw / 2]
         return float(side[np.argmin(np.abs(side[:, 2] - z)), 1])
 
     frame = []
     for sy in (-1, 1):
-        frame.append(tube(rim_loop(sy), rr, sections=8, closed=True))
+        frame.append(tube(right if sy > 0 else rim_loop(sy), rr, sections=8, closed=True))
         if lens == "lens":
             pts = rim_loop(sy, 0.98)
             frame.append(hull(np.vstack([pts + (0.0008, 0, 0), pts - (0.0008, 0, 0)])))
@@ -275,8 +276,8 @@ def eyeglasses(ps: ParamSampler) -> ArticulatedDesign:
     u = np.linspace(0, np.pi, 9)
     bridge = np.stack([np.zeros_like(u), -np.cos(u) * yi, bh + 0.004 * np.sin(u)], 1)
     frame.append(tube(bridge, rr, sections=8))
+    yp = edge_at(-0.15 * radii[1], inner=True)
     for sy in (-1, 1):  # nose pads below the bridge, behind the rims
-        yp = edge_at(-0.15 * radii[1], inner=True)
         if pads == "pads":  # metal frames: a pad on a wire arm from the rim
             frame.append(box_between((rr, sy * yp - 0.0008, -0.1 * radii[1] - 0.0008),
                                      (rr + 0.006, sy * yp + 0.0008, -0.1 * radii[1] + 0.0008)))
