@@ -1,27 +1,132 @@
 #!/usr/bin/env bash
-# Tables 1 and 3 (bench/table1.sh and bench/table3.sh settings) on a 2-core machine: two chains, each pinned
-# to one core with one torch thread, each owning its categories, so no cell is ever computed twice at once:
-#   core 0: Table 1 on laptop, safe, oven, washer, then Table 3 on laptop
-#   core 1: Table 1 on eyeglasses, then Table 3 on eyeglasses
-# (measured: two 2-thread trainings sharing 2 cores ran > 3x slower each than one alone). Resumable per
-# cell: rerun after an interruption. Runs in the background; logs in bench_work/logs/. The tables of the
-# cells done so far: bash bench/table1.sh --finished-only (and table3.sh). Commit first: cells record the
-# commit, "-dirty" with uncommitted changes.
+# Tables 1, 2 and 3 (issue 31) on a 2-core machine, every cell at the commit of this checkout: the settings of
+# bench/table1.sh, bench/table2.sh and bench/table3.sh (cpu presets, data seed 1, 150 instances x 8 views per
+# category, 30 of them test; training seeds 0,1,2 everywhere, Table 2's SJ rows included).
+#
+# Two chains, each pinned to one core with one torch thread, take tasks from one queue; a task is one table's
+# cells of one category and one training seed. Seeds are the outer loop (every table's seed-0 cells come before
+# any seed-1 cell), Table 1, then Table 3, then Table 2 within a seed. A chain holds a lock on the task's work
+# folder and category while it runs it (flock: released when its process ends), so no dataset is generated, and
+# no cell computed, twice at once (Table 3 shares Table 1's datasets and SCAPO cells). Resumable: `scapo bench`
+# skips finished cells, and a task is marked done only when its bench call succeeds; after an interruption (a
+# session's end) run this again. Refuses a checkout with uncommitted changes (ALLOW_DIRTY=1 to run anyway: the
+# cells then record a -dirty commit and the tables refuse them).
+#
+#   bash bench/tables_two_cores.sh            start both chains in the background (logs: $WORK1/logs/)
+#   STATUS=1 bash bench/tables_two_cores.sh   what is done and what is running
+#   CELLS=1 bash bench/tables_two_cores.sh    copy the finished cells' records into $OUT/tables_cells/ (to commit)
+#   FINISH=1 bash bench/tables_two_cores.sh   write the three tables from the finished cells into $OUT
+#
+# Run it from a clean worktree of the commit the tables should record (git worktree add ../wtNN <commit>, with
+# the venv linked in), OUT pointing at the main checkout's results/.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
-[ -z "$(git status --porcelain --untracked-files=no 2>/dev/null)" ] || echo "scapo: warning: uncommitted changes; the cells will record a -dirty commit" >&2
-mkdir -p bench_work/logs
-common=(--preset "${PRESET:-cpu}" --seed 1 --work "${WORK:-bench_work/table1_cpu}" --no-progress)
-chain() {  # CORE TABLE1-CATEGORIES TABLE3-CATEGORIES [extra table1 arguments]
-  local core=$1 cats1=$2 cats3=$3
-  shift 3
-  OMP_NUM_THREADS=1 taskset -c "$core" .venv/bin/scapo bench table1 "${common[@]}" --seeds 0,1,2 "$@" \
-    --categories "$cats1" --out "bench_work/logs/table1_core$core"
-  OMP_NUM_THREADS=1 taskset -c "$core" .venv/bin/scapo bench table3 "${common[@]}" --seeds "${SEEDS:-0}" \
-    --categories "$cats3" --out "bench_work/logs/table3_core$core"
+export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"  # this checkout's code, whatever the venv's editable install is
+SCAPO=${SCAPO:-.venv/bin/scapo}
+WORK1=${WORK1:-bench_work/table1_cpu}  # Tables 1 and 3
+WORK2=${WORK2:-bench_work/table2_cpu}  # Table 2 (realistic sensor, upright)
+OUT=${OUT:-results}
+SEEDS=${SEEDS:-0 1 2}
+CATS1=${CATS1:-laptop safe eyeglasses oven washer}
+CATS3=${CATS3:-laptop eyeglasses}
+CATS2=${CATS2:-basket drawer laptop scissors suitcase}
+QUEUE=$WORK1/queue
+
+if [ -n "${FINISH:-}" ]; then
+  seeds=$(echo "$SEEDS" | tr ' ' ',')
+  WORK=$WORK1 bash bench/table1.sh --seeds "$seeds" --finished-only --out "$OUT"
+  WORK=$WORK1 bash bench/table3.sh --seeds "$seeds" --finished-only --out "$OUT"
+  WORK=$WORK2 bash bench/table2.sh --seeds "$seeds" --finished-only --out "$OUT"
+  exit 0
+fi
+if [ -n "${CELLS:-}" ]; then  # the finished cells' records (small JSON with scores and provenance), by table
+  for pair in "table1_table3 $WORK1" "table2 $WORK2"; do
+    set -- $pair
+    for d in "$2"/*_i*_v*_s*/cells; do
+      [ -d "$d" ] || continue
+      dest="$OUT/tables_cells/$1/$(basename "$(dirname "$d")")"
+      mkdir -p "$dest"
+      cp -p "$d"/*.json "$dest"/ 2>/dev/null || true
+    done
+  done
+  echo "copied the cells' records into $OUT/tables_cells/"
+  exit 0
+fi
+
+tasks() {  # one line per task: TABLE CATEGORY SEED, in the order the chains take them
+  local s c
+  for s in $SEEDS; do
+    for c in $CATS1; do echo "table1 $c $s"; done
+    for c in $CATS3; do echo "table3 $c $s"; done
+    for c in $CATS2; do echo "table2 $c $s"; done
+  done
 }
-nohup setsid bash -c "$(declare -p common); $(declare -f chain); chain 0 laptop,safe,oven,washer laptop \
-  --category-seeds safe=0 --category-seeds oven=0 --category-seeds washer=0" > bench_work/logs/core0.log 2>&1 &
-nohup setsid bash -c "$(declare -p common); $(declare -f chain); chain 1 eyeglasses eyeglasses" \
-  > bench_work/logs/core1.log 2>&1 &
-echo "started; follow with: tail -f bench_work/logs/core0.log bench_work/logs/core1.log"
+
+if [ -n "${STATUS:-}" ]; then
+  mkdir -p "$QUEUE"
+  n=0; d=0
+  while read -r t c s; do
+    n=$((n + 1))
+    if [ -e "$QUEUE/${t}_${c}_s$s.done" ]; then d=$((d + 1)); state=done
+    elif [ -e "$QUEUE/${t}_${c}_s$s.failed" ]; then state="failed (see $QUEUE/${t}_${c}_s$s.failed)"
+    elif [ -e "$QUEUE/${t}_${c}_s$s.running" ]; then state="started $(cat "$QUEUE/${t}_${c}_s$s.running")"
+    else state=todo; fi
+    printf '%-7s %-11s seed %s  %s\n' "$t" "$c" "$s" "$state"
+  done < <(tasks)
+  echo "$d of $n tasks done (a started task whose chain has ended is taken again by the next run)"
+  exit 0
+fi
+
+if [ -n "$(git status --porcelain --untracked-files=no 2>/dev/null)" ] && [ -z "${ALLOW_DIRTY:-}" ]; then
+  echo "scapo: this checkout has uncommitted changes, so its cells would record a -dirty commit that the tables" \
+    "refuse; commit them (or run from a clean worktree of the commit), or set ALLOW_DIRTY=1" >&2
+  exit 2
+fi
+mkdir -p "$QUEUE" "$WORK1/logs" "$WORK1/locks" "$WORK2/locks"
+
+run_task() {  # TABLE CATEGORY SEED: that table's cells of one category and one training seed
+  local t=$1 c=$2 s=$3 work=$WORK1
+  [ "$t" = table2 ] && work=$WORK2
+  OMP_NUM_THREADS=1 taskset -c "$CORE" "$SCAPO" bench "$t" --preset cpu --seed 1 --seeds "$s" --categories "$c" \
+    --work "$work" --no-progress --out "$work/logs/${t}_${c}_s$s"
+}
+
+chain() {  # take the first task that is neither done nor locked by the other chain; stop when none is left
+  local t c s work lock rc ran
+  while :; do
+    ran=0
+    while read -r t c s; do
+      [ -e "$QUEUE/${t}_${c}_s$s.done" ] && continue
+      grep -qs "run $RUN_ID" "$QUEUE/${t}_${c}_s$s.failed" && continue  # failed in this run: not again
+      work=$WORK1; [ "$t" = table2 ] && work=$WORK2
+      lock="$work/locks/$c.lock"
+      exec 9>"$lock"
+      if ! flock -n 9; then exec 9>&-; continue; fi
+      [ -e "$QUEUE/${t}_${c}_s$s.done" ] && { exec 9>&-; continue; }  # finished while we waited
+      echo "core $CORE $(date -u +%FT%TZ)" > "$QUEUE/${t}_${c}_s$s.running"
+      echo "=== $(date -u +%FT%TZ) core $CORE: $t $c seed $s"
+      run_task "$t" "$c" "$s" && rc=0 || rc=$?
+      rm -f "$QUEUE/${t}_${c}_s$s.running"
+      if [ "$rc" = 0 ]; then
+        touch "$QUEUE/${t}_${c}_s$s.done"; rm -f "$QUEUE/${t}_${c}_s$s.failed"
+      else
+        echo "exit $rc at $(date -u +%FT%TZ), core $CORE, run $RUN_ID; log: $WORK1/logs/core$CORE.log" \
+          > "$QUEUE/${t}_${c}_s$s.failed"
+      fi
+      echo "=== $(date -u +%FT%TZ) core $CORE: $t $c seed $s exit $rc"
+      exec 9>&-
+      ran=1
+      break  # back to the top of the queue: an earlier task may be free now
+    done < <(tasks)
+    [ "$ran" = 1 ] || break
+  done
+  echo "=== $(date -u +%FT%TZ) core $CORE: no task left for this chain"
+}
+
+RUN_ID=$(date -u +%Y%m%dT%H%M%S)-$$
+for core in 0 1; do
+  nohup setsid env CORE=$core RUN_ID="$RUN_ID" bash -c "$(declare -p SCAPO WORK1 WORK2 SEEDS CATS1 CATS2 CATS3 QUEUE); \
+    $(declare -f tasks run_task chain); set +e; chain" >> "$WORK1/logs/core$core.log" 2>&1 &
+  sleep 2  # the first chain takes its lock before the second looks
+done
+echo "started; follow with: tail -f $WORK1/logs/core0.log $WORK1/logs/core1.log; STATUS=1 bash $0 for the queue"
