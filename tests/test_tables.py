@@ -65,8 +65,9 @@ def test_table1_files_have_paper_rows_and_provenance(laptop_data, tmp_path):
     assert "abc123" in (tmp_path / "table1.tex").read_text()
 
 
-def _synthetic_result(method, category, seed, S, R, rng, instances=12, views=3):
-    """An EvalResult with per-sample metrics drawn around ``S`` and ``R`` (two parts, one joint)."""
+def _synthetic_result(method, category, seed, S, R, rng, instances=12, views=3, R_sym=None):
+    """An EvalResult with per-sample metrics drawn around ``S`` and ``R`` (two parts, one joint); with ``R_sym``,
+    also the strict and symmetry-aware mean rotation errors per sample (R around ``R``, R_sym around ``R_sym``)."""
     import numpy as np
 
     from scapo.eval.evaluator import EvalResult
@@ -78,6 +79,10 @@ def _synthetic_result(method, category, seed, S, R, rng, instances=12, views=3):
                        "R_p0": R + rng.normal(0, 2, n), "R_p1": R + rng.normal(0, 2, n)})
     summary = {"S": float(ps.S.mean()), "D": float(ps.D.mean()), "C": float(ps.C.mean()),
                "R_median": float(np.nanmedian(ps[["R_p0", "R_p1"]].to_numpy()))}
+    if R_sym is not None:
+        ps["R"] = ps[["R_p0", "R_p1"]].mean(axis=1)
+        ps["R_sym"] = R_sym + rng.normal(0, 2, n)
+        summary.update(R=float(ps.R.mean()), R_sym=float(ps.R_sym.mean()))
     return EvalResult(method=method, category=category, split="test", per_sample=ps, summary=summary,
                       info={"seed": seed, "supervision": {"pose": False, "segmentation": method == "sup",
                                                           "joint": False}})
@@ -146,3 +151,63 @@ def test_pairwise_bootstrap_supports_clear_differences_only():
     assert boot == pairwise_bootstrap(res, draws=300)
     md = "\n".join(pairwise_markdown(boot))
     assert "- mean S: good better than weak (+" in md and "Not supported: weak vs twin" in md
+
+
+def test_table1_puts_r_sym_beside_r_and_orders_one_pass_and_refine_rows_apart():
+    """Issue 31's layout: the paper layout carries the symmetry-aware R sym block after the strict R; the "+ refine"
+    rows come after every one-pass row; the self-supervised ordering compares one-pass rows with one another and
+    "+ refine" rows with one another, on mean R sym too (a method that only flips by a declared symmetry is best on
+    R sym and not on R); the bootstrap lines cover mean R and mean R sym."""
+    import numpy as np
+
+    from scapo.eval.tables import pairwise_bootstrap, self_supervised_ordering, table1_markdown
+
+    rng = np.random.default_rng(2)
+    res = []
+    for cat in ("laptop", "eyeglasses"):
+        for s in range(2):
+            res.append(_synthetic_result("flipper", cat, s, 80, 120, rng, R_sym=5))  # right up to the symmetry
+            res.append(_synthetic_result("flipper+refine", cat, s, 82, 118, rng, R_sym=4))
+            res.append(_synthetic_result("steady", cat, s, 60, 30, rng, R_sym=30))
+            res.append(_synthetic_result("steady+refine", cat, s, 61, 25, rng, R_sym=25))
+    md = table1_markdown(res, include_paper=False)
+    lines = [ln for ln in md.splitlines() if ln.startswith("| **")]
+    blocks = list(dict.fromkeys(ln.split("|")[1].strip() for ln in lines))
+    assert blocks == ["**S** ↑", "**D** ↓", "**C** ↓", "**R** ↓", "**R sym** ↓", "**t** ↓"]
+    r_sym_rows = [ln.split("|")[2].strip() for ln in lines if ln.startswith("| **R sym**")]
+    assert r_sym_rows == ["flipper", "steady", "flipper+refine", "steady+refine"]  # one-pass rows first
+    flipper = next(ln for ln in lines if ln.startswith("| **R sym**") and "| flipper |" in ln)
+    expected = np.mean([np.mean([r.summary["R_sym"] for r in res if r.method == "flipper" and r.category == c])
+                        for c in ("laptop", "eyeglasses")])
+    assert flipper.rstrip(" |").endswith(f"{expected:.2f}")
+    assert "## Self-supervised ordering (one-pass rows)" in md and '## Self-supervised ordering ("+ refine" rows)' in md
+    one_pass = self_supervised_ordering([r for r in res if not r.method.endswith("+refine")], draws=200)
+    assert one_pass["methods"] == ["flipper", "steady"]
+    assert one_pass["metrics"]["R_sym"]["best"] == "flipper" and one_pass["metrics"]["R_median"]["best"] == "steady"
+    boot = pairwise_bootstrap(res, draws=200)
+    assert {"R", "R_sym"} <= set(boot["metrics"])
+    by = {(p["a"], p["b"]): p for p in boot["metrics"]["R_sym"]}
+    assert by[("flipper", "steady")]["better"] == "flipper" and by[("flipper", "steady")]["supported"]
+    assert {(p["a"], p["b"]): p for p in boot["metrics"]["R"]}[("flipper", "steady")]["better"] == "steady"
+
+
+def test_table3_orders_its_variants_on_the_table_metrics(tmp_path):
+    """Tables 2 and 3 carry the self-supervised ordering too (their rows' display names), in the Markdown and the
+    JSON: here a full model clearly ahead of an ablation on every metric."""
+    import json
+
+    import numpy as np
+
+    from scapo.eval.tables import write_table3
+
+    rng = np.random.default_rng(3)
+    res = [_synthetic_result(label, cat, s, S, R, rng, R_sym=R)
+           for cat in ("laptop", "eyeglasses") for s in range(2)
+           for label, S, R in (("scapo", 80, 5), ("scapo-no-shape_var", 40, 60))]
+    write_table3(res, tmp_path, {"commit": "abc"}, include_paper=False)
+    md = (tmp_path / "table3_ablation.md").read_text()
+    assert "## Self-supervised ordering" in md and "| mean R sym | Full |" in md
+    assert "vs w/o L_shape-var: better in 100.0 % of resamples" in md
+    order = json.loads((tmp_path / "table3_ablation.json").read_text())["self_supervised_ordering"]
+    assert {m: v["best"] for m, v in order["metrics"].items()} == dict.fromkeys(
+        ("S", "D", "C", "R_sym", "R_median"), "scapo")

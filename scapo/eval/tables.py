@@ -39,7 +39,9 @@ from scapo.report import latex_escape, markdown_table
 
 #: Category column order of Table 1 in the paper, then the other categories.
 CATEGORY_ORDER = ("laptop", "safe", "eyeglasses", "oven", "washer", "basket", "drawer", "scissors", "suitcase")
-TABLE1_BLOCKS = ("S", "D", "C", "R", "t")
+#: Table 1's blocks: the paper's S, D, C, R, t, with the symmetry-aware R sym (:data:`ROBUST_METRICS`) beside the
+#: strict R (issue 31: both in the paper layout; the paper has no R sym row).
+TABLE1_BLOCKS = ("S", "D", "C", "R", "R_sym", "t")
 
 #: ``describe(label) -> (display name, supervision marks) | None``: how a table names a method's row
 #: (``scapo.methods.describe`` reads the method registry; the tables stage cannot import it).
@@ -81,6 +83,12 @@ def _cells(results: Sequence[EvalResult], metrics) -> dict[tuple[str, str, str],
     return out
 
 
+def is_refined(label: str) -> bool:
+    """Whether a row is a method's "+ refine" row (label ``<method>+refine``, :mod:`scapo.methods.refine`): the
+    tables put these after the one-pass rows and order the self-supervised rows of each kind apart (issue 29)."""
+    return label.endswith("+refine")
+
+
 def paper_table(name: str) -> pd.DataFrame:
     """The paper's numbers for ``name`` in ("table1", "table2", "table3")."""
     with resources.files("scapo.eval").joinpath(f"reference/paper_{name}.csv").open() as f:
@@ -96,7 +104,7 @@ def table1_long(results: Sequence[EvalResult], include_paper: bool = True, descr
     know keeps its name and the supervision its predictions file declares."""
     rows = []
     cats = sorted({r.category for r in results}, key=lambda c: CATEGORY_ORDER.index(c) if c in CATEGORY_ORDER else 99)
-    methods = list(dict.fromkeys(r.method for r in results))
+    methods = sorted(dict.fromkeys(r.method for r in results), key=is_refined)  # one-pass rows, then "+ refine"
     cells = _cells(results, [*TABLE1_BLOCKS, *ROBUST_METRICS])
     for method in methods:
         known = describe(method) if describe is not None else None
@@ -134,12 +142,17 @@ def _fmt(v: float, decimals: int, std: float = math.nan) -> str:
     return f"{v:.{decimals}f}" if math.isnan(std) else f"{v:.{decimals}f} ± {std:.{decimals}f}"
 
 
+def _block_info(metric: str) -> MetricInfo:
+    """The :class:`MetricInfo` of a Table 1 block (the paper's metrics, or R sym from :data:`ROBUST_METRICS`)."""
+    return TABLE1_METRICS[metric] if metric in TABLE1_METRICS else ROBUST_METRICS[metric]
+
+
 def _wide(long: pd.DataFrame) -> tuple[list[str], list[tuple[str, str, list[str], list[str]]]]:
     long = long[long["table"] == "table1"]
     cats = [c for c in dict.fromkeys(long["category"]) if c != "mean"] + ["mean"]
     blocks = []
     for metric in TABLE1_BLOCKS:
-        info = TABLE1_METRICS[metric]
+        info = _block_info(metric)
         sub = long[long["metric"] == metric]
         for method in dict.fromkeys(sub["method"]):
             m = sub[sub["method"] == method]
@@ -201,7 +214,7 @@ def cells_markdown(cells: Sequence[dict] | None) -> list[str]:
 
 #: The ordering check of the self-supervised rows: metric -> (the statistic of a cell, higher is better).
 ORDERING_METRICS = {"S": ("mean S", True), "D": ("mean D", False), "C": ("mean C", False),
-                    "R_median": ("median R", False)}
+                    "R_sym": ("mean R sym", False), "R_median": ("median R", False)}
 
 
 def _weighted_stat(values: np.ndarray, weights: np.ndarray, median: bool) -> np.ndarray:
@@ -261,9 +274,21 @@ def _method_bootstrap(results: Sequence[EvalResult], method: str, cats: Sequence
     return boot, float(np.mean(cat_vals)), per_seed
 
 
+def _has_metric(result: EvalResult, metric: str) -> bool:
+    """Whether ``result`` has what :func:`_method_bootstrap` reads for ``metric`` (its summary value and per-sample
+    column, or the per-part columns of a median)."""
+    if metric not in result.summary:
+        return False
+    if metric.endswith("_median"):
+        prefix = metric[: -len("_median")] + "_p"
+        return any(k.startswith(prefix) and k[len(prefix):].isdigit() for k in result.per_sample.columns)
+    return metric in result.per_sample.columns
+
+
 #: The metrics of the pairwise bootstrap (:func:`pairwise_bootstrap`): metric -> (name, higher is better).
 PAIRWISE_METRICS = {"S": ("mean S", True), "D": ("mean D", False), "C": ("mean C", False),
-                    "R_median": ("median R", False), "R_sym_median": ("median R sym", False)}
+                    "R": ("mean R", False), "R_sym": ("mean R sym", False), "R_median": ("median R", False),
+                    "R_sym_median": ("median R sym", False)}
 
 
 def pairwise_bootstrap(results: Sequence[EvalResult], draws: int = 1000, seed: int = 0, level: float = 0.95) -> dict:
@@ -286,7 +311,7 @@ def pairwise_bootstrap(results: Sequence[EvalResult], draws: int = 1000, seed: i
     lo_q, hi_q = 100 * (1 - level) / 2, 100 * (1 + level) / 2
     out = {"draws": draws, "level": level, "metrics": {}}
     for metric, (_, higher) in PAIRWISE_METRICS.items():
-        if not all(metric in r.summary for r in results):  # e.g. results scored before R_sym existed
+        if not all(_has_metric(r, metric) for r in results):  # e.g. results scored before R_sym existed
             continue
         pairs = []
         for i, a in enumerate(methods):
@@ -365,6 +390,8 @@ def self_supervised_ordering(results: Sequence[EvalResult], describe: Describe |
         return {**out, "methods": []}
     weights = _instance_weights(results, cats, draws, seed)
     for metric, (_, higher) in ORDERING_METRICS.items():
+        if not all(_has_metric(r, metric) for r in results if r.method in methods):
+            continue  # e.g. results scored before R_sym existed
         boot, value, per_seed = {}, {}, {}
         for m in methods:
             boot[m], value[m], seeds = _method_bootstrap(results, m, cats, metric, weights)
@@ -389,8 +416,9 @@ def self_supervised_ordering(results: Sequence[EvalResult], describe: Describe |
     return out
 
 
-def ordering_markdown(order: dict, display: Callable[[str], str] = str) -> list[str]:
-    """The "Self-supervised ordering" section of a table (:func:`self_supervised_ordering`)."""
+def ordering_markdown(order: dict, display: Callable[[str], str] = str, rows_kind: str = "") -> list[str]:
+    """The "Self-supervised ordering" section of a table (:func:`self_supervised_ordering`); ``rows_kind`` names
+    the rows compared in its title (e.g. "one-pass rows")."""
     if not order.get("methods"):
         return []
     rows = []
@@ -406,7 +434,7 @@ def ordering_markdown(order: dict, display: Callable[[str], str] = str) -> list[
               "as in the table's Mean column. Resamples: a paired bootstrap over test instances "
               f"({order['draws']} draws, seeds pooled); seeds separate: on every category where both have several "
               "training seeds, the best method's worst seed beats the other's best seed.")
-    return ["## Self-supervised ordering", "",
+    return [f"## Self-supervised ordering{f' ({rows_kind})' if rows_kind else ''}", "",
             markdown_table(["Metric", "Best", "Values (mean over categories)", "Checks of the best"], rows,
                            ["l", "l", "l", "l"]), "", legend, ""]
 
@@ -428,19 +456,22 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
     paths = {k: out_dir / f"{name}.{k}" for k in ("csv", "md", "tex", "json")}
     if not markdown_only:
         atomic_write_text(paths["csv"], long.to_csv(index=False))
-    arrows = {m: ("\u2191" if TABLE1_METRICS[m].higher_is_better else "\u2193") for m in TABLE1_BLOCKS}
+    arrows = {m: ("\u2191" if _block_info(m).higher_is_better else "\u2193") for m in TABLE1_BLOCKS}
     header = ["Metric", "Method", "Pose", "Seg.", "Joint", *[c.capitalize() for c in cats[:-1]], "Mean"]
-    md_rows = [[f"**{m}** {arrows[m]}", meth, *marks, *vals] for m, meth, marks, vals in blocks]
+    md_rows = [[f"**{_block_info(m).symbol}** {arrows[m]}", meth, *marks, *vals] for m, meth, marks, vals in blocks]
     protocol = provenance.get("protocol", "scapo")
     seeds = sorted({int(r["seeds"]) for _, r in long[(long.source == "ours")].iterrows() if r["seeds"] > 1})
     seed_note = (f" Cells of trained methods with several training seeds are mean ± standard deviation over "
                  f"{'/'.join(map(str, seeds))} seeds." if seeds else "")
     legend = (f"Protocol: {protocol}. S: part segmentation IoU (%); D: joint direction error (deg); C: joint pivot "
               "error (scapo/eap protocols: x bbox diagonal, revolute joints; op-align: in units of a cloud scaled to "
-              "mean centroid distance 0.25, every joint); R: mean part rotation error (deg); t: mean part "
-              "translation error (same unit as C). Rows marked (paper) are the SCAPO paper's Table 1 (their "
-              "datasets and protocol, not ours); their Mean is over the paper's five categories, ours over the "
-              f"columns shown.{seed_note}")
+              "mean centroid distance 0.25, every joint); R: mean part rotation error (deg), strict; R sym: the same "
+              "against the declared symmetric ground truth that fits each sample best (equal to R where the category "
+              "declares no symmetry; the paper has no such row); t: mean part translation error (same unit as C). "
+              "Rows \"+ refine\" are the method-independent test-time refinement of that method's predictions "
+              "(`scapo predict --refine`), listed after the one-pass rows. Rows marked (paper) are the SCAPO "
+              "paper's Table 1 (their datasets and protocol, not ours); their Mean is over the paper's five "
+              f"categories, ours over the columns shown.{seed_note}")
     rob_header = ["Method", "Category", *[f"{i.symbol} ({i.unit})" for i in ROBUST_METRICS.values()]]
     rob_rows = _robust_rows(long)
     rob_legend = ("Robust statistics (ours): medians over all parts / joints of all test samples, % of part "
@@ -450,14 +481,18 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
                   "symmetry; equal to R where none is declared), mean, median and share over 90 deg.")
     prov = "; ".join(f"{k}: {v}" for k, v in provenance.items() if k != "cells")
     partial = _partial_note(provenance)
-    order = self_supervised_ordering(results, describe)
+    one_pass = [r for r in results if not is_refined(r.method)]
+    refined = [r for r in results if is_refined(r.method)]
+    order = self_supervised_ordering(one_pass, describe)
+    order_refined = self_supervised_ordering(refined, describe) if refined else {"methods": []}
     pairs = pairwise_bootstrap(results)
     display = _display(describe)
 
     md = [f"# Table 1 (synthetic): {', '.join(cats[:-1])}", "", *partial,
           markdown_table(header, md_rows, ["l", "l", "c", "c", "c", *["r"] * len(cats)]), "", legend, "",
           "## Medians and rates", "", markdown_table(rob_header, rob_rows, ["l", "l", *["r"] * len(ROBUST_METRICS)]),
-          "", rob_legend, "", *ordering_markdown(order, display), *pairwise_markdown(pairs, display),
+          "", rob_legend, "", *ordering_markdown(order, display, "one-pass rows" if refined else ""),
+          *ordering_markdown(order_refined, display, '"+ refine" rows'), *pairwise_markdown(pairs, display),
           f"Provenance: {prov}", "",
           *cells_markdown(provenance.get("cells"))]
     if markdown_only:
@@ -472,8 +507,8 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
     for m, meth, marks, vals in blocks:
         if last is not None and m != last:
             tex.append(r"\midrule")
-        arrow = r"$\uparrow$" if TABLE1_METRICS[m].higher_is_better else r"$\downarrow$"
-        first = rf"\textbf{{{m}}} {arrow}" if m != last else ""
+        arrow = r"$\uparrow$" if _block_info(m).higher_is_better else r"$\downarrow$"
+        first = rf"\textbf{{{latex_escape(_block_info(m).symbol)}}} {arrow}" if m != last else ""
         cells = [first, latex_escape(meth), *[r"\checkmark" if x else "" for x in marks],
                  *[v.replace("±", r"$\pm$") for v in vals]]
         tex.append(" & ".join(cells) + r" \\")
@@ -484,7 +519,8 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
             *[" & ".join(latex_escape(c).replace("±", r"$\pm$") for c in r) + r" \\" for r in rob_rows],
             r"\bottomrule", r"\end{tabular}", ""]
     atomic_write_text(paths["tex"], "\n".join(tex))
-    payload = {"provenance": provenance, "self_supervised_ordering": order, "pairwise_bootstrap": pairs,
+    payload = {"provenance": provenance, "self_supervised_ordering": order,
+               "self_supervised_ordering_refined": order_refined, "pairwise_bootstrap": pairs,
                "results": [{"method": r.method, "category": r.category, "split": r.split,
                             "seed": r.info.get("seed"), "summary": r.summary, "info": r.info} for r in results]}
     atomic_write_text(paths["json"], json.dumps(payload, indent=1, default=str) + "\n")
@@ -568,7 +604,9 @@ def write_table3(results: Sequence[EvalResult], out_dir: str | Path, provenance:
               "mean ± std over training seeds per category; mean: over the categories shown. Rows marked (paper): "
               "the SCAPO paper's Table 3 (its five synthetic categories, its data and protocol).")
     return _write_table_files(out_dir, name, f"Table 3 (ablation of SCAPO's regularisers): {', '.join(cats[:-1])}",
-                              long, header, rows, ["l", *["r"] * (len(header) - 1)], legend, provenance, results)
+                              long, header, rows, ["l", *["r"] * (len(header) - 1)], legend, provenance, results,
+                              describe=lambda label: (TABLE3_VARIANTS[label][1], {}) if label in TABLE3_VARIANTS
+                              else None)
 
 
 def _display(describe: Describe | None) -> Callable[[str], str]:
@@ -605,15 +643,23 @@ def robust_markdown(results: Sequence[EvalResult], display: Callable[[str], str]
 
 def _write_table_files(out_dir, name: str, title: str, long: pd.DataFrame, header: list[str], rows: list[list[str]],
                        align: list[str], legend: str, provenance: dict, results: Sequence[EvalResult],
-                       with_info: bool = False, extra_md: Sequence[str] = ()) -> list[Path]:
-    """``<name>.csv`` (the long table), ``.md`` (title, partial-bench note, table, legend, provenance, per-cell
-    times), ``.tex`` (the table, provenance as a comment) and ``.json`` (provenance and every result's summary)."""
+                       with_info: bool = False, extra_md: Sequence[str] = (), describe: Describe | None = None
+                       ) -> list[Path]:
+    """``<name>.csv`` (the long table), ``.md`` (title, partial-bench note, table, legend, the self-supervised
+    orderings of the one-pass and of the "+ refine" rows, the bootstrap lines, provenance, per-cell times), ``.tex``
+    (the table, provenance as a comment) and ``.json`` (provenance, orderings, bootstrap, every result's summary)."""
     prov = "; ".join(f"{k}: {v}" for k, v in provenance.items() if k != "cells")
     paths = {k: Path(out_dir) / f"{name}.{k}" for k in ("csv", "md", "tex", "json")}
     atomic_write_text(paths["csv"], long.to_csv(index=False))
     pairs = pairwise_bootstrap(results)
+    display = _display(describe)
+    refined = [r for r in results if is_refined(r.method)]
+    order = self_supervised_ordering([r for r in results if not is_refined(r.method)], describe)
+    order_refined = self_supervised_ordering(refined, describe) if refined else {"methods": []}
     md = [f"# {title}", "", *_partial_note(provenance), markdown_table(header, rows, align), "", legend, "",
-          *extra_md, *pairwise_markdown(pairs), f"Provenance: {prov}", "", *cells_markdown(provenance.get("cells"))]
+          *extra_md, *ordering_markdown(order, display, "one-pass rows" if refined else ""),
+          *ordering_markdown(order_refined, display, '"+ refine" rows'), *pairwise_markdown(pairs, display),
+          f"Provenance: {prov}", "", *cells_markdown(provenance.get("cells"))]
     atomic_write_text(paths["md"], "\n".join(md))
     cols = "".join("r" if a == "r" else ("c" if a == "c" else "l") for a in align)
     tex = ["% generated by scapo; " + latex_escape(prov), r"\begin{tabular}{" + cols + "}",
@@ -621,7 +667,8 @@ def _write_table_files(out_dir, name: str, title: str, long: pd.DataFrame, heade
            *[" & ".join(latex_escape(c).replace("±", r"$\pm$") for c in r) + r" \\" for r in rows],
            r"\bottomrule", r"\end{tabular}", ""]
     atomic_write_text(paths["tex"], "\n".join(tex))
-    payload = {"provenance": provenance, "pairwise_bootstrap": pairs,
+    payload = {"provenance": provenance, "self_supervised_ordering": order,
+               "self_supervised_ordering_refined": order_refined, "pairwise_bootstrap": pairs,
                "results": [{"method": r.method, "category": r.category, "split": r.split, "seed": r.info.get("seed"),
                             "summary": r.summary, **({"info": r.info} if with_info else {})} for r in results]}
     atomic_write_text(paths["json"], json.dumps(payload, indent=1, default=str) + "\n")
@@ -648,7 +695,7 @@ def table2_long(results: Sequence[EvalResult], include_paper: bool = True,
     metrics = TABLE2_METRICS + TABLE2_MIN_METRICS
     cells = _cells(results, metrics)
     rows = []
-    for label in dict.fromkeys(r.method for r in results):
+    for label in sorted(dict.fromkeys(r.method for r in results), key=is_refined):  # one-pass rows, then "+ refine"
         known = describe(label) if describe is not None else None
         display, sup = known if known else (label, next(r for r in results if r.method == label).info.get(
             "supervision", {}))
@@ -726,4 +773,4 @@ def write_table2(results: Sequence[EvalResult], out_dir: str | Path, provenance:
               "marked (paper): the SCAPO paper's Table 2, on OP-Align's real RGB-D scans, not our data." + twins)
     return _write_table_files(out_dir, name, f"Table 2 (real-world style): {', '.join(cats)}", long, header, rows,
                               ["l", "l", "c", "c", "c", *["r"] * len(TABLE2_METRICS)], legend, provenance, results,
-                              with_info=True, extra_md=robust_markdown(results, _display(describe)))
+                              with_info=True, extra_md=robust_markdown(results, _display(describe)), describe=describe)
