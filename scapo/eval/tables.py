@@ -14,8 +14,9 @@ Below the paper-layout table (means), a second table gives the robust statistics
 category (:data:`ROBUST_METRICS`: medians of R, t, D, C; the rates of part rotations under 5 and 10
 deg and over 90 deg; joint-state errors), because means of bimodal errors (flipped parts) rank
 methods by their flip rate alone. A third section checks whether one self-supervised method is best
-on mean S, D, C and median R (:func:`self_supervised_ordering`: a paired bootstrap over test instances
-and a comparison of training seeds).
+on mean S, D, C, mean symmetry-aware R and median R (:func:`self_supervised_ordering`: a paired bootstrap
+over test instances and a comparison of training seeds), the one-pass rows and the "+ refine" rows apart;
+then every pair of methods gets a paired bootstrap line (:func:`pairwise_bootstrap`).
 
 Each writer produces ``<name>.csv`` (long format: one value per row), ``<name>.md``,
 ``<name>.tex`` (booktabs) and ``<name>.json`` (values + provenance).
@@ -358,12 +359,13 @@ def pairwise_markdown(boot: dict, display: Callable[[str], str] = str) -> list[s
 
 def self_supervised_ordering(results: Sequence[EvalResult], describe: Describe | None = None, draws: int = 1000,
                              seed: int = 0) -> dict:
-    """Is one self-supervised method best on mean S, D, C and median R, averaged over the categories?
+    """Is one self-supervised method best on mean S, D, C, mean R sym and median R, averaged over the categories?
 
     The rows compared are the methods without any supervision mark (``describe``; else the marks their
     predictions declare), on the categories every one of them has. A method's value on a metric is the
-    table's: per category the mean over training seeds of the cell statistic (mean S, D, C; median R
-    over all parts), then the mean over categories. Two checks of the best method against each other:
+    table's: per category the mean over training seeds of the cell statistic (mean S, D, C, R sym; median R
+    over all parts), then the mean over categories; a metric some result lacks is left out. Two checks of the
+    best method against each other:
 
     - test samples: a paired bootstrap over test instances (``draws`` resamples of each category's
       instances, shared by all methods, seeds pooled as in the table), giving the share of resamples
