@@ -43,10 +43,12 @@ if [ -n "${CELLS:-}" ]; then  # the finished cells' records (small JSON with sco
   for pair in "table1_table3 $WORK1" "table2 $WORK2"; do
     set -- $pair
     for d in "$2"/*_i*_v*_s*/cells; do
-      [ -d "$d" ] || continue
+      records=("$d"/*.json)
+      [ -e "${records[0]}" ] || continue  # no finished cell of this dataset yet
       dest="$OUT/tables_cells/$1/$(basename "$(dirname "$d")")"
-      mkdir -p "$dest"
-      cp -p "$d"/*.json "$dest"/ 2>/dev/null || true
+      mkdir -p "$dest" && cp -p "${records[@]}" "$dest"/ || {
+        echo "scapo: could not copy the cells' records of $d into $dest; check that OUT ($OUT) is writable" >&2
+        exit 1; }
     done
   done
   echo "copied the cells' records into $OUT/tables_cells/"
@@ -84,22 +86,25 @@ if [ -n "$(git status --porcelain --untracked-files=no 2>/dev/null)" ] && [ -z "
 fi
 mkdir -p "$QUEUE" "$WORK1/logs" "$WORK1/locks" "$WORK2/locks"
 
+work_of() {  # TABLE: its work folder (Table 3 shares Table 1's)
+  if [ "$1" = table2 ]; then echo "$WORK2"; else echo "$WORK1"; fi
+}
+
 run_task() {  # TABLE CATEGORY SEED: that table's cells of one category and one training seed
-  local t=$1 c=$2 s=$3 work=$WORK1
-  [ "$t" = table2 ] && work=$WORK2
+  local t=$1 c=$2 s=$3 work
+  work=$(work_of "$t")
   OMP_NUM_THREADS=1 taskset -c "$CORE" "$SCAPO" bench "$t" --preset cpu --seed 1 --seeds "$s" --categories "$c" \
     --work "$work" --no-progress --out "$work/logs/${t}_${c}_s$s"
 }
 
 chain() {  # take the first task that is neither done nor locked by the other chain; stop when none is left
-  local t c s work lock rc ran
+  local t c s lock rc ran
   while :; do
     ran=0
     while read -r t c s; do
       [ -e "$QUEUE/${t}_${c}_s$s.done" ] && continue
       grep -qs "run $RUN_ID" "$QUEUE/${t}_${c}_s$s.failed" && continue  # failed in this run: not again
-      work=$WORK1; [ "$t" = table2 ] && work=$WORK2
-      lock="$work/locks/$c.lock"
+      lock="$(work_of "$t")/locks/$c.lock"
       exec 9>"$lock"
       if ! flock -n 9; then exec 9>&-; continue; fi
       [ -e "$QUEUE/${t}_${c}_s$s.done" ] && { exec 9>&-; continue; }  # finished while we waited
@@ -126,7 +131,7 @@ chain() {  # take the first task that is neither done nor locked by the other ch
 RUN_ID=$(date -u +%Y%m%dT%H%M%S)-$$
 for core in 0 1; do
   nohup setsid env CORE=$core RUN_ID="$RUN_ID" bash -c "$(declare -p SCAPO WORK1 WORK2 SEEDS CATS1 CATS2 CATS3 QUEUE); \
-    $(declare -f tasks run_task chain); set +e; chain" >> "$WORK1/logs/core$core.log" 2>&1 &
+    $(declare -f tasks work_of run_task chain); set +e; chain" >> "$WORK1/logs/core$core.log" 2>&1 &
   sleep 2  # the first chain takes its lock before the second looks
 done
 echo "started; follow with: tail -f $WORK1/logs/core0.log $WORK1/logs/core1.log; STATUS=1 bash $0 for the queue"

@@ -441,6 +441,18 @@ def ordering_markdown(order: dict, display: Callable[[str], str] = str, rows_kin
                            ["l", "l", "l", "l"]), "", legend, ""]
 
 
+def orderings(results: Sequence[EvalResult], describe: Describe | None = None,
+              display: Callable[[str], str] = str) -> tuple[dict, dict, list[str]]:
+    """The self-supervised orderings of a table's one-pass rows and of its "+ refine" rows, each among its own kind
+    (:func:`self_supervised_ordering`; ``{"methods": []}`` without "+ refine" rows), and their Markdown sections."""
+    refined = [r for r in results if is_refined(r.method)]
+    order = self_supervised_ordering([r for r in results if not is_refined(r.method)], describe)
+    order_refined = self_supervised_ordering(refined, describe) if refined else {"methods": []}
+    md = [*ordering_markdown(order, display, "one-pass rows" if refined else ""),
+          *ordering_markdown(order_refined, display, '"+ refine" rows')]
+    return order, order_refined, md
+
+
 def table1_markdown(results: Sequence[EvalResult], protocol: str = "scapo", include_paper: bool = True,
                     describe: Describe | None = None) -> str:
     """The Markdown of Table 1 (paper layout, means) and of the medians-and-rates table below it."""
@@ -483,18 +495,14 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
                   "symmetry; equal to R where none is declared), mean, median and share over 90 deg.")
     prov = "; ".join(f"{k}: {v}" for k, v in provenance.items() if k != "cells")
     partial = _partial_note(provenance)
-    one_pass = [r for r in results if not is_refined(r.method)]
-    refined = [r for r in results if is_refined(r.method)]
-    order = self_supervised_ordering(one_pass, describe)
-    order_refined = self_supervised_ordering(refined, describe) if refined else {"methods": []}
     pairs = pairwise_bootstrap(results)
     display = _display(describe)
+    order, order_refined, order_md = orderings(results, describe, display)
 
     md = [f"# Table 1 (synthetic): {', '.join(cats[:-1])}", "", *partial,
           markdown_table(header, md_rows, ["l", "l", "c", "c", "c", *["r"] * len(cats)]), "", legend, "",
           "## Medians and rates", "", markdown_table(rob_header, rob_rows, ["l", "l", *["r"] * len(ROBUST_METRICS)]),
-          "", rob_legend, "", *ordering_markdown(order, display, "one-pass rows" if refined else ""),
-          *ordering_markdown(order_refined, display, '"+ refine" rows'), *pairwise_markdown(pairs, display),
+          "", rob_legend, "", *order_md, *pairwise_markdown(pairs, display),
           f"Provenance: {prov}", "",
           *cells_markdown(provenance.get("cells"))]
     if markdown_only:
@@ -655,12 +663,9 @@ def _write_table_files(out_dir, name: str, title: str, long: pd.DataFrame, heade
     atomic_write_text(paths["csv"], long.to_csv(index=False))
     pairs = pairwise_bootstrap(results)
     display = _display(describe)
-    refined = [r for r in results if is_refined(r.method)]
-    order = self_supervised_ordering([r for r in results if not is_refined(r.method)], describe)
-    order_refined = self_supervised_ordering(refined, describe) if refined else {"methods": []}
+    order, order_refined, order_md = orderings(results, describe, display)
     md = [f"# {title}", "", *_partial_note(provenance), markdown_table(header, rows, align), "", legend, "",
-          *extra_md, *ordering_markdown(order, display, "one-pass rows" if refined else ""),
-          *ordering_markdown(order_refined, display, '"+ refine" rows'), *pairwise_markdown(pairs, display),
+          *extra_md, *order_md, *pairwise_markdown(pairs, display),
           f"Provenance: {prov}", "", *cells_markdown(provenance.get("cells"))]
     atomic_write_text(paths["md"], "\n".join(md))
     cols = "".join("r" if a == "r" else ("c" if a == "c" else "l") for a in align)
