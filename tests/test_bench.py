@@ -372,6 +372,34 @@ def test_bench_datasets_have_30_test_instances_and_table1_views_are_rotated_unif
         assert cfg.view_config.random_rotation is rotated
 
 
+def test_upright_diagnostic_renders_upright_data_in_its_own_folder_and_says_so(bench, tmp_path):
+    """``--upright`` changes only the rotation: the same cells, datasets in WORK/upright/ whose config has no
+    object rotation (the rest of the config equal to Table 1's), a table named ``*_upright`` whose provenance and
+    title say so; Table 2 (upright already) refuses it, and Table 1's provenance records its rotation."""
+    from scapo.bench import run_table2
+    from scapo.bench.experiments import data_settings
+    from scapo.data.config import make_config
+
+    work, out, _, _ = bench
+    assert json.loads((out / "table1_synthetic.json").read_text())["provenance"]["data"]["random_rotation"] is True
+    up_work, up_out = tmp_path / "work", tmp_path / "out"
+    plan = run_table1(["icp"], ["laptop"], work_dir=up_work, out_dir=up_out, seeds=[0], dry_run=True, upright=True,
+                      **SMALL)
+    assert [r["key"] for r in plan] == ["icp"] and not up_work.exists()
+    run_table1(["icp"], ["laptop"], work_dir=up_work, out_dir=up_out, seeds=[0], upright=True, **SMALL)
+    card = json.loads((up_work / "upright" / "laptop_i10_v2_s0" / "card.json").read_text())
+    assert card["config"]["view"]["random_rotation"] is False
+    rotated = json.loads(make_config("laptop", 10, 2, 0, **data_settings("laptop")).to_json())
+    upright = dict(card["config"])
+    assert {**upright, "view": {**upright["view"], "random_rotation": True}} == rotated
+    assert not (up_work / "laptop_i10_v2_s0").exists()  # never beside the rotated datasets
+    table = json.loads((up_out / "table1_synthetic_upright.json").read_text())
+    assert table["provenance"]["data"]["random_rotation"] is False
+    assert "objects upright" in (up_out / "table1_synthetic_upright.md").read_text().splitlines()[0]
+    with pytest.raises(ConfigError, match="upright already"):
+        run_table2(["icp"], ["laptop"], work_dir=up_work, out_dir=up_out, dry_run=True, upright=True, **SMALL)
+
+
 def test_the_bench_refuses_a_dirty_checkout_and_a_table_of_mixed_commits_unless_told(bench, tmp_path, monkeypatch):
     """Every cell of a table at one clean commit (issue 29): computing from uncommitted code is refused, and so is
     writing a table whose cells come from several commits or from a dirty one; the message names the cells."""

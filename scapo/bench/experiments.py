@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 from scapo.bench.cells import (
@@ -250,9 +250,10 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
 
 
 def _provenance(name: str, cells, records, hashes, instances, views, data_seed, protocol, preset,
-                missing=()) -> dict:
+                missing=(), random_rotation: bool = True) -> dict:
     """Provenance from the cells' records only (deterministic for a finished bench); ``missing``: cells
-    of the bench left out because they are not done (``--finished-only``)."""
+    of the bench left out because they are not done (``--finished-only``); ``random_rotation``: whether the
+    datasets' objects were turned by a uniform SO(3) rotation (False: upright)."""
     per_cell = []
     for c, r in zip(cells, records):
         w = r["wall"]
@@ -267,7 +268,7 @@ def _provenance(name: str, cells, records, hashes, instances, views, data_seed, 
             seeds[c.category].append(c.seed)
     total = sum(sum(v for k, v in p.items() if k.endswith("_s")) for p in per_cell)
     return {"bench": name, "preset": preset, "protocol": protocol,
-            "data": {"instances": instances, "views": views, "seed": data_seed},
+            "data": {"instances": instances, "views": views, "seed": data_seed, "random_rotation": random_rotation},
             "datasets": {k: v[:16] for k, v in hashes.items()}, "training_seeds": seeds,
             "commits": sorted({p["commit"] for p in per_cell} | {p["evaluated_at"] for p in per_cell
                                                                   if "evaluated_at" in p}),
@@ -326,7 +327,8 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
                                                        data_kwargs, recompute_dirty, category_data)
     if out_dir is not None:
         check_commits(done, records, allow_dirty, allow_mixed_commits)
-        prov = _provenance(title, done, records, hashes, instances, views, data_seed, protocol, preset, missing)
+        prov = _provenance(title, done, records, hashes, instances, views, data_seed, protocol, preset, missing,
+                           random_rotation=bool((data_kwargs or SYNTHETIC_DATA).get("random_rotation", False)))
         for p in write(results, done, prov):
             print(f"wrote {p}")
     return results
@@ -476,6 +478,12 @@ class BenchOptions:
     recompute_dirty: bool = False
     sj: bool = True
     ablations: Sequence[str] | None = None
+    upright: bool = False
+    """Tables 1 and 3: render the objects upright (no object rotation; the viewpoint ranges alone set the pose, as
+    Table 2's data and the tables before issue 29) instead of under a uniform SO(3) rotation: a diagnostic of how much
+    of the errors the rotation accounts for, everything else equal. Its datasets and cells live in
+    ``<work_dir>/upright/`` (never mixed with the rotated ones), its table is named ``<name>_upright`` and its
+    provenance says ``"random_rotation": false``. Table 2 (upright already) refuses it."""
     refine_rows: bool = True
     """Tables 1 and 2: a ``<method>+refine`` row (:mod:`scapo.methods.refine`) beside the one-pass row of every
     method with a whole-object model (``MethodEntry.refinable``)."""
@@ -522,6 +530,13 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
         raise ConfigError(f"unknown bench option(s) {', '.join(unknown)}; known: "
                           f"{', '.join(f.name for f in fields(BenchOptions))}")
     opts = BenchOptions(**options)
+    data = spec.data or None
+    if opts.upright:
+        if not (spec.data or SYNTHETIC_DATA).get("random_rotation"):
+            raise ConfigError(f"bench {spec.key}'s objects are upright already; --upright is for the tables whose "
+                              "objects are rotated (table1, table3)")
+        data = {**(spec.data or SYNTHETIC_DATA), "random_rotation": False}
+        opts = replace(opts, work_dir=Path(opts.work_dir) / "upright", name=opts.name or f"{spec.name}_upright")
     if spec.ablation_of is not None:
         if methods and list(methods) != [spec.ablation_of]:
             raise ConfigError(f"bench {spec.key} is {spec.ablation_of}'s ablation; it takes no --methods")
@@ -543,7 +558,7 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
             return write_table(results, opts.out_dir, prov, name=name)
     return _bench(spec.title, cells, methods, categories, write, opts.instances, opts.views, opts.data_seed,
                   opts.work_dir, opts.out_dir, opts.preset, opts.protocol or spec.protocol, opts.workers,
-                  opts.cache_dir, opts.dry_run, opts.progress, opts.device, opts.finished_only, spec.data or None,
+                  opts.cache_dir, opts.dry_run, opts.progress, opts.device, opts.finished_only, data,
                   opts.recompute_dirty, spec.category_data or None, opts.allow_dirty, opts.allow_mixed_commits)
 
 

@@ -549,7 +549,7 @@ def cmd_bench_table(args) -> int:
               workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run, progress=not args.no_progress,
               device=args.device, finished_only=args.finished_only, recompute_dirty=args.recompute_dirty,
               allow_dirty=args.allow_dirty, allow_mixed_commits=args.allow_mixed_commits,
-              sj=not args.no_sj)
+              sj=not args.no_sj, upright=args.upright)
     return 0
 
 
@@ -785,6 +785,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("bench", help="benchmarks: perf (throughput), table1 / table3 (the paper's tables, resumable "
                         "per cell), choose (an option value on the val split)")
     sp.add_argument("what", choices=["perf", "table1", "table2", "table3", "choose"])
+    sp.add_argument("--upright", action="store_true",
+                    help="table1, table3: objects upright (no SO(3) rotation) instead of uniformly rotated, everything "
+                         "else equal: how much of the errors the rotation accounts for (datasets and cells in "
+                         "WORK/upright/, table named <table>_upright)")
     sp.add_argument("--no-sj", action="store_true", help="table2: leave out the semi-supervised (SJ) rows")
     sp.add_argument("--data", type=Path, action="append", default=[], help="choose: the dataset (its val split is "
                     "used); repeat to choose one value for several datasets (mean of their scores); perf --what "
