@@ -15,7 +15,8 @@
 #   bash bench/tables_two_cores.sh            start both chains in the background (logs: $WORK1/logs/)
 #   STATUS=1 bash bench/tables_two_cores.sh   what is done and what is running
 #   CELLS=1 bash bench/tables_two_cores.sh    copy the finished cells' records into $OUT/tables_cells/ (to commit)
-#   FINISH=1 bash bench/tables_two_cores.sh   write the three tables from the finished cells into $OUT
+#   FINISH=1 bash bench/tables_two_cores.sh   write the three tables from the finished cells into $OUT, and Table 1
+#                                             under the eap and op-align protocols into $OUT/protocols/
 #
 # Run it from a clean worktree of the commit the tables should record (git worktree add ../wtNN <commit>, with
 # the venv linked in), OUT pointing at the main checkout's results/.
@@ -37,6 +38,12 @@ if [ -n "${FINISH:-}" ]; then
   WORK=$WORK1 bash bench/table1.sh --seeds "$seeds" --finished-only --out "$OUT"
   WORK=$WORK1 bash bench/table3.sh --seeds "$seeds" --finished-only --out "$OUT"
   WORK=$WORK2 bash bench/table2.sh --seeds "$seeds" --finished-only --out "$OUT"
+  # Table 1's cells scored again under EAP's and OP-Align's released protocols (no training or prediction: the
+  # same predictions; the scores of these files come from the code that runs FINISH, their provenance says so)
+  for protocol in ${FINISH_PROTOCOLS:-eap op-align}; do
+    WORK=$WORK1 bash bench/table1.sh --seeds "$seeds" --finished-only --protocol "$protocol" \
+      --name "table1_synthetic_$protocol" --out "$OUT/protocols"
+  done
   exit 0
 fi
 if [ -n "${CELLS:-}" ]; then  # the finished cells' records (small JSON with scores and provenance), by table
