@@ -129,6 +129,34 @@ def test_a_changed_evaluator_re_evaluates_without_retraining_or_predicting(bench
             p.write_bytes(b)
 
 
+def test_a_moved_work_folder_keeps_its_predictions_and_the_plan_says_what_compute_does(bench, monkeypatch, tmp_path):
+    """A work folder copied elsewhere is only scored under a new protocol (its predictions name their run by folder,
+    not by absolute path), as its dry run says; predictions made under other inference settings are planned as
+    "predict", which is what computing the cell does."""
+    import shutil
+
+    from scapo.eval import Predictions
+
+    work, _, _, _ = bench
+    copy = tmp_path / "moved"
+    shutil.copytree(work, copy)
+    plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True,
+                      protocol="eap", **SMALL)
+    assert [r["status"] for r in plan] == ["evaluate", "evaluate"]
+    timing = (copy / "laptop_i10_v2_s0" / "run_scapo_test_s0" / "timing.json").read_bytes()
+    _forbid(monkeypatch, "run_method")
+    run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], protocol="eap", **SMALL)
+    assert (copy / "laptop_i10_v2_s0" / "run_scapo_test_s0" / "timing.json").read_bytes() == timing  # not trained
+    assert (copy / "laptop_i10_v2_s0" / "cells" / "scapo_test_s0.eap.json").is_file()
+    path = copy / "laptop_i10_v2_s0" / "predictions_scapo_test_s0.npz"
+    preds = Predictions.load(path)
+    preds.info["inference"] = {"refine": "other settings"}
+    preds.save(path)
+    plan = run_table1(["scapo"], ["laptop"], work_dir=copy, out_dir=None, seeds=[0], dry_run=True, protocol="op-align",
+                      **SMALL)
+    assert [r["status"] for r in plan] == ["predict"]
+
+
 def test_the_evaluator_fingerprint_is_the_code_this_process_loaded(monkeypatch):
     """A bench runs for hours: a checkout changed under it must not make its records claim the new evaluator."""
     import scapo.bench.cells as cells

@@ -243,7 +243,8 @@ def _run_finished(run: Path) -> bool:
 
 def cell_status(data: Path, cell: Cell, protocol: str, dataset_hash: str | None,
                 recompute_dirty: bool = False) -> str:
-    """What is left of a cell: ``done``, ``evaluate`` (predictions exist), ``predict`` (run trained),
+    """What is left of a cell: ``done``, ``evaluate`` (predictions of this dataset and run exist, made under the
+    method's current inference settings: what :func:`compute_cell` would only score), ``predict`` (run trained),
     ``resume training`` (a partial run), ``retrain (stale)`` (its preset's training fields changed
     since the run was trained), ``recompute (dirty)`` (done at a ``-dirty`` commit, with
     ``recompute_dirty``), ``re-evaluate (dirty)`` (only evaluated at one, with ``recompute_dirty``) or
@@ -258,7 +259,7 @@ def cell_status(data: Path, cell: Cell, protocol: str, dataset_hash: str | None,
         return "done"
     if _stale_run(paths, cell):
         return "retrain (stale)"
-    if paths.predictions.is_file():
+    if paths.predictions.is_file() and _predictions_fit(paths.predictions, dataset_hash, cell, paths.run):
         return "evaluate"
     if cell.trained and _run_finished(paths.run):
         return "predict"
@@ -268,7 +269,10 @@ def cell_status(data: Path, cell: Cell, protocol: str, dataset_hash: str | None,
 
 
 def _predictions_fit(path: Path, dataset_hash: str, cell: Cell, run: Path) -> bool:
-    """Existing predictions belong to this dataset and (trained methods) to this run."""
+    """Existing predictions belong to this dataset and (trained methods) to this run, made under the method's
+    current inference settings. The run is recognised by its folder's name (``run_<key>`` beside the predictions in
+    the dataset folder), not its absolute path, so that a work folder moved or copied elsewhere keeps its
+    predictions (the dataset hash already ties them to this dataset)."""
     try:
         p = Predictions.load(path)
     except Exception:  # noqa: BLE001 - a damaged or foreign file is recomputed, never trusted
@@ -280,7 +284,7 @@ def _predictions_fit(path: Path, dataset_hash: str, cell: Cell, run: Path) -> bo
     inference = METHODS.get(cell.method).inference
     if inference is not None and p.info.get("inference") != inference(run, dict(cell.options)):
         return False  # made under other inference settings (e.g. a preset's refinement changed since)
-    return Path(p.info.get("run", "")).resolve() == run.resolve()
+    return Path(str(p.info.get("run", ""))).name == Path(run).name
 
 
 def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
