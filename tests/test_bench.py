@@ -423,7 +423,9 @@ def test_upright_diagnostic_renders_upright_data_in_its_own_folder_and_says_so(b
     assert not (up_work / "laptop_i10_v2_s0").exists()  # never beside the rotated datasets
     table = json.loads((up_out / "table1_synthetic_upright.json").read_text())
     assert table["provenance"]["data"]["random_rotation"] is False
-    assert "objects upright" in (up_out / "table1_synthetic_upright.md").read_text().splitlines()[0]
+    md = (up_out / "table1_synthetic_upright.md").read_text()
+    assert "objects upright" in md.splitlines()[0] and "Chance:" not in md  # no uniform ground truth, no chance level
+    assert "R 126.5 deg on average" in (out / "table1_synthetic.md").read_text()
     with pytest.raises(ConfigError, match="upright already"):
         run_table2(["icp"], ["laptop"], work_dir=up_work, out_dir=up_out, dry_run=True, upright=True, **SMALL)
 

@@ -3,6 +3,7 @@
 import re
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -211,3 +212,18 @@ def test_table3_orders_its_variants_on_the_table_metrics(tmp_path):
     order = json.loads((tmp_path / "table3_ablation.json").read_text())["self_supervised_ordering"]
     assert {m: v["best"] for m, v in order["metrics"].items()} == dict.fromkeys(
         ("S", "D", "C", "R_sym", "R_median"), "scapo")
+
+
+def test_chance_rotation_error_is_the_mean_angle_of_uniform_random_rotations():
+    """The chance level printed under Table 1 against a Monte Carlo estimate: the angle between two independent
+    uniform rotations, strict and folded at 90 deg as the eap protocol scores it."""
+    from scipy.spatial.transform import Rotation
+
+    from scapo.eval.tables import chance_rotation_error_deg
+
+    a = Rotation.random(200_000, random_state=0)
+    b = Rotation.random(200_000, random_state=1)
+    angle = np.degrees((a.inv() * b).magnitude())
+    assert abs(angle.mean() - chance_rotation_error_deg()) < 0.3
+    assert abs(np.minimum(angle, 180 - angle).mean() - chance_rotation_error_deg(folded=True)) < 0.3
+    assert chance_rotation_error_deg() == pytest.approx(90 + 360 / np.pi**2)

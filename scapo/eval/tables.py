@@ -460,6 +460,26 @@ def table1_markdown(results: Sequence[EvalResult], protocol: str = "scapo", incl
                         describe=describe)
 
 
+def chance_rotation_error_deg(folded: bool = False) -> float:
+    """Mean rotation error (deg) of a prediction independent of a ground truth drawn uniformly from SO(3): the
+    angle of a uniform random rotation has density ``(1 - cos a) / pi`` on ``[0, pi]``, so its mean is
+    ``pi / 2 + 2 / pi`` rad (126.48 deg); folded to ``min(a, pi - a)`` (the ``eap`` protocol) it is ``pi / 4``
+    (45 deg)."""
+    return math.degrees(math.pi / 4 if folded else math.pi / 2 + 2 / math.pi)
+
+
+def _chance_note(protocol: str, provenance: dict) -> str:
+    """The chance level of R under this protocol, for a table whose objects were rotated uniformly."""
+    if provenance.get("data", {}).get("random_rotation") is not True:
+        return ""
+    from scapo.eval.protocols import get_protocol
+
+    folded = get_protocol(protocol).fold_rotation
+    return (f" Chance: the objects are rotated uniformly over SO(3), so a rotation independent of the view scores R "
+            f"{chance_rotation_error_deg(folded):.1f} deg on average under this protocol"
+            f"{' (errors folded at 90 deg)' if folded else ''}.")
+
+
 def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, provenance: dict, name: str = "table1",
                  include_paper: bool = True, markdown_only: bool = False, describe: Describe | None = None):
     """Write Table 1 (CSV, Markdown, LaTeX, JSON) into ``out_dir``; returns the paths (with
@@ -485,7 +505,7 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
               "Rows \"+ refine\" are the method-independent test-time refinement of that method's predictions "
               "(`scapo predict --refine`), listed after the one-pass rows. Rows marked (paper) are the SCAPO "
               "paper's Table 1 (their datasets and protocol, not ours); their Mean is over the paper's five "
-              f"categories, ours over the columns shown.{seed_note}")
+              f"categories, ours over the columns shown.{seed_note}{_chance_note(protocol, provenance)}")
     rob_header = ["Method", "Category", *[f"{i.symbol} ({i.unit})" for i in ROBUST_METRICS.values()]]
     rob_rows = _robust_rows(long)
     rob_legend = ("Robust statistics (ours): medians over all parts / joints of all test samples, % of part "
