@@ -12,11 +12,17 @@
 # session's end) run this again. Refuses a checkout with uncommitted changes (ALLOW_DIRTY=1 to run anyway: the
 # cells then record a -dirty commit and the tables refuse them).
 #
+# Every done cell is archived as it finishes (`scapo bench --archive`: its record, per-sample metrics, compressed
+# predictions and run identity) into $OUT/tables_cells/table1_table3/ and $OUT/tables_cells/table2/, which are
+# committed as the regeneration goes; a machine that loses the work folders (a new session's fresh machine) then
+# regenerates the datasets and restores the archived cells instead of computing them again.
+#
 #   bash bench/tables_two_cores.sh            start both chains in the background (logs: $WORK1/logs/)
 #   STATUS=1 bash bench/tables_two_cores.sh   what is done and what is running
-#   CELLS=1 bash bench/tables_two_cores.sh    copy the finished cells' records into $OUT/tables_cells/ (to commit)
 #   FINISH=1 bash bench/tables_two_cores.sh   write the three tables from the finished cells into $OUT, and Table 1
-#                                             under the eap and op-align protocols into $OUT/protocols/
+#                                             under the eap and op-align protocols into $OUT/protocols/ (the datasets
+#                                             must exist: after a fresh machine, run the chains first; they only
+#                                             generate the datasets and restore the archived cells)
 #
 # Run it from a clean worktree of the commit the tables should record (git worktree add ../wtNN <commit>, with
 # the venv linked in), OUT pointing at the main checkout's results/.
@@ -32,36 +38,22 @@ CATS1=${CATS1:-laptop safe eyeglasses oven washer}
 CATS3=${CATS3:-laptop eyeglasses}
 CATS2=${CATS2:-basket drawer laptop scissors suitcase}
 QUEUE=$WORK1/queue
+ARCHIVE1=${ARCHIVE1:-$OUT/tables_cells/table1_table3}  # the cells archive of Tables 1 and 3
+ARCHIVE2=${ARCHIVE2:-$OUT/tables_cells/table2}
 
 if [ -n "${FINISH:-}" ]; then
   seeds=$(echo "$SEEDS" | tr ' ' ',')
-  WORK=$WORK1 bash bench/table1.sh --seeds "$seeds" --finished-only --out "$OUT"
-  WORK=$WORK1 bash bench/table3.sh --seeds "$seeds" --finished-only --out "$OUT"
-  WORK=$WORK2 bash bench/table2.sh --seeds "$seeds" --finished-only --out "$OUT"
+  WORK=$WORK1 bash bench/table1.sh --seeds "$seeds" --finished-only --archive "$ARCHIVE1" --out "$OUT"
+  WORK=$WORK1 bash bench/table3.sh --seeds "$seeds" --finished-only --archive "$ARCHIVE1" --out "$OUT"
+  WORK=$WORK2 bash bench/table2.sh --seeds "$seeds" --finished-only --archive "$ARCHIVE2" --out "$OUT"
   # Table 1's cells scored again under EAP's and OP-Align's released protocols (no training or prediction: the
   # same predictions; the scores of these files come from the code that runs FINISH, their provenance says so)
   for protocol in ${FINISH_PROTOCOLS:-eap op-align}; do
-    WORK=$WORK1 bash bench/table1.sh --seeds "$seeds" --finished-only --protocol "$protocol" \
+    WORK=$WORK1 bash bench/table1.sh --seeds "$seeds" --finished-only --archive "$ARCHIVE1" --protocol "$protocol" \
       --name "table1_synthetic_$protocol" --out "$OUT/protocols"
   done
   exit 0
 fi
-if [ -n "${CELLS:-}" ]; then  # the finished cells' records (small JSON with scores and provenance), by table
-  for pair in "table1_table3 $WORK1" "table2 $WORK2"; do
-    set -- $pair
-    for d in "$2"/*_i*_v*_s*/cells; do
-      records=("$d"/*.json)
-      [ -e "${records[0]}" ] || continue  # no finished cell of this dataset yet
-      dest="$OUT/tables_cells/$1/$(basename "$(dirname "$d")")"
-      mkdir -p "$dest" && cp -p "${records[@]}" "$dest"/ || {
-        echo "scapo: could not copy the cells' records of $d into $dest; check that OUT ($OUT) is writable" >&2
-        exit 1; }
-    done
-  done
-  echo "copied the cells' records into $OUT/tables_cells/"
-  exit 0
-fi
-
 tasks() {  # one line per task: TABLE CATEGORY SEED, in the order the chains take them
   local s c
   for s in $SEEDS; do
@@ -96,12 +88,15 @@ mkdir -p "$QUEUE" "$WORK1/logs" "$WORK1/locks" "$WORK2/locks"
 work_of() {  # TABLE: its work folder (Table 3 shares Table 1's)
   if [ "$1" = table2 ]; then echo "$WORK2"; else echo "$WORK1"; fi
 }
+archive_of() {  # TABLE: its cells archive
+  if [ "$1" = table2 ]; then echo "$ARCHIVE2"; else echo "$ARCHIVE1"; fi
+}
 
 run_task() {  # TABLE CATEGORY SEED: that table's cells of one category and one training seed
   local t=$1 c=$2 s=$3 work
   work=$(work_of "$t")
   OMP_NUM_THREADS=1 taskset -c "$CORE" "$SCAPO" bench "$t" --preset cpu --seed 1 --seeds "$s" --categories "$c" \
-    --work "$work" --no-progress --out "$work/logs/${t}_${c}_s$s"
+    --work "$work" --archive "$(archive_of "$t")" --no-progress --out "$work/logs/${t}_${c}_s$s"
 }
 
 chain() {  # take the first task that is neither done nor locked by the other chain; stop when none is left
@@ -137,8 +132,8 @@ chain() {  # take the first task that is neither done nor locked by the other ch
 
 RUN_ID=$(date -u +%Y%m%dT%H%M%S)-$$
 for core in 0 1; do
-  nohup setsid env CORE=$core RUN_ID="$RUN_ID" bash -c "$(declare -p SCAPO WORK1 WORK2 SEEDS CATS1 CATS2 CATS3 QUEUE); \
-    $(declare -f tasks work_of run_task chain); set +e; chain" >> "$WORK1/logs/core$core.log" 2>&1 &
+  nohup setsid env CORE=$core RUN_ID="$RUN_ID" bash -c "$(declare -p SCAPO WORK1 WORK2 ARCHIVE1 ARCHIVE2 SEEDS CATS1 CATS2 CATS3 QUEUE); \
+    $(declare -f tasks work_of archive_of run_task chain); set +e; chain" >> "$WORK1/logs/core$core.log" 2>&1 &
   sleep 2  # the first chain takes its lock before the second looks
 done
 echo "started; follow with: tail -f $WORK1/logs/core0.log $WORK1/logs/core1.log; STATUS=1 bash $0 for the queue"

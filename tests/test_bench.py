@@ -157,6 +157,47 @@ def test_a_moved_work_folder_keeps_its_predictions_and_the_plan_says_what_comput
     assert [r["status"] for r in plan] == ["predict"]
 
 
+def test_a_lost_work_folder_is_restored_from_the_cells_archive(bench, monkeypatch, tmp_path):
+    """Issue 31's cells outlive their machine: the archive keeps each done cell's record, per-sample metrics,
+    compressed predictions and run identity; a fresh work folder whose dataset has the same hash gets them back
+    byte for byte and computes nothing, and one of another dataset gets nothing."""
+    import shutil
+
+    from scapo.bench.archive import restore_cells
+
+    work, out, _, results = bench
+    archive = tmp_path / "archive"
+    first = run_table1(["npcs", "scapo"], ["laptop"], work_dir=work, out_dir=None, seeds=[0], archive=archive,
+                       **SMALL)  # done cells are archived as the bench meets them
+    assert _same(first, results)
+    kept = archive / "laptop_i10_v2_s0"
+    assert sorted(p.name for p in (kept / "cells").iterdir()) == [
+        "npcs_test_s0.scapo.json", "npcs_test_s0.scapo.parquet", "scapo_test_s0.scapo.json",
+        "scapo_test_s0.scapo.parquet"]
+    assert sorted(p.name for p in (kept / "run_scapo_test_s0").iterdir()) == ["run.json", "timing.json"]
+    original = work / "laptop_i10_v2_s0" / "predictions_scapo_test_s0.npz"
+    assert (kept / "predictions_scapo_test_s0.npz.xz").stat().st_size < original.stat().st_size
+    # a fresh machine: the dataset generated again (here: copied without the runs, predictions and records)
+    fresh = tmp_path / "fresh"
+    shutil.copytree(work / "laptop_i10_v2_s0", fresh / "laptop_i10_v2_s0",
+                    ignore=shutil.ignore_patterns("run_*", "predictions_*", "cells", "stale", "dirty"))
+    _forbid(monkeypatch, "train_method", "run_method", "evaluate")
+    again = run_table1(["npcs", "scapo"], ["laptop"], work_dir=fresh, out_dir=tmp_path / "out", seeds=[0],
+                       archive=archive, **SMALL)
+    assert _same(again, results)
+    assert (fresh / "laptop_i10_v2_s0" / original.name).read_bytes() == original.read_bytes()
+    assert json.loads((tmp_path / "out" / "table1_synthetic.json").read_text())["provenance"]["cells"] == \
+        json.loads((out / "table1_synthetic.json").read_text())["provenance"]["cells"]
+    # another dataset under the same folder name restores nothing, and a restore never overwrites
+    other = tmp_path / "other" / "laptop_i10_v2_s0"
+    other.mkdir(parents=True)
+    assert restore_cells(other, archive, "another dataset hash") == []
+    from scapo.data import load
+
+    done = fresh / "laptop_i10_v2_s0"
+    assert restore_cells(done, archive, load(done, "test").dataset_hash) == []  # its records are there already
+
+
 def test_the_evaluator_fingerprint_is_the_code_this_process_loaded(monkeypatch):
     """A bench runs for hours: a checkout changed under it must not make its records claim the new evaluator."""
     import scapo.bench.cells as cells

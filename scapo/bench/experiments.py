@@ -24,6 +24,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
+from scapo.bench.archive import archive_cell, restore_cells
 from scapo.bench.cells import (
     Cell,
     cell_paths,
@@ -216,15 +217,26 @@ def data_settings(category: str, data_kwargs: dict | None = None, category_data:
 
 def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str,
              workers: int, cache_dir, progress: bool, device: str | None, finished_only: bool = False,
-             data_kwargs: dict | None = None, recompute_dirty: bool = False, category_data: dict | None = None):
+             data_kwargs: dict | None = None, recompute_dirty: bool = False, category_data: dict | None = None,
+             archive: Path | None = None):
     """Generate each dataset once (resumes), then compute every cell in order; with ``finished_only``
-    nothing is computed and only the cells that are done are returned (the others in ``missing``)."""
+    nothing is computed and only the cells that are done are returned (the others in ``missing``). With
+    ``archive`` (:mod:`scapo.bench.archive`), the archived cells of each dataset are restored into the work folder
+    once the dataset exists, and every done cell is archived."""
     results, records, hashes, done, missing = [], [], {}, [], []
+
+    def restore(data: Path, category: str) -> None:
+        if archive is not None and hashes.get(category):
+            restored = restore_cells(data, archive, hashes[category])
+            if restored:
+                print(f"restored {len(restored)} cell(s) of {data.name} from the archive {archive}", flush=True)
+
     for c in cells:
         data = dataset_dir(work, c.category, instances, views, data_seed)
         if finished_only:
             if c.category not in hashes:
                 hashes[c.category] = _dataset_hash(data)
+                restore(data, c.category)
             # done, or predicted and only to be scored again (the evaluator changed since): cheap, computes nothing
             if hashes[c.category] is None or cell_status(data, c, protocol, hashes[c.category]) not in (
                     "done", "evaluate"):
@@ -236,8 +248,11 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
                      workers=workers,
                      progress=progress, cache_dir=cache_dir)
             hashes[c.category] = load(data, "test").dataset_hash
+            restore(data, c.category)
         res, rec, computed = compute_cell(data, c, protocol, progress=progress, device=device,
                                           recompute_dirty=recompute_dirty, evaluate_only=finished_only)
+        if archive is not None:
+            archive_cell(data, c, protocol, archive)
         s = res.summary
         print(f"{'computed' if computed else 'cached  '} {c.category:11s} {c.key:44s} "
               + " ".join(f"{k}={s[k]:.3f}" for k in ("S", "D", "C", "R", "R_median")), flush=True)
@@ -305,7 +320,7 @@ def _writer(write_table, name, out_dir, figures, work_dir, instances, views, dat
 
 def _bench(title, cells, methods, categories, write, instances, views, data_seed, work_dir, out_dir, preset, protocol,
            workers, cache_dir, dry_run, progress, device, finished_only, data_kwargs=None, recompute_dirty=False,
-           category_data=None, allow_dirty=False, allow_mixed_commits=False):
+           category_data=None, allow_dirty=False, allow_mixed_commits=False, archive=None):
     """What both tables do: check names and outputs, list the cells (dry run) or compute them, and
     ``write(results, done cells, provenance) -> paths`` into ``out_dir`` (one clean commit for every cell unless
     allowed: :func:`check_commits`)."""
@@ -317,6 +332,8 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
         rows = plan(cells, work_dir, instances, views, data_seed, protocol, recompute_dirty)
         print_plan(rows)
         return rows
+    if archive is not None:
+        check_output_dir(archive, "cells archive")
     here = git_commit()
     if dirty_sha(here) and not allow_dirty:
         raise ConfigError(f"this checkout has uncommitted changes (commit {here}): cells computed or scored now could "
@@ -324,7 +341,7 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
                           "worktree add), or pass --allow-dirty")
     results, records, hashes, done, missing = _compute(cells, work_dir, instances, views, data_seed, protocol,
                                                        workers, cache_dir, progress, device, finished_only,
-                                                       data_kwargs, recompute_dirty, category_data)
+                                                       data_kwargs, recompute_dirty, category_data, archive)
     if out_dir is not None:
         check_commits(done, records, allow_dirty, allow_mixed_commits)
         prov = _provenance(title, done, records, hashes, instances, views, data_seed, protocol, preset, missing,
@@ -493,6 +510,11 @@ class BenchOptions:
     allow_mixed_commits: bool = False
     """Write a table whose cells were computed at several commits (the provenance lists each cell's); refused
     otherwise, naming the cells of each commit."""
+    archive: Path | None = None
+    """A cells archive (:mod:`scapo.bench.archive`): every done cell's small files (record, per-sample metrics,
+    compressed predictions, the run's identity and timing) are copied there, and the archived cells of a dataset are
+    restored into the work folder once the dataset is generated (same dataset hash only), so that a work folder lost
+    with its machine costs only the datasets. An upright bench uses ``<archive>/upright/``."""
 
 
 #: The paper's tables: ``scapo bench table1|table2|table3``.
@@ -536,7 +558,8 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
             raise ConfigError(f"bench {spec.key}'s objects are upright already; --upright is for the tables whose "
                               "objects are rotated (table1, table3)")
         data = {**(spec.data or SYNTHETIC_DATA), "random_rotation": False}
-        opts = replace(opts, work_dir=Path(opts.work_dir) / "upright", name=opts.name or f"{spec.name}_upright")
+        opts = replace(opts, work_dir=Path(opts.work_dir) / "upright", name=opts.name or f"{spec.name}_upright",
+                       archive=None if opts.archive is None else Path(opts.archive) / "upright")
     if spec.ablation_of is not None:
         if methods and list(methods) != [spec.ablation_of]:
             raise ConfigError(f"bench {spec.key} is {spec.ablation_of}'s ablation; it takes no --methods")
@@ -559,7 +582,8 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
     return _bench(spec.title, cells, methods, categories, write, opts.instances, opts.views, opts.data_seed,
                   opts.work_dir, opts.out_dir, opts.preset, opts.protocol or spec.protocol, opts.workers,
                   opts.cache_dir, opts.dry_run, opts.progress, opts.device, opts.finished_only, data,
-                  opts.recompute_dirty, spec.category_data or None, opts.allow_dirty, opts.allow_mixed_commits)
+                  opts.recompute_dirty, spec.category_data or None, opts.allow_dirty, opts.allow_mixed_commits,
+                  opts.archive)
 
 
 def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGORIES, **options):

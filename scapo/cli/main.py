@@ -549,7 +549,7 @@ def cmd_bench_table(args) -> int:
               workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run, progress=not args.no_progress,
               device=args.device, finished_only=args.finished_only, recompute_dirty=args.recompute_dirty,
               allow_dirty=args.allow_dirty, allow_mixed_commits=args.allow_mixed_commits,
-              sj=not args.no_sj, upright=args.upright)
+              sj=not args.no_sj, upright=args.upright, archive=args.archive)
     return 0
 
 
@@ -849,6 +849,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "with uncommitted changes (refused otherwise: their code could not be recovered)")
     sp.add_argument("--allow-mixed-commits", action="store_true", help="table1/2/3: write a table whose cells come "
                     "from several commits (refused otherwise, naming the cells of each commit)")
+    sp.add_argument("--archive", type=Path, default=None, help="table1/2/3: keep every done cell's small files "
+                    "(record, per-sample metrics, compressed predictions, run identity) in this folder, and restore "
+                    "the cells archived there once their dataset is generated (a lost work folder then costs only "
+                    "the datasets)")
     sp.add_argument("--name", default=None, help="table1/3: file name stem (table1_synthetic, table3_ablation)")
     sp.add_argument("--no-progress", action="store_true")
     sp.add_argument("--out", type=Path, default=None, help="write result files here (table1/3: default results/)")
