@@ -181,6 +181,10 @@ def test_a_lost_work_folder_is_restored_from_the_cells_archive(bench, monkeypatc
     fresh = tmp_path / "fresh"
     shutil.copytree(work / "laptop_i10_v2_s0", fresh / "laptop_i10_v2_s0",
                     ignore=shutil.ignore_patterns("run_*", "predictions_*", "cells", "stale", "dirty"))
+    for work_dir in (fresh, tmp_path / "not generated yet"):  # the dry run says what the bench will restore
+        plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=work_dir, out_dir=None, seeds=[0], dry_run=True,
+                          archive=archive, **SMALL)
+        assert [r["status"] for r in plan] == ["restore", "restore"] and all(r["seconds"] > 0 for r in plan)
     _forbid(monkeypatch, "train_method", "run_method", "evaluate")
     again = run_table1(["npcs", "scapo"], ["laptop"], work_dir=fresh, out_dir=tmp_path / "out", seeds=[0],
                        archive=archive, **SMALL)

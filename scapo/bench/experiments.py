@@ -146,10 +146,12 @@ def _dataset_hash(data: Path) -> str | None:
 
 
 def plan(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str,
-         recompute_dirty: bool = False) -> list[dict]:
+         recompute_dirty: bool = False, archive: Path | None = None) -> list[dict]:
     """One row per cell: category, key, method, seed, preset, status (:func:`cell_status`; ``todo``
-    also when its dataset is not generated yet), the recorded wall seconds of a done cell, and the commit
-    its record names (``-dirty``: computed from a checkout with uncommitted changes)."""
+    also when its dataset is not generated yet; ``restore`` when a cell that is not done in the work folder is in
+    the cells ``archive`` for this dataset, or for a dataset still to generate: the bench restores it then), the
+    recorded wall seconds of a done cell, and the commit its record names (``-dirty``: computed from a checkout with
+    uncommitted changes)."""
     import json
 
     rows, hashes = [], {}
@@ -159,6 +161,15 @@ def plan(cells: Sequence[Cell], work: Path, instances: int, views: int, data_see
             hashes[data] = _dataset_hash(data)
         status = cell_status(data, c, protocol, hashes[data], recompute_dirty)
         seconds, commit, dirty = math.nan, "", ""
+        if status != "done" and archive is not None:
+            kept = cell_paths(Path(archive) / data.name, c, protocol).record
+            try:
+                rec = json.loads(kept.read_text())
+            except (OSError, ValueError):
+                rec = None
+            if rec is not None and hashes[data] in (None, rec.get("dataset_hash")):
+                status, commit = "restore", computed_commit(rec)
+                seconds = sum(v for k, v in rec.get("wall", {}).items() if k.endswith("_s"))
         if status in ("done", "recompute (dirty)", "re-evaluate (dirty)"):
             rec = json.loads(cell_paths(data, c, protocol).record.read_text())
             commit = computed_commit(rec)
@@ -189,7 +200,7 @@ def print_plan(rows: list[dict]) -> None:
         counts[r["status"]] = counts.get(r["status"], 0) + 1
     done = sum(r["seconds"] for r in rows if not math.isnan(r["seconds"]))
     print(f"{len(rows)} cells: " + ", ".join(f"{n} {s}" for s, n in counts.items())
-          + f"; recorded compute of the done cells: {done / 3600:.2f} h")
+          + f"; recorded compute of the done and archived cells: {done / 3600:.2f} h")
 
 
 #: The splits of every bench dataset: a fifth of the instances for test and a tenth for val, so that the default
@@ -329,7 +340,7 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
     protocol = _check(methods, categories, protocol, None if dry_run else work_dir,
                       None if dry_run else out_dir)
     if dry_run:
-        rows = plan(cells, work_dir, instances, views, data_seed, protocol, recompute_dirty)
+        rows = plan(cells, work_dir, instances, views, data_seed, protocol, recompute_dirty, archive)
         print_plan(rows)
         return rows
     if archive is not None:
