@@ -1,6 +1,7 @@
 """The viewer in a real browser: ``scapo view`` on a tiny dataset, loaded by headless Chromium, shows the cloud."""
 
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -21,7 +22,11 @@ def _free_port() -> int:
 
 
 def screenshot(args, path, size=(900, 700), wait=60.0):
-    """Start ``scapo view ARGS`` on a free port, screenshot its page with headless Chromium, stop it."""
+    """Start ``scapo view ARGS`` on a free port, screenshot its page with headless Chromium, stop it.
+
+    The page is loaded from the URL the viewer prints, not from the port asked for: between ``_free_port`` and the
+    server's bind another process (a Ray worker of a parallel test) may take the port, and viser then binds the next
+    free one (a blank page from someone else's server failed CI once)."""
     port = _free_port()
     log = path.with_suffix(".log")
     with open(log, "w") as f:
@@ -29,13 +34,14 @@ def screenshot(args, path, size=(900, 700), wait=60.0):
                                 stderr=subprocess.STDOUT, env={**os.environ, "OMP_NUM_THREADS": "1"})
     try:
         t0 = time.time()
-        while "open http" not in log.read_text():
+        while (m := re.search(r"open (http://\S+) in a browser", log.read_text())) is None:
             assert proc.poll() is None, log.read_text()
             assert time.time() - t0 < wait, "scapo view did not start"
             time.sleep(0.5)
+        url = m.group(1)
         r = subprocess.run([CHROMIUM, "--headless=new", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
                             "--use-angle=swiftshader", f"--window-size={size[0]},{size[1]}",
-                            "--virtual-time-budget=20000", f"--screenshot={path}", f"http://127.0.0.1:{port}"],
+                            "--virtual-time-budget=20000", f"--screenshot={path}", url],
                            capture_output=True, text=True, timeout=120)
         assert path.is_file(), r.stderr[-2000:]
     finally:
