@@ -50,3 +50,26 @@ _FIRST = ("test_ray.py::", "test_distributed.py::", "test_the_gpu_script_runs", 
 
 def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda it: not any(k in it.nodeid for k in _FIRST))  # stable: the rest keep their order
+
+
+# Modules whose module-scoped fixture trains or renders for tens of seconds and serves most of the module's tests
+# (test_user_facing's ``runs``, test_methods' ``trained_runs``, test_bench's ``bench``, test_bad_input's ``run`` and
+# ``small``): each runs whole on one pytest-xdist worker, so that its fixture is computed once, not once per worker
+# (CI measured 220 s with both workers training them). ``--dist loadgroup`` would do this per test, but xdist 3.8
+# renames ``item._nodeid``, which pytest 9.2 no longer reads, so its groups are silently ignored.
+_WHOLE_MODULES = ("tests/test_user_facing.py", "tests/test_methods.py", "tests/test_bench.py",
+                  "tests/test_bad_input.py")
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """The default ``load`` scheduling, except that each module of ``_WHOLE_MODULES`` is one unit of work."""
+    if config.getvalue("dist") != "load":
+        return None  # an explicit --dist: xdist's own scheduler
+    from xdist.scheduler import LoadScopeScheduling
+
+    class SharedFixtureScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return module if module in _WHOLE_MODULES else nodeid
+
+    return SharedFixtureScheduling(config, log)
