@@ -39,9 +39,24 @@ def interrupt_at(trainer: Trainer, stage: int, epoch: int) -> None:
         trainer.train()
 
 
-def test_train_predict_evaluate_round_trip(laptop_data, tmp_path):
-    run = tmp_path / "run"
+@pytest.fixture(scope="module")
+def test_run(laptop_data, tmp_path_factory):
+    """A finished run of the ``test`` preset (seed 0) on the shared laptop dataset; read it, or copy it first."""
+    run = tmp_path_factory.mktemp("test_run") / "run"
     Trainer(laptop_data, run, TEST, progress=False).train()
+    return run
+
+
+@pytest.fixture(scope="module")
+def root_motion_run(laptop_data, tmp_path_factory):
+    """A finished run of the ``test`` preset with ``root_motion``; read it, or copy it first."""
+    run = tmp_path_factory.mktemp("root_motion_run") / "run"
+    Trainer(laptop_data, run, dataclasses.replace(TEST, root_motion=True), progress=False).train()
+    return run
+
+
+def test_train_predict_evaluate_round_trip(laptop_data, test_run, tmp_path):
+    run = test_run
     for f in ("checkpoint.pt", "log.csv", "losses.png", "run.json"):
         assert (run / f).is_file(), f
     pred = load_model(run)
@@ -76,8 +91,9 @@ def test_resume_gives_the_same_result(laptop_data, tmp_path):
         torch.testing.assert_close(a[k], b[k], msg=k)
 
 
-def test_checkpoint_of_another_config_is_refused(laptop_data, tmp_path):
-    Trainer(laptop_data, tmp_path / "r", TEST, progress=False).train()
+def test_checkpoint_of_another_config_is_refused(laptop_data, test_run, tmp_path):
+    shutil.copytree(test_run, tmp_path / "r")
+    Trainer(laptop_data, tmp_path / "r", TEST, progress=False).train()  # the same preset: finished, accepted
     other = dataclasses.replace(TEST, name="other", stage2_epochs=2)
     with pytest.raises(TrainingError, match="trained with preset 'test'"):
         Trainer(laptop_data, tmp_path / "r", other, progress=False).train()
@@ -153,12 +169,10 @@ def test_stage2_starts_from_the_rigid_split_of_the_canonical_clouds(laptop_data,
     assert torch.isfinite(t.model.y_base).all() and not torch.equal(t.model.y_base, y0)  # the medoid cloud
 
 
-def test_root_motion_run_round_trips_and_its_poses_are_consistent(laptop_data, tmp_path):
+def test_root_motion_run_round_trips_and_its_poses_are_consistent(root_motion_run):
     from scapo.ops.rigid import joint_motion
 
-    run = tmp_path / "run"
-    Trainer(laptop_data, run, dataclasses.replace(TEST, root_motion=True), progress=False).train()
-    pred = load_model(run)
+    pred = load_model(root_motion_run)
     assert pred.model.cfg.root_motion
     with torch.no_grad():  # a visible root state, so that the base really moves off the stage-1 frame
         pred.model.joints.out[-1].bias[-1] = 0.4
@@ -172,12 +186,12 @@ def test_root_motion_run_round_trips_and_its_poses_are_consistent(laptop_data, t
         np.testing.assert_allclose(rel, ref, atol=1e-4)
 
 
-def test_refinement_is_an_inference_setting_and_keeps_poses_consistent(laptop_data, tmp_path):
+def test_refinement_is_an_inference_setting_and_keeps_poses_consistent(laptop_data, root_motion_run, tmp_path):
     from scapo.models.refine import RefineConfig
     from scapo.ops.rigid import joint_motion
 
     run = tmp_path / "run"
-    Trainer(laptop_data, run, dataclasses.replace(TEST, root_motion=True), progress=False).train()
+    shutil.copytree(root_motion_run, run)
     # another refinement setting is the same run: the finished checkpoint is accepted, not refused
     Trainer(laptop_data, run, dataclasses.replace(TEST, root_motion=True, refine=RefineConfig(steps=4)),
             progress=False).train()
@@ -202,8 +216,9 @@ def test_refinement_is_an_inference_setting_and_keeps_poses_consistent(laptop_da
     assert preds.method == "scapo-refined" and preds.info["refine_steps"] == 3
 
 
-def test_training_seed_gives_another_run_and_is_part_of_its_identity(laptop_data, tmp_path):
-    train(laptop_data, tmp_path / "s0", TEST, progress=False, seed=0)
+def test_training_seed_gives_another_run_and_is_part_of_its_identity(laptop_data, test_run, tmp_path):
+    shutil.copytree(test_run, tmp_path / "s0")  # trained with seed 0
+    train(laptop_data, tmp_path / "s0", TEST, progress=False, seed=0)  # finished with this seed: accepted
     train(laptop_data, tmp_path / "s1", TEST, progress=False, seed=1)
     a = torch.load(tmp_path / "s0" / "checkpoint.pt", weights_only=False)
     b = torch.load(tmp_path / "s1" / "checkpoint.pt", weights_only=False)
