@@ -52,10 +52,11 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda it: not any(k in it.nodeid for k in _FIRST))  # stable: the rest keep their order
 
 
-# Modules whose module-scoped fixture trains or renders for tens of seconds and serves most of the module's tests
+# Modules whose module-scoped fixtures train or render for tens of seconds and serve most of the module's tests
 # (test_user_facing's ``runs``, test_methods' ``trained_runs``, test_bench's ``bench``, test_bad_input's ``run`` and
-# ``small``, test_train's ``test_run`` and ``root_motion_run``): each runs whole on one pytest-xdist worker, so that its fixture is computed once, not once per worker
-# (CI measured 220 s with both workers training them). ``--dist loadgroup`` would do this per test, but xdist 3.8
+# ``small``, test_train's ``finished_run`` and ``root_motion_run``): each module runs whole on one pytest-xdist
+# worker, so that its fixtures are computed once, not once per worker (CI measured 220 s with both workers training
+# them). ``--dist loadgroup`` would do this per test, but xdist 3.8
 # renames ``item._nodeid``, which pytest 9.2 no longer reads, so its groups are silently ignored.
 _WHOLE_MODULES = ("tests/test_user_facing.py", "tests/test_methods.py", "tests/test_bench.py",
                   "tests/test_bad_input.py", "tests/test_train.py")

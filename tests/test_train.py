@@ -40,9 +40,9 @@ def interrupt_at(trainer: Trainer, stage: int, epoch: int) -> None:
 
 
 @pytest.fixture(scope="module")
-def test_run(laptop_data, tmp_path_factory):
+def finished_run(laptop_data, tmp_path_factory):
     """A finished run of the ``test`` preset (seed 0) on the shared laptop dataset; read it, or copy it first."""
-    run = tmp_path_factory.mktemp("test_run") / "run"
+    run = tmp_path_factory.mktemp("finished_run") / "run"
     Trainer(laptop_data, run, TEST, progress=False).train()
     return run
 
@@ -55,8 +55,8 @@ def root_motion_run(laptop_data, tmp_path_factory):
     return run
 
 
-def test_train_predict_evaluate_round_trip(laptop_data, test_run, tmp_path):
-    run = test_run
+def test_train_predict_evaluate_round_trip(laptop_data, finished_run, tmp_path):
+    run = finished_run
     for f in ("checkpoint.pt", "log.csv", "losses.png", "run.json"):
         assert (run / f).is_file(), f
     pred = load_model(run)
@@ -91,8 +91,8 @@ def test_resume_gives_the_same_result(laptop_data, tmp_path):
         torch.testing.assert_close(a[k], b[k], msg=k)
 
 
-def test_checkpoint_of_another_config_is_refused(laptop_data, test_run, tmp_path):
-    shutil.copytree(test_run, tmp_path / "r")
+def test_checkpoint_of_another_config_is_refused(laptop_data, finished_run, tmp_path):
+    shutil.copytree(finished_run, tmp_path / "r")
     Trainer(laptop_data, tmp_path / "r", TEST, progress=False).train()  # the same preset: finished, accepted
     other = dataclasses.replace(TEST, name="other", stage2_epochs=2)
     with pytest.raises(TrainingError, match="trained with preset 'test'"):
@@ -216,8 +216,8 @@ def test_refinement_is_an_inference_setting_and_keeps_poses_consistent(laptop_da
     assert preds.method == "scapo-refined" and preds.info["refine_steps"] == 3
 
 
-def test_training_seed_gives_another_run_and_is_part_of_its_identity(laptop_data, test_run, tmp_path):
-    shutil.copytree(test_run, tmp_path / "s0")  # trained with seed 0
+def test_training_seed_gives_another_run_and_is_part_of_its_identity(laptop_data, finished_run, tmp_path):
+    shutil.copytree(finished_run, tmp_path / "s0")  # trained with seed 0
     train(laptop_data, tmp_path / "s0", TEST, progress=False, seed=0)  # finished with this seed: accepted
     train(laptop_data, tmp_path / "s1", TEST, progress=False, seed=1)
     a = torch.load(tmp_path / "s0" / "checkpoint.pt", weights_only=False)

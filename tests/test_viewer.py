@@ -26,7 +26,11 @@ def screenshot(args, path, size=(900, 700), wait=60.0):
 
     The page is loaded from the URL the viewer prints, not from the port asked for: between ``_free_port`` and the
     server's bind another process (a Ray worker of a parallel test) may take the port, and viser then binds the next
-    free one (a blank page from someone else's server failed CI once)."""
+    free one. (CI once screenshotted a page with no part-coloured pixel; a port taken in between is one way to get
+    that, so the viewer's log now comes back with the screenshot for the assertion's message.)
+
+    Returns:
+        str: the viewer's log (its printed URL and anything it reported)."""
     port = _free_port()
     log = path.with_suffix(".log")
     with open(log, "w") as f:
@@ -47,6 +51,7 @@ def screenshot(args, path, size=(900, 700), wait=60.0):
     finally:
         proc.terminate()
         proc.wait(timeout=30)
+    return log.read_text()[-2000:]
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed (scripts/setup.sh installs it on Debian)")
@@ -54,12 +59,12 @@ def test_viewer_page_shows_the_cloud(laptop_data, tmp_path):
     import matplotlib.image as mpimg
 
     shot = tmp_path / "view.png"
-    screenshot(["--data", str(laptop_data)], shot)
+    log = screenshot(["--data", str(laptop_data)], shot)
     img = (mpimg.imread(shot)[..., :3] * 255).astype(int)
     h, w = img.shape[:2]
     centre = img[h // 5: 4 * h // 5, w // 5: 3 * w // 5]  # the scene, away from the GUI panel
     r, b = centre[..., 0], centre[..., 2]
     blue = (b > r + 40).sum()  # the base part's points (PART_COLORS[0], shaded)
     red = (r > b + 40).sum()  # the screen's
-    assert blue > 100 and red > 100, (blue, red)  # the cloud, coloured by part: not a blank page
+    assert blue > 100 and red > 100, (blue, red, log)  # the cloud, coloured by part: not a blank page
     assert np.mean(centre.sum(-1) < 700) > 0.005
