@@ -54,6 +54,22 @@ def usable_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def training_threads() -> int:
+    """Torch threads for training: :func:`usable_cores`, at most ``OMP_NUM_THREADS`` where that is set to a
+    positive integer (the usual way to give a job fewer threads than its cores, e.g. two jobs sharing a
+    machine's cores; an unset, empty or malformed value is ignored). At least 1.
+
+    More threads than the cores a job really gets (two 2-thread trainings on 2 cores) make OpenMP's threads wait
+    on each other, which costs far more than the second thread gains.
+    """
+    cores = usable_cores()
+    try:
+        cap = int(os.environ.get("OMP_NUM_THREADS", "").strip())
+    except ValueError:
+        return cores
+    return max(1, min(cores, cap)) if cap >= 1 else cores
+
+
 @lru_cache(maxsize=1)
 def cpu_name() -> str:
     try:

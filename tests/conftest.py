@@ -12,6 +12,9 @@ _CACHE = tempfile.mkdtemp(prefix="scapo-test-cache-")
 os.environ["SCAPO_CACHE"] = _CACHE
 
 if os.environ.get("PYTEST_XDIST_WORKER"):  # one torch thread per pytest-xdist worker (scripts/test.sh runs two)
+    # and in the trainings and commands they start (training takes min(usable cores, OMP_NUM_THREADS) threads;
+    # two workers training with two threads each on two cores ran several times slower)
+    os.environ["OMP_NUM_THREADS"] = "1"
     import torch
 
     torch.set_num_threads(1)
@@ -52,6 +55,22 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda it: not any(k in it.nodeid for k in _FIRST))  # stable: the rest keep their order
 
 
+@pytest.fixture(scope="session")
+def trained_test_runs(laptop_data, tmp_path_factory) -> dict[str, Path]:
+    """One run of every trained method (its ``test`` preset) on :func:`laptop_data`: method name -> run folder.
+    Shared by test_methods.py and test_user_facing.py, which run on one pytest-xdist worker (below); a test that
+    changes a run copies it first."""
+    from scapo.methods import METHODS, train_method
+
+    root = tmp_path_factory.mktemp("runs")
+    runs = {}
+    for name in METHODS.names():
+        if METHODS.get(name).trained:
+            runs[name] = root / name
+            train_method(name, laptop_data, runs[name], "test", progress=False)
+    return runs
+
+
 # Modules whose module-scoped fixtures train or render for tens of seconds and serve most of the module's tests
 # (test_user_facing's ``runs``, test_methods' ``trained_runs``, test_bench's ``bench``, test_bad_input's ``run`` and
 # ``small``, test_train's ``finished_run`` and ``root_motion_run``): each module runs whole on one pytest-xdist
@@ -60,6 +79,8 @@ def pytest_collection_modifyitems(config, items):
 # renames ``item._nodeid``, which pytest 9.2 no longer reads, so its groups are silently ignored.
 _WHOLE_MODULES = ("tests/test_user_facing.py", "tests/test_methods.py", "tests/test_bench.py",
                   "tests/test_bad_input.py", "tests/test_train.py")
+#: modules that share a session fixture run together as one unit (``trained_test_runs``)
+_SAME_UNIT = {"tests/test_user_facing.py": "tests/test_methods.py"}
 
 
 def pytest_xdist_make_scheduler(config, log):
@@ -71,6 +92,6 @@ def pytest_xdist_make_scheduler(config, log):
     class SharedFixtureScheduling(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             module = nodeid.split("::", 1)[0]
-            return module if module in _WHOLE_MODULES else nodeid
+            return _SAME_UNIT.get(module, module) if module in _WHOLE_MODULES else nodeid
 
     return SharedFixtureScheduling(config, log)

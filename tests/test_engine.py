@@ -40,7 +40,7 @@ def _mismatch(rows: list[list[str]], pin: dict, key: str) -> str:
 
 
 @pytest.mark.parametrize("key", sorted(set(PINS["runs"]).union(*(o["runs"] for o in PINS.get("other_cpus", [])))))
-def test_every_methods_test_preset_gives_the_losses_of_the_loops_before_the_engine(key, tmp_path):
+def test_every_methods_test_preset_gives_the_losses_of_the_loops_before_the_engine(key, tmp_path, monkeypatch):
     """``engine_pins.json`` holds the log of each trained method's ``test`` preset (and ``test/sj``) trained by the
     two loops the engine replaced (commit c217f4f) on ``tests/data/pin_laptop``, on each CPU it was pinned on: every
     loss of every step is the same now on one of them (bit-identical on the machine that pinned them; 1e-6 relative
@@ -51,6 +51,7 @@ def test_every_methods_test_preset_gives_the_losses_of_the_loops_before_the_engi
     method, preset = key.split(":")
     threads = torch.get_num_threads()
     torch.set_num_threads(2)  # the pins were taken with two threads (rounding depends on the thread count)
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")  # training's own thread count (conftest gives workers one)
     try:
         train_method(method, DATA / "pin_laptop", tmp_path / "run", preset, progress=False)
     finally:
@@ -208,3 +209,22 @@ def test_a_step_schedule_halves_the_rate_every_decay_steps_and_iterations_set_th
     assert op_align.PRESETS.get("paper").iterations == 20000 and op_align.PRESETS.get("paper").lr == 1e-4
     with pytest.raises(ConfigError, match="lr_schedule"):
         dataclasses.replace(pc, lr_schedule="linear")
+
+
+def test_training_takes_the_usable_cores_at_most_omp_num_threads(monkeypatch, tmp_path):
+    """Training runs ``min(usable cores, OMP_NUM_THREADS)`` torch threads; an unset, empty, malformed or
+    non-positive ``OMP_NUM_THREADS`` leaves the usable cores."""
+    import scapo.provenance as prov
+    from scapo.engine import loop
+
+    monkeypatch.setattr(prov, "usable_cores", lambda: 4)
+    for value, want in (("1", 1), ("3", 3), ("16", 4), ("", 4), ("two", 4), ("0", 4), ("-2", 4), (" 2 ", 2)):
+        monkeypatch.setenv("OMP_NUM_THREADS", value)
+        assert prov.training_threads() == want, value
+    monkeypatch.delenv("OMP_NUM_THREADS")
+    assert prov.training_threads() == 4
+    seen = []
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    monkeypatch.setattr(loop, "fit", lambda *a, **k: seen.append(torch.get_num_threads()))
+    train_method("npcs", DATA / "pin_laptop", tmp_path / "run", "test", progress=False)
+    assert seen == [1]

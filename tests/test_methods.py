@@ -56,15 +56,9 @@ def test_options_are_validated_against_each_methods_dataclass():
 
 
 @pytest.fixture(scope="module")
-def trained_runs(laptop_data, tmp_path_factory):
-    """One run of every trained method (its ``test`` preset) on the small laptop dataset."""
-    root = tmp_path_factory.mktemp("runs")
-    runs = {}
-    for name in ALL:
-        if METHODS.get(name).trained:
-            runs[name] = root / name
-            train_method(name, laptop_data, runs[name], "test", progress=False)
-    return runs
+def trained_runs(trained_test_runs):
+    """One run of every trained method (its ``test`` preset) on the small laptop dataset (conftest.py)."""
+    return trained_test_runs
 
 
 @pytest.mark.parametrize("name", ALL)

@@ -91,14 +91,10 @@ def test_version_and_provenance_outside_a_checkout(monkeypatch):
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory):
-    root = tmp_path_factory.mktemp("runs")
-    out = {}
-    for name in METHODS.names():
-        if METHODS.get(name).trained:
-            out[name] = root / name
-            train_method(name, PIN, out[name], "test", progress=False)
-    return out
+def runs(trained_test_runs):
+    """Every trained method's ``test``-preset run on the session's small laptop dataset (conftest.py; PIN's
+    laptops are of the same category, so these runs predict on them)."""
+    return trained_test_runs
 
 
 def test_methods_load_round_trips_every_trained_method(runs):

@@ -40,7 +40,7 @@ from scapo.engine.distributed import DistContext, dist_context, per_rank_threads
 from scapo.engine.runs import RunFolder, plot_losses, truncate_log
 from scapo.errors import TrainingError
 from scapo.files import FolderLock, check_output_dir, clean_stale_temps
-from scapo.provenance import usable_cores
+from scapo.provenance import training_threads
 
 #: the log's leading columns; the loss terms follow
 BASE_COLUMNS = ("stage", "epoch", "step", "lr", "total")
@@ -218,7 +218,7 @@ def train_run(folder: RunFolder, make_job: Callable[[torch.device, DistContext],
             if ctx.is_main:
                 clean_stale_temps(folder.path, any_pid=True)
             ctx.barrier()  # the other ranks start once rank 0 holds the folder
-            with run_settings(per_rank_threads(usable_cores(), ctx)):
+            with run_settings(per_rank_threads(training_threads(), ctx)):
                 state = folder.load_checkpoint(device)
                 if state is not None and state.get("done"):
                     return folder.checkpoint
