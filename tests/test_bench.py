@@ -579,3 +579,34 @@ def test_the_gpu_script_runs_on_cpu_with_the_test_presets_and_resumes(tmp_path):
         gpu = subprocess.run(["bash", str(root / "bench" / "gpu.sh")], env={**env, "DEVICE": "cuda"},
                              capture_output=True, text=True, timeout=60)
         assert gpu.returncode == 2 and "scapo: bench/gpu.sh: no CUDA device" in gpu.stderr
+
+
+def test_the_budget_diagnostic_trains_longer_and_compares_with_the_table1_cell(bench, tmp_path):
+    """``bench/budget_diagnostic.sh`` (issue 31's gap attribution): SCAPO's preset with every stage's epochs x
+    FACTOR on the dataset of a finished Table 1 cell, predicted one-pass and compared with that cell (rows, paired
+    bootstrap lines, the runs' training steps and the commits); a rerun trains nothing again; no cell is a clear
+    error."""
+    import os
+    import subprocess
+    import sys
+
+    work, _, _, _ = bench
+    root = Path(__file__).resolve().parent.parent
+    env = {**os.environ, "WORK": str(work), "PRESET": "test", "FACTOR": "2", "OUT": str(tmp_path / "out"),
+           "SCAPO": str(Path(sys.executable).parent / "scapo")}
+    script = str(root / "bench" / "budget_diagnostic.sh")
+    run = subprocess.run(["bash", script], env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    got = json.loads((tmp_path / "out" / "laptop_x2_s0.json").read_text())
+    assert [r["label"] for r in got["rows"]] == ["test", "test x2"]
+    files = {f["label"]: f for f in got["files"]}
+    assert files["test x2"]["train_steps"] == 2 * files["test"]["train_steps"] > 0
+    assert files["test"]["commit"] and files["test x2"]["commit"] not in (None, "-")
+    assert {p["a"] for p in got["bootstrap"]["metrics"]["S"]} == {"test"}
+    assert "## Paired bootstrap" in (tmp_path / "out" / "laptop_x2_s0.md").read_text()
+    ckpt = work / "budget" / "laptop_x2_s0" / "checkpoint.pt"
+    before = ckpt.stat().st_mtime_ns
+    again = subprocess.run(["bash", script], env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0 and ckpt.stat().st_mtime_ns == before, again.stderr[-2000:]
+    none = subprocess.run(["bash", script], env={**env, "SEED": "7"}, capture_output=True, text=True, timeout=60)
+    assert none.returncode == 2 and "scapo: bench/budget_diagnostic.sh: 0 finished Table 1 cells" in none.stderr
