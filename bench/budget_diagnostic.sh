@@ -35,12 +35,13 @@ cell=${found[0]}
 data=$(dirname "$(dirname "$cell")")
 base=$data/predictions_scapo_${PRESET}_s$SEED.npz
 case "$FACTOR" in ''|*[!0-9]*|0) echo "scapo: bench/budget_diagnostic.sh: FACTOR must be a positive integer" >&2; exit 2;; esac
-code_commit=$("$PY" -c "from scapo.provenance import git_commit; print(git_commit())")
-cell_commit=$("$PY" -c "import json, sys; print(json.load(open(sys.argv[1]))['computed_commit'])" "$cell")
+# -P: import scapo from PYTHONPATH or the venv, not from this folder (python -c puts the current folder first)
+code_commit=$("$PY" -P -c "from scapo.provenance import git_commit; print(git_commit())")
+cell_commit=$("$PY" -P -c "import json, sys; print(json.load(open(sys.argv[1]))['computed_commit'])" "$cell")
 if [ "$code_commit" != "$cell_commit" ]; then
   echo "bench/budget_diagnostic.sh: note: this code is at $code_commit, the Table 1 cell at $cell_commit" >&2
 fi
-read -r e1 e2 < <("$PY" -c "from scapo.models.presets import get_preset; p = get_preset('$PRESET'); \
+read -r e1 e2 < <("$PY" -P -c "from scapo.models.presets import get_preset; p = get_preset('$PRESET'); \
 print(p.stage1_epochs, p.stage2_epochs)")
 run=$WORK/budget/${CATEGORY}_x${FACTOR}_s$SEED
 mkdir -p "$WORK/budget" "$OUT"
