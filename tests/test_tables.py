@@ -152,6 +152,13 @@ def test_pairwise_bootstrap_supports_clear_differences_only():
     assert boot == pairwise_bootstrap(res, draws=300)
     md = "\n".join(pairwise_markdown(boot))
     assert "- mean S: good better than weak (+" in md and "Not supported: weak vs twin" in md
+    assert "- mean D: good better than weak (-" in md  # lower is better: the better one's value minus the other's
+    # the printed difference is the better method's value minus the other's, whichever of the pair comes first
+    md_rev = "\n".join(pairwise_markdown(pairwise_bootstrap(res[::-1], draws=300)))
+    line = next(ln for ln in md_rev.splitlines() if ln.startswith("- mean S:"))
+    assert "good better than weak (+" in line and "good better than twin (+" in line, line
+    line = next(ln for ln in md_rev.splitlines() if ln.startswith("- mean D:"))
+    assert "good better than weak (-" in line, line
 
 
 def test_table1_puts_r_sym_beside_r_and_orders_one_pass_and_refine_rows_apart():

@@ -345,15 +345,24 @@ def pairwise_markdown(boot: dict, display: Callable[[str], str] = str) -> list[s
         if not pairs:
             continue
         name = PAIRWISE_METRICS[metric][0]
-        yes = [f"{display(p['better'])} better than {display(p['b'] if p['better'] == p['a'] else p['a'])} "
-               f"({p['diff']:+.3g} [{p['interval'][0]:+.3g}, {p['interval'][1]:+.3g}])"
-               for p in pairs if p["supported"]]
+        yes = []
+        for p in pairs:
+            if not p["supported"]:
+                continue
+            # the difference printed as the better method's value minus the other's (the pair's own order is
+            # a - b, which read backwards whenever b is the better one)
+            sign = 1 if p["better"] == p["a"] else -1
+            lo, hi = sorted(sign * v for v in p["interval"])
+            other = p["b"] if sign == 1 else p["a"]
+            yes.append(f"{display(p['better'])} better than {display(other)} ({sign * p['diff']:+.3g} "
+                       f"[{lo:+.3g}, {hi:+.3g}])")
         no = [f"{display(p['a'])} vs {display(p['b'])}" for p in pairs if not p["supported"]]
         lines.append(f"- {name}: " + ("; ".join(yes) if yes else "no supported difference")
                      + (f". Not supported: {', '.join(no)}" if no else "") + ".")
     lines += ["", f"A difference is supported when the {100 * boot['level']:.0f} % interval of the difference of the "
-              f"two methods' table values (first minus second, over {boot['draws']} paired resamples of the test "
-              "instances of the categories both have, training seeds pooled) excludes 0.", ""]
+              f"two methods' table values (printed as the better one's minus the other's, over {boot['draws']} "
+              "paired resamples of the test instances of the categories both have, training seeds pooled) excludes 0.",
+              ""]
     return lines
 
 
