@@ -51,6 +51,11 @@ def parse_pred(text: str) -> tuple[str, Path]:
     return label.strip(), Path(path)
 
 
+def _mean_or_nan(values) -> float:
+    """Mean of a list of numbers (the per-part alignment inlier ratios), NaN when there is none."""
+    return float(np.mean(values)) if values else math.nan
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, required=True, help="the dataset whose test split every file predicts")
@@ -84,13 +89,18 @@ def main(argv=None) -> int:
         print(f"scapo: compare_predictions: {e}", file=sys.stderr)
         return 2
     rows = [{"label": r.method, "samples": int(r.summary.get("samples", len(r.per_sample))),
-             **{col: r.summary.get(k, math.nan) for k, col in COLUMNS.items()}} for r in results]
+             **{col: r.summary.get(k, math.nan) for k, col in COLUMNS.items()},
+             "align inliers": _mean_or_nan(r.info.get("alignment_inlier_ratio"))} for r in results]
     boot = pairwise_bootstrap(results)
     lines = [f"# {', '.join(r.method for r in results)} on {a.data.name} (test split, {a.protocol} protocol)", "",
              pd.DataFrame(rows).to_markdown(index=False, floatfmt=".3g"), "",
              "Means over the test samples (S in %, D and R in degrees, C in bounding-box diagonals), medians over "
              "all joints (D) or parts (R) of all test samples, flips: share of part rotations off by more than "
-             "90 deg.", "", f"## Paired bootstrap over test instances ({boot['draws']} resamples, "
+             "90 deg; align inliers: for a method in its own canonical frame, the share of training samples whose "
+             "offset from predicted to true part rotation lies within the alignment's inlier angle of the one "
+             "offset the evaluator applies (scapo.eval.alignment; mean over parts; 1 for a canonical frame that "
+             "is the same in every instance and view).", "",
+             f"## Paired bootstrap over test instances ({boot['draws']} resamples, "
              f"{100 * boot['level']:.0f} % intervals of a - b)", ""]
     for metric, pairs in boot["metrics"].items():
         for p in pairs:

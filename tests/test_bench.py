@@ -599,6 +599,7 @@ def test_the_budget_diagnostic_trains_longer_and_compares_with_the_table1_cell(b
     assert run.returncode == 0, run.stderr[-2000:]
     got = json.loads((tmp_path / "out" / "laptop_x2_s0.json").read_text())
     assert [r["label"] for r in got["rows"]] == ["test", "test x2"]
+    assert all(0 <= r["align inliers"] <= 1 for r in got["rows"])  # SCAPO is scored in its own canonical frame
     files = {f["label"]: f for f in got["files"]}
     assert files["test x2"]["train_steps"] == 2 * files["test"]["train_steps"] > 0
     assert files["test"]["commit"] and files["test x2"]["commit"] not in (None, "-")
