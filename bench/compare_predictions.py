@@ -69,6 +69,10 @@ def main(argv=None) -> int:
         preds = [parse_pred(p) for p in a.pred]
         if len(preds) < 2 or len({lb for lb, _ in preds}) != len(preds):
             raise ScapoError("give at least two --pred with distinct labels")
+        try:  # the output folder before the scoring, not after it
+            a.out.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise ScapoError(f"--out {a.out}: its folder cannot be made ({e.strerror}); choose a writable place") from e
         commits = dict(c.partition("=")[::2] for c in a.commit)
         stray = sorted(set(commits) - {lb for lb, _ in preds})
         if stray:
@@ -111,12 +115,9 @@ def main(argv=None) -> int:
     prov = provenance(dataset=str(a.data), dataset_hash=results[0].info.get("dataset_hash"), protocol=a.protocol)
     lines += ["", "## Files", "", pd.DataFrame(files).to_markdown(index=False), "",
               "Provenance (this comparison): " + ", ".join(f"{k}={v}" for k, v in prov.items()), ""]
-    a.out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(a.out.with_suffix(".md"), "\n".join(lines))
     atomic_write_text(a.out.with_suffix(".json"), json.dumps(
-        {"rows": rows, "bootstrap": boot, "files": files, "provenance": prov}, indent=1,
-        default=lambda x: None if isinstance(x, float) and math.isnan(x) else
-        (x.item() if isinstance(x, np.generic) else str(x))) + "\n")
+        {"rows": rows, "bootstrap": boot, "files": files, "provenance": prov}, indent=1, default=str) + "\n")
     print(f"wrote {a.out.with_suffix('.md')}")
     return 0
 
