@@ -19,6 +19,13 @@
 #
 #   bash bench/tables_two_cores.sh            start both chains in the background (logs: $WORK1/logs/)
 #   STATUS=1 bash bench/tables_two_cores.sh   what is done and what is running
+#   DATA=1 bash bench/tables_two_cores.sh     generate the datasets of CATS1 and CATS2 (Table 3 uses Table 1's) in
+#                                             WORK1 / WORK2 with this checkout's code, make each the archive's pinned
+#                                             bytes where it differs from them only by rounding (a machine of another
+#                                             CPU kind; scapo.bench.archive.reconcile_dataset), pin the others, and
+#                                             restore their archived cells; computes no cell. Run it from main for the
+#                                             worktree's folders before the chains on a fresh machine (the cells'
+#                                             commit may predate the pinning)
 #   FINISH=1 bash bench/tables_two_cores.sh   write the three tables from the finished cells into $OUT, and Table 1
 #                                             under the eap and op-align protocols into $OUT/protocols/ (the datasets
 #                                             must exist: after a fresh machine, run the chains first; they only
@@ -41,6 +48,16 @@ QUEUE=$WORK1/queue
 ARCHIVE1=${ARCHIVE1:-$OUT/tables_cells/table1_table3}  # the cells archive of Tables 1 and 3
 ARCHIVE2=${ARCHIVE2:-$OUT/tables_cells/table2}
 
+if [ -n "${DATA:-}" ]; then
+  seeds=$(echo "$SEEDS" | tr ' ' ',')
+  for c in $CATS1; do
+    WORK=$WORK1 bash bench/table1.sh --seeds "$seeds" --categories "$c" --data-only --archive "$ARCHIVE1" --no-progress
+  done
+  for c in $CATS2; do
+    WORK=$WORK2 bash bench/table2.sh --seeds "$seeds" --categories "$c" --data-only --archive "$ARCHIVE2" --no-progress
+  done
+  exit 0
+fi
 if [ -n "${FINISH:-}" ]; then
   seeds=$(echo "$SEEDS" | tr ' ' ',')
   WORK=$WORK1 bash bench/table1.sh --seeds "$seeds" --finished-only --archive "$ARCHIVE1" --out "$OUT"

@@ -202,6 +202,111 @@ def test_a_lost_work_folder_is_restored_from_the_cells_archive(bench, monkeypatc
     assert restore_cells(done, archive, load(done, "test").dataset_hash) == []  # its records are there already
 
 
+def _generated_elsewhere(src: Path, dst: Path, field: str, change) -> str:
+    """A copy of the dataset ``src`` in ``dst`` as another CPU kind would generate it: ``change`` applied to
+    ``field`` of its first shard, the shard's record appended to the journal and the card written again, as
+    ``generate`` does; returns the changed shard's name."""
+    import io
+    import shutil
+
+    import numpy as np
+
+    from scapo.data import generate
+    from scapo.data.config import GenerateConfig
+    from scapo.data.generate import JOURNAL, config_sha256
+    from scapo.data.storage import sha256_file
+
+    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("run_*", "predictions_*", "cells", "stale", "dirty"))
+    card = json.loads((dst / "card.json").read_text())
+    name = sorted(card["shards"])[0]
+    path = dst / "shards" / f"{name}.npz"
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays[field] = change(arrays[field])
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    path.write_bytes(buf.getvalue())
+    cfg = GenerateConfig.from_dict(card["config"])
+    with open(dst / JOURNAL, "a") as f:
+        f.write(json.dumps({"shard": name, "sha256": sha256_file(path), "config_sha256": config_sha256(cfg)}) + "\n")
+    generate(cfg, dst, progress=False)
+    return name
+
+
+def test_a_dataset_generated_on_another_cpu_is_made_the_archived_one_and_its_cells_restored(bench, monkeypatch,
+                                                                                           tmp_path, capsys):
+    """Issue 31's datasets differ across CPU kinds in the last bit of some double-precision ground truth, so a
+    fresh machine of another kind regenerated datasets of other hashes and restored no cell. The archive pins each
+    dataset's bytes: a regenerated dataset that differs only so is re-written to the archived bytes (every shard's
+    sha256 checked) and its cells are restored; a larger difference, or one in the rendered points, changes nothing
+    and its cells are computed again."""
+    import numpy as np
+
+    from scapo.bench.archive import archive_dataset, reconcile_dataset
+    from scapo.data import load
+    from scapo.errors import DatasetError
+
+    work, out, _, results = bench
+    archive = tmp_path / "archive"
+    run_table1(["npcs", "scapo"], ["laptop"], work_dir=work, out_dir=None, seeds=[0], archive=archive, **SMALL)
+    data = work / "laptop_i10_v2_s0"
+    pinned = archive / "laptop_i10_v2_s0" / "dataset"
+    assert sorted(p.name for p in pinned.iterdir()) == ["card.json", "double.npz.xz", "fields.json"]
+    assert archive_dataset(data, archive) == "same"
+    want = load(data, "test").dataset_hash
+    # another CPU: one camera pose's last bit differs, so the shard, and the dataset hash, differ
+    fresh = tmp_path / "fresh" / data.name
+    shard = _generated_elsewhere(data, fresh, "T_cam_obj", lambda a: np.nextafter(a, 2 * a + 1))
+    assert load(fresh, "test").dataset_hash != want
+    assert archive_dataset(fresh, archive) == "other"  # the archive keeps the dataset its cells were computed on
+    _forbid(monkeypatch, "train_method", "run_method", "evaluate")
+    again = run_table1(["npcs", "scapo"], ["laptop"], work_dir=fresh.parent, out_dir=None, seeds=[0],
+                       archive=archive, **SMALL)
+    assert _same(again, results)
+    assert "made the archived dataset" in capsys.readouterr().out
+    assert load(fresh, "test").dataset_hash == want
+    assert (fresh / "shards" / f"{shard}.npz").read_bytes() == (data / "shards" / f"{shard}.npz").read_bytes()
+    report = json.loads((fresh / "reconciled.json").read_text())
+    assert report["shards"] == 1 and 0 < report["max_abs_diff"]["T_cam_obj"] < 1e-12
+    assert reconcile_dataset(fresh, archive)["status"] == "same"
+    # more than rounding, or a difference in the rendered points: left as generated, nothing restored
+    for field, change, why in (("joint_state", lambda a: a + 1e-6, "more than rounding"),
+                               ("points", lambda a: np.nextafter(a, np.float32(9)), "not double-precision")):
+        other = tmp_path / field / data.name
+        _generated_elsewhere(data, other, field, change)
+        before = load(other, "test").dataset_hash
+        rep = reconcile_dataset(other, archive)
+        assert rep["status"] == "different" and why in rep["why"], rep
+        assert load(other, "test").dataset_hash == before and not (other / "reconciled.json").exists()
+        plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=other.parent, out_dir=None, seeds=[0],
+                          dry_run=True, archive=archive, **SMALL)
+        assert [r["status"] for r in plan] == ["todo", "todo"]
+    # a damaged archive is a clear error, not a silent restore
+    (pinned / "double.npz.xz").write_bytes(b"not xz")
+    broken = tmp_path / "broken" / data.name
+    _generated_elsewhere(data, broken, "K", lambda a: np.nextafter(a, 2 * a + 1))
+    with pytest.raises(DatasetError, match="cannot be read"):
+        reconcile_dataset(broken, archive)
+
+
+def test_data_only_prepares_datasets_and_computes_no_cell(monkeypatch, tmp_path, capsys):
+    from scapo.data import load
+
+    _forbid(monkeypatch, "train_method", "run_method", "evaluate")
+    archive = tmp_path / "archive"
+    out = run_table1(["icp"], ["laptop"], work_dir=tmp_path / "work", out_dir=tmp_path / "out", seeds=[0],
+                     archive=archive, data_only=True, **{**SMALL, "instances": 4})
+    data = tmp_path / "work" / "laptop_i4_v2_s0"
+    assert out == [] and not (tmp_path / "out" / "table1_synthetic.json").exists()
+    assert not (data / "cells").exists()
+    pinned = json.loads((archive / data.name / "dataset" / "card.json").read_text())
+    assert pinned["dataset_hash"] == load(data, "test").dataset_hash
+    assert "pinned in the archive" in capsys.readouterr().out
+    with pytest.raises(ConfigError, match="--data-only"):
+        run_table1(["icp"], ["laptop"], work_dir=tmp_path / "work", out_dir=None, seeds=[0], data_only=True,
+                   finished_only=True, **{**SMALL, "instances": 4})
+
+
 def test_the_evaluator_fingerprint_is_the_code_this_process_loaded(monkeypatch):
     """A bench runs for hours: a checkout changed under it must not make its records claim the new evaluator."""
     import scapo.bench.cells as cells

@@ -20,11 +20,12 @@ and wall times), not of the moment the tables were written.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-from scapo.bench.archive import archive_cell, restore_cells
+from scapo.bench.archive import archive_cell, archive_dataset, reconcile_dataset, restore_cells
 from scapo.bench.cells import (
     Cell,
     cell_paths,
@@ -229,11 +230,14 @@ def data_settings(category: str, data_kwargs: dict | None = None, category_data:
 def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str,
              workers: int, cache_dir, progress: bool, device: str | None, finished_only: bool = False,
              data_kwargs: dict | None = None, recompute_dirty: bool = False, category_data: dict | None = None,
-             archive: Path | None = None):
+             archive: Path | None = None, data_only: bool = False):
     """Generate each dataset once (resumes), then compute every cell in order; with ``finished_only``
     nothing is computed and only the cells that are done are returned (the others in ``missing``). With
-    ``archive`` (:mod:`scapo.bench.archive`), the archived cells of each dataset are restored into the work folder
-    once the dataset exists, and every done cell is archived."""
+    ``archive`` (:mod:`scapo.bench.archive`), each generated dataset is first made the archived dataset's bytes
+    where it differs from it only by rounding (:func:`~scapo.bench.archive.reconcile_dataset`), or pinned in the
+    archive when none is (:func:`~scapo.bench.archive.archive_dataset`); the archived cells of each dataset are
+    restored into the work folder once the dataset exists, and every done cell is archived. With ``data_only``
+    the datasets are generated (reconciled, pinned, their cells restored) and no cell is computed or returned."""
     results, records, hashes, done, missing = [], [], {}, [], []
 
     def restore(data: Path, category: str) -> None:
@@ -241,6 +245,19 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
             restored = restore_cells(data, archive, hashes[category])
             if restored:
                 print(f"restored {len(restored)} cell(s) of {data.name} from the archive {archive}", flush=True)
+
+    def pin(data: Path) -> None:
+        rep = reconcile_dataset(data, archive)
+        if rep["status"] == "reconciled":
+            print(f"{data.name}: generated as {rep['generated_hash'][:12]}, made the archived dataset "
+                  f"{rep['dataset_hash'][:12]} ({rep['shards']} shard(s); double-precision values moved by at most "
+                  f"{max(rep['max_abs_diff'].values(), default=0.0):.2g})", flush=True)
+        elif rep["status"] == "different":
+            print(f"scapo bench: warning: {data.name} is not the archived dataset {rep['archived'][:12]} "
+                  f"({rep['why']}); its archived cells are computed again", file=sys.stderr, flush=True)
+        if archive_dataset(data, archive) == "archived":
+            print(f"{data.name}: dataset {load(data, 'test').dataset_hash[:12]} pinned in the archive {archive}",
+                  flush=True)
 
     for c in cells:
         data = dataset_dir(work, c.category, instances, views, data_seed)
@@ -258,8 +275,12 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
                                  **data_settings(c.category, data_kwargs, category_data)), data,
                      workers=workers,
                      progress=progress, cache_dir=cache_dir)
+            if archive is not None:
+                pin(data)
             hashes[c.category] = load(data, "test").dataset_hash
             restore(data, c.category)
+        if data_only:
+            continue
         res, rec, computed = compute_cell(data, c, protocol, progress=progress, device=device,
                                           recompute_dirty=recompute_dirty, evaluate_only=finished_only)
         if archive is not None:
@@ -272,6 +293,8 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
         done.append(c)
     if finished_only and not done:
         raise ConfigError("no cell of this bench is done yet; run it without --finished-only first")
+    if data_only:
+        print(f"datasets ready: {', '.join(f'{k} {v[:12]}' for k, v in hashes.items())}", flush=True)
     return results, records, {k: v for k, v in hashes.items() if v}, done, missing
 
 
@@ -331,12 +354,15 @@ def _writer(write_table, name, out_dir, figures, work_dir, instances, views, dat
 
 def _bench(title, cells, methods, categories, write, instances, views, data_seed, work_dir, out_dir, preset, protocol,
            workers, cache_dir, dry_run, progress, device, finished_only, data_kwargs=None, recompute_dirty=False,
-           category_data=None, allow_dirty=False, allow_mixed_commits=False, archive=None):
+           category_data=None, allow_dirty=False, allow_mixed_commits=False, archive=None, data_only=False):
     """What both tables do: check names and outputs, list the cells (dry run) or compute them, and
     ``write(results, done cells, provenance) -> paths`` into ``out_dir`` (one clean commit for every cell unless
     allowed: :func:`check_commits`)."""
     if finished_only and recompute_dirty:
         raise ConfigError("--finished-only computes nothing and --recompute-dirty recomputes cells: use one of them")
+    if data_only and (finished_only or recompute_dirty or dry_run):
+        raise ConfigError("--data-only prepares the datasets and computes no cell: give it without --finished-only, "
+                          "--recompute-dirty and --dry-run")
     protocol = _check(methods, categories, protocol, None if dry_run else work_dir,
                       None if dry_run else out_dir)
     if dry_run:
@@ -352,8 +378,9 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
                           "worktree add), or pass --allow-dirty")
     results, records, hashes, done, missing = _compute(cells, work_dir, instances, views, data_seed, protocol,
                                                        workers, cache_dir, progress, device, finished_only,
-                                                       data_kwargs, recompute_dirty, category_data, archive)
-    if out_dir is not None:
+                                                       data_kwargs, recompute_dirty, category_data, archive,
+                                                       data_only)
+    if out_dir is not None and not data_only:
         check_commits(done, records, allow_dirty, allow_mixed_commits)
         prov = _provenance(title, done, records, hashes, instances, views, data_seed, protocol, preset, missing,
                            random_rotation=bool((data_kwargs or SYNTHETIC_DATA).get("random_rotation", False)))
@@ -525,7 +552,12 @@ class BenchOptions:
     """A cells archive (:mod:`scapo.bench.archive`): every done cell's small files (record, per-sample metrics,
     compressed predictions, the run's identity and timing) are copied there, and the archived cells of a dataset are
     restored into the work folder once the dataset is generated (same dataset hash only), so that a work folder lost
-    with its machine costs only the datasets. An upright bench uses ``<archive>/upright/``."""
+    with its machine costs only the datasets. The archive also pins each dataset's bytes: a dataset generated on
+    another kind of CPU, which differs from the pinned one only by the rounding of double-precision ground truth, is
+    made the pinned one before its cells are restored. An upright bench uses ``<archive>/upright/``."""
+    data_only: bool = False
+    """Generate the datasets (with ``archive``: reconcile, pin, restore their cells) and compute no cell; writes
+    no table. Prepares a work folder whose cells are computed by another checkout (issue 31's worktree)."""
 
 
 #: The paper's tables: ``scapo bench table1|table2|table3``.
@@ -594,7 +626,7 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
                   opts.work_dir, opts.out_dir, opts.preset, opts.protocol or spec.protocol, opts.workers,
                   opts.cache_dir, opts.dry_run, opts.progress, opts.device, opts.finished_only, data,
                   opts.recompute_dirty, spec.category_data or None, opts.allow_dirty, opts.allow_mixed_commits,
-                  opts.archive)
+                  opts.archive, opts.data_only)
 
 
 def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGORIES, **options):

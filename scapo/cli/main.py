@@ -549,7 +549,7 @@ def cmd_bench_table(args) -> int:
               workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run, progress=not args.no_progress,
               device=args.device, finished_only=args.finished_only, recompute_dirty=args.recompute_dirty,
               allow_dirty=args.allow_dirty, allow_mixed_commits=args.allow_mixed_commits,
-              sj=not args.no_sj, upright=args.upright, archive=args.archive)
+              sj=not args.no_sj, upright=args.upright, archive=args.archive, data_only=args.data_only)
     return 0
 
 
@@ -842,6 +842,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--finished-only", action="store_true", help="table1/2/3: train and predict nothing; write the "
                     "tables of the cells that are done or predicted (scored again when the evaluator changed "
                     "since; the others are listed in the provenance)")
+    sp.add_argument("--data-only", action="store_true", help="table1/2/3: generate the datasets (with --archive: "
+                    "made the archived dataset's bytes where they differ only by rounding, pinned in the archive "
+                    "otherwise, their archived cells restored) and compute no cell")
     sp.add_argument("--recompute-dirty", action="store_true", help="table1/2/3: compute again, from scratch, the done "
                     "cells whose record names a -dirty commit (computed from uncommitted code; the old files are "
                     "moved to <dataset>/dirty/)")
