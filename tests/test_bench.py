@@ -239,7 +239,7 @@ def test_a_dataset_generated_on_another_cpu_is_made_the_archived_one_and_its_cel
     fresh machine of another kind regenerated datasets of other hashes and restored no cell. The archive pins each
     dataset's bytes: a regenerated dataset that differs only so is re-written to the archived bytes (every shard's
     sha256 checked) and its cells are restored; a larger difference, or one in the rendered points, changes nothing
-    and its cells are computed again."""
+    and its cells are computed again. Cells archived before the pinning pin only their own dataset."""
     import numpy as np
 
     from scapo.bench.archive import archive_dataset, reconcile_dataset
@@ -287,6 +287,13 @@ def test_a_dataset_generated_on_another_cpu_is_made_the_archived_one_and_its_cel
     _generated_elsewhere(data, broken, "K", lambda a: np.nextafter(a, 2 * a + 1))
     with pytest.raises(DatasetError, match="cannot be read"):
         reconcile_dataset(broken, archive)
+    # cells archived before datasets were pinned: only their own dataset is pinned, never another machine's
+    import shutil
+
+    legacy = tmp_path / "legacy"
+    shutil.copytree(archive / data.name / "cells", legacy / data.name / "cells")
+    assert archive_dataset(broken, legacy) == "unpinned cells" and not (legacy / data.name / "dataset").exists()
+    assert archive_dataset(data, legacy) == "archived"
 
 
 def test_data_only_prepares_datasets_and_computes_no_cell(monkeypatch, tmp_path, capsys):

@@ -210,6 +210,23 @@ def _shard_arrays(data: Path, name: str, sha256: str) -> dict[str, np.ndarray]:
     return read_shard(Path(data) / "shards" / f"{name}.npz", sha256)
 
 
+def archived_dataset_hashes(archive: Path, name: str) -> dict[str, int]:
+    """The dataset hashes that the archived cell records of dataset folder ``name`` name, with their counts.
+
+    Raises:
+        ConfigError: a record is unreadable (names it).
+    """
+    counts: dict[str, int] = {}
+    for rec_path in sorted((Path(archive) / name / "cells").glob("*.json")):
+        try:
+            h = str(json.loads(rec_path.read_text()).get("dataset_hash"))
+        except (OSError, ValueError, AttributeError) as e:
+            raise ConfigError(f"the archived cell record {rec_path} is unreadable ({e}); remove it so that the cell "
+                              "is computed again") from e
+        counts[h] = counts.get(h, 0) + 1
+    return counts
+
+
 def archive_dataset(data: Path, archive: Path) -> str:
     """Pin the bytes of the generated dataset ``data`` in ``archive/<data.name>/dataset/`` (see the module
     docstring), unless a dataset is pinned there already.
@@ -219,8 +236,11 @@ def archive_dataset(data: Path, archive: Path) -> str:
         archive: the archive's root folder.
 
     Returns:
-        ``"archived"`` (written now), ``"same"`` (this dataset is pinned already) or ``"other"`` (another dataset is
-        pinned under this name: the archive keeps it; :func:`reconcile_dataset` may make ``data`` that one).
+        ``"archived"`` (written now), ``"same"`` (this dataset is pinned already), ``"other"`` (another dataset is
+        pinned under this name: the archive keeps it; :func:`reconcile_dataset` may make ``data`` that one) or
+        ``"unpinned cells"`` (nothing is pinned, but the archived cells under this name were computed on another
+        dataset, none on this one: pinning this one would orphan them, so nothing is written; a machine that
+        generates their dataset pins it).
 
     Raises:
         DatasetError: ``data`` has no readable card, or a shard does not match its card. OutputError: the archive
@@ -232,6 +252,9 @@ def archive_dataset(data: Path, archive: Path) -> str:
         pinned = read_json(dst / "card.json", "archived dataset card", ConfigError,
                            f"remove {dst} so that the dataset is pinned again")
         return "same" if pinned.get("dataset_hash") == card["dataset_hash"] else "other"
+    cells = set(archived_dataset_hashes(archive, Path(data).name))
+    if cells and card["dataset_hash"] not in cells:
+        return "unpinned cells"
     fields: dict[str, dict] = {}
     double: dict[str, np.ndarray] = {}
     for name in sorted(card["shards"]):
@@ -347,4 +370,4 @@ def reconcile_dataset(data: Path, archive: Path, rtol: float = RECONCILE_RTOL,
 
 
 __all__ = ["DATASET", "DOUBLE_FIELDS", "RECONCILE_ATOL", "RECONCILE_RTOL", "RUN_FILES", "archive_cell",
-           "archive_dataset", "reconcile_dataset", "restore_cells"]
+           "archive_dataset", "archived_dataset_hashes", "reconcile_dataset", "restore_cells"]

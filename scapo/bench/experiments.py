@@ -25,7 +25,13 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-from scapo.bench.archive import archive_cell, archive_dataset, reconcile_dataset, restore_cells
+from scapo.bench.archive import (
+    archive_cell,
+    archive_dataset,
+    archived_dataset_hashes,
+    reconcile_dataset,
+    restore_cells,
+)
 from scapo.bench.cells import (
     Cell,
     cell_paths,
@@ -255,8 +261,15 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
         elif rep["status"] == "different":
             print(f"scapo bench: warning: {data.name} is not the archived dataset {rep['archived'][:12]} "
                   f"({rep['why']}); its archived cells are computed again", file=sys.stderr, flush=True)
-        if archive_dataset(data, archive) == "archived":
+        pinned = archive_dataset(data, archive)
+        if pinned == "archived":
             print(f"{data.name}: dataset {load(data, 'test').dataset_hash[:12]} pinned in the archive {archive}",
+                  flush=True)
+        elif pinned == "unpinned cells":
+            others = ", ".join(h[:12] for h in archived_dataset_hashes(archive, data.name))
+            print(f"scapo bench: warning: the archived cells of {data.name} were computed on dataset {others}, which "
+                  f"is not pinned, and this machine generated {load(data, 'test').dataset_hash[:12]}: those cells are "
+                  "not restored here; a machine that generates that dataset pins it (--data-only)", file=sys.stderr,
                   flush=True)
 
     for c in cells:
