@@ -17,26 +17,31 @@
 # committed as the regeneration goes; a machine that loses the work folders (a new session's fresh machine) then
 # regenerates the datasets and restores the archived cells instead of computing them again.
 #
-#   bash bench/tables_two_cores.sh            start both chains in the background (logs: $WORK1/logs/)
+#   bash bench/tables_two_cores.sh            prepare the datasets (DATA=1, below), then start both chains in the
+#                                             background (logs: $WORK1/logs/)
 #   STATUS=1 bash bench/tables_two_cores.sh   what is done and what is running
-#   DATA=1 bash bench/tables_two_cores.sh     generate the datasets of CATS1 and CATS2 (Table 3 uses Table 1's) in
-#                                             WORK1 / WORK2 with this checkout's code, make each the archive's pinned
-#                                             bytes where it differs from them only by rounding (a machine of another
-#                                             CPU kind; scapo.bench.archive.reconcile_dataset), pin the others, and
-#                                             restore their archived cells; computes no cell. Run it from main for the
-#                                             worktree's folders before the chains on a fresh machine (the cells'
-#                                             commit may predate the pinning)
+#   DATA=1 bash bench/tables_two_cores.sh     only prepare the datasets: generate those of CATS1 and CATS2 (Table 3
+#                                             uses Table 1's) in WORK1 / WORK2, make each the archive's pinned bytes
+#                                             where it differs from them only by rounding (a machine of another CPU
+#                                             kind; scapo.bench.archive.reconcile_dataset), pin the others, restore
+#                                             their archived cells, and mark a category whose dataset would put cells
+#                                             of a second dataset into the archive ($WORK/conflict/<category>: the
+#                                             chains skip its tasks; scapo.bench.archive.archive_conflict)
 #   FINISH=1 bash bench/tables_two_cores.sh   write the three tables from the finished cells into $OUT, and Table 1
 #                                             under the eap and op-align protocols into $OUT/protocols/ (the datasets
-#                                             must exist: after a fresh machine, run the chains first; they only
-#                                             generate the datasets and restore the archived cells)
+#                                             must exist: after a fresh machine, run DATA=1 first)
 #
-# Run it from a clean worktree of the commit the tables should record (git worktree add ../wtNN <commit>, with
-# the venv linked in), OUT pointing at the main checkout's results/.
+# CODE is the checkout whose code computes the cells (default: this one): a clean worktree of the commit the tables
+# should record (git worktree add ../wtNN <commit>). The data step, STATUS and FINISH run this checkout's code, so
+# that main's dataset pinning serves cells of an older commit (data generation has not changed since 74d416d).
+# Issue 31, from main: CODE=../wt31 WORK1=../wt31/bench_work/table1_cpu WORK2=../wt31/bench_work/table2_cpu
+# bash bench/tables_two_cores.sh (OUT defaults to this checkout's results/).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
-export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"  # this checkout's code, whatever the venv's editable install is
-SCAPO=${SCAPO:-.venv/bin/scapo}
+HERE=$PWD
+CODE=$(cd "${CODE:-$HERE}" && pwd)  # the cells' code
+export PYTHONPATH="$HERE${PYTHONPATH:+:$PYTHONPATH}"  # this checkout's code, whatever the venv's editable install is
+SCAPO=${SCAPO:-$HERE/.venv/bin/scapo}
 WORK1=${WORK1:-bench_work/table1_cpu}  # Tables 1 and 3
 WORK2=${WORK2:-bench_work/table2_cpu}  # Table 2 (realistic sensor, upright)
 OUT=${OUT:-results}
@@ -48,14 +53,38 @@ QUEUE=$WORK1/queue
 ARCHIVE1=${ARCHIVE1:-$OUT/tables_cells/table1_table3}  # the cells archive of Tables 1 and 3
 ARCHIVE2=${ARCHIVE2:-$OUT/tables_cells/table2}
 
-if [ -n "${DATA:-}" ]; then
+work_of() {  # TABLE: its work folder (Table 3 shares Table 1's)
+  if [ "$1" = table2 ]; then echo "$WORK2"; else echo "$WORK1"; fi
+}
+archive_of() {  # TABLE: its cells archive
+  if [ "$1" = table2 ]; then echo "$ARCHIVE2"; else echo "$ARCHIVE1"; fi
+}
+
+prepare_data() {  # this checkout's code: generate, reconcile, pin, restore; mark the categories in conflict
+  local seeds c t work archive why
   seeds=$(echo "$SEEDS" | tr ' ' ',')
-  for c in $CATS1; do
-    WORK=$WORK1 bash bench/table1.sh --seeds "$seeds" --categories "$c" --data-only --archive "$ARCHIVE1" --no-progress
+  for t in table1 table2; do
+    if [ "$t" = table1 ]; then set -- $CATS1; work=$WORK1; archive=$ARCHIVE1
+    else set -- $CATS2; work=$WORK2; archive=$ARCHIVE2; fi
+    mkdir -p "$work/conflict"
+    for c in "$@"; do
+      WORK=$work bash bench/$t.sh --seeds "$seeds" --categories "$c" --data-only --archive "$archive" --no-progress
+      why=$("$HERE/.venv/bin/python" -P -c 'import sys
+from pathlib import Path
+from scapo.bench.archive import archive_conflict
+print(archive_conflict(Path(sys.argv[1]), Path(sys.argv[2])))' "$work/${c}_i150_v8_s1" "$archive")
+      if [ -n "$why" ]; then
+        echo "$why" > "$work/conflict/$c"
+        echo "scapo: $t $c: no cell computed on this machine: $why" >&2
+      else
+        rm -f "$work/conflict/$c"
+      fi
+    done
   done
-  for c in $CATS2; do
-    WORK=$WORK2 bash bench/table2.sh --seeds "$seeds" --categories "$c" --data-only --archive "$ARCHIVE2" --no-progress
-  done
+}
+
+if [ -n "${DATA:-}" ]; then
+  prepare_data
   exit 0
 fi
 if [ -n "${FINISH:-}" ]; then
@@ -86,6 +115,7 @@ if [ -n "${STATUS:-}" ]; then
   while read -r t c s; do
     n=$((n + 1))
     if [ -e "$QUEUE/${t}_${c}_s$s.done" ]; then d=$((d + 1)); state=done
+    elif [ -e "$(work_of "$t")/conflict/$c" ]; then state="skipped here: $(cat "$(work_of "$t")/conflict/$c")"
     elif [ -e "$QUEUE/${t}_${c}_s$s.failed" ]; then state="failed (see $QUEUE/${t}_${c}_s$s.failed)"
     elif [ -e "$QUEUE/${t}_${c}_s$s.running" ]; then state="started $(cat "$QUEUE/${t}_${c}_s$s.running")"
     else state=todo; fi
@@ -95,24 +125,18 @@ if [ -n "${STATUS:-}" ]; then
   exit 0
 fi
 
-if [ -n "$(git status --porcelain --untracked-files=no 2>/dev/null)" ] && [ -z "${ALLOW_DIRTY:-}" ]; then
-  echo "scapo: this checkout has uncommitted changes, so its cells would record a -dirty commit that the tables" \
+if [ -n "$(git -C "$CODE" status --porcelain --untracked-files=no 2>/dev/null)" ] && [ -z "${ALLOW_DIRTY:-}" ]; then
+  echo "scapo: $CODE has uncommitted changes, so its cells would record a -dirty commit that the tables" \
     "refuse; commit them (or run from a clean worktree of the commit), or set ALLOW_DIRTY=1" >&2
   exit 2
 fi
 mkdir -p "$QUEUE" "$WORK1/logs" "$WORK1/locks" "$WORK2/locks"
-
-work_of() {  # TABLE: its work folder (Table 3 shares Table 1's)
-  if [ "$1" = table2 ]; then echo "$WORK2"; else echo "$WORK1"; fi
-}
-archive_of() {  # TABLE: its cells archive
-  if [ "$1" = table2 ]; then echo "$ARCHIVE2"; else echo "$ARCHIVE1"; fi
-}
+[ -n "${SKIP_DATA:-}" ] || prepare_data  # a fresh machine: datasets made the pinned bytes before any cell
 
 run_task() {  # TABLE CATEGORY SEED: that table's cells of one category and one training seed
   local t=$1 c=$2 s=$3 work
   work=$(work_of "$t")
-  OMP_NUM_THREADS=1 taskset -c "$CORE" "$SCAPO" bench "$t" --preset cpu --seed 1 --seeds "$s" --categories "$c" \
+  OMP_NUM_THREADS=1 PYTHONPATH="$CODE" taskset -c "$CORE" "$SCAPO" bench "$t" --preset cpu --seed 1 --seeds "$s" --categories "$c" \
     --work "$work" --archive "$(archive_of "$t")" --no-progress --out "$work/logs/${t}_${c}_s$s"
 }
 
@@ -122,6 +146,7 @@ chain() {  # take the first task that is neither done nor locked by the other ch
     ran=0
     while read -r t c s; do
       [ -e "$QUEUE/${t}_${c}_s$s.done" ] && continue
+      [ -e "$(work_of "$t")/conflict/$c" ] && continue  # its dataset is not the archive's (prepare_data)
       grep -qs "run $RUN_ID" "$QUEUE/${t}_${c}_s$s.failed" && continue  # failed in this run: not again
       lock="$(work_of "$t")/locks/$c.lock"
       exec 9>"$lock"
@@ -149,7 +174,7 @@ chain() {  # take the first task that is neither done nor locked by the other ch
 
 RUN_ID=$(date -u +%Y%m%dT%H%M%S)-$$
 for core in 0 1; do
-  nohup setsid env CORE=$core RUN_ID="$RUN_ID" bash -c "$(declare -p SCAPO WORK1 WORK2 ARCHIVE1 ARCHIVE2 SEEDS CATS1 CATS2 CATS3 QUEUE); \
+  nohup setsid env CORE=$core RUN_ID="$RUN_ID" bash -c "$(declare -p SCAPO CODE WORK1 WORK2 ARCHIVE1 ARCHIVE2 SEEDS CATS1 CATS2 CATS3 QUEUE); \
     $(declare -f tasks work_of archive_of run_task chain); set +e; chain" >> "$WORK1/logs/core$core.log" 2>&1 &
   sleep 2  # the first chain takes its lock before the second looks
 done

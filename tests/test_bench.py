@@ -242,7 +242,7 @@ def test_a_dataset_generated_on_another_cpu_is_made_the_archived_one_and_its_cel
     and its cells are computed again. Cells archived before the pinning pin only their own dataset."""
     import numpy as np
 
-    from scapo.bench.archive import archive_dataset, reconcile_dataset
+    from scapo.bench.archive import archive_conflict, archive_dataset, reconcile_dataset
     from scapo.data import load
     from scapo.errors import DatasetError
 
@@ -293,7 +293,10 @@ def test_a_dataset_generated_on_another_cpu_is_made_the_archived_one_and_its_cel
     legacy = tmp_path / "legacy"
     shutil.copytree(archive / data.name / "cells", legacy / data.name / "cells")
     assert archive_dataset(broken, legacy) == "unpinned cells" and not (legacy / data.name / "dataset").exists()
+    assert "which is not pinned" in archive_conflict(broken, legacy) and archive_conflict(data, legacy) == ""
     assert archive_dataset(data, legacy) == "archived"
+    assert "could not make it the pinned" in archive_conflict(broken, legacy) and archive_conflict(data, legacy) == ""
+    assert archive_conflict(broken, tmp_path / "empty archive") == ""
 
 
 def test_data_only_prepares_datasets_and_computes_no_cell(monkeypatch, tmp_path, capsys):

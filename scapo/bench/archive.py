@@ -270,6 +270,31 @@ def archive_dataset(data: Path, archive: Path) -> str:
     return "archived"
 
 
+def archive_conflict(data: Path, archive: Path) -> str:
+    """Why cells computed on the generated dataset ``data`` would not belong in ``archive/<data.name>/``, or ``""``
+    when they would (its dataset is the pinned one, or nothing is pinned or archived under that name).
+
+    A dataset other than the pinned one (one that :func:`reconcile_dataset` could not make the pinned bytes), or,
+    with nothing pinned, a dataset other than the one every archived cell names, would put cells of two datasets
+    under one name, and a table takes the cells of one. Issue 31's runner computes no cell of such a dataset.
+
+    Raises:
+        DatasetError: ``data`` has no readable card. ConfigError: an archived record or card is unreadable.
+    """
+    have = _card(data)["dataset_hash"]
+    root = Path(archive) / Path(data).name
+    if (root / DATASET / "card.json").is_file():
+        pinned = read_json(root / DATASET / "card.json", "archived dataset card", ConfigError,
+                           f"remove {root / DATASET} so that the dataset is pinned again")["dataset_hash"]
+        return "" if pinned == have else (f"this machine generated dataset {have[:12]} and could not make it the "
+                                          f"pinned {pinned[:12]}")
+    cells = archived_dataset_hashes(archive, Path(data).name)
+    if cells and have not in cells:
+        return (f"the archived cells name dataset {', '.join(h[:12] for h in cells)}, which is not pinned, and "
+                f"this machine generated {have[:12]}; a machine that generates theirs pins it (--data-only)")
+    return ""
+
+
 def reconcile_dataset(data: Path, archive: Path, rtol: float = RECONCILE_RTOL,
                       atol: float = RECONCILE_ATOL) -> dict:
     """Make the generated dataset ``data`` byte-identical to the one pinned in ``archive/<data.name>/dataset/``
@@ -370,4 +395,4 @@ def reconcile_dataset(data: Path, archive: Path, rtol: float = RECONCILE_RTOL,
 
 
 __all__ = ["DATASET", "DOUBLE_FIELDS", "RECONCILE_ATOL", "RECONCILE_RTOL", "RUN_FILES", "archive_cell",
-           "archive_dataset", "archived_dataset_hashes", "reconcile_dataset", "restore_cells"]
+           "archive_conflict", "archive_dataset", "archived_dataset_hashes", "reconcile_dataset", "restore_cells"]
