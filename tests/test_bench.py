@@ -281,7 +281,21 @@ def test_a_dataset_generated_on_another_cpu_is_made_the_archived_one_and_its_cel
         plan = run_table1(["npcs", "scapo"], ["laptop"], work_dir=other.parent, out_dir=None, seeds=[0],
                           dry_run=True, archive=archive, **SMALL)
         assert [r["status"] for r in plan] == ["todo", "todo"]
-    # a damaged archive is a clear error, not a silent restore
+    # a damaged archive is a clear error, not a silent restore: values that are not the ones digested, unreadable
+    import io
+    import lzma
+
+    good = (pinned / "double.npz.xz").read_bytes()
+    with np.load(io.BytesIO(lzma.decompress(good))) as z:
+        values = {k: z[k] for k in z.files}
+    values[f"{shard}/T_cam_obj"] = values[f"{shard}/T_cam_obj"] * (1 + 1e-12)
+    buf = io.BytesIO()
+    np.savez(buf, **values)
+    (pinned / "double.npz.xz").write_bytes(lzma.compress(buf.getvalue()))
+    tampered = tmp_path / "tampered" / data.name
+    _generated_elsewhere(data, tampered, "T_cam_obj", lambda a: np.nextafter(a, 2 * a + 1))
+    with pytest.raises(DatasetError, match="do not match their digest"):
+        reconcile_dataset(tampered, archive)
     (pinned / "double.npz.xz").write_bytes(b"not xz")
     broken = tmp_path / "broken" / data.name
     _generated_elsewhere(data, broken, "K", lambda a: np.nextafter(a, 2 * a + 1))

@@ -349,8 +349,12 @@ def reconcile_dataset(data: Path, archive: Path, rtol: float = RECONCILE_RTOL,
         if have_sha == want_sha:
             continue
         arrays = _shard_arrays(data, name, have_sha)
-        order, digests = fields[name]["order"], fields[name]["digests"]
-        if list(arrays) != order:
+        try:
+            order, digests = list(fields[name]["order"]), dict(fields[name]["digests"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise DatasetError(f"the archived dataset fields {src / 'fields.json'} lack shard {name}'s order or "
+                               f"digests ({e}); {hint}") from e
+        if list(arrays) != order or set(digests) != set(order):
             return different(f"shard {name} holds other arrays ({', '.join(arrays)})")
         for k in order:
             if _digest(arrays[k]) == digests[k]:
@@ -358,8 +362,11 @@ def reconcile_dataset(data: Path, archive: Path, rtol: float = RECONCILE_RTOL,
             ref = double.get(f"{name}/{k}")
             if ref is None:
                 return different(f"shard {name}'s {k} differs, and it is not double-precision ground truth")
+            if _digest(ref) != digests[k]:
+                raise DatasetError(f"the archived values of shard {name}'s {k} ({src / 'double.npz.xz'}) do not "
+                                   f"match their digest in fields.json; {hint}")
             a = arrays[k]
-            if a.shape != ref.shape or a.dtype != ref.dtype or _digest(ref) != digests[k]:
+            if a.shape != ref.shape or a.dtype != ref.dtype:
                 return different(f"shard {name}'s {k} has another shape or type than the archived one")
             if not np.allclose(a, ref, rtol=rtol, atol=atol, equal_nan=True):
                 d = float(np.nanmax(np.abs(a - ref)))
