@@ -44,7 +44,6 @@ import hashlib
 import io
 import json
 import lzma
-import os
 import time
 from pathlib import Path
 
@@ -316,7 +315,7 @@ def reconcile_dataset(data: Path, archive: Path, rtol: float = RECONCILE_RTOL,
         not have the pinned hash. OutputError: ``data`` is in use by another process or cannot be written.
     """
     from scapo.data.config import GenerateConfig
-    from scapo.data.generate import JOURNAL, config_sha256, generate
+    from scapo.data.generate import config_sha256, generate, record_shard
 
     src = Path(archive) / Path(data).name / DATASET
     if not (src / "card.json").is_file():
@@ -383,12 +382,8 @@ def reconcile_dataset(data: Path, archive: Path, rtol: float = RECONCILE_RTOL,
     with FolderLock(data, "reconcile"):
         for name, raw in rewrite.items():
             atomic_write_bytes(Path(data) / "shards" / f"{name}.npz", raw)
-            with open(Path(data) / JOURNAL, "a") as f:  # the shard's record, as generate() keeps them
-                f.write(json.dumps({"shard": name, "sha256": pinned["shards"][name]["sha256"],
-                                    "config_sha256": config_sha256(cfg), "reconciled_from": str(src)},
-                                   sort_keys=True) + "\n")
-                f.flush()
-                os.fsync(f.fileno())
+            record_shard(Path(data), name, pinned["shards"][name]["sha256"], config_sha256(cfg),
+                         reconciled_from=str(src))
     generate(cfg, data, progress=False)  # renders nothing (every shard verifies): writes the manifest and card
     got = _card(data)["dataset_hash"]
     if got != pinned["dataset_hash"]:

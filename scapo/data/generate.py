@@ -327,6 +327,13 @@ def _append_journal(out: Path, entry: dict) -> None:
         os.fsync(f.fileno())
 
 
+def record_shard(out: Path, name: str, sha256: str, cfg_sha: str, **extra) -> None:
+    """Append shard ``name``'s record (its ``sha256``, made with the config of sha256 ``cfg_sha``) to the journal of
+    the dataset folder ``out``; the last record of a shard is the one a resumed :func:`generate` checks it against.
+    ``extra`` keys are stored beside it (``reconciled_from``: :func:`scapo.bench.archive.reconcile_dataset`)."""
+    _append_journal(out, {**extra, "shard": name, "sha256": sha256, "config_sha256": cfg_sha})
+
+
 def _read_journal(out: Path, cfg_sha: str) -> tuple[dict[str, str], dict[str, str] | None]:
     """Shard records and the asset digests of the last start, of the journal lines made with ``cfg_sha``.
 
@@ -550,7 +557,7 @@ def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0, 
 
     def done(res: dict) -> None:
         atomic_write_bytes(shard_dir / f"{res['name']}.npz", res["data"])
-        _append_journal(out, {"shard": res["name"], "sha256": res["sha256"], "config_sha256": cfg_sha})
+        record_shard(out, res["name"], res["sha256"], cfg_sha)
         recorded[res["name"]] = res["sha256"]
         rejections.update(res["reasons"])
         spans.append((res["t0"], res["t1"]))
