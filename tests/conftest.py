@@ -73,12 +73,12 @@ def trained_test_runs(laptop_data, tmp_path_factory) -> dict[str, Path]:
 
 # Modules whose module-scoped fixtures train or render for tens of seconds and serve most of the module's tests
 # (test_user_facing's ``runs``, test_methods' ``trained_runs``, test_bench's ``bench``, test_bad_input's ``run`` and
-# ``small``, test_train's ``finished_run`` and ``root_motion_run``): each module runs whole on one pytest-xdist
-# worker, so that its fixtures are computed once, not once per worker (CI measured 220 s with both workers training
-# them). ``--dist loadgroup`` would do this per test, but xdist 3.8
-# renames ``item._nodeid``, which pytest 9.2 no longer reads, so its groups are silently ignored.
+# ``small``, test_train's ``finished_run`` and ``root_motion_run``, test_icp's ``icp_run``): each module runs whole
+# on one pytest-xdist worker, so that its fixtures are computed once, not once per worker (CI measured 220 s with
+# both workers training them). ``--dist loadgroup`` would do this per test, but xdist 3.8 renames
+# ``item._nodeid``, which pytest 9.2 no longer reads, so its groups are silently ignored.
 _WHOLE_MODULES = ("tests/test_user_facing.py", "tests/test_methods.py", "tests/test_bench.py",
-                  "tests/test_bad_input.py", "tests/test_train.py")
+                  "tests/test_bad_input.py", "tests/test_train.py", "tests/test_icp.py")
 #: modules that share a session fixture run together as one unit (``trained_test_runs``)
 _SAME_UNIT = {"tests/test_user_facing.py": "tests/test_methods.py"}
 

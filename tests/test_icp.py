@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from scapo.data import load
@@ -33,10 +34,18 @@ def test_register_part_recovers_a_known_transform(laptop_data):
     np.testing.assert_allclose(invert_transform(est) @ T, np.eye(4), atol=2e-2)
 
 
-def test_icp_through_the_evaluator_gives_plausible_numbers(laptop_data, tmp_path):
-    preds = run_method("icp", laptop_data, tmp_path / "icp.npz")
+@pytest.fixture(scope="module")
+def icp_run(laptop_data, tmp_path_factory):
+    """ICP's predictions of the laptop test split (its path and the returned object), made once for the module
+    (the evaluator's and the figure's tests read them; the module runs on one pytest-xdist worker)."""
+    path = tmp_path_factory.mktemp("icp") / "icp.npz"
+    return path, run_method("icp", laptop_data, path)
+
+
+def test_icp_through_the_evaluator_gives_plausible_numbers(laptop_data, icp_run):
+    path, preds = icp_run
     assert len(preds) == len(load(laptop_data, "test"))  # no alignment needed: test split only
-    res = evaluate(laptop_data, tmp_path / "icp.npz")
+    res = evaluate(laptop_data, path)
     s = res.summary
     for k in ("S", "D", "C", "R", "t"):
         assert np.isfinite(s[k]), k
@@ -45,15 +54,13 @@ def test_icp_through_the_evaluator_gives_plausible_numbers(laptop_data, tmp_path
     assert res.info["supervision"]["segmentation"] is True
 
 
-def test_prediction_figure_draws_ground_truth_and_predictions(laptop_data, tmp_path, cache_dir):
+def test_prediction_figure_draws_ground_truth_and_predictions(laptop_data, icp_run, tmp_path, cache_dir):
     from PIL import Image
 
     from scapo.eval.predictions import Predictions
     from scapo.viz import prediction_figure
 
-    path = tmp_path / "icp.npz"
-    if not path.is_file():
-        run_method("icp", laptop_data, path)
+    path, _ = icp_run
     png = prediction_figure(laptop_data, Predictions.load(path), tmp_path / "fig.png", count=2, cache_dir=cache_dir)
     img = np.asarray(Image.open(png).convert("L"))
     assert img.shape[0] > 200 and img.shape[1] > 200
