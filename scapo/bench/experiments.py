@@ -27,8 +27,8 @@ from pathlib import Path
 
 from scapo.bench.archive import (
     archive_cell,
+    archive_conflict,
     archive_dataset,
-    archived_dataset_hashes,
     reconcile_dataset,
     restore_cells,
 )
@@ -266,11 +266,8 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
             print(f"{data.name}: dataset {load(data, 'test').dataset_hash[:12]} pinned in the archive {archive}",
                   flush=True)
         elif pinned == "unpinned cells":
-            others = ", ".join(h[:12] for h in archived_dataset_hashes(archive, data.name))
-            print(f"scapo bench: warning: the archived cells of {data.name} were computed on dataset {others}, which "
-                  f"is not pinned, and this machine generated {load(data, 'test').dataset_hash[:12]}: those cells are "
-                  "not restored here; a machine that generates that dataset pins it (--data-only)", file=sys.stderr,
-                  flush=True)
+            print(f"scapo bench: warning: {data.name}: {archive_conflict(data, archive)}; those cells are not "
+                  "restored here", file=sys.stderr, flush=True)
 
     for c in cells:
         data = dataset_dir(work, c.category, instances, views, data_seed)
