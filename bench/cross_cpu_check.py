@@ -11,59 +11,50 @@ are the archived dataset's; the archived predictions themselves are not recomput
 
     python bench/cross_cpu_check.py --archive results/tables_cells/table1_table3 \
         --work ../wt31/bench_work/table1_cpu --out results/diagnostics/cross_cpu/table1
+
+With ``--adopt``, each folder whose cells name a dataset that is not pinned is then adopted
+(:func:`scapo.bench.archive.adopt_dataset`: its ICP cell computed again on this machine's inputs, its cells
+re-labelled with this machine's dataset, which is pinned); the report lists each folder's outcome.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import lzma
 import sys
-import tempfile
 from pathlib import Path
-
-import numpy as np
-import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from scapo.errors import ScapoError  # noqa: E402
-from scapo.eval import evaluate  # noqa: E402
 from scapo.files import atomic_write_text, check_output_dir  # noqa: E402
 from scapo.provenance import provenance  # noqa: E402
 
 
 def check_folder(archived: Path, data: Path) -> list[dict]:
-    """One row per archived cell of ``archived`` (``<archive>/<dataset folder>``) scored on ``data``."""
+    """One row per archived cell of ``archived`` (``<archive>/<dataset folder>``) scored on ``data``
+    (:func:`scapo.bench.archive.rescore_cell`)."""
+    from scapo.bench.archive import rescore_cell
     from scapo.data import load
 
     here = load(data, "test").dataset_hash
     rows = []
     for rec_path in sorted((archived / "cells").glob("*.json")):
-        rec = json.loads(rec_path.read_text())
-        key, _, protocol = rec_path.name[:-len(".json")].rpartition(".")
-        xz = archived / f"predictions_{key}.npz.xz"
-        if not xz.is_file():
+        row = rescore_cell(archived, rec_path, data)
+        if row is None:
             continue
-        with tempfile.TemporaryDirectory() as tmp:
-            pred = Path(tmp) / "p.npz"
-            pred.write_bytes(lzma.decompress(xz.read_bytes()))
-            res = evaluate(data, pred, protocol=protocol, check_hash=False)
-        old = pd.read_parquet(archived / "cells" / f"{key}.{protocol}.parquet")
-        new = res.per_sample.reset_index(drop=True)
-        cols = [c for c in old.columns if c in new.columns and pd.api.types.is_numeric_dtype(old[c])]
-        a, b = old[cols].to_numpy(dtype=np.float64), new[cols].to_numpy(dtype=np.float64)
-        same_nan = bool((np.isnan(a) == np.isnan(b)).all())
-        diff = np.where(np.isnan(a) & np.isnan(b), 0.0, np.abs(a - b))
-        worst = int(np.nanargmax(diff.max(axis=0))) if diff.size else 0
-        rows.append({"folder": archived.name, "cell": key, "protocol": protocol,
-                     "archived_dataset": str(rec.get("dataset_hash"))[:12], "this_dataset": here[:12],
-                     "samples": len(new), "S_identical": bool(np.array_equal(old["S"].to_numpy(), new["S"].to_numpy())),
-                     "nan_pattern_same": same_nan, "max_abs_diff": float(np.nanmax(diff)) if diff.size else 0.0,
-                     "worst_column": cols[worst] if cols else "",
-                     "summary_S": (rec["summary"]["S"], res.summary["S"]),
-                     "summary_R": (rec["summary"]["R"], res.summary["R"])})
+        rows.append({"folder": archived.name, **{k: v for k, v in row.items() if k not in ("result", "predictions",
+                                                                                           "raw")},
+                     "archived_dataset": row["archived_dataset"][:12], "this_dataset": here[:12]})
     return rows
+
+
+def _adoption_line(name: str, r: dict) -> str:
+    """One folder's adoption report as a row of the markdown table."""
+    icp = "; ".join(f"{u['max_abs_diff']:.3g} ({u['field'] or '-'})" for u in r.get("untrained", []))
+    diff = f"{r['max_abs_diff']:.3g}" if "max_abs_diff" in r else ""
+    return (f"| {name} | {r['status']} | {str(r.get('from', ''))[:12]} | {str(r.get('dataset_hash', ''))[:12]} | "
+            f"{r.get('cells', '')} | {diff} | {icp} | {r.get('why', '')} |")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -71,7 +62,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--archive", type=Path, required=True, help="a cells archive (results/tables_cells/...)")
     ap.add_argument("--work", type=Path, required=True, help="the bench work folder holding this machine's datasets")
     ap.add_argument("--out", type=Path, required=True, help="output path without suffix (.md and .json written)")
+    ap.add_argument("--adopt", action="store_true", help="then adopt every folder whose cells name an unpinned "
+                    "dataset (scapo.bench.archive.adopt_dataset)")
     a = ap.parse_args(argv)
+    adopted: dict[str, dict] = {}
     try:
         check_output_dir(a.out.parent, "output folder")
         rows = []
@@ -82,6 +76,12 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             rows += check_folder(archived, data)
             print(f"{archived.name}: {sum(r['folder'] == archived.name for r in rows)} cells scored", flush=True)
+            if a.adopt:
+                from scapo.bench.archive import adopt_dataset
+
+                rep = adopt_dataset(data, a.archive, progress=False)
+                adopted[archived.name] = {k: v for k, v in rep.items() if k != "cell_evidence"}
+                print(f"{archived.name}: adoption {rep['status']} {rep.get('why', '')}", flush=True)
     except (ScapoError, OSError, ValueError, KeyError) as e:
         print(f"scapo: bench/cross_cpu_check.py: {e}", file=sys.stderr)
         return 2
@@ -95,14 +95,14 @@ def main(argv: list[str] | None = None) -> int:
              "| folder | cell | protocol | archived dataset | this dataset | samples | S identical | NaNs same | "
              "max abs diff | in column | S (archived / here) | R (archived / here) |",
              "|---|---|---|---|---|--:|---|---|--:|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r['folder']} | {r['cell']} | {r['protocol']} | {r['archived_dataset']} | "
-                     f"{r['this_dataset']} | {r['samples']} | {r['S_identical']} | {r['nan_pattern_same']} | "
-                     f"{r['max_abs_diff']:.3g} | {r['worst_column']} | {r['summary_S'][0]:.6f} / "
-                     f"{r['summary_S'][1]:.6f} | {r['summary_R'][0]:.6f} / {r['summary_R'][1]:.6f} |")
+    if adopted:
+        lines[3:3] = ["## Adoption (scapo.bench.archive.adopt_dataset)", "",
+                      "| folder | outcome | from | to | cells | largest score difference | ICP computed again: "
+                      "largest difference (field) | why not |", "|---|---|---|---|--:|--:|---|---|",
+                      *(_adoption_line(name, r) for name, r in adopted.items()), "", "## Scores", ""]
     atomic_write_text(a.out.with_suffix(".md"), "\n".join(lines) + "\n")
-    atomic_write_text(a.out.with_suffix(".json"), json.dumps({"provenance": prov, "rows": rows}, indent=1,
-                                                             default=str) + "\n")
+    atomic_write_text(a.out.with_suffix(".json"), json.dumps({"provenance": prov, "rows": rows, "adopted": adopted},
+                                                            indent=1, default=str) + "\n")
     print("\n".join(lines[:3]))
     print(f"wrote {a.out.with_suffix('.md')} and .json")
     return 0

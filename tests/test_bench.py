@@ -738,3 +738,62 @@ def test_the_budget_diagnostic_trains_longer_and_compares_with_the_table1_cell(b
     assert again.returncode == 0 and ckpt.stat().st_mtime_ns == before, again.stderr[-2000:]
     none = subprocess.run(["bash", script], env={**env, "SEED": "7"}, capture_output=True, text=True, timeout=60)
     assert none.returncode == 2 and "scapo: bench/budget_diagnostic.sh: 0 finished Table 1 cells" in none.stderr
+
+
+def test_cells_of_an_unpinned_dataset_are_adopted_by_its_regeneration_only_when_they_show_it_is_theirs(
+        bench, monkeypatch, tmp_path):
+    """Issue 31's cells archived before datasets were pinned name a dataset that only a machine of their CPU kind
+    generates. ``adopt_dataset`` re-labels them with another kind's regeneration when every archived prediction
+    scores the same on it and ICP computed again on its inputs gives the archived predictions; a regeneration whose
+    inputs (one float32 ulp) or ground truth (1e-6) differ adopts nothing and leaves every archived byte as it was."""
+    import shutil
+
+    import numpy as np
+
+    from scapo.bench.archive import ADOPTED, adopt_dataset, archive_conflict
+    from scapo.data import load
+
+    work, _, _, results = bench
+    data = tmp_path / "work" / "laptop_i10_v2_s0"
+    shutil.copytree(work / data.name, data)
+    legacy = tmp_path / "legacy"
+    run_table1(["icp", "npcs", "scapo"], ["laptop"], work_dir=data.parent, out_dir=None, seeds=[0], archive=legacy,
+               **SMALL)
+    shutil.rmtree(legacy / data.name / "dataset")  # archived before datasets were pinned
+    old = load(data, "test").dataset_hash
+
+    def snapshot() -> dict:
+        return {p: p.read_bytes() for p in sorted((legacy / data.name).rglob("*")) if p.is_file()}
+
+    before = snapshot()
+    for field, change, why in (("points", lambda a: np.nextafter(a, np.float32(9)), "inputs are not the cells'"),
+                               ("joint_state", lambda a: a + 1e-6, "differs from its archived scores")):
+        other = tmp_path / field / data.name
+        _generated_elsewhere(data, other, field, change)
+        rep = adopt_dataset(other, legacy)
+        assert rep["status"] == "different" and why in rep["why"], rep
+        assert snapshot() == before
+    fresh = tmp_path / "fresh" / data.name  # another CPU: a camera pose's last bit
+    _generated_elsewhere(data, fresh, "T_cam_obj", lambda a: np.nextafter(a, 2 * a + 1))
+    new = load(fresh, "test").dataset_hash
+    assert new != old and "which is not pinned" in archive_conflict(fresh, legacy)
+    rep = adopt_dataset(fresh, legacy)
+    assert rep["status"] == "adopted", rep.get("why")
+    assert rep["from"] == old and rep["dataset_hash"] == new and rep["cells"] == 3
+    assert 0 <= rep["max_abs_diff"] < 1e-9 and [u["method"] for u in rep["untrained"]] == ["icp"]
+    assert rep["untrained"][0]["within_atol"]
+    evidence = json.loads((legacy / data.name / "dataset" / ADOPTED).read_text())
+    assert {c["cell"] for c in evidence["cell_evidence"]} == {"icp", "npcs_test_s0", "scapo_test_s0"}
+    assert json.loads((legacy / data.name / "dataset" / "card.json").read_text())["dataset_hash"] == new
+    assert archive_conflict(fresh, legacy) == "" and adopt_dataset(fresh, legacy)["status"] == "pinned"
+    for rec_path in (legacy / data.name / "cells").glob("*.json"):
+        rec = json.loads(rec_path.read_text())
+        assert rec.pop("adopted")["from"] == old and rec["dataset_hash"] == new and old not in json.dumps(rec)
+    # the bench restores the adopted cells on the regenerated dataset and computes nothing
+    _forbid(monkeypatch, "train_method", "run_method", "evaluate")
+    again = run_table1(["npcs", "scapo"], ["laptop"], work_dir=fresh.parent, out_dir=None, seeds=[0],
+                       archive=legacy, **SMALL)
+    for a, b in zip(again, results):
+        assert a.summary.keys() == b.summary.keys()
+        for k, v in a.summary.items():
+            assert v == pytest.approx(b.summary[k], abs=1e-9, nan_ok=True), k

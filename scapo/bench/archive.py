@@ -36,6 +36,17 @@ joint axes 1.6e-15 apart, and the dataset hashes differed). A cell belongs to th
 every array that is not double-precision ground truth must be bit-identical, every double-precision array within
 ``rtol`` / ``atol`` of the archived one (which then replaces it), and every shard so re-written must have the
 archived sha256; otherwise nothing is changed and the cells of the archived dataset are computed again.
+
+Cells archived before datasets were pinned name a dataset that no file keeps. A machine of another CPU kind
+regenerates that dataset under another hash and cannot reconcile it (nothing is pinned to reconcile with), so
+:func:`adopt_dataset` asks the cells themselves whether the regenerated dataset is theirs: every archived
+prediction is scored again on it (the scores read the labels of every point and all the ground truth) and must
+give the archived per-sample metrics (segmentation exactly, every error within ``atol``), and the archived cells
+of deterministic untrained methods (ICP) are computed again on its inputs and must give the archived predictions
+(integers exactly, floats within ``atol``: a float32 input one ulp off moves them by 1e-8, far more). Only then
+are the cells re-labelled with the regenerated dataset's hash (predictions' headers, runs' identities, records
+re-scored on it, with an ``adopted`` field) and that dataset is pinned; ``dataset/adopted.json`` keeps the
+evidence and the replaced records' and predictions' sha256. The predictions themselves are never changed.
 """
 
 from __future__ import annotations
@@ -396,5 +407,264 @@ def reconcile_dataset(data: Path, archive: Path, rtol: float = RECONCILE_RTOL,
     return report
 
 
-__all__ = ["DATASET", "DOUBLE_FIELDS", "RECONCILE_ATOL", "RECONCILE_RTOL", "RUN_FILES", "archive_cell",
-           "archive_conflict", "archive_dataset", "archived_dataset_hashes", "reconcile_dataset", "restore_cells"]
+# ---------------------------------------------------------------------------------------------- adoption
+#: How far a per-sample error of an archived cell scored again on a regenerated dataset, and a float of an untrained
+#: method's predictions computed again on it, may be from the archived one (absolute, in the metric's unit:
+#: degrees, centimetres, metres). Rounding of double-precision ground truth moves them by 1e-12 (measured on issue
+#: 31's 73 archived cells, ``results/diagnostics/cross_cpu``); a float32 input one ulp off moves them by 1e-8.
+ADOPT_ATOL = 1e-9
+#: The evidence file of :func:`adopt_dataset`, in ``<archive>/<dataset folder name>/dataset/``.
+ADOPTED = "adopted.json"
+
+
+def _archived_predictions(root: Path, rec: dict, rec_path: Path):
+    """The archived predictions of record ``rec`` (decompressed, their sha256 checked), or None when not kept."""
+    from scapo.eval import Predictions
+
+    xz = root / (str(rec.get("predictions") or "") + ".xz")
+    if not rec.get("predictions") or not xz.is_file():
+        return None, b""
+    try:
+        raw = lzma.decompress(xz.read_bytes())
+    except (OSError, lzma.LZMAError) as e:
+        raise ConfigError(f"the archived predictions {xz} cannot be decompressed ({e}); remove the cell's files "
+                          "from the archive so that it is computed again") from e
+    if hashlib.sha256(raw).hexdigest() != rec.get("predictions_sha256"):
+        raise ConfigError(f"the archived predictions {xz} are not the ones {rec_path.name} scored (sha256 differs); "
+                          "remove the cell's files from the archive so that it is computed again")
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        (Path(tmp) / "predictions.npz").write_bytes(raw)
+        return Predictions.load(Path(tmp) / "predictions.npz"), raw
+
+
+def rescore_cell(root: Path, rec_path: Path, data: Path) -> dict | None:
+    """Score an archived cell's predictions again, under its record's protocol, on the generated dataset ``data``
+    (its hash unchecked) and compare the per-sample metrics with the archived ones.
+
+    Args:
+        root: ``<archive>/<dataset folder name>``. rec_path: one of its ``cells/<key>.<protocol>.json``.
+        data: a generated dataset folder (float64 metrics in degrees / centimetres / metres, as the evaluator's).
+
+    Returns:
+        None when the cell's predictions are not archived; else ``cell``, ``protocol``, ``archived_dataset``,
+        ``samples``, ``same_samples`` (the same (instance, view) rows in the same order), ``S_identical``,
+        ``nan_pattern_same``, ``max_abs_diff`` (over every numeric per-sample column), ``worst_column``,
+        ``summary_S`` and ``summary_R`` (archived, here) and, for :func:`adopt_dataset`, ``result`` (the
+        :class:`~scapo.eval.EvalResult`), ``predictions`` and ``raw`` (the archived predictions, object and bytes).
+
+    Raises:
+        ConfigError: the archived record, per-sample metrics or predictions are damaged (names the file).
+        DatasetError / PredictionError: as :func:`scapo.eval.evaluate`.
+    """
+    import pandas as pd
+
+    from scapo.eval import evaluate
+
+    rec = read_json(rec_path, "archived cell record", ConfigError, "remove it so that the cell is computed again")
+    key, _, protocol = rec_path.name[:-len(".json")].rpartition(".")
+    preds, raw = _archived_predictions(root, rec, rec_path)
+    if preds is None:
+        return None
+    res = evaluate(data, preds, protocol=protocol, check_hash=False)
+    try:
+        old = pd.read_parquet(rec_path.with_suffix(".parquet"))
+    except (OSError, ValueError) as e:
+        raise ConfigError(f"the archived per-sample metrics {rec_path.with_suffix('.parquet')} are unreadable "
+                          f"({e}); remove the cell's files from the archive so that it is computed again") from e
+    new = res.per_sample.reset_index(drop=True)
+    ids = [c for c in ("instance_id", "view_id") if c in old.columns and c in new.columns]
+    same_rows = len(old) == len(new) and all(np.array_equal(old[c].to_numpy(), new[c].to_numpy()) for c in ids)
+    cols = [c for c in old.columns if c in new.columns and pd.api.types.is_numeric_dtype(old[c])]
+    row = {"cell": key, "protocol": protocol, "archived_dataset": str(rec.get("dataset_hash")),
+           "samples": len(new), "same_samples": bool(same_rows), "S_identical": False, "nan_pattern_same": False,
+           "max_abs_diff": float("inf"), "worst_column": "",
+           "summary_S": (rec.get("summary", {}).get("S"), res.summary.get("S")),
+           "summary_R": (rec.get("summary", {}).get("R"), res.summary.get("R")),
+           "result": res, "predictions": preds, "raw": raw}
+    if not same_rows or "S" not in cols:
+        return row
+    a, b = old[cols].to_numpy(dtype=np.float64), new[cols].to_numpy(dtype=np.float64)
+    diff = np.where(np.isnan(a) & np.isnan(b), 0.0, np.abs(a - b))
+    diff = np.where(np.isnan(diff), np.inf, diff)
+    worst = int(np.argmax(diff.max(axis=0))) if diff.size else 0
+    row.update(S_identical=bool(np.array_equal(old["S"].to_numpy(), new["S"].to_numpy())),
+               nan_pattern_same=bool((np.isnan(a) == np.isnan(b)).all()),
+               max_abs_diff=float(diff.max()) if diff.size else 0.0, worst_column=cols[worst] if cols else "")
+    return row
+
+
+def _json_bytes(obj) -> bytes:
+    """``obj`` as :func:`scapo.files.write_json` writes it (records and run identities)."""
+    return (json.dumps(obj, indent=1, sort_keys=True, default=str) + "\n").encode()
+
+
+def _replace_hash(obj, old: str, new: str):
+    """``obj`` (JSON values) with every string equal to ``old`` replaced by ``new``."""
+    if isinstance(obj, dict):
+        return {k: _replace_hash(v, old, new) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_replace_hash(v, old, new) for v in obj]
+    return new if obj == old else obj
+
+
+#: Untrained methods whose predictions are a deterministic function of a dataset's inputs (:func:`adopt_dataset`
+#: computes their archived cells again to compare inputs).
+UNTRAINED_DETERMINISTIC = ("icp",)
+
+
+def _recompute_untrained(rec: dict, preds, data: Path, atol: float, progress: bool) -> dict:
+    """Compute an archived untrained cell (its method and options, from its record) again on ``data`` and compare
+    its predictions with the archived ``preds``: integer fields exactly, float fields within ``atol``."""
+    import tempfile
+
+    from scapo.eval import Predictions
+    from scapo.eval.predictions import _FIELDS
+    from scapo.methods import run_method
+
+    cell = _cell_of(rec)
+    with tempfile.TemporaryDirectory() as tmp:
+        again = run_method(cell.method, data, Path(tmp) / "predictions.npz", progress=progress, **dict(cell.options))
+        again = Predictions.load(Path(tmp) / "predictions.npz") if not isinstance(again, Predictions) else again
+    out = {"cell": cell.key, "method": cell.method, "identical": True, "max_abs_diff": 0.0, "field": "",
+           "within_atol": False}
+    for k in ("instance_id", "view_id", "split", *_FIELDS):
+        a, b = np.asarray(getattr(preds, k)), np.asarray(getattr(again, k))
+        if a.dtype.kind == "U":  # split names: the width of the string type is the writer's
+            a, b = a.astype(str).astype(object), b.astype(str).astype(object)
+        if a.shape != b.shape or a.dtype != b.dtype:
+            return {**out, "identical": False, "max_abs_diff": float("inf"), "field": f"{k} (shape or type)"}
+        if not np.issubdtype(a.dtype, np.floating):
+            if not np.array_equal(a, b):
+                return {**out, "identical": False, "max_abs_diff": float("inf"), "field": k}
+            continue
+        d = float(np.abs(a.astype(np.float64) - b).max()) if a.size else 0.0
+        if d > out["max_abs_diff"]:
+            out.update(max_abs_diff=d, field=k)
+        out["identical"] = out["identical"] and d == 0.0
+    out["within_atol"] = out["max_abs_diff"] <= atol
+    return out
+
+
+def adopt_dataset(data: Path, archive: Path, atol: float = ADOPT_ATOL, progress: bool = False) -> dict:
+    """Re-label the archived cells of ``archive/<data.name>/``, computed on a dataset that is not pinned, with the
+    hash of the generated dataset ``data`` and pin it, when the cells show that it is their dataset regenerated on
+    another CPU kind (see the module docstring for the checks).
+
+    Args:
+        data: a generated dataset folder of the same folder name (config) as the archived cells'.
+        archive: the archive's root folder.
+        atol: :data:`ADOPT_ATOL`.
+        progress: show the untrained methods' progress bars.
+
+    Returns:
+        A report: ``status`` is ``"none"`` (no archived cell), ``"pinned"`` (a dataset is pinned:
+        :func:`reconcile_dataset` decides), ``"same"`` (the cells name ``data``'s dataset already), ``"adopted"``
+        (with ``from``, ``dataset_hash``, ``cells``, ``max_abs_diff``, ``untrained``, ``cell_evidence``; written to
+        ``dataset/adopted.json`` too) or ``"different"`` (``why``; nothing written).
+
+    Raises:
+        ConfigError: an archived file is damaged (names it). DatasetError: ``data`` is not a generated dataset.
+        OutputError: the archive cannot be written. Every check runs before the first write; the predictions, runs
+        and per-sample metrics are written before the records that name them, the pinned card last (an interrupted
+        call is reported by the next one, which asks for the folder's files back from git).
+    """
+    import tempfile
+
+    from scapo.provenance import provenance
+
+    data, root = Path(data), Path(archive) / Path(data).name
+    card = _card(data)
+    have = str(card["dataset_hash"])
+    if (root / DATASET / "card.json").is_file():
+        return {"status": "pinned"}
+    hashes = archived_dataset_hashes(archive, data.name)
+    if not hashes:
+        return {"status": "none"}
+
+    def different(why: str) -> dict:
+        return {"status": "different", "why": why, "dataset_hash": have, "archived": sorted(hashes)}
+
+    records = [(p, read_json(p, "archived cell record", ConfigError, "remove it so that the cell is computed again"))
+               for p in sorted((root / "cells").glob("*.json"))]
+    if (root / DATASET / ADOPTED).is_file() or any("adopted" in rec for _, rec in records):
+        return different(f"an adoption of {root} was interrupted; restore its files (git checkout -- {root}) and "
+                         "adopt again")
+    if set(hashes) == {have}:
+        return {"status": "same", "dataset_hash": have}
+    if len(hashes) > 1:
+        return different(f"the archived cells name {len(hashes)} datasets ({', '.join(h[:12] for h in hashes)})")
+    old = next(iter(hashes))
+    structure = {k: card[k] for k in ("category", "part_names", "joint_type", "joint_parts")}
+    rows, untrained, runs = [], [], {}
+    for rec_path, rec in records:
+        row = rescore_cell(root, rec_path, data)
+        if row is None:
+            return different(f"{rec_path.name}'s predictions are not archived, so it cannot be scored again")
+        if not (row["same_samples"] and row["S_identical"] and row["nan_pattern_same"]
+                and row["max_abs_diff"] <= atol):
+            return different(f"{rec_path.name} scored on this dataset differs from its archived scores (samples "
+                             f"same: {row['same_samples']}, S identical: {row['S_identical']}, NaNs same: "
+                             f"{row['nan_pattern_same']}, largest difference {row['max_abs_diff']:.3g} in "
+                             f"{row['worst_column'] or '-'})")
+        cell = _cell_of(rec)
+        if cell.trained:
+            run = cell_paths(root, cell, row["protocol"]).run
+            ident = read_json(run / "run.json", "archived run identity", ConfigError,
+                              "remove the cell's files from the archive so that it is computed again")
+            if ident.get("dataset_hash") != old or {k: ident.get(k) for k in structure} != structure:
+                return different(f"{run.name}/run.json names another dataset or object structure")
+            runs[run] = ident
+        elif cell.method in UNTRAINED_DETERMINISTIC:
+            check = _recompute_untrained(rec, row["predictions"], data, atol, progress)
+            if not check["within_atol"]:
+                return different(f"{cell.method} computed again on this dataset's inputs differs from the archived "
+                                 f"{rec_path.name} (largest difference {check['max_abs_diff']:.3g} in "
+                                 f"{check['field']}): the inputs are not the cells' inputs")
+            untrained.append(check)
+        rows.append((rec_path, rec, row))
+    if not untrained:
+        return different("no archived cell of a deterministic untrained method (ICP) to compute again, so nothing "
+                         "shows that this dataset's inputs are the cells'")
+    prov = provenance()
+    writes: list[tuple[Path, bytes]] = []
+    finals: list[tuple[Path, bytes]] = []
+    evidence = []
+    for rec_path, rec, row in rows:
+        preds = row["predictions"]
+        preds.dataset_hash = have
+        preds.info = _replace_hash(preds.info, old, have)
+        with tempfile.TemporaryDirectory() as tmp:
+            raw = preds.save(Path(tmp) / "predictions.npz").read_bytes()
+        sha = hashlib.sha256(raw).hexdigest()
+        writes += [(root / (rec["predictions"] + ".xz"), lzma.compress(raw, preset=6)),
+                   (rec_path.with_suffix(".parquet"), row["result"].per_sample.to_parquet(index=False))]
+        evidence.append({k: row[k] for k in ("cell", "protocol", "samples", "S_identical", "nan_pattern_same",
+                                            "max_abs_diff", "worst_column", "summary_S", "summary_R")}
+                        | {"record_sha256": hashlib.sha256(rec_path.read_bytes()).hexdigest(),
+                           "predictions_sha256": rec["predictions_sha256"], "adopted_predictions_sha256": sha})
+        new = _replace_hash(rec, old, have)
+        new.update(predictions_sha256=sha, summary=row["result"].summary,
+                   info=_replace_hash(json.loads(json.dumps(row["result"].info, default=str)), old, have),
+                   adopted={"from": old, "evidence": f"{DATASET}/{ADOPTED}", "max_abs_diff": row["max_abs_diff"],
+                            "commit": prov["commit"], "time": prov["time"]})
+        finals.append((rec_path, _json_bytes(new)))
+    writes += [(run / "run.json", _json_bytes(_replace_hash(ident, old, have))) for run, ident in runs.items()]
+    report = {"status": "adopted", "from": old, "dataset_hash": have, "cells": len(evidence),
+              "max_abs_diff": max(e["max_abs_diff"] for e in evidence), "untrained": untrained, "atol": atol,
+              "provenance": prov, "cell_evidence": evidence}
+    for path, raw in writes + finals:
+        _write(path, raw)
+    report = json.loads(_json_bytes(report))
+    _write(root / DATASET / ADOPTED, _json_bytes(report))
+    pinned = archive_dataset(data, archive)
+    if pinned != "archived":
+        raise ConfigError(f"{root}: the cells were adopted but pinning the dataset answered {pinned!r}; restore the "
+                          f"folder's files (git checkout -- {root}) and adopt again")
+    return report
+
+
+__all__ = ["ADOPTED", "ADOPT_ATOL", "DATASET", "DOUBLE_FIELDS", "RECONCILE_ATOL", "RECONCILE_RTOL", "RUN_FILES",
+           "UNTRAINED_DETERMINISTIC", "adopt_dataset", "archive_cell", "archive_conflict", "archive_dataset",
+           "archived_dataset_hashes", "reconcile_dataset", "rescore_cell", "restore_cells"]
