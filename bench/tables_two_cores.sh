@@ -26,7 +26,12 @@
 #                                             kind; scapo.bench.archive.reconcile_dataset), pin the others, restore
 #                                             their archived cells, and mark a category whose dataset would put cells
 #                                             of a second dataset into the archive ($WORK/conflict/<category>: the
-#                                             chains skip its tasks; scapo.bench.archive.archive_conflict)
+#                                             chains skip its tasks; scapo.bench.archive.archive_conflict). Cells
+#                                             archived before datasets were pinned, on another CPU kind, are adopted
+#                                             by this machine's regeneration of their dataset only by
+#                                             bench/cross_cpu_check.py --adopt (scapo.bench.archive.adopt_dataset:
+#                                             the cells must score the same on it and ICP computed again on its
+#                                             inputs must give the archived predictions); run DATA=1 after it
 #   FINISH=1 bash bench/tables_two_cores.sh   write the three tables from the finished cells into $OUT, and Table 1
 #                                             under the eap and op-align protocols into $OUT/protocols/ (the datasets
 #                                             must exist: after a fresh machine, run DATA=1 first)
