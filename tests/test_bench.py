@@ -791,8 +791,12 @@ def test_cells_of_an_unpinned_dataset_are_adopted_by_its_regeneration_only_when_
         assert rec.pop("adopted")["from"] == old and rec["dataset_hash"] == new and old not in json.dumps(rec)
     # the bench restores the adopted cells on the regenerated dataset and computes nothing
     _forbid(monkeypatch, "train_method", "run_method", "evaluate")
-    again = run_table1(["npcs", "scapo"], ["laptop"], work_dir=fresh.parent, out_dir=None, seeds=[0],
+    again = run_table1(["npcs", "scapo"], ["laptop"], work_dir=fresh.parent, out_dir=tmp_path / "out", seeds=[0],
                        archive=legacy, **SMALL)
+    table = json.loads((tmp_path / "out" / "table1_synthetic.json").read_text())["provenance"]
+    assert table["datasets"]["laptop"] == new[:16] and table["commits"] == sorted({c["commit"] for c in table["cells"]})
+    assert [c["adopted_from"] for c in table["cells"]] == [old[:16]] * 2
+    assert f"(dataset {old[:12]}, adopted)" in (tmp_path / "out" / "table1_synthetic.md").read_text()
     for a, b in zip(again, results):
         assert a.summary.keys() == b.summary.keys()
         for k, v in a.summary.items():

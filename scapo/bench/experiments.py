@@ -312,7 +312,9 @@ def _provenance(name: str, cells, records, hashes, instances, views, data_seed, 
                 missing=(), random_rotation: bool = True) -> dict:
     """Provenance from the cells' records only (deterministic for a finished bench); ``missing``: cells
     of the bench left out because they are not done (``--finished-only``); ``random_rotation``: whether the
-    datasets' objects were turned by a uniform SO(3) rotation (False: upright)."""
+    datasets' objects were turned by a uniform SO(3) rotation (False: upright). A cell whose record was adopted by
+    its dataset's regeneration on another CPU kind (:func:`scapo.bench.archive.adopt_dataset`) names the dataset it
+    was computed on (``adopted_from``)."""
     per_cell = []
     for c, r in zip(cells, records):
         w = r["wall"]
@@ -320,6 +322,8 @@ def _provenance(name: str, cells, records, hashes, instances, views, data_seed, 
                          "commit": computed_commit(r), "device": r["provenance"]["device"],
                          **({"evaluated_at": r["provenance"]["commit"]}
                             if r["provenance"]["commit"] != computed_commit(r) else {}),
+                         **({"adopted_from": str(r["adopted"].get("from", ""))[:16]}
+                            if isinstance(r.get("adopted"), dict) else {}),
                          **{k: w[k] for k in ("train_s", "train_steps", "predict_s", "evaluate_s") if k in w}})
     seeds: dict[str, list[int]] = {}
     for c in cells:

@@ -191,7 +191,9 @@ def _partial_note(provenance: dict) -> list[str]:
 def cells_markdown(cells: Sequence[dict] | None) -> list[str]:
     """Markdown lines of a bench's per-cell provenance (``scapo.bench``: category, cell, commit that
     computed it (and the evaluation's, when the evaluation was redone later), device, training /
-    prediction / evaluation wall time); nothing when there is none."""
+    prediction / evaluation wall time); nothing when there is none. A cell computed on another CPU kind's
+    regeneration of its dataset and adopted by this one (``adopted_from``: :func:`scapo.bench.archive.adopt_dataset`)
+    says so beside its device."""
     if not cells:
         return []
 
@@ -205,12 +207,19 @@ def cells_markdown(cells: Sequence[dict] | None) -> list[str]:
     def commit(c):  # the code that trained and predicted it; a later evaluation's commit beside it
         return short(c["commit"]) + (f" (evaluated {short(c['evaluated_at'])})" if c.get("evaluated_at") else "")
 
-    rows = [[c["category"], c["cell"], commit(c), c["device"], minutes(c, "train_s"),
+    def device(c):
+        return c["device"] + (f" (dataset {c['adopted_from'][:12]}, adopted)" if c.get("adopted_from") else "")
+
+    rows = [[c["category"], c["cell"], commit(c), device(c), minutes(c, "train_s"),
              "-" if c.get("train_steps") is None else str(c["train_steps"]),
              minutes(c, "predict_s"), minutes(c, "evaluate_s")] for c in cells]
+    note = (["Cells marked adopted were computed on another CPU kind's regeneration of their dataset (the hash "
+             "named) and adopted by this table's dataset after scoring the same on it "
+             "(`results/tables_cells/README.md`, `scapo.bench.archive.adopt_dataset`).", ""]
+            if any(c.get("adopted_from") for c in cells) else [])
     return ["## Cells (wall time, minutes; training steps)", "",
             markdown_table(["Category", "Cell", "Commit", "Device", "Train", "Steps", "Predict", "Evaluate"], rows,
-                           ["l", "l", "l", "l", "r", "r", "r", "r"]), ""]
+                           ["l", "l", "l", "l", "r", "r", "r", "r"]), "", *note]
 
 
 #: The ordering check of the self-supervised rows: metric -> (the statistic of a cell, higher is better).
