@@ -517,7 +517,8 @@ UNTRAINED_DETERMINISTIC = ("icp",)
 
 def _recompute_untrained(rec: dict, preds, data: Path, atol: float, progress: bool) -> dict:
     """Compute an archived untrained cell (its method and options, from its record) again on ``data`` and compare
-    its predictions with the archived ``preds``: integer fields exactly, float fields within ``atol``."""
+    its predictions with the archived ``preds``: integer fields exactly, float fields within ``atol``. The report
+    says, per field, how many entries and samples differ (integers) or the largest difference (floats)."""
     import tempfile
 
     from scapo.eval import Predictions
@@ -529,7 +530,8 @@ def _recompute_untrained(rec: dict, preds, data: Path, atol: float, progress: bo
         again = run_method(cell.method, data, Path(tmp) / "predictions.npz", progress=progress, **dict(cell.options))
         again = Predictions.load(Path(tmp) / "predictions.npz") if not isinstance(again, Predictions) else again
     out = {"cell": cell.key, "method": cell.method, "identical": True, "max_abs_diff": 0.0, "field": "",
-           "within_atol": False}
+           "fields": {}, "within_atol": False}
+    rows = np.ones(len(preds), dtype=bool) if len(preds) == len(again) else None
     for k in ("instance_id", "view_id", "split", *_FIELDS):
         a, b = np.asarray(getattr(preds, k)), np.asarray(getattr(again, k))
         if a.dtype.kind == "U":  # split names: the width of the string type is the writer's
@@ -537,13 +539,23 @@ def _recompute_untrained(rec: dict, preds, data: Path, atol: float, progress: bo
         if a.shape != b.shape or a.dtype != b.dtype:
             return {**out, "identical": False, "max_abs_diff": float("inf"), "field": f"{k} (shape or type)"}
         if not np.issubdtype(a.dtype, np.floating):
-            if not np.array_equal(a, b):
-                return {**out, "identical": False, "max_abs_diff": float("inf"), "field": k}
+            bad = (a != b).reshape(len(a), -1)
+            if bad.any():  # how many entries, in how many samples
+                out["fields"][k] = {"entries": int(bad.sum()), "samples": int(bad.any(1).sum())}
+                out.update(identical=False, max_abs_diff=float("inf"), field=out["field"] or k)
+                rows &= ~bad.any(1)
             continue
-        d = float(np.abs(a.astype(np.float64) - b).max()) if a.size else 0.0
-        if d > out["max_abs_diff"]:
-            out.update(max_abs_diff=d, field=k)
-        out["identical"] = out["identical"] and d == 0.0
+        d = np.abs(a.astype(np.float64) - b).reshape(len(a), -1).max(1) if a.size else np.zeros(len(a))
+        out["fields"][k] = {"max_abs_diff": float(d.max()) if d.size else 0.0,
+                            "samples_over_atol": int((d > atol).sum())}
+        if out["fields"][k]["max_abs_diff"] > out["max_abs_diff"]:
+            out.update(max_abs_diff=out["fields"][k]["max_abs_diff"], field=k)
+        out["identical"] = out["identical"] and not d.any()
+    if rows is not None and out["max_abs_diff"] == float("inf"):  # the floats of the samples whose integers agree
+        out["float_diff_where_integers_agree"] = max(
+            (float(np.abs(np.asarray(getattr(preds, k), np.float64)[rows] - getattr(again, k)[rows]).max())
+             for k in _FIELDS if np.issubdtype(np.asarray(getattr(preds, k)).dtype, np.floating) and rows.any()),
+            default=0.0)
     out["within_atol"] = out["max_abs_diff"] <= atol
     return out
 
@@ -620,9 +632,12 @@ def adopt_dataset(data: Path, archive: Path, atol: float = ADOPT_ATOL, progress:
         elif cell.method in UNTRAINED_DETERMINISTIC:
             check = _recompute_untrained(rec, row["predictions"], data, atol, progress)
             if not check["within_atol"]:
-                return different(f"{cell.method} computed again on this dataset's inputs differs from the archived "
-                                 f"{rec_path.name} (largest difference {check['max_abs_diff']:.3g} in "
-                                 f"{check['field']}): the inputs are not the cells' inputs")
+                where = "; ".join(f"{k}: {v['entries']} entries in {v['samples']} samples" if "entries" in v else
+                                  f"{k}: {v['samples_over_atol']} samples beyond {atol:g}"
+                                  for k, v in check["fields"].items() if v.get("entries") or v.get("samples_over_atol"))
+                return {**different(f"{cell.method} computed again on this dataset's inputs differs from the archived "
+                                    f"{rec_path.name} ({where or check['field']}), so nothing shows that its inputs "
+                                    "are the cells'"), "untrained": [check]}
             untrained.append(check)
         rows.append((rec_path, rec, row))
     if not untrained:
