@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
              "max abs diff | in column | S (archived / here) | R (archived / here) |",
              "|---|---|---|---|---|--:|---|---|--:|---|---|---|"]
     if adopted:
-        lines[3:3] = ["## Adoption (scapo.bench.archive.adopt_dataset)", "",
+        lines[4:4] = ["## Adoption (scapo.bench.archive.adopt_dataset)", "",
                       "| folder | outcome | from | to | cells | largest score difference | ICP computed again: "
                       "largest difference (field) | why not |", "|---|---|---|---|--:|--:|---|---|",
                       *(_adoption_line(name, r) for name, r in adopted.items()), "", "## Scores", ""]
