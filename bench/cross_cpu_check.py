@@ -43,8 +43,7 @@ def check_folder(archived: Path, data: Path) -> list[dict]:
         row = rescore_cell(archived, rec_path, data)
         if row is None:
             continue
-        rows.append({"folder": archived.name, **{k: v for k, v in row.items() if k not in ("result", "predictions",
-                                                                                           "raw")},
+        rows.append({"folder": archived.name, **{k: v for k, v in row.items() if k not in ("result", "predictions")},
                      "archived_dataset": row["archived_dataset"][:12], "this_dataset": here[:12]})
     return rows
 

@@ -55,6 +55,7 @@ import hashlib
 import io
 import json
 import lzma
+import tempfile
 import time
 from pathlib import Path
 
@@ -181,12 +182,16 @@ def _restore_predictions(src: CellPaths, dst: CellPaths) -> None:
     xz = src.predictions.with_name(src.predictions.name + ".xz")
     if dst.predictions.exists() or not xz.is_file():
         return
+    _write(dst.predictions, _decompressed(xz))
+
+
+def _decompressed(xz: Path) -> bytes:
+    """The bytes of archived predictions ``xz``; ConfigError (what to do) when they cannot be read."""
     try:
-        raw = lzma.decompress(xz.read_bytes())
+        return lzma.decompress(xz.read_bytes())
     except (OSError, lzma.LZMAError) as e:
         raise ConfigError(f"the archived predictions {xz} cannot be decompressed ({e}); remove the cell's "
                           "files from the archive so that it is computed again") from e
-    _write(dst.predictions, raw)
 
 
 # ---------------------------------------------------------------------------------------------- dataset bytes
@@ -424,20 +429,14 @@ def _archived_predictions(root: Path, rec: dict, rec_path: Path):
 
     xz = root / (str(rec.get("predictions") or "") + ".xz")
     if not rec.get("predictions") or not xz.is_file():
-        return None, b""
-    try:
-        raw = lzma.decompress(xz.read_bytes())
-    except (OSError, lzma.LZMAError) as e:
-        raise ConfigError(f"the archived predictions {xz} cannot be decompressed ({e}); remove the cell's files "
-                          "from the archive so that it is computed again") from e
+        return None
+    raw = _decompressed(xz)
     if hashlib.sha256(raw).hexdigest() != rec.get("predictions_sha256"):
         raise ConfigError(f"the archived predictions {xz} are not the ones {rec_path.name} scored (sha256 differs); "
                           "remove the cell's files from the archive so that it is computed again")
-    import tempfile
-
     with tempfile.TemporaryDirectory() as tmp:
         (Path(tmp) / "predictions.npz").write_bytes(raw)
-        return Predictions.load(Path(tmp) / "predictions.npz"), raw
+        return Predictions.load(Path(tmp) / "predictions.npz")
 
 
 def rescore_cell(root: Path, rec_path: Path, data: Path) -> dict | None:
@@ -453,7 +452,7 @@ def rescore_cell(root: Path, rec_path: Path, data: Path) -> dict | None:
         ``samples``, ``same_samples`` (the same (instance, view) rows in the same order), ``S_identical``,
         ``nan_pattern_same``, ``max_abs_diff`` (over every numeric per-sample column), ``worst_column``,
         ``summary_S`` and ``summary_R`` (archived, here) and, for :func:`adopt_dataset`, ``result`` (the
-        :class:`~scapo.eval.EvalResult`), ``predictions`` and ``raw`` (the archived predictions, object and bytes).
+        :class:`~scapo.eval.EvalResult`) and ``predictions`` (the archived :class:`~scapo.eval.Predictions`).
 
     Raises:
         ConfigError: the archived record, per-sample metrics or predictions are damaged (names the file).
@@ -465,7 +464,7 @@ def rescore_cell(root: Path, rec_path: Path, data: Path) -> dict | None:
 
     rec = read_json(rec_path, "archived cell record", ConfigError, "remove it so that the cell is computed again")
     key, _, protocol = rec_path.name[:-len(".json")].rpartition(".")
-    preds, raw = _archived_predictions(root, rec, rec_path)
+    preds = _archived_predictions(root, rec, rec_path)
     if preds is None:
         return None
     res = evaluate(data, preds, protocol=protocol, check_hash=False)
@@ -483,7 +482,7 @@ def rescore_cell(root: Path, rec_path: Path, data: Path) -> dict | None:
            "max_abs_diff": float("inf"), "worst_column": "",
            "summary_S": (rec.get("summary", {}).get("S"), res.summary.get("S")),
            "summary_R": (rec.get("summary", {}).get("R"), res.summary.get("R")),
-           "result": res, "predictions": preds, "raw": raw}
+           "result": res, "predictions": preds}
     if not same_rows or "S" not in cols:
         return row
     a, b = old[cols].to_numpy(dtype=np.float64), new[cols].to_numpy(dtype=np.float64)
@@ -519,16 +518,12 @@ def _recompute_untrained(rec: dict, preds, data: Path, atol: float, progress: bo
     """Compute an archived untrained cell (its method and options, from its record) again on ``data`` and compare
     its predictions with the archived ``preds``: integer fields exactly, float fields within ``atol``. The report
     says, per field, how many entries and samples differ (integers) or the largest difference (floats)."""
-    import tempfile
-
-    from scapo.eval import Predictions
     from scapo.eval.predictions import _FIELDS
     from scapo.methods import run_method
 
     cell = _cell_of(rec)
     with tempfile.TemporaryDirectory() as tmp:
         again = run_method(cell.method, data, Path(tmp) / "predictions.npz", progress=progress, **dict(cell.options))
-        again = Predictions.load(Path(tmp) / "predictions.npz") if not isinstance(again, Predictions) else again
     out = {"cell": cell.key, "method": cell.method, "identical": True, "max_abs_diff": 0.0, "field": "",
            "fields": {}, "within_atol": False}
     rows = np.ones(len(preds), dtype=bool) if len(preds) == len(again) else None
@@ -583,8 +578,6 @@ def adopt_dataset(data: Path, archive: Path, atol: float = ADOPT_ATOL, progress:
         and per-sample metrics are written before the records that name them, the pinned card last (an interrupted
         call is reported by the next one, which asks for the folder's files back from git).
     """
-    import tempfile
-
     from scapo.provenance import provenance
 
     data, root = Path(data), Path(archive) / Path(data).name
@@ -672,13 +665,12 @@ def adopt_dataset(data: Path, archive: Path, atol: float = ADOPT_ATOL, progress:
               "provenance": prov, "cell_evidence": evidence}
     for path, raw in writes + finals:
         _write(path, raw)
-    report = json.loads(_json_bytes(report))
-    _write(root / DATASET / ADOPTED, _json_bytes(report))
+    _write(root / DATASET / ADOPTED, raw := _json_bytes(report))
     pinned = archive_dataset(data, archive)
     if pinned != "archived":
         raise ConfigError(f"{root}: the cells were adopted but pinning the dataset answered {pinned!r}; restore the "
                           f"folder's files (git checkout -- {root}) and adopt again")
-    return report
+    return json.loads(raw)
 
 
 __all__ = ["ADOPTED", "ADOPT_ATOL", "DATASET", "DOUBLE_FIELDS", "RECONCILE_ATOL", "RECONCILE_RTOL", "RUN_FILES",
