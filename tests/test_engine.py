@@ -183,6 +183,41 @@ def test_a_method_defined_outside_the_package_trains_predicts_and_is_scored_thro
     assert "toy" not in METHODS.names() or METHODS.get("toy").trained
 
 
+def test_the_loss_plot_is_drawn_at_most_once_a_minute_at_the_end_and_at_a_failure(toy_method, laptop_data,
+                                                                                  tmp_path, monkeypatch):
+    """``losses.png`` costs about a second of CPU per drawing: a short run draws it once (after its last epoch),
+    a run whose epochs each pass ``PLOT_EVERY_S`` draws it after every epoch, and a run stopped by a NaN loss
+    draws what it logged before the failure."""
+    from scapo.engine import loop
+
+    drawn = []
+    real = loop.plot_losses
+    monkeypatch.setattr(loop, "plot_losses", lambda log, png: (drawn.append(len(log.read_text().splitlines())),
+                                                               real(log, png)))
+    train_method(toy_method, laptop_data, tmp_path / "short", "test", progress=False)
+    assert drawn == [5] and (tmp_path / "short" / "losses.png").is_file()  # header + 2 epochs x 2 steps
+    drawn.clear()
+    monkeypatch.setattr(loop, "PLOT_EVERY_S", 0.0)
+    train_method(toy_method, laptop_data, tmp_path / "every", "test", progress=False)
+    assert drawn == [3, 5]
+    drawn.clear()
+    monkeypatch.setattr(loop, "PLOT_EVERY_S", 60.0)
+    def nan_in_the_second_epoch(self, batch, progress):
+        err = self.offset.sum() * (float("nan") if progress >= 0.5 else 1.0)
+        return {"centre": err}, err
+
+    monkeypatch.setattr(ToyNet, "losses", nan_in_the_second_epoch)
+    with pytest.raises(TrainingError, match="loss 'centre' became nan"):
+        train_method(toy_method, laptop_data, tmp_path / "nan", "test", progress=False)
+    assert drawn == [3] and (tmp_path / "nan" / "losses.png").is_file()  # the first epoch's rows
+    drawn.clear()
+    monkeypatch.setattr(ToyNet, "losses", lambda self, batch, progress: ({"centre": self.offset.sum() * float("nan")},
+                                                                         self.offset.sum() * float("nan")))
+    with pytest.raises(TrainingError, match="loss 'centre' became nan"):  # at the first step: nothing to draw
+        train_method(toy_method, laptop_data, tmp_path / "nan0", "test", progress=False)
+    assert not (tmp_path / "nan0" / "losses.png").exists()
+
+
 def test_a_step_schedule_halves_the_rate_every_decay_steps_and_iterations_set_the_epochs(laptop_data):
     """OP-Align's schedule (lr halved every 5,000 iterations, 20,000 iterations) as a preset can state it: the
     engine's step schedule and a learned preset's ``iterations``."""

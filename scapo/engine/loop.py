@@ -6,8 +6,9 @@ and ``losses(batch, progress) -> (terms, total)``; a term's name is its column o
 does the rest, the same way for every method:
 
 - the run folder (:class:`~scapo.engine.runs.RunFolder`): refusals before anything is written, a lock
-  against a second process, ``run.json``, a checkpoint after every epoch, ``log.csv``, ``losses.png``,
-  ``timing.json``; an interrupted run resumes from its next (stage, epoch) and gives the same weights;
+  against a second process, ``run.json``, a checkpoint after every epoch, ``log.csv``, ``losses.png`` (at
+  most once a minute, and at the end), ``timing.json``; an interrupted run resumes from its next (stage,
+  epoch) and gives the same weights;
 - per stage: Adam with weight decay, a cosine schedule to ``min_lr`` over the stage's steps, gradient
   clipping, a stop naming the loss term that became NaN or infinite (the last good checkpoint kept);
 - batches from a :class:`~torch.utils.data.DataLoader`; with several processes (``torchrun``) a
@@ -192,6 +193,12 @@ class TrainJob:
         return steps
 
 
+#: Seconds of training between two drawings of ``losses.png`` (it is also drawn after the last epoch): a drawing
+#: costs a few tenths of a second of CPU (it cost 1.3 s before :func:`~scapo.engine.runs.loss_figure` fixed its
+#: layout), and drawn after every epoch it was half the CPU time of a ``test``-preset run.
+PLOT_EVERY_S = 60.0
+
+
 def train_run(folder: RunFolder, make_job: Callable[[torch.device, DistContext], TrainJob], device: torch.device,
               progress: bool = True, ctx: DistContext | None = None) -> Path:
     """Train (or resume, or find finished) the run of ``folder``; returns the checkpoint path.
@@ -232,7 +239,9 @@ def train_run(folder: RunFolder, make_job: Callable[[torch.device, DistContext],
 def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.device, progress: bool = True,
         ctx: DistContext | None = None) -> Path:
     """The loop: every stage of ``job`` from the checkpoint ``state``'s next (stage, epoch) (or the start),
-    a checkpoint and the loss plot after every epoch, ``timing.json`` at the end. Returns the checkpoint path.
+    a checkpoint after every epoch, the loss plot (``losses.png``) after an epoch that ends at least
+    :data:`PLOT_EVERY_S` after the last one drawn, after the last epoch and at a failure, ``timing.json`` at the
+    end. Returns the checkpoint path.
 
     Raises:
         TrainingError: a loss term became NaN or infinite (named, with stage, epoch and step).
@@ -257,7 +266,7 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                    dynamic_ncols=True)
     columns = list(dict.fromkeys([*BASE_COLUMNS, *[t for s in job.stages for t in s.terms]]))
     board = _tensorboard(folder, steps * done_before) if ctx.is_main else None
-    t0 = time.perf_counter()
+    t0 = plotted = time.perf_counter()
     before = float(state.get("seconds", 0.0)) if state is not None else 0.0  # earlier sessions' training time
     # where this session's time went, per stage (timing.json "stages"; scapo bench perf --what train --data)
     parts = {str(s.index): {"steps": 0, "step_s": 0.0, "epochs": 0, "epoch_s": 0.0, "start_s": 0.0} for s in live}
@@ -295,9 +304,15 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                     folder.save({"model": job.model.state_dict(), "optimizer": opt.state_dict(),
                                  "scheduler": sched.state_dict(), "stage": nxt[0], "epoch": nxt[1], "done": done,
                                  "world_size": ctx.world, "seconds": before + time.perf_counter() - t0, **extras})
-                    plot_losses(folder.log, folder.path / "losses.png")
+                    if done or time.perf_counter() - plotted >= PLOT_EVERY_S:
+                        plot_losses(folder.log, folder.path / "losses.png")
+                        plotted = time.perf_counter()
                 ctx.barrier()
                 part["epoch_s"] += time.perf_counter() - te
+    except TrainingError:
+        if ctx.is_main:  # the curves up to the failing step, to look at
+            plot_losses(folder.log, folder.path / "losses.png")
+        raise
     finally:
         if bar is not None:
             bar.close()

@@ -235,10 +235,13 @@ def truncate_log(log_csv: Path, stage: int, epoch: int) -> None:
 
 
 def plot_losses(log_csv: Path, png: Path) -> None:
-    """Loss curves (:func:`loss_figure`) of ``log.csv`` written to ``png``; nothing for an empty log."""
+    """Loss curves (:func:`loss_figure`) of ``log.csv`` written to ``png``; nothing for a missing or empty log
+    (a run that failed at its first step)."""
     import matplotlib.pyplot as plt
     import pandas as pd
 
+    if not log_csv.is_file() or log_csv.stat().st_size == 0:
+        return
     df = pd.read_csv(log_csv)
     if df.empty:
         return
@@ -250,11 +253,16 @@ def plot_losses(log_csv: Path, png: Path) -> None:
 def loss_figure(df):
     """One panel per stage of a ``log.csv`` table: each loss term (a column after ``lr``) as the moving mean of 5
     steps of its absolute value, log scale, in a colour and line style of its own (``total`` thicker), with
-    labelled axes and a legend of the terms drawn. Returns the matplotlib figure."""
+    labelled axes and a legend of the terms drawn. Returns the matplotlib figure.
+
+    Margins are fixed and the log axis's labels are plain numbers on decades with unlabelled minor ticks at 2 and
+    5: ``tight_layout``, mathtext labels and nine minor ticks per decade took three quarters of the figure's
+    1.3 s of CPU (it is drawn during training: :data:`scapo.engine.loop.PLOT_EVERY_S`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     stages = sorted(df["stage"].unique())
     fig, axes = plt.subplots(1, len(stages), figsize=(6 * len(stages), 4.5), squeeze=False)
@@ -270,10 +278,14 @@ def loss_figure(df):
                         ls=styles[(k // len(colors)) % len(styles)], lw=1.6 if col == "total" else 1.0)
                 k += 1
         ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.yaxis.set_minor_locator(LogLocator(subs=(2.0, 5.0)))
+        ax.yaxis.set_minor_formatter(NullFormatter())
         ax.set_title(f"stage {st}")
         ax.set_xlabel("optimiser step in the stage")
         ax.set_ylabel("loss term (unweighted; moving mean of 5 steps)")
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
+    width = 6 * len(stages)  # inches: room for the y label and tick labels at the left, the last x label at the right
+    fig.subplots_adjust(left=0.85 / width, right=1 - 0.3 / width, bottom=0.11, top=0.93, wspace=0.3)
     return fig

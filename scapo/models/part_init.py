@@ -55,8 +55,9 @@ def register_parts(A: torch.Tensor, B: torch.Tensor, la: torch.Tensor, lb: torch
     R = torch.eye(3, dtype=A.dtype, device=A.device).expand(Q * P, 3, 3)
     t = torch.zeros(Q * P, 3, dtype=A.dtype, device=A.device)
     cur = Ap
+    other = ~mb.unsqueeze(1)  # (QP, 1, n): B's points of the other parts
     for it in range(iters + 1):
-        d2 = pairwise_sq_dist(cur, Bp).masked_fill(~mb.unsqueeze(1), big)  # (QP, n, n)
+        d2 = pairwise_sq_dist(cur, Bp).masked_fill_(other, big)  # (QP, n, n), filled in place
         dmin, j = d2.min(-1)
         if it == iters:
             break
