@@ -41,8 +41,21 @@ cell_commit=$("$PY" -P -c "import json, sys; print(json.load(open(sys.argv[1]))[
 if [ "$code_commit" != "$cell_commit" ]; then
   echo "bench/budget_diagnostic.sh: note: this code is at $code_commit, the Table 1 cell at $cell_commit" >&2
 fi
-read -r e1 e2 < <("$PY" -P -c "from scapo.models.presets import get_preset; p = get_preset('$PRESET'); \
-print(p.stage1_epochs, p.stage2_epochs)")
+# the epochs the cell's run trained (its run.json, read without importing torch; the preset's where it has none)
+read -r e1 e2 < <("$PY" -P - "$data/run_scapo_${PRESET}_s$SEED/run.json" "$PRESET" <<'PY'
+import json
+import sys
+
+try:
+    p = json.load(open(sys.argv[1]))["preset"]
+    print(int(p["stage1_epochs"]), int(p["stage2_epochs"]))
+except (OSError, ValueError, KeyError, TypeError):
+    from scapo.models.presets import get_preset
+
+    p = get_preset(sys.argv[2])
+    print(p.stage1_epochs, p.stage2_epochs)
+PY
+)
 run=$WORK/budget/${CATEGORY}_x${FACTOR}_s$SEED
 mkdir -p "$WORK/budget" "$OUT"
 "$SCAPO" train --data "$data" --preset "$PRESET" --set "stage1_epochs=$((e1 * FACTOR))" \
