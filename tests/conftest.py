@@ -45,6 +45,20 @@ def laptop_data(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.fixture
+def small_part_search(monkeypatch):
+    """The trainer's rigid-split search (:func:`scapo.models.part_init.initial_split`) with 8 pairs, 8 plane
+    directions and 8 k-means starts instead of 32, 48 and 48: for tests of how the trainer uses the split, not of
+    the search, whose result tests/test_part_init.py tests on its own (a sixth of the candidates, a quarter of the
+    pairs: the search took ~6 s of such a test's ~10 s)."""
+    import functools
+
+    from scapo.models import part_init
+
+    monkeypatch.setattr(part_init, "initial_split",
+                        functools.partial(part_init.initial_split, pairs=8, directions=8, starts=8))
+
+
 # The longest self-contained integration tests start first, so that two pytest-xdist workers finish together
 # (in collection order they came last and left one worker idle for their length).
 _FIRST = ("test_ray.py::", "test_distributed.py::", "test_the_gpu_script_runs", "test_the_wheel_in_a_fresh_venv",

@@ -1,5 +1,6 @@
 """The optional ManiSkill3 backend gives the SAPIEN backend's ground truth on the same object, state and camera."""
 
+import importlib.util
 import json
 
 import numpy as np
@@ -10,8 +11,10 @@ from scipy.spatial import cKDTree
 from scapo.sim.assets import build_instance, load_template, parse_urdf
 from scapo.sim.render import RenderConfig, ViewConfig, render_many
 
-pytest.importorskip("mani_skill")
-pytestmark = pytest.mark.render
+# skipped without ManiSkill3; scapo.sim.maniskill imports it in the tests, not at collection (2.5 s in each
+# pytest-xdist worker)
+pytestmark = [pytest.mark.render,
+              pytest.mark.skipif(importlib.util.find_spec("mani_skill") is None, reason="no mani_skill")]
 
 GT_FIELDS = ("part_pose", "joint_type", "joint_parts", "joint_axis", "joint_pivot", "joint_state", "joint_limit",
              "T_cam_obj", "bbox_diag")

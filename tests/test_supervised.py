@@ -76,7 +76,7 @@ def test_labelled_centroids_prefer_the_template_then_every_cloud_then_the_unlabe
     torch.testing.assert_close(out[1], torch.full((3,), 2.0)) and torch.testing.assert_close(out[0], K[0])
 
 
-def test_label_init_puts_the_templates_part_k_on_the_labelled_part_k(laptop_data, tmp_path):
+def test_label_init_puts_the_templates_part_k_on_the_labelled_part_k(laptop_data, tmp_path, small_part_search):
     import dataclasses
 
     from scapo.models.train import TrainingClouds

@@ -79,8 +79,9 @@ def test_an_undeclared_symmetry_is_found_on_the_meshes_and_a_declared_one_is_not
     rng = np.random.default_rng(1)
     surf = sample_surface(spec, surface_count(spec, 0.015), rng)
     rest = np.zeros(spec.num_joints)
-    found = object_self_maps(surf, rest, rng)
-    assert found and abs(found[0].angle_deg - 180.0) < 5.0 and found[0].parts == (0, 2, 1)
+    for icp_points in (1500, 500):  # the measurement's default and the lighter one the per-category test runs
+        found = object_self_maps(surf, rest, rng, icp_points=icp_points)
+        assert found and abs(found[0].angle_deg - 180.0) < 5.0 and found[0].parts == (0, 2, 1)
     assert all(m.declared for m in object_self_maps(surf, rest, rng, declared=(SYMMETRIES["basket"],)))
 
 
@@ -88,8 +89,9 @@ def test_an_undeclared_symmetry_is_found_on_the_meshes_and_a_declared_one_is_not
 def test_declared_symmetries_hold_on_the_meshes_and_no_undeclared_one_does(category):
     """Every category (issue 29): no undeclared self-map of the posed meshes at rest or a drawn state, and each
     declared symmetry (the laptop's exchange, the basket's half turn) holds within its stated slack
-    (``scapo assets symmetry`` measures more instances and the views; results/symmetry/)."""
-    rep = measure_meshes(category, instances=1, states=2, spacing=0.016)
+    (``scapo assets symmetry`` measures more instances, with 1500 ICP points, and the views; results/symmetry/).
+    500 ICP points here: the undeclared half turn of the basket is found with them too (the test above)."""
+    rep = measure_meshes(category, instances=1, states=2, spacing=0.016, icp_points=500)
     assert rep.declared_hold, rep.lines()
     assert not any(s["maps"] for s in rep.self_maps), rep.lines()
     assert len(rep.declared) == (category in SYMMETRIES)

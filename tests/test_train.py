@@ -151,7 +151,7 @@ def test_an_unfinished_run_is_refused_by_predict_and_finished_by_train_with_its_
     assert preds.info["preset"] == "test_custom"
 
 
-def test_stage2_starts_from_the_rigid_split_of_the_canonical_clouds(laptop_data, tmp_path):
+def test_stage2_starts_from_the_rigid_split_of_the_canonical_clouds(laptop_data, tmp_path, small_part_search):
     p = dataclasses.replace(TEST, name="test_part_init", part_init=True, stage1_epochs=1, stage2_epochs=0)
     t = Trainer(laptop_data, tmp_path / "run", p, progress=False)
     t.train()

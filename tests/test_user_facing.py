@@ -41,10 +41,12 @@ def test_the_wheel_in_a_fresh_venv_reports_its_version_lists_and_generates_from_
     assert r.returncode == 0, r.stderr[-2000:]
     (wheel,) = dist.glob("scapo-*.whl")
     venv = tmp_path / "venv"
-    # a venv without its own pip (ensurepip costs 6 s of CPU); this environment's pip installs into it
+    # a venv without its own pip (ensurepip costs 6 s of CPU); this environment's pip installs into it, run from
+    # tmp_path: from the checkout, a PYTHONPATH with an empty entry showed pip the checkout's scapo.egg-info as an
+    # installed scapo and it installed nothing
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=300)
     r = subprocess.run([sys.executable, "-m", "pip", "--python", str(venv / "bin" / "python"), "install", "--no-deps",
-                        "-q", str(wheel)], capture_output=True, text=True, timeout=600)
+                        "-q", str(wheel)], capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     # then the dependencies from this environment (no network for a second torch); scapo only from the wheel.
     # (Added after the install: a pip that saw this environment's scapo would uninstall it.)

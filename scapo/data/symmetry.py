@@ -584,11 +584,12 @@ def declared_symmetries(category: str) -> tuple[Symmetry, ...]:
 
 def measure_meshes(category: str, instances: int = 4, states: int = 3, seed: int = 5, spacing: float = 0.012,
                    tol: Tolerance = Tolerance(), cache_dir=None, report: SymmetryReport | None = None,
-                   progress=None) -> SymmetryReport:
+                   progress=None, icp_points: int = 1500) -> SymmetryReport:
     """Measurements 1 and 2 on procedural instances ``0 .. instances-1`` of ``category`` (built with ``seed``),
     each at ``states`` joint states drawn uniformly in its limits (the first is the rest state); surfaces sampled at
     ``spacing`` bbox diagonals (:func:`surface_count`; the resampling reference, and so the tolerance, shrink with
-    it: a sparse sampling hides features smaller than its spacing).
+    it: a sparse sampling hides features smaller than its spacing). ``icp_points``: the points of one half-sampling
+    that each self-map's ICP moves (:func:`object_self_maps`; whether a map coincides is judged on all points).
 
     Raises:
         UnknownNameError: an unknown category. ConfigError: instances or states < 1.
@@ -610,7 +611,8 @@ def measure_meshes(category: str, instances: int = 4, states: int = 3, seed: int
         lim = spec.joint_limit
         for k in range(states):
             q = np.zeros(spec.num_joints) if k == 0 else rng.uniform(lim[:, 0], lim[:, 1])
-            maps = [m for m in object_self_maps(surf, q, rng, tol, decl) if not m.declared]
+            maps = [m for m in object_self_maps(surf, q, rng, tol, decl, icp_points=icp_points)
+                    if not m.declared]
             rep.self_maps.append({"instance": i, "state": q.tolist(), "maps": [
                 {"angle_deg": m.angle_deg, "distance": m.distance, "reference": m.reference, "parts": list(m.parts),
                  "rotation": m.T[:3, :3].tolist()} for m in maps]})
