@@ -97,6 +97,11 @@ def test_declared_symmetries_hold_on_the_meshes_and_no_undeclared_one_does(categ
     assert len(rep.declared) == (category in SYMMETRIES)
 
 
+def test_a_measurement_with_too_few_icp_points_is_a_clear_error():
+    with pytest.raises(ConfigError, match="icp_points must be >= 3"):
+        measure_meshes("laptop", instances=1, states=1, icp_points=2)
+
+
 def test_the_baskets_declared_symmetry_holds_exactly_and_a_wrong_declaration_fails():
     spec = _spec("basket")
     rng = np.random.default_rng(2)

@@ -592,7 +592,7 @@ def measure_meshes(category: str, instances: int = 4, states: int = 3, seed: int
     that each self-map's ICP moves (:func:`object_self_maps`; whether a map coincides is judged on all points).
 
     Raises:
-        UnknownNameError: an unknown category. ConfigError: instances or states < 1.
+        UnknownNameError: an unknown category. ConfigError: instances or states < 1, icp_points < 3.
     """
     import time
 
@@ -600,6 +600,8 @@ def measure_meshes(category: str, instances: int = 4, states: int = 3, seed: int
 
     if instances < 1 or states < 1:
         raise ConfigError(f"instances and states must be >= 1, got {instances} and {states}")
+    if icp_points < 3:
+        raise ConfigError(f"icp_points must be >= 3 (a rigid fit needs three points), got {icp_points}")
     t0 = time.time()
     rep = report or SymmetryReport(category, instances, 0, seed)
     decl = declared_symmetries(category)
