@@ -271,9 +271,18 @@ def test_a_dataset_generated_on_another_cpu_is_made_the_archived_one_and_its_cel
     report = json.loads((fresh / "reconciled.json").read_text())
     assert report["shards"] == 1 and 0 < report["max_abs_diff"]["T_cam_obj"] < 1e-12
     assert reconcile_dataset(fresh, archive)["status"] == "same"
+    # npcs is float32 derived from double-precision poses: one ulp off where a pose's rounding crossed a float32
+    # boundary (washer, issue 31); it is computed again from the archived poses and must give the archived bytes
+    ulp = tmp_path / "ulp" / data.name
+    _generated_elsewhere(data, ulp, "npcs", lambda a: np.where(a != 0, np.nextafter(a, np.float32(9)), a))
+    rep = reconcile_dataset(ulp, archive)
+    assert rep["status"] == "reconciled" and rep["recomputed"] == {"npcs": 1}, rep
+    assert 0 < rep["max_abs_diff"]["npcs"] < 1e-6 and load(ulp, "test").dataset_hash == want
     # more than rounding, or a difference in the rendered points: left as generated, nothing restored
     others = {}
     for field, change, why in (("joint_state", lambda a: a + 1e-6, "more than rounding"),
+                               ("npcs", lambda a: np.where(a != 0, a + np.float32(1e-3), a),
+                                "more than float32 rounding"),
                                ("points", lambda a: np.nextafter(a, np.float32(9)), "not double-precision")):
         other = others[field] = tmp_path / field / data.name
         _generated_elsewhere(data, other, field, change)

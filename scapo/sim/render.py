@@ -458,6 +458,29 @@ def process_frame(frame: Frame, cfg: RenderConfig, K: np.ndarray, keep_images: b
     return sample
 
 
+def npcs_of(points: np.ndarray, part_label: np.ndarray, part_pose: np.ndarray, bbox_diag: float) -> np.ndarray:
+    """The NPCS of one view's points (SPEC section 5): ``inv(part_pose[label]) @ point / bbox_diag``.
+
+    Args:
+        points: ``(N, 3)`` float32, camera frame, metres.
+        part_label: ``(N,)`` int; ``-1`` (background) gets NPCS ``0``.
+        part_pose: ``(P, 4, 4)`` float64, each part's pose (object at rest -> camera at state).
+        bbox_diag: the object's rest bounding-box diagonal, metres.
+
+    Returns:
+        ``(N, 3)`` float32, in units of ``bbox_diag``: computed in float64 and rounded once to float32, so that the
+        generator and :func:`scapo.bench.archive.reconcile_dataset` (which computes it again from archived ground
+        truth) give the same bits from the same inputs.
+    """
+    points = np.asarray(points, dtype=np.float32)
+    part_label = np.asarray(part_label)
+    npcs = np.zeros_like(points)
+    obj = part_label >= 0
+    inv_pose = invert_transform(np.asarray(part_pose, dtype=np.float64))[part_label[obj]]
+    npcs[obj] = (np.einsum("nij,nj->ni", inv_pose[:, :3, :3], points[obj]) + inv_pose[:, :3, 3]) / bbox_diag
+    return npcs
+
+
 def ground_truth(spec: ArticulationSpec, state: np.ndarray, T_world_cam: np.ndarray, part_motion: np.ndarray,
                  points: np.ndarray, part_label: np.ndarray, K: np.ndarray) -> dict:
     """Assemble the SPEC section 5 sample dict from the simulator state of one frame.
@@ -468,12 +491,8 @@ def ground_truth(spec: ArticulationSpec, state: np.ndarray, T_world_cam: np.ndar
     """
     T_cam_world = invert_transform(T_world_cam)
     part_pose = T_cam_world @ part_motion
-    bbox_diag = spec.bbox_diag
     points = np.asarray(points, dtype=np.float32)
-    npcs = np.zeros_like(points)
-    obj = part_label >= 0
-    inv_pose = invert_transform(part_pose)[part_label[obj]]
-    npcs[obj] = (np.einsum("nij,nj->ni", inv_pose[:, :3, :3], points[obj]) + inv_pose[:, :3, 3]) / bbox_diag
+    npcs = npcs_of(points, part_label, part_pose, spec.bbox_diag)
     jp = spec.joint_parts
     axes = np.array([j.axis_obj for j in spec.gt_joints]).reshape(-1, 3)
     pivots = np.array([j.pivot_obj for j in spec.gt_joints]).reshape(-1, 3)
@@ -481,7 +500,7 @@ def ground_truth(spec: ArticulationSpec, state: np.ndarray, T_world_cam: np.ndar
     return {
         "points": points,
         "part_label": part_label.astype(np.int64),
-        "npcs": npcs.astype(np.float32),
+        "npcs": npcs,
         "part_pose": part_pose,
         "joint_type": spec.joint_type,
         "joint_parts": jp,
@@ -491,7 +510,7 @@ def ground_truth(spec: ArticulationSpec, state: np.ndarray, T_world_cam: np.ndar
         "joint_limit": spec.joint_limit,
         "T_cam_obj": T_cam_world,
         "K": np.asarray(K, dtype=np.float64).copy(),
-        "bbox_diag": np.float64(bbox_diag),
+        "bbox_diag": np.float64(spec.bbox_diag),
     }
 
 
