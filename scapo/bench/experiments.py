@@ -255,9 +255,14 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
     def pin(data: Path) -> None:
         rep = reconcile_dataset(data, archive)
         if rep["status"] == "reconciled":
+            derived = set(rep.get("recomputed", {}))
+            moved = max((v for k, v in rep["max_abs_diff"].items() if k not in derived), default=0.0)
+            again = "".join(f"; {k} computed again from the archived ground truth in {n} shard(s), moved by at most "
+                            f"{rep['max_abs_diff'].get(k, 0.0):.2g}"
+                            for k, n in sorted(rep.get("recomputed", {}).items()))
             print(f"{data.name}: generated as {rep['generated_hash'][:12]}, made the archived dataset "
                   f"{rep['dataset_hash'][:12]} ({rep['shards']} shard(s); double-precision values moved by at most "
-                  f"{max(rep['max_abs_diff'].values(), default=0.0):.2g})", flush=True)
+                  f"{moved:.2g}{again})", flush=True)
         elif rep["status"] == "different":
             print(f"scapo bench: warning: {data.name} is not the archived dataset {rep['archived'][:12]} "
                   f"({rep['why']}); its archived cells are computed again", file=sys.stderr, flush=True)
