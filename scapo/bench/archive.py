@@ -326,7 +326,7 @@ def _npcs_again(arrays: dict[str, np.ndarray]) -> np.ndarray:
 
 #: float32 fields that the generator derives from double-precision ground truth, with the function that derives
 #: them: rounding moves such a value by one float32 ulp where the double it is rounded from crosses a float32
-#: boundary (measured: 1 value of 147,456 in two of washer's shards, issue 31), so a regenerated dataset's field is
+#: boundary (measured: one value in each of two of washer's shards, issue 31), so a regenerated dataset's field is
 #: computed again from the archived ground truth and must then have the archived digest.
 DERIVED = {"npcs": _npcs_again}
 #: How far a regenerated derived field may be from the one computed again from the archived ground truth (relative:
