@@ -321,7 +321,7 @@ def _npcs_again(arrays: dict[str, np.ndarray]) -> np.ndarray:
     pts, lab, pose, diag = arrays["points"], arrays["part_label"], arrays["part_pose"], arrays["bbox_diag"]
     if not (len(pts) == len(lab) == len(pose) == len(diag)):
         raise ValueError("its arrays hold different numbers of views")
-    return np.stack([npcs_of(pts[i], lab[i], pose[i], float(diag[i])) for i in range(len(pts))]).astype(np.float32)
+    return np.stack([npcs_of(pts[i], lab[i], pose[i], float(diag[i])) for i in range(len(pts))])
 
 
 #: float32 fields that the generator derives from double-precision ground truth, with the function that derives

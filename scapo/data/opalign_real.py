@@ -51,6 +51,7 @@ from scapo.errors import ConfigError, DatasetError, InputError
 from scapo.files import atomic_write_bytes, check_output_dir, load_npz_object
 from scapo.ops.rigid import invert_transform, project_to_so3
 from scapo.ops.sampling import farthest_point_indices
+from scapo.sim.render import npcs_of
 
 #: Joint types (0 revolute, 1 prismatic) and (parent, child) parts of the categories of OP-Align's real data
 #: (SPEC section 4 table; the paper's Table 2 categories).
@@ -174,11 +175,8 @@ def frame_to_sample(frame: dict, joint_type: Sequence[int], joint_parts: Sequenc
         M = invert_transform(pose[jp[j, 0]]) @ pose[jp[j, 1]]
         a_parent = pose[jp[j, 0], :3, :3].T @ axis[j]
         state[j] = (Rotation.from_matrix(M[:3, :3]).as_rotvec() @ a_parent) if jt[j] == 0 else (M[:3, 3] @ a_parent)
-    npcs = np.zeros_like(points)
-    obj = label >= 0
-    inv = invert_transform(pose)[label[obj]]
-    npcs[obj] = (np.einsum("nij,nj->ni", inv[:, :3, :3], points[obj]) + inv[:, :3, 3]) / bbox_diag
-    return {"points": points, "part_label": label, "npcs": npcs.astype(np.float32), "part_pose": pose,
+    npcs = npcs_of(points, label, pose, bbox_diag)
+    return {"points": points, "part_label": label, "npcs": npcs, "part_pose": pose,
             "joint_type": jt, "joint_parts": jp, "joint_axis": axis, "joint_pivot": joint[:, :3].copy(),
             "joint_state": state, "joint_limit": np.full((J, 2), np.nan), "T_cam_obj": pose[0].copy(),
             "K": fit_intrinsics(pc, image_size), "bbox_diag": np.float64(bbox_diag)}
