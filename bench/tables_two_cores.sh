@@ -73,7 +73,7 @@ prepare_data() {  # this checkout's code: generate, reconcile, pin, restore; mar
     else set -- $CATS2; work=$WORK2; archive=$ARCHIVE2; fi
     mkdir -p "$work/conflict"
     for c in "$@"; do
-      WORK=$work bash bench/$t.sh --seeds "$seeds" --categories "$c" --data-only --archive "$archive" --no-progress
+      SEEDS=$seeds WORK=$work bash bench/$t.sh --categories "$c" --data-only --archive "$archive" --no-progress
       why=$("$HERE/.venv/bin/python" -P -c 'import sys
 from pathlib import Path
 from scapo.bench.archive import archive_conflict
@@ -94,13 +94,14 @@ if [ -n "${DATA:-}" ]; then
 fi
 if [ -n "${FINISH:-}" ]; then
   seeds=$(echo "$SEEDS" | tr ' ' ',')
-  WORK=$WORK1 bash bench/table1.sh --seeds "$seeds" --finished-only --archive "$ARCHIVE1" --out "$OUT"
-  WORK=$WORK1 bash bench/table3.sh --seeds "$seeds" --finished-only --archive "$ARCHIVE1" --out "$OUT"
-  WORK=$WORK2 bash bench/table2.sh --seeds "$seeds" --finished-only --archive "$ARCHIVE2" --out "$OUT"
+  # SEEDS is handed on comma-separated: the table scripts read it too (space-separated, scapo bench refused it)
+  SEEDS=$seeds WORK=$WORK1 bash bench/table1.sh --finished-only --archive "$ARCHIVE1" --out "$OUT"
+  SEEDS=$seeds WORK=$WORK1 bash bench/table3.sh --finished-only --archive "$ARCHIVE1" --out "$OUT"
+  SEEDS=$seeds WORK=$WORK2 bash bench/table2.sh --finished-only --archive "$ARCHIVE2" --out "$OUT"
   # Table 1's cells scored again under EAP's and OP-Align's released protocols (no training or prediction: the
   # same predictions; the scores of these files come from the code that runs FINISH, their provenance says so)
   for protocol in ${FINISH_PROTOCOLS:-eap op-align}; do
-    WORK=$WORK1 bash bench/table1.sh --seeds "$seeds" --finished-only --archive "$ARCHIVE1" --protocol "$protocol" \
+    SEEDS=$seeds WORK=$WORK1 bash bench/table1.sh --finished-only --archive "$ARCHIVE1" --protocol "$protocol" \
       --name "table1_synthetic_$protocol" --out "$OUT/protocols"
   done
   exit 0
