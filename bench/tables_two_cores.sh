@@ -35,6 +35,12 @@
 #   FINISH=1 bash bench/tables_two_cores.sh   write the three tables from the finished cells into $OUT, and Table 1
 #                                             under the eap and op-align protocols into $OUT/protocols/ (the datasets
 #                                             must exist: after a fresh machine, run DATA=1 first)
+#                                             The protocol re-scorings record the commit of this checkout when they
+#                                             are scored, and a table refuses records of two commits: commit nothing
+#                                             on this checkout while FINISH runs, and preview FINISH only with copies
+#                                             of the archives (ARCHIVE1/ARCHIVE2/OUT in /tmp) and FINISH_PROTOCOLS=" ",
+#                                             or remove $WORK1/*/cells/*.{eap,op-align}.* afterwards (never Table 2's
+#                                             records in $WORK2, which are op-align cells themselves)
 #
 # CODE is the checkout whose code computes the cells (default: this one): a clean worktree of the commit the tables
 # should record (git worktree add ../wtNN <commit>). The data step, STATUS and FINISH run this checkout's code, so
