@@ -808,3 +808,46 @@ def test_cells_of_an_unpinned_dataset_are_adopted_by_its_regeneration_only_when_
         assert a.summary.keys() == b.summary.keys()
         for k, v in a.summary.items():
             assert v == pytest.approx(b.summary[k], abs=1e-9, nan_ok=True), k
+
+
+def _digest_table(cells: list[tuple[str, str, int, float]], hashes: dict[str, str]) -> dict:
+    """A minimal bench table JSON: (method, category, seed, S) per cell, a one-metric bootstrap a vs b."""
+    return {
+        "provenance": {"commits": ["c0"], "devices": ["cpu"], "compute_hours": 1.0, "training_seeds": {},
+                       "datasets": hashes,
+                       "cells": [{"category": c, "cell": f"{m}_s{s}", "train_s": 3600.0, "predict_s": 0.0,
+                                  "evaluate_s": 0.0} for m, c, s, _ in cells]},
+        "results": [{"method": m, "category": c, "seed": s, "summary": {"S": v}} for m, c, s, v in cells],
+        "pairwise_bootstrap": {"draws": 10, "level": 0.95, "metrics": {"S": [
+            {"a": "a", "b": "b", "a_value": 22.5, "b_value": 40.0, "diff": -17.5, "interval": [-20.0, -15.0],
+             "supported": True, "better": "b"}]}},
+        "self_supervised_ordering": {"categories": ["x", "y"], "metrics": {"S": {
+            "values": {"a": 22.5, "b": 40.0}, "best": "b", "against": {"a": {"seeds_separate": True}}}}},
+    }
+
+
+def test_table_digest_reads_the_tables_numbers(tmp_path):
+    """``bench/table_digest.py`` (the numbers of issue 31's status paragraphs): the Mean row is the mean over
+    categories of the per-category means over seeds, a pair's interval is signed as asked, a cell two tables share
+    (same dataset hash and key) counts once in the compute, and bad input ends with a ``scapo:`` message."""
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "bench" / "table_digest.py"
+    t1 = _digest_table([("a", "x", 0, 10.0), ("a", "x", 1, 20.0), ("a", "y", 0, 30.0), ("b", "x", 0, 40.0),
+                        ("b", "y", 0, 40.0)], {"x": "h1", "y": "h2"})
+    t3 = _digest_table([("a", "x", 0, 10.0), ("c", "x", 0, 5.0)], {"x": "h1"})  # a_s0 on x is t1's cell
+    for name, t in (("t1.json", t1), ("t3.json", t3)):
+        (tmp_path / name).write_text(json.dumps(t))
+    run = subprocess.run([sys.executable, str(script), str(tmp_path / "t1.json"), str(tmp_path / "t3.json"),
+                          "--pair", "b,a", "--mean", "S"], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    out = run.stdout
+    assert "mean over categories of S: a 22.50, b 40.00" in out  # a: mean(15, 30); b: mean(40, 40)
+    assert "mean S: best b 40; a 22.5 (diff +17.5 [+15, +20], seeds separate)" in out
+    assert "b minus a:\n  mean S: +17.5 [+15, +20]\n" in out
+    assert "## together: 6 distinct cells, 6.0 core-hours" in out  # 5 + 2 cells, one shared
+    (tmp_path / "bad.json").write_text(json.dumps({"results": []}))
+    for args in (["missing.json"], [str(tmp_path / "bad.json")], [str(tmp_path / "t1.json"), "--pair", "a"]):
+        bad = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, cwd=tmp_path)
+        assert bad.returncode == 2 and bad.stderr.startswith("scapo: ") and "Traceback" not in bad.stderr, args
