@@ -11,7 +11,8 @@ training seeds separate); the interval of every metric of each ``--pair A,B`` (A
 ``pairwise_bootstrap``); and with ``--mean``, the mean over the table's categories of each method's mean over training
 seeds of those summary fields (the "Mean" rows of the Markdown). Last, the compute of all the given tables together
 with the cells that several tables share (the same dataset hash and cell key, as Table 3's "Full" rows are Table 1's
-SCAPO cells) counted once: training, prediction and evaluation seconds as each cell's record measured them.
+SCAPO cells) counted once: training, prediction and evaluation seconds as each cell's record measured them, each
+training once (a "+ refine" cell's record repeats the training time of the run it predicts from).
 
 Values are printed as the tables hold them: S and the Seg/Joint/Part rates in %, D and R in degrees, C in the
 protocol's unit. Nothing is recomputed: the intervals are the table's own (1000 paired resamples over test
@@ -76,17 +77,16 @@ def category_means(table: dict, field: str) -> dict[str, float]:
 
 
 def unique_compute(tables: list[dict]) -> tuple[int, float]:
-    """(cells, hours) of the given tables together, a cell shared by several (same dataset hash and cell key)
-    counted once."""
-    seen, seconds = set(), 0.0
-    for t in tables:
-        hashes = t["provenance"].get("datasets", {})
-        for c in t["provenance"].get("cells", []):
-            key = (hashes.get(c["category"], c["category"]), c["cell"])
-            if key not in seen:
-                seen.add(key)
-                seconds += sum(float(c.get(k) or 0.0) for k in ("train_s", "predict_s", "evaluate_s"))
-    return len(seen), seconds / 3600.0
+    """(cells, hours) of the given tables together: a cell shared by several (same dataset hash and cell key)
+    counted once, and each training once (a "+ refine" cell predicts from its one-pass cell's run:
+    :func:`scapo.bench.experiments.compute_seconds`)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script from anywhere in the checkout
+    from scapo.bench.experiments import compute_seconds
+
+    seen: set = set()
+    seconds = sum(compute_seconds(t["provenance"].get("cells", []), t["provenance"].get("datasets", {}), seen)
+                  for t in tables)
+    return sum(1 for k in seen if k[0] == "cell"), seconds / 3600.0
 
 
 def ordering_lines(table: dict, key: str) -> list[str]:

@@ -70,6 +70,9 @@ def test_tables_figures_and_per_cell_provenance(bench):
         with open(work / "laptop_i10_v2_s0" / f"run_{key}" / "log.csv") as f:
             assert c["train_steps"] == timing["steps"] == sum(1 for _ in f) - 1  # one log row per optimiser step
         assert c["predict_s"] > 0 and c["evaluate_s"] > 0 and c["commit"] and c["device"].startswith("cpu")
+        assert c["run"] == f"run_{key}"
+    assert prov["compute_hours"] == round(sum(c["train_s"] + c["predict_s"] + c["evaluate_s"]
+                                              for c in cells.values()) / 3600, 2)
     from scapo.methods import METHODS
 
     rec = json.loads((work / "laptop_i10_v2_s0" / "cells" / "scapo_test_s0.scapo.json").read_text())
@@ -826,6 +829,27 @@ def _digest_table(cells: list[tuple[str, str, int, float]], hashes: dict[str, st
     }
 
 
+def test_compute_counts_each_training_once():
+    """A "+ refine" cell predicts from its one-pass cell's run, whose training its record repeats: the table's
+    compute adds only its prediction; an untrained cell (ICP) adds its prediction; records without ``run`` fall
+    back to the one-pass cell's run; cells of two tables on one dataset count once with a shared ``seen``."""
+    from scapo.bench.experiments import compute_seconds, training_run
+
+    cells = [{"category": "laptop", "cell": "eap_cpu_s0", "run": "run_eap_cpu_s0", "train_s": 600.0,
+              "predict_s": 60.0, "evaluate_s": 1.0},
+             {"category": "laptop", "cell": "eap+refine_cpu_s0", "run": "run_eap_cpu_s0", "train_s": 600.0,
+              "predict_s": 120.0, "evaluate_s": 1.0},
+             {"category": "laptop", "cell": "scapo-sj_cpu+sj_s2", "train_s": 900.0, "predict_s": 30.0},
+             {"category": "laptop", "cell": "scapo-sj+refine_cpu+sj_s2", "train_s": 900.0, "predict_s": 90.0},
+             {"category": "laptop", "cell": "icp", "predict_s": 200.0, "evaluate_s": 0.5}]
+    assert training_run(cells[3]) == "run_scapo-sj_cpu+sj_s2"
+    assert compute_seconds(cells) == 600 + 61 + 121 + 900 + 30 + 90 + 200.5
+    seen: set = set()
+    first = compute_seconds(cells, {"laptop": "h1"}, seen)
+    assert first == compute_seconds(cells) and compute_seconds(cells[:2], {"laptop": "h1"}, seen) == 0.0
+    assert compute_seconds(cells[:1], {"laptop": "h2"}, seen) == 661.0  # another dataset: another run
+
+
 def test_table_digest_reads_the_tables_numbers(tmp_path):
     """``bench/table_digest.py`` (the numbers of issue 31's status paragraphs): the Mean row is the mean over
     categories of the per-category means over seeds, a pair's interval is signed as asked, a cell two tables share
@@ -836,7 +860,8 @@ def test_table_digest_reads_the_tables_numbers(tmp_path):
     script = Path(__file__).resolve().parents[1] / "bench" / "table_digest.py"
     t1 = _digest_table([("a", "x", 0, 10.0), ("a", "x", 1, 20.0), ("a", "y", 0, 30.0), ("b", "x", 0, 40.0),
                         ("b", "y", 0, 40.0)], {"x": "h1", "y": "h2"})
-    t3 = _digest_table([("a", "x", 0, 10.0), ("c", "x", 0, 5.0)], {"x": "h1"})  # a_s0 on x is t1's cell
+    # a_s0 on x is t1's cell; a+refine_s0 predicts from a_s0's run: its training (repeated in its record) is not new
+    t3 = _digest_table([("a", "x", 0, 10.0), ("c", "x", 0, 5.0), ("a+refine", "x", 0, 11.0)], {"x": "h1"})
     for name, t in (("t1.json", t1), ("t3.json", t3)):
         (tmp_path / name).write_text(json.dumps(t))
     run = subprocess.run([sys.executable, str(script), str(tmp_path / "t1.json"), str(tmp_path / "t3.json"),
@@ -846,7 +871,7 @@ def test_table_digest_reads_the_tables_numbers(tmp_path):
     assert "mean over categories of S: a 22.50, b 40.00" in out  # a: mean(15, 30); b: mean(40, 40)
     assert "mean S: best b 40; a 22.5 (diff +17.5 [+15, +20], seeds separate)" in out
     assert "b minus a:\n  mean S: +17.5 [+15, +20]\n" in out
-    assert "## together: 6 distinct cells, 6.0 core-hours" in out  # 5 + 2 cells, one shared
+    assert "## together: 7 distinct cells, 6.0 core-hours" in out  # 5 + 3 cells, one shared; 6 trainings
     (tmp_path / "bad.json").write_text(json.dumps({"results": []}))
     for args in (["missing.json"], [str(tmp_path / "bad.json")], [str(tmp_path / "t1.json"), "--pair", "a"]):
         bad = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, cwd=tmp_path)

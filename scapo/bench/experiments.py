@@ -313,6 +313,35 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
     return results, records, {k: v for k, v in hashes.items() if v}, done, missing
 
 
+def training_run(cell: dict) -> str:
+    """The trained run a provenance cell (``category``, ``cell``, optional ``run``) predicted from: its ``run``
+    (the run folder's name, e.g. ``run_eap_cpu_s0``), or for a record written before the field existed the one-pass
+    cell's run (a "+ refine" cell, ``eap+refine_cpu_s0``, predicts from ``run_eap_cpu_s0``)."""
+    return str(cell.get("run") or "run_" + str(cell["cell"]).replace("+refine", ""))
+
+
+def compute_seconds(cells, datasets: dict | None = None, seen: set | None = None) -> float:
+    """Compute (s) held by provenance cells, each training counted once: a "+ refine" cell reuses the run its
+    one-pass cell trained (its ``train_s`` is that run's), so only its prediction and evaluation add.
+
+    ``cells``: dicts with ``category``, ``cell`` and optional ``run``, ``train_s``, ``predict_s``, ``evaluate_s``
+    (seconds); ``datasets``: category -> dataset hash, so that cells of several tables on one dataset (Table 3's
+    SCAPO cells are Table 1's) are one; ``seen``: a set shared between calls for such tables (updated in place).
+    Returns seconds (float)."""
+    seen = set() if seen is None else seen
+    datasets = datasets or {}
+    total = 0.0
+    for c in cells:
+        data = datasets.get(c["category"], c["category"])
+        if ("cell", data, c["cell"]) not in seen:
+            seen.add(("cell", data, c["cell"]))
+            total += float(c.get("predict_s") or 0.0) + float(c.get("evaluate_s") or 0.0)
+        if c.get("train_s") and ("run", data, training_run(c)) not in seen:
+            seen.add(("run", data, training_run(c)))
+            total += float(c["train_s"])
+    return total
+
+
 def _provenance(name: str, cells, records, hashes, instances, views, data_seed, protocol, preset,
                 missing=(), random_rotation: bool = True) -> dict:
     """Provenance from the cells' records only (deterministic for a finished bench); ``missing``: cells
@@ -329,12 +358,13 @@ def _provenance(name: str, cells, records, hashes, instances, views, data_seed, 
                             if r["provenance"]["commit"] != computed_commit(r) else {}),
                          **({"adopted_from": str(r["adopted"].get("from", ""))[:16]}
                             if isinstance(r.get("adopted"), dict) else {}),
+                         **({"run": r["run"]} if isinstance(r.get("run"), str) else {}),
                          **{k: w[k] for k in ("train_s", "train_steps", "predict_s", "evaluate_s") if k in w}})
     seeds: dict[str, list[int]] = {}
     for c in cells:
         if c.seed is not None and c.seed not in seeds.setdefault(c.category, []):
             seeds[c.category].append(c.seed)
-    total = sum(sum(v for k, v in p.items() if k.endswith("_s")) for p in per_cell)
+    total = compute_seconds(per_cell)  # a "+ refine" cell's training is its one-pass cell's run: counted once
     return {"bench": name, "preset": preset, "protocol": protocol,
             "data": {"instances": instances, "views": views, "seed": data_seed, "random_rotation": random_rotation},
             "datasets": {k: v[:16] for k, v in hashes.items()}, "training_seeds": seeds,
