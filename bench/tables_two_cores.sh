@@ -100,16 +100,23 @@ if [ -n "${DATA:-}" ]; then
 fi
 if [ -n "${FINISH:-}" ]; then
   seeds=$(echo "$SEEDS" | tr ' ' ',')
+  # The tables are written into a staging folder and copied into $OUT at the end: a table written into this
+  # checkout's results/ makes it dirty, and the next table would then refuse to score from it.
+  stage=$(mktemp -d)
+  trap 'rm -rf "$stage"' EXIT
   # SEEDS is handed on comma-separated: the table scripts read it too (space-separated, scapo bench refused it)
-  SEEDS=$seeds WORK=$WORK1 bash bench/table1.sh --finished-only --archive "$ARCHIVE1" --out "$OUT"
-  SEEDS=$seeds WORK=$WORK1 bash bench/table3.sh --finished-only --archive "$ARCHIVE1" --out "$OUT"
-  SEEDS=$seeds WORK=$WORK2 bash bench/table2.sh --finished-only --archive "$ARCHIVE2" --out "$OUT"
+  SEEDS=$seeds WORK=$WORK1 bash bench/table1.sh --finished-only --archive "$ARCHIVE1" --out "$stage"
+  SEEDS=$seeds WORK=$WORK1 bash bench/table3.sh --finished-only --archive "$ARCHIVE1" --out "$stage"
+  SEEDS=$seeds WORK=$WORK2 bash bench/table2.sh --finished-only --archive "$ARCHIVE2" --out "$stage"
   # Table 1's cells scored again under EAP's and OP-Align's released protocols (no training or prediction: the
   # same predictions; the scores of these files come from the code that runs FINISH, their provenance says so)
   for protocol in ${FINISH_PROTOCOLS:-eap op-align}; do
     SEEDS=$seeds WORK=$WORK1 bash bench/table1.sh --finished-only --archive "$ARCHIVE1" --protocol "$protocol" \
-      --name "table1_synthetic_$protocol" --out "$OUT/protocols"
+      --name "table1_synthetic_$protocol" --out "$stage/protocols"
   done
+  mkdir -p "$OUT"
+  cp -r "$stage"/. "$OUT"/
+  echo "tables written into $OUT"
   exit 0
 fi
 tasks() {  # one line per task: TABLE CATEGORY SEED, in the order the chains take them
