@@ -84,8 +84,12 @@ def unique_compute(tables: list[dict]) -> tuple[int, float]:
     from scapo.bench.experiments import compute_seconds
 
     seen: set = set()
-    seconds = sum(compute_seconds(t["provenance"].get("cells", []), t["provenance"].get("datasets", {}), seen)
-                  for t in tables)
+    try:
+        seconds = sum(compute_seconds(t["provenance"].get("cells", []), t["provenance"].get("datasets", {}), seen)
+                      for t in tables)
+    except (KeyError, TypeError, ValueError) as e:
+        raise DigestError(f"a cell of the tables' provenance lacks its category, key or times ({e!r}): "
+                          "give table JSONs written by scapo bench") from e
     return sum(1 for k in seen if k[0] == "cell"), seconds / 3600.0
 
 
@@ -140,7 +144,8 @@ def digest(paths: list[Path], pairs: list[tuple[str, str]], means: list[str]) ->
             vals = category_means(t, field)
             out.append(f" mean over categories of {field}: " + ", ".join(f"{m} {v:.2f}" for m, v in vals.items()))
     n, hours = unique_compute(tables)
-    out.append(f"## together: {n} distinct cells, {hours:.1f} core-hours recorded (shared cells once)")
+    out.append(f"## together: {n} distinct cells, {hours:.1f} core-hours recorded "
+               "(each shared cell and each training once)")
     return "\n".join(out)
 
 
