@@ -12,7 +12,11 @@ from scapo.errors import ConfigError, UnknownNameError
 
 # tests run from any checkout; the "+refine" rows have their own test; the figures (seconds of matplotlib each time
 # a table is written) are drawn and checked once, by the ``bench`` fixture
-SMALL = dict(instances=10, views=2, preset="test", progress=False, allow_dirty=True, refine_rows=False, figures=False)
+#: Tables 1 and 3 on the whole sphere (their datasets named as before the paper's viewpoints existed; the paper's
+#: setting has a test of its own); Table 2 takes no viewpoints (``SMALL_T2``).
+SMALL = dict(instances=10, views=2, preset="test", progress=False, allow_dirty=True, refine_rows=False, figures=False,
+             viewpoints="sphere")
+SMALL_T2 = {k: v for k, v in SMALL.items() if k != "viewpoints"}
 
 
 @pytest.fixture(scope="module")
@@ -56,10 +60,10 @@ def test_tables_figures_and_per_cell_provenance(bench):
     work, out, _, results = bench
     assert [r.method for r in results] == ["npcs", "scapo"]
     for suffix in ("csv", "md", "tex", "json"):
-        assert (out / f"table1_synthetic.{suffix}").stat().st_size > 0
-    assert (out / "table1_synthetic_laptop.png").stat().st_size > 10_000
-    assert (out / "table1_synthetic_errors.png").stat().st_size > 10_000
-    prov = json.loads((out / "table1_synthetic.json").read_text())["provenance"]
+        assert (out / f"table1_synthetic_sphere.{suffix}").stat().st_size > 0
+    assert (out / "table1_synthetic_sphere_laptop.png").stat().st_size > 10_000
+    assert (out / "table1_synthetic_sphere_errors.png").stat().st_size > 10_000
+    prov = json.loads((out / "table1_synthetic_sphere.json").read_text())["provenance"]
     assert prov["preset"] == "test" and prov["protocol"] == "scapo" and prov["training_seeds"] == {"laptop": [0]}
     assert len(prov["datasets"]["laptop"]) == 16
     cells = {c["cell"]: c for c in prov["cells"]}
@@ -77,7 +81,7 @@ def test_tables_figures_and_per_cell_provenance(bench):
 
     rec = json.loads((work / "laptop_i10_v2_s0" / "cells" / "scapo_test_s0.scapo.json").read_text())
     assert rec["info"]["inference"] == METHODS.get("scapo").inference(work / "laptop_i10_v2_s0" / "run_scapo_test_s0")
-    md = (out / "table1_synthetic.md").read_text()
+    md = (out / "table1_synthetic_sphere.md").read_text()
     assert "## Cells (wall time, minutes; training steps)" in md and "scapo_test_s0" in md and "SCAPO (paper)" in md
 
 
@@ -117,11 +121,11 @@ def test_a_changed_evaluator_re_evaluates_without_retraining_or_predicting(bench
         assert rec["evaluator"] == "changed" and rec["provenance"]["commit"] == "fedcba9876543210"
         assert rec["computed_commit"] == "0123456789abcdef-dirty"
         assert rec["wall"]["predict_s"] == predict_s  # the predictions' wall time as measured when they were made
-        prov = json.loads((out / "table1_synthetic.json").read_text())["provenance"]
+        prov = json.loads((out / "table1_synthetic_sphere.json").read_text())["provenance"]
         assert prov["cells"][0]["commit"] == "0123456789abcdef-dirty"
         assert prov["cells"][0]["evaluated_at"] == "fedcba9876543210"
         assert prov["commits"] == ["0123456789abcdef-dirty", "fedcba9876543210"]
-        assert "0123456789ab-dirty (evaluated fedcba987654)" in (out / "table1_synthetic.md").read_text()
+        assert "0123456789ab-dirty (evaluated fedcba987654)" in (out / "table1_synthetic_sphere.md").read_text()
         capsys.readouterr()
         plan = run_table1(["npcs"], ["laptop"], work_dir=work, out_dir=None, seeds=[0], dry_run=True, **SMALL)
         assert plan[0]["status"] == "done" and "(computed at 0123456789ab-dirty" in capsys.readouterr().out
@@ -195,8 +199,8 @@ def test_a_lost_work_folder_is_restored_from_the_cells_archive(bench, monkeypatc
                        archive=archive, **SMALL)
     assert _same(again, results)
     assert (fresh / "laptop_i10_v2_s0" / original.name).read_bytes() == original.read_bytes()
-    assert json.loads((tmp_path / "out" / "table1_synthetic.json").read_text())["provenance"]["cells"] == \
-        json.loads((out / "table1_synthetic.json").read_text())["provenance"]["cells"]
+    assert json.loads((tmp_path / "out" / "table1_synthetic_sphere.json").read_text())["provenance"]["cells"] == \
+        json.loads((out / "table1_synthetic_sphere.json").read_text())["provenance"]["cells"]
     # another dataset under the same folder name restores nothing, and a restore never overwrites
     other = tmp_path / "other" / "laptop_i10_v2_s0"
     other.mkdir(parents=True)
@@ -333,7 +337,7 @@ def test_data_only_prepares_datasets_and_computes_no_cell(monkeypatch, tmp_path,
     out = run_table1(["icp"], ["laptop"], work_dir=tmp_path / "work", out_dir=tmp_path / "out", seeds=[0],
                      archive=archive, data_only=True, **{**SMALL, "instances": 4})
     data = tmp_path / "work" / "laptop_i4_v2_s0"
-    assert out == [] and not (tmp_path / "out" / "table1_synthetic.json").exists()
+    assert out == [] and not (tmp_path / "out" / "table1_synthetic_sphere.json").exists()
     assert not (data / "cells").exists()
     pinned = json.loads((archive / data.name / "dataset" / "card.json").read_text())
     assert pinned["dataset_hash"] == load(data, "test").dataset_hash
@@ -360,7 +364,7 @@ def test_table3_reuses_table1s_scapo_cell_and_names_the_ablations(bench, monkeyp
     assert _same(res[:1], results[1:])  # the full model is Table 1's SCAPO cell
     run = work / "laptop_i10_v2_s0" / "run_scapo-no-shape_var_test+no-shape_var_s0"
     assert json.loads((run / "run.json").read_text())["preset"]["losses"]["disabled"] == ["shape_var"]
-    md = (out / "table3_ablation.md").read_text()
+    md = (out / "table3_ablation_sphere.md").read_text()
     assert "| Full |" in md and "| w/o L_shape-var |" in md and "w/o L_joint-prox (paper)" in md
 
 
@@ -409,9 +413,9 @@ def test_finished_only_writes_the_done_cells_and_lists_the_missing(bench, monkey
     part = run_table1(["npcs", "scapo"], ["laptop"], work_dir=work, out_dir=tmp_path, seeds=[0, 1], finished_only=True,
                       **SMALL)
     assert _same(part, results)
-    prov = json.loads((tmp_path / "table1_synthetic.json").read_text())["provenance"]
+    prov = json.loads((tmp_path / "table1_synthetic_sphere.json").read_text())["provenance"]
     assert prov["missing_cells"] == ["laptop/npcs_test_s1", "laptop/scapo_test_s1"]
-    assert "**Partial table:** 2 cells" in (tmp_path / "table1_synthetic.md").read_text()
+    assert "**Partial table:** 2 cells" in (tmp_path / "table1_synthetic_sphere.md").read_text()
     with pytest.raises(ConfigError, match="no cell of this bench is done"):
         run_table1(["npcs"], ["laptop"], work_dir=tmp_path / "empty", out_dir=tmp_path, seeds=[0], finished_only=True,
                    **SMALL)
@@ -475,7 +479,7 @@ def test_table2_real_style_with_semi_supervised_rows(tmp_path, monkeypatch):
     from scapo.bench import run_table2
 
     work, out = tmp_path / "work", tmp_path / "results"
-    kw = dict(work_dir=work, out_dir=out, seeds=[0], **SMALL)
+    kw = dict(work_dir=work, out_dir=out, seeds=[0], **SMALL_T2)
     plan = run_table2(["icp", "op-align"], ["laptop"], dry_run=True, **kw)
     assert [r["key"] for r in plan] == ["icp", "op-align_test_s0", "op-align-sj_test+sj_s0"]
     results = run_table2(["icp", "op-align"], ["laptop"], **kw)
@@ -568,41 +572,78 @@ def test_table2_per_category_render_settings_leave_the_other_datasets_alone():
         kw = data_settings(cat, REAL_STYLE_DATA, REAL_STYLE_CATEGORY_DATA)
         assert kw == REAL_STYLE_DATA
         assert make_config(cat, 80, 16, 1, **kw).to_json() == make_config(cat, 80, 16, 1, **REAL_STYLE_DATA).to_json()
-    assert data_settings("laptop")["random_rotation"]  # Tables 1 and 3: objects under arbitrary rotations
+    assert data_settings("laptop")["random_rotation"]  # the whole sphere's settings, the default of data_settings
 
 
-def test_bench_datasets_have_30_test_instances_and_table1_views_are_rotated_uniformly():
+def test_bench_datasets_have_30_test_instances_and_table1_views_are_the_papers():
     """Issue 29's bench data at the defaults: 150 instances, a fifth of them test (30) and a tenth val; Table 1's
-    objects turned by a uniform SO(3) rotation in every view (no upright cue), Table 2 upright as real scans."""
-    from scapo.bench.experiments import REAL_STYLE_DATA, BenchOptions, data_settings
+    views the paper's (EAP's Euler ranges, many views per training instance), its whole-sphere variant under a uniform
+    SO(3) rotation in every view with the config of the datasets made before the paper's views existed, Table 2
+    upright as real scans."""
+    from scapo.bench.experiments import PAPER_TRAIN_VIEWS, REAL_STYLE_DATA, VIEWPOINT_DATA, BenchOptions, data_settings
     from scapo.data.config import make_config
     from scapo.data.generate import split_instances
 
     opts = BenchOptions()
-    for kw, rotated in ((data_settings("laptop"), True), (data_settings("laptop", REAL_STYLE_DATA), False)):
+    assert VIEWPOINT_DATA["sphere"] == {"random_rotation": True, "test_fraction": 0.2, "val_fraction": 0.1}
+    for kw, vp in ((VIEWPOINT_DATA["paper"], "paper"), (VIEWPOINT_DATA["sphere"], "sphere"),
+                   (data_settings("laptop", REAL_STYLE_DATA), "upright")):
         cfg = make_config("laptop", opts.instances, opts.views, 1, **kw)
         splits = split_instances(cfg.instances, cfg.test_fraction, cfg.seed, cfg.val_fraction)
         assert len(splits.test) == 30 and len(splits.val) == 15
-        assert cfg.view_config.random_rotation is rotated
+        assert cfg.view_config.viewpoints == vp
+        assert cfg.views_train == (PAPER_TRAIN_VIEWS if vp == "paper" else opts.views)
+        assert ("train_views" in cfg.to_dict()) is (vp == "paper")
+
+
+def test_table1_defaults_to_the_papers_viewpoints_labelled_and_named_apart(tmp_path):
+    """``scapo bench table1`` without --viewpoints renders the paper's views (datasets ``..._t<train>_s<seed>_paper``,
+    their card says so, training instances with their own number of views) and says so in the table's title and
+    provenance; the whole sphere is labelled as harder than the paper."""
+    from scapo.bench.experiments import dataset_dir
+
+    work, out = tmp_path / "work", tmp_path / "out"
+    kw = {**SMALL_T2, "instances": 6, "train_views": 3}
+    plan = run_table1(["icp"], ["laptop"], work_dir=work, out_dir=out, seeds=[0], dry_run=True, **kw)
+    assert [r["key"] for r in plan] == ["icp"]
+    run_table1(["icp"], ["laptop"], work_dir=work, out_dir=out, seeds=[0], **kw)
+    data = work / "laptop_i6_v2_t3_s0_paper"
+    assert dataset_dir(work, "laptop", 6, 2, 0, {"viewpoints": "paper", "train_views": 3}) == data
+    card = json.loads((data / "card.json").read_text())
+    assert card["viewpoints"] == "paper" and card["views_per_instance"] == {"train": 3, "val": 2, "test": 2}
+    assert card["splits"]["train"]["samples"] == 3 * len(card["splits"]["train"]["instances"])
+    assert card["config"]["view"]["object_euler_deg"] == [[-22.5, 22.5]] * 3
+    prov = json.loads((out / "table1_synthetic.json").read_text())["provenance"]
+    assert prov["data"]["viewpoints"] == "paper" and prov["data"]["train_views"] == 3
+    md = (out / "table1_synthetic.md").read_text()
+    assert "the paper's viewpoints" in md.splitlines()[0] and "Chance:" not in md
+    from scapo.eval.tables import viewpoints_title
+
+    assert "harder than the paper" in viewpoints_title({"data": {"random_rotation": True}})
+    with pytest.raises(ConfigError, match="contradicts"):
+        run_table1(["icp"], ["laptop"], work_dir=work, out_dir=out, dry_run=True, upright=True, **SMALL)
+    with pytest.raises(ConfigError, match="train-views must be >= 1"):
+        run_table1(["icp"], ["laptop"], work_dir=work, out_dir=out, dry_run=True, **{**kw, "train_views": 0})
 
 
 def test_upright_diagnostic_renders_upright_data_in_its_own_folder_and_says_so(bench, tmp_path):
     """``--upright`` changes only the rotation: the same cells, datasets in WORK/upright/ whose config has no
     object rotation (the rest of the config equal to Table 1's), a table named ``*_upright`` whose provenance and
-    title say so; Table 2 (upright already) refuses it, and Table 1's provenance records its rotation."""
+    title say so; Table 2 (upright: real scans are natural views) refuses other viewpoints, and Table 1's provenance
+    records its rotation."""
     from scapo.bench import run_table2
     from scapo.bench.experiments import data_settings
     from scapo.data.config import make_config
 
     work, out, _, _ = bench
-    assert json.loads((out / "table1_synthetic.json").read_text())["provenance"]["data"]["random_rotation"] is True
+    assert json.loads((out / "table1_synthetic_sphere.json").read_text())["provenance"]["data"]["random_rotation"] is True
     up_work, up_out = tmp_path / "work", tmp_path / "out"
     plan = run_table1(["icp"], ["laptop"], work_dir=up_work, out_dir=up_out, seeds=[0], dry_run=True, upright=True,
-                      **SMALL)
+                      **SMALL_T2)
     assert [r["key"] for r in plan] == ["icp"] and not up_work.exists()
-    run_table1(["icp"], ["laptop"], work_dir=up_work, out_dir=up_out, seeds=[0], upright=True, **SMALL)
+    run_table1(["icp"], ["laptop"], work_dir=up_work, out_dir=up_out, seeds=[0], upright=True, **SMALL_T2)
     card = json.loads((up_work / "upright" / "laptop_i10_v2_s0" / "card.json").read_text())
-    assert card["config"]["view"]["random_rotation"] is False
+    assert card["config"]["view"]["random_rotation"] is False and card["viewpoints"] == "upright"
     rotated = json.loads(make_config("laptop", 10, 2, 0, **data_settings("laptop")).to_json())
     upright = dict(card["config"])
     assert {**upright, "view": {**upright["view"], "random_rotation": True}} == rotated
@@ -611,9 +652,10 @@ def test_upright_diagnostic_renders_upright_data_in_its_own_folder_and_says_so(b
     assert table["provenance"]["data"]["random_rotation"] is False
     md = (up_out / "table1_synthetic_upright.md").read_text()
     assert "objects upright" in md.splitlines()[0] and "Chance:" not in md  # no uniform ground truth, no chance level
-    assert "R 126.5 deg on average" in (out / "table1_synthetic.md").read_text()
-    with pytest.raises(ConfigError, match="upright already"):
-        run_table2(["icp"], ["laptop"], work_dir=up_work, out_dir=up_out, dry_run=True, upright=True, **SMALL)
+    sphere = (out / "table1_synthetic_sphere.md").read_text()
+    assert "R 126.5 deg on average" in sphere and "whole sphere" in sphere.splitlines()[0]
+    with pytest.raises(ConfigError, match="views are upright"):
+        run_table2(["icp"], ["laptop"], work_dir=up_work, out_dir=up_out, dry_run=True, viewpoints="paper", **SMALL_T2)
 
 
 def test_the_bench_refuses_a_dirty_checkout_and_a_table_of_mixed_commits_unless_told(bench, tmp_path, monkeypatch):
@@ -642,10 +684,10 @@ def test_the_bench_refuses_a_dirty_checkout_and_a_table_of_mixed_commits_unless_
     with pytest.raises(ConfigError, match=r"computed at 2 commits \(aaaaaaaaaaaaaaaa: npcs_test_s0/laptop; "
                                           r"bbbbbbbbbbbbbbbb: scapo_test_s0/laptop\).*--allow-mixed-commits"):
         run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=tmp_path / "t", seeds=[0], **small)
-    assert not (tmp_path / "t" / "table1_synthetic.md").exists()
+    assert not (tmp_path / "t" / "table1_synthetic_sphere.md").exists()
     run_table1(["npcs", "scapo"], ["laptop"], work_dir=copy, out_dir=tmp_path / "t", seeds=[0],
                **{**small, "allow_mixed_commits": True})
-    assert (tmp_path / "t" / "table1_synthetic.md").exists()
+    assert (tmp_path / "t" / "table1_synthetic_sphere.md").exists()
     recs = [{"provenance": {"commit": "cccccccccccccccc-dirty"}}]
     with pytest.raises(ConfigError, match="uncommitted code"):
         check_commits([Cell("npcs", "laptop", seed=0, preset="test")], recs)
@@ -689,7 +731,7 @@ def test_table1_rows_are_one_pass_and_the_refined_prediction_is_a_row_of_its_own
     assert refined.info["inference"] == inference_settings(run, {"refine": True}) == one.info["inference"]
     assert refined.info["refine"]["steps"] > 0 and "refine" not in one.info
     assert get_preset("test").refine.steps == 0
-    assert "SCAPO (ours) + refine" in (tmp_path / "t" / "table1_synthetic.md").read_text()
+    assert "SCAPO (ours) + refine" in (tmp_path / "t" / "table1_synthetic_sphere.md").read_text()
 
 
 def test_the_gpu_script_runs_on_cpu_with_the_test_presets(tmp_path):
@@ -803,10 +845,10 @@ def test_cells_of_an_unpinned_dataset_are_adopted_by_its_regeneration_only_when_
     _forbid(monkeypatch, "train_method", "run_method", "evaluate")
     again = run_table1(["npcs", "scapo"], ["laptop"], work_dir=fresh.parent, out_dir=tmp_path / "out", seeds=[0],
                        archive=legacy, **SMALL)
-    table = json.loads((tmp_path / "out" / "table1_synthetic.json").read_text())["provenance"]
+    table = json.loads((tmp_path / "out" / "table1_synthetic_sphere.json").read_text())["provenance"]
     assert table["datasets"]["laptop"] == new[:16] and table["commits"] == sorted({c["commit"] for c in table["cells"]})
     assert [c["adopted_from"] for c in table["cells"]] == [old[:16]] * 2
-    assert f"(dataset {old[:12]}, adopted)" in (tmp_path / "out" / "table1_synthetic.md").read_text()
+    assert f"(dataset {old[:12]}, adopted)" in (tmp_path / "out" / "table1_synthetic_sphere.md").read_text()
     for a, b in zip(again, results):
         assert a.summary.keys() == b.summary.keys()
         for k, v in a.summary.items():

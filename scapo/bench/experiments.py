@@ -61,9 +61,16 @@ def table_methods() -> list[str]:
                                         names.index(m)))
 
 
-def dataset_dir(work: Path, category: str, instances: int, views: int, seed: int) -> Path:
-    """``<work>/<category>_i<instances>_v<views>_s<seed>`` (the generator refuses a folder of another config)."""
-    return Path(work) / f"{category}_i{instances}_v{views}_s{seed}"
+def dataset_dir(work: Path, category: str, instances: int, views: int, seed: int,
+                data_kwargs: Mapping | None = None) -> Path:
+    """``<work>/<category>_i<instances>_v<views>[_t<train views>]_s<seed>[_paper]``: the training views appear when
+    they differ from ``views``, ``_paper`` for the paper's viewpoints (``data_kwargs["viewpoints"]``); the whole
+    sphere's and the upright datasets keep the names they had before the settings existed (the generator refuses a
+    folder of another config)."""
+    kw = data_kwargs or {}
+    tv = int(kw.get("train_views") or 0)
+    name = f"{category}_i{instances}_v{views}" + (f"_t{tv}" if tv and tv != views else "") + f"_s{seed}"
+    return Path(work) / (name + ("_paper" if kw.get("viewpoints") == "paper" else ""))
 
 
 def parse_category_seeds(specs: Sequence[str]) -> dict[str, list[int]]:
@@ -153,7 +160,7 @@ def _dataset_hash(data: Path) -> str | None:
 
 
 def plan(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str,
-         recompute_dirty: bool = False, archive: Path | None = None) -> list[dict]:
+         recompute_dirty: bool = False, archive: Path | None = None, data_kwargs: Mapping | None = None) -> list[dict]:
     """One row per cell: category, key, method, seed, preset, status (:func:`cell_status`; ``todo``
     also when its dataset is not generated yet; ``restore`` when a cell that is not done in the work folder is in
     the cells ``archive`` for this dataset, or for a dataset still to generate: the bench restores it then), the
@@ -163,7 +170,7 @@ def plan(cells: Sequence[Cell], work: Path, instances: int, views: int, data_see
 
     rows, hashes = [], {}
     for c in cells:
-        data = dataset_dir(work, c.category, instances, views, data_seed)
+        data = dataset_dir(work, c.category, instances, views, data_seed, data_kwargs)
         if data not in hashes:
             hashes[data] = _dataset_hash(data)
         status = cell_status(data, c, protocol, hashes[data], recompute_dirty)
@@ -213,10 +220,24 @@ def print_plan(rows: list[dict]) -> None:
 #: The splits of every bench dataset: a fifth of the instances for test and a tenth for val, so that the default
 #: 150 instances give 30 test instances per category (issue 29: 8 could not separate methods).
 BENCH_SPLITS = {"test_fraction": 0.2, "val_fraction": 0.1}
-#: How Tables 1 and 3 render their datasets: clean sensor, the object's rotation drawn uniformly from SO(3) for every
-#: view (the paper's setting, objects under arbitrary global poses, so that no row can use gravity), cropped views
-#: rejected. (Before issue 29: upright views, cropped views kept, 10 % test; those tables are marked in results/.)
+#: How Tables 1 and 3 rendered their datasets before the paper's viewpoints existed, and render them with
+#: ``--viewpoints sphere``: clean sensor, the object's rotation drawn uniformly from SO(3) for every view (harder than
+#: the paper: undersides and backs its data never shows), cropped views rejected.
 SYNTHETIC_DATA = {"random_rotation": True, **BENCH_SPLITS}
+#: Views per training instance of the paper's viewpoints in Tables 1 and 3 (val and test instances keep ``views``),
+#: chosen on the val split (results/paper_regime/README.md); EAP renders about 100 per training instance.
+PAPER_TRAIN_VIEWS = 64
+#: The dataset settings (:func:`~scapo.data.config.make_config` keywords) of each ``--viewpoints`` setting of Tables
+#: 1 and 3: ``paper`` (the default: EAP's views, which the SCAPO paper follows; :class:`~scapo.sim.render.ViewConfig`),
+#: ``sphere`` (whole sphere, beyond the paper) and ``upright`` (the category's azimuth/elevation ranges, the rotation
+#: diagnostic).
+VIEWPOINT_DATA = {"paper": {"viewpoints": "paper", "train_views": PAPER_TRAIN_VIEWS, **BENCH_SPLITS},
+                  "sphere": SYNTHETIC_DATA,
+                  "upright": {**SYNTHETIC_DATA, "random_rotation": False}}
+#: How the bench labels each setting wherever it prints one (table titles, provenance).
+VIEWPOINT_LABELS = {"paper": "the paper's viewpoints (EAP's ranges per source dataset)",
+                    "sphere": "whole sphere (uniform SO(3) object rotations; harder than the paper)",
+                    "upright": "upright (the category's view ranges; not the paper's setting)"}
 #: How Table 2 renders its datasets: the realistic sensor (scapo.sim.sensor), upright as real scans are, cropped
 #: views rejected.
 REAL_STYLE_DATA = {"sensor": "realistic", "cropped": "reject", **BENCH_SPLITS}
@@ -275,7 +296,7 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
                   "restored here", file=sys.stderr, flush=True)
 
     for c in cells:
-        data = dataset_dir(work, c.category, instances, views, data_seed)
+        data = dataset_dir(work, c.category, instances, views, data_seed, data_kwargs)
         if finished_only:
             if c.category not in hashes:
                 hashes[c.category] = _dataset_hash(data)
@@ -343,7 +364,7 @@ def compute_seconds(cells, datasets: dict | None = None, seen: set | None = None
 
 
 def _provenance(name: str, cells, records, hashes, instances, views, data_seed, protocol, preset,
-                missing=(), random_rotation: bool = True) -> dict:
+                missing=(), random_rotation: bool = True, viewpoints: str | None = None, train_views: int = 0) -> dict:
     """Provenance from the cells' records only (deterministic for a finished bench); ``missing``: cells
     of the bench left out because they are not done (``--finished-only``); ``random_rotation``: whether the
     datasets' objects were turned by a uniform SO(3) rotation (False: upright). A cell whose record was adopted by
@@ -366,7 +387,10 @@ def _provenance(name: str, cells, records, hashes, instances, views, data_seed, 
             seeds[c.category].append(c.seed)
     total = compute_seconds(per_cell)  # a "+ refine" cell's training is its one-pass cell's run: counted once
     return {"bench": name, "preset": preset, "protocol": protocol,
-            "data": {"instances": instances, "views": views, "seed": data_seed, "random_rotation": random_rotation},
+            "data": {"instances": instances, "views": views, "seed": data_seed, "random_rotation": random_rotation,
+                     **({"viewpoints": viewpoints, "viewpoints_label": VIEWPOINT_LABELS[viewpoints]}
+                        if viewpoints else {}),
+                     **({"train_views": train_views} if train_views and train_views != views else {})},
             "datasets": {k: v[:16] for k, v in hashes.items()}, "training_seeds": seeds,
             "commits": sorted({p["commit"] for p in per_cell} | {p["evaluated_at"] for p in per_cell
                                                                   if "evaluated_at" in p}),
@@ -390,12 +414,13 @@ def _check(methods, categories, protocol, work, out_dir):
     return protocol
 
 
-def _writer(write_table, name, out_dir, figures, work_dir, instances, views, data_seed):
+def _writer(write_table, name, out_dir, figures, work_dir, instances, views, data_seed, data_kwargs=None):
     """``write(results, done cells, provenance) -> paths`` of a table with its figures (Tables 1 and 2)."""
     def write(results, done, prov):
         paths = write_table(results, out_dir, prov, name=name, describe=describe)
         if figures:
-            paths += _figures(done, results, work_dir, instances, views, data_seed, prov["protocol"], out_dir, name)
+            paths += _figures(done, results, work_dir, instances, views, data_seed, prov["protocol"], out_dir, name,
+                              data_kwargs)
         return paths
 
     return write
@@ -415,7 +440,7 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
     protocol = _check(methods, categories, protocol, None if dry_run else work_dir,
                       None if dry_run else out_dir)
     if dry_run:
-        rows = plan(cells, work_dir, instances, views, data_seed, protocol, recompute_dirty, archive)
+        rows = plan(cells, work_dir, instances, views, data_seed, protocol, recompute_dirty, archive, data_kwargs)
         print_plan(rows)
         return rows
     if archive is not None:
@@ -431,8 +456,11 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
                                                        data_only)
     if out_dir is not None and not data_only:
         check_commits(done, records, allow_dirty, allow_mixed_commits)
+        kw = data_kwargs or SYNTHETIC_DATA
         prov = _provenance(title, done, records, hashes, instances, views, data_seed, protocol, preset, missing,
-                           random_rotation=bool((data_kwargs or SYNTHETIC_DATA).get("random_rotation", False)))
+                           random_rotation=bool(kw.get("random_rotation", False)),
+                           viewpoints=kw.get("viewpoints") or ("sphere" if kw.get("random_rotation") else "upright"),
+                           train_views=int(kw.get("train_views") or 0))
         for p in write(results, done, prov):
             print(f"wrote {p}")
     return results
@@ -472,7 +500,8 @@ def check_commits(done: Sequence[Cell], records: Sequence[dict], allow_dirty: bo
     return out
 
 
-def _figures(cells, results, work, instances, views, data_seed, protocol, out_dir, name) -> list[Path]:
+def _figures(cells, results, work, instances, views, data_seed, protocol, out_dir, name,
+             data_kwargs=None) -> list[Path]:
     """Per category: test views with ground truth and each method's output (its lowest training seed);
     one figure of the error distributions of every cell."""
     from scapo.eval import Predictions
@@ -480,7 +509,7 @@ def _figures(cells, results, work, instances, views, data_seed, protocol, out_di
 
     paths = []
     for cat in dict.fromkeys(c.category for c in cells):
-        data = dataset_dir(work, cat, instances, views, data_seed)
+        data = dataset_dir(work, cat, instances, views, data_seed, data_kwargs)
         preds = {}
         for c in sorted((c for c in cells if c.category == cat), key=lambda c: -1 if c.seed is None else c.seed):
             if c.label not in preds:
@@ -541,6 +570,9 @@ class TableSpec:
     category_data: Mapping[str, Mapping[str, object]] = field(default_factory=dict)
     sj_methods: tuple[str, ...] = ()
     ablation_of: str | None = None
+    viewpoints: str = "paper"
+    """The default ``--viewpoints`` setting (:data:`VIEWPOINT_DATA`; Table 2's data, ``data``, is upright: real
+    scans are natural views, and it takes no other setting)."""
 
     def cells(self, methods: Sequence[str], categories: Sequence[str], opts: BenchOptions) -> list[Cell]:
         """The table's cells for ``methods`` (ignored for an ablation table) and ``categories``."""
@@ -583,11 +615,18 @@ class BenchOptions:
     sj: bool = True
     ablations: Sequence[str] | None = None
     upright: bool = False
-    """Tables 1 and 3: render the objects upright (no object rotation; the viewpoint ranges alone set the pose, as
-    Table 2's data and the tables before issue 29) instead of under a uniform SO(3) rotation: a diagnostic of how much
-    of the errors the rotation accounts for, everything else equal. Its datasets and cells live in
-    ``<work_dir>/upright/`` (never mixed with the rotated ones), its table is named ``<name>_upright`` and its
-    provenance says ``"random_rotation": false``. Table 2 (upright already) refuses it."""
+    """``viewpoints="upright"`` (its older spelling)."""
+    viewpoints: str | None = None
+    """Tables 1 and 3 (:data:`VIEWPOINT_DATA`): ``paper`` (the default: EAP's views, which the paper follows,
+    ``PAPER_TRAIN_VIEWS`` views per training instance), ``sphere`` (whole sphere: objects under uniform SO(3) rotations,
+    harder than the paper; the tables before the paper's viewpoints existed) or ``upright`` (the category's view
+    ranges: a diagnostic of how much of the errors the rotation accounts for). The paper's datasets are named
+    ``..._paper``; the whole sphere's keep the older names in ``work_dir`` and the upright ones theirs in
+    ``<work_dir>/upright/``; the table is ``<name>`` for the paper's setting and ``<name>_sphere`` /
+    ``<name>_upright`` otherwise; the provenance names the setting. Table 2 (upright: real scans are natural views)
+    refuses the others."""
+    train_views: int | None = None
+    """Views per training instance (None: ``PAPER_TRAIN_VIEWS`` for the paper's viewpoints, ``views`` otherwise)."""
     refine_rows: bool = True
     """Tables 1 and 2: a ``<method>+refine`` row (:mod:`scapo.methods.refine`) beside the one-pass row of every
     method with a whole-object model (``MethodEntry.refinable``)."""
@@ -615,7 +654,7 @@ TABLES.add("table1", TableSpec("table1", "table1_synthetic", "scapo bench table1
                                "write_table1"))
 TABLES.add("table2", TableSpec("table2", "table2_real_style", "scapo bench table2", TABLE2_CATEGORIES, "op-align",
                                "write_table2", data=REAL_STYLE_DATA, category_data=REAL_STYLE_CATEGORY_DATA,
-                               sj_methods=TABLE2_SJ_METHODS))
+                               sj_methods=TABLE2_SJ_METHODS, viewpoints="upright"))
 TABLES.add("table3", TableSpec("table3", "table3_ablation", "scapo bench table3", ("laptop", "eyeglasses"), "scapo",
                                "write_table3", figures=False, ablation_of="scapo"))
 
@@ -645,13 +684,27 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
                           f"{', '.join(f.name for f in fields(BenchOptions))}")
     opts = BenchOptions(**options)
     data = spec.data or None
-    if opts.upright:
-        if not (spec.data or SYNTHETIC_DATA).get("random_rotation"):
-            raise ConfigError(f"bench {spec.key}'s objects are upright already; --upright is for the tables whose "
-                              "objects are rotated (table1, table3)")
-        data = {**(spec.data or SYNTHETIC_DATA), "random_rotation": False}
-        opts = replace(opts, work_dir=Path(opts.work_dir) / "upright", name=opts.name or f"{spec.name}_upright",
-                       archive=None if opts.archive is None else Path(opts.archive) / "upright")
+    if opts.upright and opts.viewpoints not in (None, "upright"):
+        raise ConfigError(f"--upright is --viewpoints upright; it contradicts --viewpoints {opts.viewpoints}")
+    viewpoints = "upright" if opts.upright else opts.viewpoints
+    if viewpoints is not None and viewpoints not in VIEWPOINT_DATA:
+        raise ConfigError(f"unknown viewpoints {viewpoints!r}; known: {', '.join(VIEWPOINT_DATA)}")
+    if opts.train_views is not None and (isinstance(opts.train_views, bool) or int(opts.train_views) < 1):
+        raise ConfigError(f"--train-views must be >= 1, got {opts.train_views}")
+    if spec.data:  # Table 2: its own (upright) data
+        if viewpoints not in (None, spec.viewpoints) or opts.train_views is not None:
+            raise ConfigError(f"bench {spec.key}'s views are upright (real scans are natural views); --viewpoints, "
+                              "--upright and --train-views are for Tables 1 and 3")
+    else:
+        viewpoints = viewpoints or spec.viewpoints
+        data = dict(VIEWPOINT_DATA[viewpoints])
+        if opts.train_views is not None:
+            data["train_views"] = int(opts.train_views)
+        if viewpoints == "upright":
+            opts = replace(opts, work_dir=Path(opts.work_dir) / "upright", name=opts.name or f"{spec.name}_upright",
+                           archive=None if opts.archive is None else Path(opts.archive) / "upright")
+        elif viewpoints == "sphere":
+            opts = replace(opts, name=opts.name or f"{spec.name}_sphere")
     if spec.ablation_of is not None:
         if methods and list(methods) != [spec.ablation_of]:
             raise ConfigError(f"bench {spec.key} is {spec.ablation_of}'s ablation; it takes no --methods")
@@ -667,7 +720,7 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
     write_table = getattr(writers, spec.writer)
     if spec.figures:
         write = _writer(write_table, name, opts.out_dir, opts.figures, opts.work_dir, opts.instances, opts.views,
-                        opts.data_seed)
+                        opts.data_seed, data)
     else:
         def write(results, done, prov):
             return write_table(results, opts.out_dir, prov, name=name)

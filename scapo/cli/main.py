@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -128,6 +129,8 @@ def cmd_generate(args) -> int:
             view[name if name == "distance" else f"{name}_deg"] = _range(val, f"--{name}")
     cfg = make_config(args.category, args.instances or 0, args.views, args.seed, num_points=args.points,
                       sensor=args.sensor, random_rotation=args.random_rotation, width=args.width,
+                      viewpoints=args.viewpoints, euler_deg=None if args.euler is None else _euler(args.euler),
+                      train_views=_train_views(args.train_views),
                       height=args.height, test_fraction=args.test_fraction, val_fraction=args.val_fraction,
                       min_part_fraction=args.min_part_fraction,
                       shard_size=args.shard_size, cropped=args.cropped,
@@ -145,6 +148,27 @@ def cmd_generate(args) -> int:
         print(f"scapo generate: warning: the test split is empty ({args.instances} instances, --test-fraction "
               f"{args.test_fraction}); methods cannot be evaluated on this dataset", file=sys.stderr)
     return 0
+
+
+def _euler(text: str) -> tuple[tuple[float, float], ...]:
+    """``--euler LO,HI`` (every axis) or ``LO,HI:LO,HI:LO,HI`` (x:y:z), degrees -> three ranges."""
+    parts = text.split(":")
+    if len(parts) not in (1, 3):
+        raise ConfigError(f"--euler {text!r}: give one range for every axis (e.g. -22.5,22.5) or three, x:y:z "
+                          "(e.g. -90,90:-90,90:-30,30)")
+    ranges = [_range(t, "--euler") for t in parts]
+    for lo, hi in ranges:
+        if not (math.isfinite(lo) and math.isfinite(hi)) or lo < -180 or hi > 180:
+            raise ConfigError(f"--euler {text!r}: angles must be finite degrees within [-180, 180]")
+    return tuple(ranges * 3 if len(ranges) == 1 else ranges)
+
+
+def _train_views(n: int | None) -> int:
+    if n is None:
+        return 0
+    if n < 1:
+        raise ConfigError(f"--train-views must be >= 1 (views of each training instance), got {n}")
+    return n
 
 
 def _range(text: str, flag: str) -> tuple[float, float]:
@@ -549,7 +573,8 @@ def cmd_bench_table(args) -> int:
               workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run, progress=not args.no_progress,
               device=args.device, finished_only=args.finished_only, recompute_dirty=args.recompute_dirty,
               allow_dirty=args.allow_dirty, allow_mixed_commits=args.allow_mixed_commits,
-              sj=not args.no_sj, upright=args.upright, archive=args.archive, data_only=args.data_only)
+              sj=not args.no_sj, upright=args.upright, archive=args.archive, data_only=args.data_only,
+              viewpoints=args.viewpoints, train_views=args.train_views)
     return 0
 
 
@@ -678,7 +703,22 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--symmetric-labels", default="view", choices=["view", "asset"],
                     help="categories whose symmetry exchanges parts (basket): label those parts by view (the handle "
                     "on the camera's side is handle_a) or keep the asset's labels")
-    sp.add_argument("--random-rotation", action="store_true", help="uniform SO(3) object rotation")
+    sp.add_argument("--viewpoints", default=None, choices=["upright", "paper", "sphere"],
+                    help="upright (default): the category's azimuth/elevation/distance ranges (the [view] table of "
+                    "its template; --azimuth etc.); paper: EAP's synthetic views, which the SCAPO paper follows: "
+                    "the object turned about its bbox centre in front of a level front camera by Euler angles "
+                    "(x, y, z; R = Rz Ry Rx) uniform in the category's [paper_view] ranges (+-22.5 deg for laptop "
+                    "and safe, EAP's HOI4D loader; [-90, 90] for eyeglasses, oven, washer, its Shape2Motion "
+                    "loader) or --euler; sphere: the object under a uniform SO(3) rotation (whole sphere, harder "
+                    "than the paper; = --random-rotation). Views where a part keeps too few points are redrawn "
+                    "(--min-part-fraction)")
+    sp.add_argument("--euler", default=None, metavar="LO,HI[:LO,HI:LO,HI]",
+                    help="--viewpoints paper: the object's Euler angle ranges in degrees, one for every axis or x:y:z "
+                    "(default: the category's [paper_view]; needed for --object datasets)")
+    sp.add_argument("--random-rotation", action="store_true", help="uniform SO(3) object rotation (= --viewpoints "
+                    "sphere)")
+    sp.add_argument("--train-views", type=int, default=None, help="views of each training instance (default: "
+                    "--views); val and test instances keep --views. EAP renders ~100 views per training instance")
     sp.add_argument("--width", type=int, default=None)
     sp.add_argument("--height", type=int, default=None)
     sp.add_argument("--test-fraction", type=float, default=0.1, help="fraction of instances in the test split")
@@ -785,10 +825,18 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("bench", help="benchmarks: perf (throughput), table1 / table3 (the paper's tables, resumable "
                         "per cell), choose (an option value on the val split)")
     sp.add_argument("what", choices=["perf", "table1", "table2", "table3", "choose"])
-    sp.add_argument("--upright", action="store_true",
-                    help="table1, table3: objects upright (no SO(3) rotation) instead of uniformly rotated, everything "
-                         "else equal: how much of the errors the rotation accounts for (datasets and cells in "
-                         "WORK/upright/, table named <table>_upright)")
+    sp.add_argument("--viewpoints", default=None, choices=["paper", "sphere", "upright"],
+                    help="table1, table3: paper (default: EAP's views per source dataset, which the SCAPO paper "
+                         "follows, see 'scapo generate --help'; datasets named ..._paper, --train-views views per "
+                         "training instance), sphere (whole sphere: objects under uniform SO(3) rotations, harder than "
+                         "the paper; the tables made before the paper's views existed; table named <table>_sphere) or "
+                         "upright (the category's view ranges, the rotation diagnostic; datasets and cells in "
+                         "WORK/upright/, table named <table>_upright). Table 2 is upright (real scans are natural "
+                         "views)")
+    sp.add_argument("--upright", action="store_true", help="table1, table3: --viewpoints upright")
+    sp.add_argument("--train-views", type=int, default=None,
+                    help="table1, table3: views per training instance (default: 64 with --viewpoints paper, chosen on "
+                         "val (results/paper_regime/); --views otherwise)")
     sp.add_argument("--no-sj", action="store_true", help="table2: leave out the semi-supervised (SJ) rows")
     sp.add_argument("--data", type=Path, action="append", default=[], help="choose: the dataset (its val split is "
                     "used); repeat to choose one value for several datasets (mean of their scores); perf --what "

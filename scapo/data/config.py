@@ -35,7 +35,9 @@ class GenerateConfig:
     ``test_fraction`` of them (at least one when there are two or more) forms the test split, a
     fraction ``val_fraction`` of them (at least one when it is positive and the training split keeps
     one) the validation split, the rest the training split (all by instance, never by view); each
-    instance is rendered from ``views`` sampled viewpoints and joint states.
+    instance is rendered from ``views`` sampled viewpoints and joint states (training instances from
+    ``train_views`` when it is set: EAP renders a new view of a training instance each time it is loaded, about
+    100 per instance, while val and test keep ``views``).
     """
 
     category: str
@@ -64,6 +66,8 @@ class GenerateConfig:
     """Object datasets: the part slots ``(name, pattern)`` that define parts 1.. (empty: every movable part)."""
     scale: str = "1"
     """Object datasets: length factor, or ``fit:<rest bbox diagonal in metres>``."""
+    train_views: int = 0
+    """Samples per training instance (0: ``views``, as every dataset made before the field existed)."""
     backend: str = "sapien"
     """Renderer: "sapien" (one view at a time) or "maniskill" (ManiSkill3's parallel sub-scenes, the same draws and
     ground truth; points equal to float rounding: median 1e-5 m, 98 % within 1 mm, labels 98 % equal, as
@@ -91,8 +95,11 @@ class GenerateConfig:
             raise ConfigError(f"seed must be >= 0 and < 2**63, got {self.seed}")
         if self.instances < 1 or self.views < 1:
             raise ConfigError(f"instances and views must be >= 1, got {self.instances} and {self.views}")
-        if self.instances > MAX_INSTANCES or self.instances * self.views > MAX_SAMPLES:
-            raise ConfigError(f"{self.instances} instances x {self.views} views is beyond what one dataset holds here "
+        if not isinstance(self.train_views, int) or isinstance(self.train_views, bool) or self.train_views < 0:
+            raise ConfigError(f"train_views (--train-views) must be >= 1 (0: as --views), got {self.train_views!r}")
+        if self.instances > MAX_INSTANCES or self.instances * max(self.views, self.train_views) > MAX_SAMPLES:
+            raise ConfigError(f"{self.instances} instances x {max(self.views, self.train_views)} views is beyond what "
+                              "one dataset holds here "
                               f"(at most {MAX_INSTANCES} instances and {MAX_SAMPLES} samples); generate several "
                               "datasets with different --seed")
         if not 0.0 <= self.test_fraction < 1.0:
@@ -112,6 +119,11 @@ class GenerateConfig:
             return self.view
         return ViewConfig() if self.objects else ViewConfig.from_template(load_template(self.category).view)
 
+    @property
+    def views_train(self) -> int:
+        """Samples per training instance (``train_views``, or ``views`` when it is 0)."""
+        return self.train_views or self.views
+
     def view_for(self, instance_id: int) -> ViewConfig:
         """Viewpoint ranges of one instance: the dataset's, with an object's own overrides."""
         if self.objects and self.objects[instance_id].view:
@@ -129,6 +141,12 @@ class GenerateConfig:
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["view"] = dataclasses.asdict(self.view_config)
+        if d["view"]["object_euler_deg"] is None:  # not the paper's viewpoints: as before the setting existed
+            del d["view"]["object_euler_deg"]
+        else:
+            d["view"]["object_euler_deg"] = [list(r) for r in d["view"]["object_euler_deg"]]
+        if not self.train_views or self.train_views == self.views:
+            del d["train_views"]  # one number of views for every split: as before the field existed
         d["format_version"] = FORMAT_VERSION
         # fields added later are left out at the value that reproduces the datasets written before them, so those
         # datasets keep their config hash and resume
@@ -174,7 +192,8 @@ class GenerateConfig:
             render = RenderConfig(camera=CameraConfig(**r.pop("camera")), sensor=SensorConfig(**r.pop("sensor")),
                                   **r)
             v = d.pop("view")
-            view = ViewConfig(**{k: tuple(x) if isinstance(x, list) else x for k, x in v.items()}) if v else None
+            view = ViewConfig(**{k: (tuple(tuple(r) if isinstance(r, list) else r for r in x) if isinstance(x, list)
+                                     else x) for k, x in v.items()}) if v else None
             objects = tuple(ObjectSource.from_dict(o) for o in d.pop("objects", []))
             parts = tuple(tuple(p) for p in d.pop("parts", []))
             return cls(render=render, view=view, objects=objects, parts=parts, **d)
@@ -189,6 +208,7 @@ def make_config(
     test_fraction: float = 0.1, min_part_fraction: float = 0.05, shard_size: int = 64, shader: str = "trivial",
     val_fraction: float = 0.1, cropped: str = "reject", objects=(), parts=(), scale: str = "1",
     view: dict | None = None, symmetric_labels: str = "view", backend: str = "sapien",
+    viewpoints: str | None = None, euler_deg=None, train_views: int = 0,
 ) -> GenerateConfig:
     """Convenience constructor used by the CLI (named sensor, optional SO(3) rotation, image size).
 
@@ -200,10 +220,15 @@ def make_config(
     ``category`` is the dataset's label (None: the first object's ``meta.json`` category, else "object"),
     ``instances`` is ignored, ``parts`` is the part map (``"door,drawer=*drawer*"`` or pairs) and ``scale``
     a factor or ``fit:<metres>``. ``view``: viewpoint ranges (:class:`~scapo.sim.render.ViewConfig` fields)
-    replacing the category's.
+    replacing the category's. ``viewpoints``: "upright" (the category's azimuth/elevation ranges; the default),
+    "sphere" (uniform SO(3); ``random_rotation=True`` is its older spelling) or "paper" (EAP's: the object turned in
+    front of a level front camera by Euler angles in ``euler_deg``, three ``(lo, hi)`` ranges in degrees, default
+    the category template's ``[paper_view]``; required for object datasets and categories without one).
+    ``train_views``: samples per training instance (0: ``views``).
 
     Raises:
-        ConfigError: an unknown sensor, bad sizes, fractions, part map or scale.
+        ConfigError: an unknown sensor or viewpoint setting, bad sizes, fractions, part map or scale, Euler ranges
+            given without ``viewpoints="paper"`` or missing for it.
         UnknownNameError: an unknown procedural category.
     """
     from scapo.sim.assets.objects import parse_parts, view_overrides
@@ -229,15 +254,42 @@ def make_config(
         from scapo.sim.assets.categories import CATEGORIES
 
         CATEGORIES.get(category)  # an unknown category is named before its template is looked for
+    viewpoints = resolve_viewpoints(viewpoints, random_rotation)
+    if viewpoints == "paper" and euler_deg is None:
+        tpl = None if objects else load_template(category).paper_view
+        if tpl is None:
+            what = "object datasets" if objects else f"category {category!r}"
+            raise ConfigError(f"--viewpoints paper needs the object's Euler ranges: {what} define none; give them "
+                              "with --euler LO,HI (every axis) or LO,HI:LO,HI:LO,HI (x:y:z), degrees")
+        euler_deg = tpl.euler_deg
+    elif viewpoints != "paper" and euler_deg is not None:
+        raise ConfigError("--euler sets the paper's viewpoints (the object's Euler ranges); give it with --viewpoints "
+                          "paper")
     base = ViewConfig() if objects else (
-        ViewConfig.from_template(load_template(category).view) if (view or random_rotation) else None)
+        ViewConfig.from_template(load_template(category).view) if (view or viewpoints != "upright") else None)
     view_cfg = None
     if view:
         view_cfg = dataclasses.replace(base, **dict(view_overrides(view)))
-    if random_rotation:
+    if viewpoints == "sphere":
         view_cfg = dataclasses.replace(view_cfg or base, random_rotation=True)
+    elif viewpoints == "paper":
+        view_cfg = dataclasses.replace(view_cfg or base, object_euler_deg=tuple(tuple(r) for r in euler_deg))
     return GenerateConfig(category, instances, views, seed, test_fraction, render, view_cfg, shard_size, val_fraction,
-                          tuple(objects), tuple(parts), str(scale), backend)
+                          tuple(objects), tuple(parts), str(scale), int(train_views or 0), backend)
+
+
+def resolve_viewpoints(viewpoints: str | None, random_rotation: bool = False) -> str:
+    """The viewpoint setting of ``--viewpoints`` and its older alias ``--random-rotation`` ("sphere").
+
+    Raises:
+        ConfigError: an unknown setting, or ``random_rotation`` with another one."""
+    from scapo.sim.render import VIEWPOINTS
+
+    if viewpoints is not None and viewpoints not in VIEWPOINTS:
+        raise ConfigError(f"unknown viewpoints {viewpoints!r}; known: {', '.join(VIEWPOINTS)}")
+    if random_rotation and viewpoints not in (None, "sphere"):
+        raise ConfigError(f"--random-rotation is --viewpoints sphere; it contradicts --viewpoints {viewpoints}")
+    return "sphere" if random_rotation else (viewpoints or "upright")
 
 
 def dict_diff(old, new, prefix: str = "") -> list[str]:

@@ -121,13 +121,15 @@ def split_instances(instances: int, test_fraction: float, seed: int, val_fractio
 
 
 def plan(cfg: GenerateConfig) -> list[ShardTask]:
-    """All shards of a dataset (train, val, test), samples ordered by instance then view."""
+    """All shards of a dataset (train, val, test), samples ordered by instance then view; a training instance has
+    ``cfg.views_train`` views, the others ``cfg.views`` (view ``v`` of an instance is the same sample whatever the
+    number of views: its seed depends on ``v`` alone)."""
     sp = split_instances(cfg.instances, cfg.test_fraction, cfg.seed, cfg.val_fraction)
     tasks, sid = [], 0
     for split, ids in (("train", sp.train), ("val", sp.val), ("test", sp.test)):
         items = []
         for inst in ids:
-            for v in range(cfg.views):
+            for v in range(cfg.views_train if split == "train" else cfg.views):
                 items.append((sid, inst, v))
                 sid += 1
         for k in range(0, len(items), cfg.shard_size):
@@ -708,6 +710,8 @@ def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records, r
         "joint_type": spec.joint_type.tolist(),
         "joint_parts": spec.joint_parts.tolist(),
         "num_points": cfg.render.num_points,
+        "viewpoints": cfg.view_config.viewpoints,
+        "views_per_instance": {"train": cfg.views_train, "val": cfg.views, "test": cfg.views},
         "config": cfg.to_dict(),
         "splits": splits,
         "assets": {str(r.instance_id): r.digest for r in records},

@@ -498,6 +498,20 @@ def _chance_note(protocol: str, provenance: dict) -> str:
             f"{' (errors folded at 90 deg)' if folded else ''}.")
 
 
+def viewpoints_title(provenance: dict) -> str:
+    """The viewpoint setting of a table's data as its title says it (``", whole sphere: ..."``), from the provenance's
+    ``data.viewpoints`` (:data:`scapo.bench.experiments.VIEWPOINT_LABELS`), or for a table written before the setting
+    existed from ``data.random_rotation`` (True: whole sphere; False: upright); "" when the provenance says
+    neither."""
+    data = provenance.get("data", {}) if isinstance(provenance, dict) else {}
+    vp = data.get("viewpoints")
+    if vp is None and isinstance(data.get("random_rotation"), bool):
+        vp = "sphere" if data["random_rotation"] else "upright"
+    return {"paper": ", the paper's viewpoints",
+            "sphere": ", whole sphere: objects under uniform SO(3) rotations, harder than the paper",
+            "upright": ", objects upright: the rotation diagnostic, not the paper's setting"}.get(vp, "")
+
+
 def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, provenance: dict, name: str = "table1",
                  include_paper: bool = True, markdown_only: bool = False, describe: Describe | None = None):
     """Write Table 1 (CSV, Markdown, LaTeX, JSON) into ``out_dir``; returns the paths (with
@@ -537,9 +551,7 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
     display = _display(describe)
     order, order_refined, order_md = orderings(results, describe, display)
 
-    upright = provenance.get("data", {}).get("random_rotation") is False
-    title = "Table 1 (synthetic, objects upright: the rotation diagnostic, not the paper's setting)" if upright \
-        else "Table 1 (synthetic)"
+    title = f"Table 1 (synthetic{viewpoints_title(provenance)})"
     md = [f"# {title}: {', '.join(cats[:-1])}", "", *partial,
           markdown_table(header, md_rows, ["l", "l", "c", "c", "c", *["r"] * len(cats)]), "", legend, "",
           "## Medians and rates", "", markdown_table(rob_header, rob_rows, ["l", "l", *["r"] * len(ROBUST_METRICS)]),
@@ -654,7 +666,8 @@ def write_table3(results: Sequence[EvalResult], out_dir: str | Path, provenance:
               "against the best of the declared symmetric ground truths (the paper reports S, D, C only). Ours: "
               "mean ± std over training seeds per category; mean: over the categories shown. Rows marked (paper): "
               "the SCAPO paper's Table 3 (its five synthetic categories, its data and protocol).")
-    return _write_table_files(out_dir, name, f"Table 3 (ablation of SCAPO's regularisers): {', '.join(cats[:-1])}",
+    title = f"Table 3 (ablation of SCAPO's regularisers{viewpoints_title(provenance)}): {', '.join(cats[:-1])}"
+    return _write_table_files(out_dir, name, title,
                               long, header, rows, ["l", *["r"] * (len(header) - 1)], legend, provenance, results,
                               describe=lambda label: (TABLE3_VARIANTS[label][1], {}) if label in TABLE3_VARIANTS
                               else None)

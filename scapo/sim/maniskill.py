@@ -253,7 +253,7 @@ def render_many_maniskill(renderer: ManiSkillRenderer, jobs: list[tuple[object, 
         ConfigError: the realistic sensor's support plane (not supported by this backend).
         RenderError: a job exhausted ``cfg.max_attempts`` views (names the object).
     """
-    if cfg.sensor.kind == "realistic" and cfg.sensor.ground and not view.random_rotation:
+    if cfg.sensor.kind == "realistic" and cfg.sensor.ground and view.viewpoints == "upright":
         raise ConfigError("the ManiSkill3 backend renders no support plane: use SensorConfig(ground=False) or the "
                           "SAPIEN backend")
     results: dict[int, tuple[dict, Counter]] = {}

@@ -59,14 +59,26 @@ class CameraConfig:
             raise ConfigError(f"need 0 < near < far, got near={self.near}, far={self.far}")
 
 
+#: The viewpoint settings of ``scapo generate --viewpoints`` (:attr:`ViewConfig.viewpoints`).
+VIEWPOINTS = ("upright", "paper", "sphere")
+
+
 @dataclass(frozen=True)
 class ViewConfig:
     """Viewpoint distribution around the object (degrees; distance in units of the rest bbox diagonal).
 
-    Azimuth 0 puts the camera in front of the object (on its -x side); positive azimuth moves it
-    towards -y; elevation is the angle above the object's xy plane. ``random_rotation`` instead
-    draws the relative rotation uniformly from SO(3) (camera direction uniform on the sphere,
-    uniform roll) and ignores the angle ranges.
+    Three settings (:attr:`viewpoints`):
+
+    - ``upright`` (default): azimuth 0 puts the camera in front of the object (on its -x side); positive
+      azimuth moves it towards -y; elevation is the angle above the object's xy plane; a small roll.
+    - ``sphere`` (``random_rotation``): the relative rotation is drawn uniformly from SO(3) (camera direction
+      uniform on the sphere, uniform roll); the angle ranges are ignored.
+    - ``paper`` (``object_euler_deg``): EAP's synthetic views (Liu et al., NeurIPS 2022; code
+      ``Meowuu7/equi-articulated-pose``, ``SPConvNets/datasets/MotionHOIDatasetPartial.py`` around lines 288-299
+      and ``MotionDatasetPartial.py`` around lines 371-384), which OP-Align and SCAPO follow: the camera sits in
+      the object's level front view (on its -x side, at elevation 0, no roll, at ``distance``) and the object is
+      turned about its rest bounding-box centre (the object frame's origin) by ``R = Rz @ Ry @ Rx`` with each
+      Euler angle (x, y, z; degrees) drawn uniformly in its range. The angle ranges and roll are ignored.
     """
 
     azimuth_deg: tuple[float, float] = (-70.0, 70.0)
@@ -75,11 +87,37 @@ class ViewConfig:
     roll_deg: tuple[float, float] = (-5.0, 5.0)
     random_rotation: bool = False
     target_jitter: float = 0.03
-    """Std of the look-at point around the bbox centre, in bbox diagonals."""
+    """Std of the look-at point around the bbox centre, in bbox diagonals (``paper``: of the camera's position,
+    its orientation kept, so that the object's rotation away from the front view is exactly the Euler one)."""
+    object_euler_deg: tuple[tuple[float, float], tuple[float, float], tuple[float, float]] | None = None
+    """``paper`` viewpoints: the ranges of the object's Euler angles about x, y and z (degrees), ``R = Rz Ry Rx``;
+    None for the other settings."""
+
+    def __post_init__(self):
+        if self.object_euler_deg is not None:
+            eul = self.object_euler_deg
+            ok = isinstance(eul, (tuple, list)) and len(eul) == 3 and all(
+                isinstance(r, (tuple, list)) and len(r) == 2
+                and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in r)
+                and -180.0 <= r[0] <= r[1] <= 180.0 for r in eul)
+            if not ok:
+                raise ConfigError(f"object_euler_deg must be three [low, high] ranges of degrees (x, y, z) within "
+                                  f"[-180, 180] with low <= high, got {eul!r}")
+            object.__setattr__(self, "object_euler_deg", tuple((float(r[0]), float(r[1])) for r in eul))
+            if self.random_rotation:
+                raise ConfigError("the paper's viewpoints (object Euler ranges) and the whole sphere "
+                                  "(random_rotation) exclude each other; choose one --viewpoints setting")
+
+    @property
+    def viewpoints(self) -> str:
+        """"sphere", "paper" or "upright" (see the class docstring)."""
+        return "sphere" if self.random_rotation else "paper" if self.object_euler_deg is not None else "upright"
 
     @classmethod
-    def from_template(cls, view: ViewTemplate, random_rotation: bool = False) -> ViewConfig:
-        return cls(view.azimuth_deg, view.elevation_deg, view.distance, view.roll_deg, random_rotation)
+    def from_template(cls, view: ViewTemplate, random_rotation: bool = False,
+                      object_euler_deg=None) -> ViewConfig:
+        return cls(view.azimuth_deg, view.elevation_deg, view.distance, view.roll_deg, random_rotation,
+                   object_euler_deg=object_euler_deg)
 
 
 CROPPED = ("keep", "reject", "flag")
@@ -354,7 +392,22 @@ def sample_state(spec: ArticulationSpec, rng: np.random.Generator, ranges: np.nd
 
 
 def sample_camera_pose(view: ViewConfig, bbox_diag: float, rng: np.random.Generator) -> np.ndarray:
-    """Camera pose ``T_world_cam (4, 4)`` (OpenCV convention) looking at the object's bbox centre."""
+    """Camera pose ``T_world_cam (4, 4)`` (OpenCV convention, object frame = world) looking at the object's bbox
+    centre, drawn from ``view`` (:class:`ViewConfig`'s three settings) with ``rng``.
+
+    ``paper``: the camera's level front pose ``T_front`` (on -x at the drawn distance, looking along +x, z up,
+    moved by the jitter without turning) and the object turned by ``R`` about the origin give
+    ``T_world_cam = [R^T | 0] @ T_front``, so that ``T_cam_obj = inv(T_front) @ [R | 0]``: the object's rotation
+    away from its level front view is ``R`` exactly.
+    """
+    if view.object_euler_deg is not None:
+        R = object_rotation(view.object_euler_deg, rng)
+        dist = rng.uniform(*view.distance) * bbox_diag
+        eye = np.array([-dist, 0.0, 0.0]) + rng.normal(scale=view.target_jitter * bbox_diag, size=3)
+        T_front = look_at(eye, eye + np.array([dist, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]))
+        turn = np.eye(4)
+        turn[:3, :3] = R.T
+        return turn @ T_front
     if view.random_rotation:
         d = normalize(rng.normal(size=3))
         roll = rng.uniform(0.0, 2 * np.pi)
@@ -370,6 +423,28 @@ def sample_camera_pose(view: ViewConfig, bbox_diag: float, rng: np.random.Genera
     c, s = math.cos(roll), math.sin(roll)
     T[:3, :3] = T[:3, :3] @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     return T
+
+
+def object_rotation(euler_deg, rng: np.random.Generator) -> np.ndarray:
+    """The object's turn of the ``paper`` viewpoints: ``(3, 3)`` float64 ``R = Rz @ Ry @ Rx`` with the angles about
+    x, y and z (in this order from ``rng``) uniform in ``euler_deg``'s three ``(low, high)`` ranges (degrees), as
+    EAP's ``MotionDatasetPartial.py`` (around lines 371-384) composes them."""
+    ax, ay, az = (math.radians(rng.uniform(lo, hi)) for lo, hi in euler_deg)
+    cx, sx, cy, sy, cz, sz = math.cos(ax), math.sin(ax), math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
+    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
+    Ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
+    Rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
+    return Rz @ Ry @ Rx
+
+
+def front_view_angle_deg(T_cam_obj: np.ndarray) -> float:
+    """The object's rotation away from its level front view (degrees), from a sample's ``T_cam_obj (4, 4)``: the
+    angle of ``R_front @ R_cam_obj``, where ``R_front`` (the level front camera's rotation in the object frame,
+    looking along +x with z up) is what ``R_cam_obj`` is for an unturned object. 0 for the ``paper`` setting's
+    front view; its ``R``'s angle otherwise."""
+    R_front = look_at(np.array([-1.0, 0.0, 0.0]), np.zeros(3), np.array([0.0, 0.0, 1.0]))[:3, :3]
+    R = R_front @ np.asarray(T_cam_obj, dtype=np.float64)[:3, :3]
+    return math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1.0) / 2.0))))
 
 
 def _support_altitude(spec: ArticulationSpec, part_pose_obj: np.ndarray) -> float:
@@ -520,7 +595,7 @@ def _submit_attempt(renderer: Renderer, spec: ArticulationSpec, cfg: RenderConfi
         state = sample_state(spec, rng)
     if T_world_cam is None:
         T_world_cam = sample_camera_pose(view, spec.bbox_diag, rng)
-    ground = cfg.sensor.kind == "realistic" and cfg.sensor.ground and not view.random_rotation
+    ground = cfg.sensor.kind == "realistic" and cfg.sensor.ground and view.viewpoints == "upright"
     return renderer.submit(spec, state, T_world_cam, rng, ground=ground)
 
 

@@ -70,6 +70,62 @@ class ViewTemplate:
 
 
 @dataclass(frozen=True)
+class PaperViewTemplate:
+    """The ``[paper_view]`` table of a category: the ranges of the object's Euler angles about x, y and z
+    (degrees; ``R = Rz Ry Rx``, :class:`~scapo.sim.render.ViewConfig`'s ``paper`` setting) and where they come from
+    (``source``: the paper or code file the ranges are read from)."""
+
+    euler_deg: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
+    source: str = ""
+
+
+#: Tables of a category TOML that set only viewpoints and were added after the assets were first built: they are
+#: left out of the template digest (the asset cache key), so that adding them keeps every instance's digest and the
+#: datasets rendered from those instances.
+VIEW_ONLY_TABLES = ("paper_view",)
+
+
+def asset_digest_text(text: str) -> str:
+    """The TOML text the template digest is taken over: ``text`` without the :data:`VIEW_ONLY_TABLES` (each from its
+    ``[name]`` header to the next header or the end) and the blank lines just before them."""
+    lines = text.splitlines(keepends=True)
+    out: list[str] = []
+    skip = False
+    for line in lines:
+        head = line.strip()
+        if head.startswith("["):
+            skip = head.split("#")[0].strip() in {f"[{t}]" for t in VIEW_ONLY_TABLES}
+            if skip:
+                while out and not out[-1].strip():
+                    out.pop()
+        if not skip:
+            out.append(line)
+    return "".join(out)
+
+
+def _paper_view(raw: dict, path) -> PaperViewTemplate | None:
+    t = raw.get("paper_view")
+    if t is None:
+        return None
+    where = f"{path}: paper_view"
+    if not isinstance(t, dict):
+        raise ConfigError(f"{where} must be a table")
+    unknown = set(t) - {"euler_deg", "source"}
+    if unknown:
+        raise ConfigError(f"{where}: unknown fields {sorted(unknown)} (known: euler_deg, source)")
+    eul = t.get("euler_deg")
+    if not (isinstance(eul, list) and len(eul) == 3):
+        raise ConfigError(f"{where}.euler_deg must be three [lo, hi] ranges (x, y, z; degrees), got {eul!r}")
+    ranges = tuple(_pair(r, f"{where}.euler_deg[{i}]") for i, r in enumerate(eul))
+    if any(lo < -180.0 or hi > 180.0 for lo, hi in ranges):
+        raise ConfigError(f"{where}.euler_deg: angles must lie in [-180, 180] degrees, got {eul!r}")
+    source = t.get("source", "")
+    if not isinstance(source, str):
+        raise ConfigError(f"{where}.source must be a string")
+    return PaperViewTemplate(ranges, source)
+
+
+@dataclass(frozen=True)
 class CategoryTemplate:
     """Everything about a category that is data rather than code.
 
@@ -88,6 +144,9 @@ class CategoryTemplate:
     joints: tuple[JointTemplate, ...]
     view: ViewTemplate
     digest: str = field(default="", compare=False)
+    paper_view: PaperViewTemplate | None = None
+    """The ``[paper_view]`` table: the paper's (EAP's) viewpoint ranges (``scapo generate --viewpoints paper``);
+    None where the category has none."""
 
 
 def _pair(value, where: str) -> tuple[float, float]:
@@ -153,7 +212,8 @@ def parse_template(path: Path) -> CategoryTemplate:
         styles=styles,
         joints=tuple(joints),
         view=view,
-        digest=hashlib.sha256(raw_bytes).hexdigest(),
+        digest=hashlib.sha256(asset_digest_text(raw_bytes.decode()).encode()).hexdigest(),
+        paper_view=_paper_view(raw, path),
     )
 
 

@@ -1,0 +1,161 @@
+"""The three viewpoint settings of ``scapo generate --viewpoints`` (upright, paper, sphere) and views per training
+instance (``--train-views``): the paper's Euler ranges and their composition, the redraw rule, the configs and
+templates that record them, and datasets made with them."""
+
+import dataclasses
+import hashlib
+import json
+import math
+
+import numpy as np
+import pytest
+
+from scapo.data.config import GenerateConfig, make_config
+from scapo.errors import ConfigError, RejectedViewError
+from scapo.ops.rigid import invert_transform
+from scapo.sim.assets import build_instance, load_template, parse_urdf
+from scapo.sim.assets.templates import asset_digest_text, parse_template, sim_assets_dir
+from scapo.sim.render import (
+    RenderConfig,
+    ViewConfig,
+    front_view_angle_deg,
+    object_rotation,
+    render_sample,
+    sample_camera_pose,
+)
+
+
+def _angles(view: ViewConfig, n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.array([front_view_angle_deg(invert_transform(sample_camera_pose(view, 0.5, rng))) for _ in range(n)])
+
+
+def _rot(axis: str, deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return {"x": np.array([[1, 0, 0], [0, c, -s], [0, s, c]]), "y": np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]),
+            "z": np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])}[axis]
+
+
+def test_paper_euler_ranges_give_eaps_angles_from_the_front_view():
+    """+-22.5 deg per axis (HOI4D: laptop, safe): 21.6 deg from the front view on average, at most 41 deg;
+    [-90, 90] per axis (Shape2Motion: eyeglasses, oven, washer): about 83 deg on average."""
+    hoi = _angles(ViewConfig(object_euler_deg=((-22.5, 22.5),) * 3), 4000)
+    assert abs(hoi.mean() - 21.6) < 0.6 and hoi.max() < 41.5
+    s2m = _angles(ViewConfig(object_euler_deg=((-90.0, 90.0),) * 3), 4000)
+    assert abs(s2m.mean() - 83.0) < 2.0
+    for cat, ranges in (("laptop", ((-22.5, 22.5),) * 3), ("safe", ((-22.5, 22.5),) * 3),
+                        ("eyeglasses", ((-90.0, 90.0),) * 3), ("oven", ((-90.0, 90.0),) * 3),
+                        ("washer", ((-90.0, 90.0),) * 3)):
+        pv = load_template(cat).paper_view
+        assert pv.euler_deg == ranges and "equi-articulated-pose" in pv.source
+
+
+def test_paper_view_is_the_level_front_view_turned_by_rz_ry_rx():
+    """Hand-built: pinned angles give T_cam_obj = inv(T_front) @ [Rz Ry Rx | 0] exactly (jitter moves the camera
+    without turning it), the front view looks along the object's +x with its z up, and the angle measured from
+    T_cam_obj is the turn's."""
+    rng = np.random.default_rng(0)
+    R = object_rotation(((10.0, 10.0), (-20.0, -20.0), (30.0, 30.0)), rng)
+    np.testing.assert_allclose(R, _rot("z", 30) @ _rot("y", -20) @ _rot("x", 10), atol=1e-12)
+    front = ViewConfig(object_euler_deg=((0.0, 0.0),) * 3, target_jitter=0.05)
+    T = invert_transform(sample_camera_pose(front, 0.5, rng))  # T_cam_obj
+    np.testing.assert_allclose(T[:3, :3] @ [1.0, 0, 0], [0, 0, 1.0], atol=1e-12)  # object +x away from the camera
+    np.testing.assert_allclose(T[:3, :3] @ [0, 0, 1.0], [0, -1.0, 0], atol=1e-12)  # object +z up in the picture
+    assert front_view_angle_deg(T) < 1e-6
+    turned = ViewConfig(object_euler_deg=((0.0, 0.0), (0.0, 0.0), (35.0, 35.0)))
+    Tt = invert_transform(sample_camera_pose(turned, 0.5, np.random.default_rng(1)))
+    assert abs(front_view_angle_deg(Tt) - 35.0) < 1e-6
+    np.testing.assert_allclose(Tt[:3, :3], T[:3, :3] @ _rot("z", 35), atol=1e-12)
+    # the bbox centre (object origin) stays on the optical axis, at the drawn distance (no jitter)
+    tc = invert_transform(sample_camera_pose(dataclasses.replace(turned, target_jitter=0.0), 0.5,
+                                             np.random.default_rng(2)))[:3, 3]
+    assert abs(tc[0]) < 1e-9 and abs(tc[1]) < 1e-9 and 1.4 * 0.5 <= tc[2] <= 2.4 * 0.5
+
+
+def test_a_view_that_hides_a_part_is_rejected_and_redrawn(renderer):
+    """Hand-built: the safe seen from its front keeps its door; turned half a turn about z (its back to the camera)
+    the door is hidden and the view is rejected, so that the generator draws another one."""
+    spec = parse_urdf(build_instance("safe", 0, seed=0).urdf)
+    state = np.zeros(len(spec.gt_joints))
+    cfg = RenderConfig()
+    for yaw, hidden in ((0.0, False), (180.0, True)):
+        view = ViewConfig(distance=(1.8, 1.8), object_euler_deg=((0.0, 0.0), (0.0, 0.0), (yaw, yaw)))
+        rng = np.random.default_rng(0)
+        T_world_cam = sample_camera_pose(view, spec.bbox_diag, rng)
+        if hidden:
+            with pytest.raises(RejectedViewError, match="part 1 'door'"):
+                render_sample(renderer, spec, cfg, view, rng, state=state, T_world_cam=T_world_cam)
+        else:
+            s = render_sample(renderer, spec, cfg, view, rng, state=state, T_world_cam=T_world_cam)
+            assert np.bincount(s["part_label"], minlength=2).min() >= cfg.min_part_points
+
+
+def test_viewpoint_configs_keep_older_hashes_and_refuse_contradictions():
+    """upright and sphere configs are those of datasets made before the settings existed (no new keys: their hashes
+    and the archived datasets stay valid); paper records its ranges and round-trips; contradictions and missing
+    ranges are refused with the flag to use."""
+    up = make_config("laptop", 10, 4, 0).to_dict()
+    sphere = make_config("laptop", 10, 4, 0, random_rotation=True)
+    assert "object_euler_deg" not in up["view"] and "train_views" not in up
+    assert sphere.to_json() == make_config("laptop", 10, 4, 0, viewpoints="sphere").to_json()
+    assert "object_euler_deg" not in sphere.to_dict()["view"]
+    paper = make_config("oven", 10, 4, 0, viewpoints="paper", train_views=9)
+    again = GenerateConfig.from_dict(json.loads(paper.to_json()))
+    assert again.to_json() == paper.to_json() and again.view == paper.view and again.views_train == 9
+    assert again.view_config.viewpoints == "paper"
+    assert paper.to_dict()["view"]["object_euler_deg"] == [[-90.0, 90.0]] * 3
+    own = make_config("laptop", 10, 4, 0, viewpoints="paper", euler_deg=((-5.0, 5.0), (0.0, 0.0), (-90.0, 90.0)))
+    assert own.view_config.object_euler_deg == ((-5.0, 5.0), (0.0, 0.0), (-90.0, 90.0))
+    assert make_config("laptop", 10, 4, 0, train_views=4).to_json() == make_config("laptop", 10, 4, 0).to_json()
+    with pytest.raises(ConfigError, match="contradicts --viewpoints paper"):
+        make_config("laptop", 10, 4, 0, viewpoints="paper", random_rotation=True)
+    with pytest.raises(ConfigError, match="--euler"):
+        make_config("basket", 10, 4, 0, viewpoints="paper")  # no [paper_view] in its template
+    with pytest.raises(ConfigError, match="give it with --viewpoints paper"):
+        make_config("laptop", 10, 4, 0, euler_deg=((0.0, 1.0),) * 3)
+    with pytest.raises(ConfigError, match="unknown viewpoints"):
+        make_config("laptop", 10, 4, 0, viewpoints="hemisphere")
+    with pytest.raises(ConfigError, match="object_euler_deg"):
+        ViewConfig(object_euler_deg=((0.0, 200.0),) * 3)
+    with pytest.raises(ConfigError, match="train_views"):
+        make_config("laptop", 10, 4, 0, train_views=-1)
+
+
+def test_the_paper_view_table_is_not_part_of_the_asset_digest(tmp_path):
+    """Adding the viewpoint-only [paper_view] table kept every category's template digest (the asset cache key), so
+    that the instances and the datasets rendered from them are the same."""
+    path = sim_assets_dir() / "categories" / "laptop.toml"
+    text = path.read_text()
+    assert "[paper_view]" in text
+    stripped = asset_digest_text(text)
+    assert "[paper_view]" not in stripped and stripped.endswith("roll_deg = [-5.0, 5.0]\n")
+    assert parse_template(path).digest == hashlib.sha256(stripped.encode()).hexdigest()
+    bad = tmp_path / "laptop.toml"
+    bad.write_text(stripped + "\n[paper_view]\neuler_deg = [[-10, 10], [0, 1]]\n")
+    with pytest.raises(ConfigError, match="three"):
+        parse_template(bad)
+    bad.write_text(stripped + "\n[paper_view]\neuler_deg = [[-10, 10], [0, 1], [0, 400]]\n")
+    with pytest.raises(ConfigError, match="within|\\[-180, 180\\]"):
+        parse_template(bad)
+
+
+@pytest.mark.parametrize("category,mean,tol,most", [("laptop", 21.6, 4.0, 45.0), ("oven", 83.0, 12.0, 180.0)])
+def test_generate_paper_viewpoints_and_training_views(tmp_path, category, mean, tol, most):
+    """``scapo generate --viewpoints paper``: every sample's rotation away from the level front view, measured from
+    its T_cam_obj, averages the paper's (laptop about 22 deg and none over 45; oven about 83); training instances get
+    ``--train-views`` views, val and test ``--views``; the card says which setting made the dataset."""
+    from scapo.cli.main import main
+    from scapo.data import load
+
+    out = tmp_path / category
+    assert main(["generate", "--category", category, "--instances", "5", "--views", "4", "--train-views", "12",
+                 "--viewpoints", "paper", "--val-fraction", "0.2", "--test-fraction", "0.2", "--out", str(out),
+                 "--no-progress"]) == 0
+    card = json.loads((out / "card.json").read_text())
+    assert card["viewpoints"] == "paper" and card["views_per_instance"] == {"train": 12, "val": 4, "test": 4}
+    angles = []
+    for split, views in (("train", 12), ("val", 4), ("test", 4)):
+        ds = load(out, split)
+        assert len(ds) == views * len(card["splits"][split]["instances"])
+        angles += [front_view_angle_deg(ds[i]["T_cam_obj"]) for i in range(len(ds))]
+    assert abs(np.mean(angles) - mean) < tol and max(angles) <= most
