@@ -680,3 +680,53 @@ def test_eap_joints_option_takes_the_heads_or_the_pairs_joint_carried_by_the_chi
     assert "joints" in validate_options("eap", {"joints": "pairs"})
     with pytest.raises(ConfigError, match="joints must be 'heads' or 'pairs'"):
         EAPOptions(joints="both")
+
+
+def test_npcs_infer_points_splits_the_cloud_into_training_density_subsets(trained_test_runs):
+    """``--option infer_points=n``: every point gets the label and maps of the subset it was inferred in (the same
+    network outputs as inferring that subset alone); 0 is every point at once, as before; bad values are refused."""
+    from scapo.methods import load_run
+    from scapo.methods.learned import normalize_clouds
+    from scapo.methods.npcs import NPCSOptions
+
+    method = load_run(trained_test_runs["npcs"], infer_points=32)
+    net = method.module
+    X = torch.rand(2, 100, 3) - 0.5
+    lo, co, _ = net.outputs(X)
+    perm = torch.randperm(100, generator=torch.Generator().manual_seed(0))
+    first = torch.tensor_split(perm, 4)[0]  # ceil(100 / 32) = 4 subsets of 25
+    lo1, co1, _ = net(normalize_clouds(X[:, first])[0])
+    torch.testing.assert_close(lo[:, first], lo1)
+    torch.testing.assert_close(co[:, first], co1)
+    net.infer_points = 0
+    torch.testing.assert_close(net.outputs(X)[0], net(normalize_clouds(X)[0])[0])
+    out = method.predict_points(X.numpy())
+    assert out["part_label"].shape == (2, 100) and out["part_pose"].shape == (2, 2, 4, 4)
+    for bad in (-1, 8, True):
+        with pytest.raises(ConfigError, match="infer_points"):
+            NPCSOptions(run="x", infer_points=bad)
+
+
+def test_npcs_diagnosis_ladder_is_exact_from_ground_truth_maps(trained_test_runs, laptop_data, tmp_path):
+    """``bench/npcs_diagnosis.py``: fed the ground-truth labels and maps, NPCS-style's pose fitting and the evaluator
+    give zero error (so what the ladder's other rungs lose is the network's), and every rung and map is reported."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "npcs_diagnosis.py"
+    spec = importlib.util.spec_from_file_location("npcs_diagnosis", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "ladder.json"
+    assert mod.main(["--data", str(laptop_data), "--run", str(trained_test_runs["npcs"]), "--split", "test",
+                     "--infer-points", "64", "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    lad = next(iter(doc["runs"].values()))
+    oracle = lad["rungs"]["oracle"]
+    assert oracle["S"] == 100.0 and oracle["R"] < 1e-3 and oracle["D"] < 1e-3
+    assert set(lad["rungs"]) == {"oracle", "net labels + GT maps", "GT labels + net maps", "net (all points)",
+                                 "net (infer_points=64)"}
+    assert 0.0 <= lad["maps"]["infer_points=64"]["seg_accuracy"] <= 1.0 and lad["maps_train"]["clouds"] > 0
+    assert doc["provenance"]["commit"] and doc["dataset_hash"]
+    assert mod.main(["--data", str(tmp_path / "none"), "--run", str(trained_test_runs["npcs"])]) == 2

@@ -52,6 +52,11 @@ Details:
   least-squares relation between the two predicted maps on the inliers, which places the part in the object
   frame. The network uses the maps of the point's predicted part. Without ``part_npcs`` (the ``test``
   preset): NAOCS alone.
+- Inference density (``--option infer_points=n``, our addition, off by default): the network trains on random subsets
+  of the preset's ``points`` (256 in ``cpu``) and by default infers on the whole test cloud (1024 points), where the
+  ``k`` nearest neighbours of the ``vn`` backbone's edge layer span about half the distance they did in training;
+  ``infer_points=256`` infers interleaved random subsets of the training size instead
+  (:meth:`NPCSNet.outputs`). ``bench/npcs_diagnosis.py`` measures both (results/paper_regime/).
 - Joints: from the relative motion of the child's pose against the parent's
   (:func:`~scapo.methods.joints.joint_from_part_poses`), signed by the training rest axes (which also
   stand in for an undefined axis at a tiny motion), or the rest joint carried by the parent (``joints``).
@@ -122,10 +127,21 @@ class NPCSOptions(LearnedOptions):
     from the relative motion either way. The default was chosen on the val split of the laptop
     experiment (``bench/methods_laptop.sh``; its ``npcs_joints_choice.json``)."""
 
+    infer_points: int = 0
+    """0: the network sees every point of a test cloud at once (N, 1024 in the tables) although it trained on random
+    subsets of the preset's ``points`` (256 in ``cpu``), so that its k-nearest-neighbour patches are about half as
+    wide as in training; n > 0: the cloud's points are split at random into ceil(N / n) interleaved subsets of about
+    n points, each inferred on its own (the training density), and every point keeps its own subset's label and
+    coordinates; the poses are then fitted to all points as before. A switchable addition of ours, chosen on val
+    (results/paper_regime/)."""
+
     def __post_init__(self):
         super().__post_init__()
         if self.joints not in ("motion", "parent"):
             raise ConfigError(f"joints must be 'motion' or 'parent', got {self.joints!r}")
+        if isinstance(self.infer_points, bool) or not isinstance(self.infer_points, int) or not (
+                self.infer_points == 0 or self.infer_points >= 16):
+            raise ConfigError(f"infer_points must be 0 (every point at once) or >= 16, got {self.infer_points!r}")
 
 
 PRESETS: Registry[NPCSPreset] = Registry("npcs preset")
@@ -166,9 +182,32 @@ class NPCSNet(nn.Module):
         self.register_buffer("rest_axis", torch.zeros(len(self.joint_types), 3, dtype=torch.float64))
         self.register_buffer("rest_pivot", torch.zeros(len(self.joint_types), 3, dtype=torch.float64))
         self.joints = "parent"
+        self.infer_points = 0
 
     def configure(self, options: NPCSOptions) -> None:
         self.joints = options.joints
+        self.infer_points = int(options.infer_points)
+
+    def outputs(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """The network's ``(logits (B, N, P), NAOCS (B, N, P, 3), part NPCS (B, N, P, 3) or None)`` for ``points (B,
+        N, 3)`` metres: at once, or with ``infer_points`` (:class:`NPCSOptions`) over interleaved random subsets of
+        about that many points, each normalised on its own as in training (a fixed permutation, seed 0)."""
+        B, N, _ = points.shape
+        n = self.infer_points
+        if not n or N <= n:
+            return self(normalize_clouds(points.float())[0])
+        perm = torch.randperm(N, generator=torch.Generator().manual_seed(0)).to(points.device)
+        logits = coords = part = None
+        for idx in torch.tensor_split(perm, -(-N // n)):
+            lo, co, pa = self(normalize_clouds(points[:, idx].float())[0])
+            if logits is None:
+                logits = lo.new_zeros(B, N, lo.shape[-1])
+                coords = co.new_zeros(B, N, *co.shape[2:])
+                part = None if pa is None else pa.new_zeros(B, N, *pa.shape[2:])
+            logits[:, idx], coords[:, idx] = lo, co
+            if part is not None:
+                part[:, idx] = pa
+        return logits, coords, part
 
     def forward(self, X: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """``(logits (B, N, P), NAOCS (B, N, P, 3), part NPCS (B, N, P, 3) or None)`` for normalised ``X``."""
@@ -211,14 +250,25 @@ class NPCSNet(nn.Module):
     @torch.no_grad()
     def infer(self, points: torch.Tensor) -> dict:
         """Predictions for ``points (B, N, 3)`` metres (camera frame); numpy arrays (see Predictions)."""
-        X, c, s = normalize_clouds(points.float())
-        logits, coords, part = self(X)
-        lab = logits.argmax(-1)
-        pts = points.double().cpu().numpy()
-        lab_np = lab.cpu().numpy()
-        co = coords.double().cpu().numpy()
-        pco = part.double().cpu().numpy() if part is not None else None
-        scale = s.double().cpu().numpy()
+        _, _, s = normalize_clouds(points.float())
+        logits, coords, part = self.outputs(points)
+        return self.fit_poses(points.double().cpu().numpy(), logits.argmax(-1).cpu().numpy(),
+                              coords.double().cpu().numpy(), part.double().cpu().numpy() if part is not None else None,
+                              s.double().cpu().numpy())
+
+    def fit_poses(self, pts: np.ndarray, lab_np: np.ndarray, co: np.ndarray, pco: np.ndarray | None,
+                  scale: np.ndarray) -> dict:
+        """Part poses and joints from per-point labels and coordinate maps (the pose half of :meth:`infer`; also fed
+        ground-truth maps by ``bench/npcs_diagnosis.py``).
+
+        Args:
+            pts: ``(B, N, 3)`` float64 points, camera frame, metres. lab_np: ``(B, N)`` int part labels.
+            co: ``(B, N, P, 3)`` NAOCS maps; pco: ``(B, N, P, 3)`` per-part NPCS maps or None. scale: ``(B,)``
+                clouds' scale (2 x RMS radius, metres), the RANSAC threshold's unit.
+
+        Returns:
+            numpy arrays ``part_label``, ``part_pose (B, P, 4, 4)``, ``joint_axis``, ``joint_pivot (B, J, 3)``,
+            ``joint_state (B, J)``, ``T_cam_obj (B, 4, 4)`` (see Predictions)."""
         B, N = lab_np.shape
         poses = np.tile(np.eye(4), (B, self.P, 1, 1))
         J = len(self.joint_types)
