@@ -918,3 +918,38 @@ def test_table_digest_reads_the_tables_numbers(tmp_path):
     for args in (["missing.json"], [str(tmp_path / "bad.json")], [str(tmp_path / "t1.json"), "--pair", "a"]):
         bad = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, cwd=tmp_path)
         assert bad.returncode == 2 and bad.stderr.startswith("scapo: ") and "Traceback" not in bad.stderr, args
+
+
+def test_regime_compare_puts_two_tables_beside_the_papers_rows(tmp_path):
+    """``bench/regime_compare.py``: per category and method the mean over training seeds of each table's cells (with
+    their spread), the paper's row beside them, the within-2x check on the first table's R sym, and ``scapo:``
+    errors for a missing table or a method it does not hold."""
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "bench" / "regime_compare.py"
+
+    def table(vals, rotated):
+        res = [{"method": "npcs", "category": "laptop", "seed": s, "summary": {"S": 90.0, "R": v, "R_sym": v,
+                                                                                "D": 3.0, "C": 0.05}}
+               for s, v in enumerate(vals)]
+        return {"results": res, "provenance": {"commits": ["abcdef0123"], "data": {"random_rotation": rotated},
+                                               "datasets": {"laptop": "0123456789abcdef"}}}
+
+    (tmp_path / "p.json").write_text(json.dumps(table([10.0, 14.0, 12.0], False)))
+    (tmp_path / "s.json").write_text(json.dumps(table([60.0, 70.0, 80.0], True)))
+    run = subprocess.run([sys.executable, str(script), "--table", f"paper={tmp_path / 'p.json'}", "--table",
+                          f"sphere={tmp_path / 's.json'}", "--methods", "npcs", "--categories", "laptop", "--paper",
+                          "npcs=NPCS-EPN", "--within", "2", "--out", str(tmp_path / "cmp")],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    md = (tmp_path / "cmp.md").read_text()
+    assert "| laptop | npcs | paper | 0,1,2 | 90.0 ± 0.0 | 12.0 ± 2.0 |" in md
+    assert "| laptop | npcs | sphere | 0,1,2 |" in md and "| laptop | npcs | paper (NPCS-EPN) | - | - | 8.1 |" in md
+    assert "npcs laptop: R sym 12.0 deg against the paper's 8.07 (1.5x): within" in md
+    res = json.loads((tmp_path / "cmp.json").read_text())
+    assert res["checks"][0]["within"] is True
+    for args in (["--table", "x=missing.json"], ["--table", f"p={tmp_path / 'p.json'}", "--methods", "icp"]):
+        bad = subprocess.run([sys.executable, str(script), *args, *([] if "--methods" in args else ["--methods", "npcs"]),
+                              "--categories", "laptop"], capture_output=True, text=True, cwd=tmp_path)
+        assert bad.returncode == 2 and bad.stderr.startswith("scapo: ") and "Traceback" not in bad.stderr, args

@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# Issue 51's sanity check of the paper's viewpoints: NPCS-style (supervised) and ICP on laptop and eyeglasses in the
+# paper regime (scapo generate --viewpoints paper; 150 instances, data seed 1 as Table 1, 64 views per training
+# instance, 8 per val/test instance, 30 test instances), cpu preset, training seeds 0,1,2, beside the same methods
+# on the whole sphere (Table 1's cells) and the paper's rows; the views per training instance measured on val; the
+# supervised row's diagnosis ladder (bench/npcs_diagnosis.py). Writes results/paper_regime/.
+#
+# Steps (each resumable; run with the code of one clean commit, e.g. CODE=../wt51 a worktree of it):
+#   CHAIN=laptop bash bench/paper_regime.sh      # core 1: laptop cells, then the 8-view val run
+#   CHAIN=eyeglasses bash bench/paper_regime.sh  # core 2: eyeglasses cells, then 64 views at the 8-view step count
+#   FINISH=1 bash bench/paper_regime.sh          # the table, the comparison, the val choices and the ladders
+# About 4.4 core-hours on a 2-core AMD EPYC (each NPCS-style cell 8,900 steps, ~25 min on one core).
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+ROOT=$(pwd)
+CODE=${CODE:-$ROOT}
+WORK=${WORK:-$ROOT/bench_work/paper_regime}
+ARCHIVE=${ARCHIVE:-$WORK/archive}
+OUT=${OUT:-$ROOT/results/paper_regime}
+PY=${PY:-$ROOT/.venv/bin/python}
+export OMP_NUM_THREADS=1
+scapo() { (cd "$CODE" && PYTHONPATH="$CODE" "$PY" -m scapo.cli "$@"); }
+COMMON=(--seed 1 --work "$WORK" --archive "$ARCHIVE" --no-progress --workers 1)
+T64="$WORK/laptop_i150_v8_t64_s1_paper"
+T8="$WORK/laptop_i150_v8_s1_paper"
+VAL="$WORK/val"
+
+if [ -z "${FINISH:-}" ]; then
+  case "${CHAIN:?set CHAIN=laptop or CHAIN=eyeglasses, or FINISH=1}" in
+    laptop)
+      scapo bench table1 --methods npcs,icp --categories laptop --seeds 0,1,2 --out "$WORK/out_laptop" "${COMMON[@]}"
+      scapo bench table1 --methods npcs --categories laptop --seeds 0 --train-views 8 --out "$WORK/out_t8" "${COMMON[@]}"
+      ;;
+    eyeglasses)
+      scapo bench table1 --methods npcs,icp --categories eyeglasses --seeds 0,1,2 --out "$WORK/out_eyeglasses" \
+        "${COMMON[@]}"
+      scapo train --method npcs --data "$T64" --preset cpu --seed 0 --set iterations=4628 \
+        --out "$VAL/run_npcs_t64_steps4628_s0" --no-progress
+      scapo predict --run "$VAL/run_npcs_t64_steps4628_s0" --data "$T64" --out "$VAL/pred_npcs_t64_steps4628_s0.npz"
+      ;;
+  esac
+  exit 0
+fi
+
+mkdir -p "$OUT"
+scapo bench table1 --methods npcs,icp --categories laptop,eyeglasses --seeds 0,1,2 --finished-only \
+  --name table1_paper_regime --out "$OUT" "${COMMON[@]}"
+"$PY" bench/regime_compare.py --table "paper=$OUT/table1_paper_regime.json" \
+  --table "sphere=results/table1_synthetic_sphere.json" --methods npcs,icp --categories laptop,eyeglasses \
+  --paper npcs=NPCS-EPN --paper icp=ICP --within 2 --out "$OUT/regimes"
+# views per training instance on val: 8 views (4,628 steps), 64 views at 4,628 steps, 64 views at the preset's 8,900
+for pair in "t8_steps4628=$T8/predictions_npcs_cpu_s0.npz@$T8" \
+            "t64_steps4628=$VAL/pred_npcs_t64_steps4628_s0.npz@$T64" \
+            "t64_steps8900=$T64/predictions_npcs_cpu_s0.npz@$T64"; do
+  label=${pair%%=*}; rest=${pair#*=}
+  scapo evaluate --data "${rest#*@}" --pred "${rest%@*}" --split val --out "$OUT/train_views_val" --name "$label"
+done
+# the supervised row's ladder, on val (choices) and test (the sanity check's explanation), every seed
+for cat in laptop eyeglasses; do
+  D="$WORK/${cat}_i150_v8_t64_s1_paper"
+  for split in val test; do
+    "$PY" bench/npcs_diagnosis.py --data "$D" --run "$D/run_npcs_cpu_s0" --run "$D/run_npcs_cpu_s1" \
+      --run "$D/run_npcs_cpu_s2" --split "$split" --infer-points 256 --out "$OUT/npcs_ladder_${cat}_${split}.json"
+  done
+done
