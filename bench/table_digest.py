@@ -1,7 +1,7 @@
 """The numbers a status paragraph quotes, read from the table JSONs that ``scapo bench table1|table2|table3`` wrote,
 so that the prose in ``README.md`` and ``results/README.md`` comes from the tables only (issue 31, point 3):
 
-    python bench/table_digest.py results/table1_synthetic.json results/table3_ablation.json \\
+    python bench/table_digest.py results/table1_synthetic_sphere.json results/table3_ablation_sphere.json \\
         results/table2_real_style.json --pair scapo-sj,op-align-sj --mean seg_50,ap_joint_10,ap_part_10
 
 Per table: its provenance (cells, commits, devices, recorded compute hours, training seeds per category); the
