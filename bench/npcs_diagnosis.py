@@ -10,9 +10,11 @@ Rungs (each one changes one thing against the row above it; the pose and joint h
   instance, as training derives it); what the pose fitting and the evaluator give with perfect network outputs.
 - ``net labels + GT maps``: the network's labels, ground-truth coordinates (the cost of segmentation errors).
 - ``GT labels + net maps``: ground-truth labels, the network's coordinates (the cost of coordinate errors).
-- ``net (all points)``: the method as the tables run it (``infer_points=0``: the 1024-point cloud at once).
-- ``net (infer_points=n)``: the cloud split into interleaved random subsets of the training's point count (the
-  density the network's k-nearest-neighbour patches were trained at; :class:`scapo.methods.npcs.NPCSOptions`).
+- ``net (all points)``: the 1024-point cloud at once (what the tables did before issue 51; ``--option
+  infer_points=100000``).
+- ``net (infer_points=n)``: the cloud split into interleaved random subsets of about n points (n = the training's
+  point count, 256 in ``cpu``, is the method's default since issue 51: the density the network's k-nearest-neighbour
+  patches were trained at; :class:`scapo.methods.npcs.NPCSOptions`).
 
 Besides each rung's S, R, R sym (mean and median), D and C, the per-point quality of the network's outputs on object
 points: segmentation accuracy, and the mean L2 error of its NAOCS and per-part NPCS on the true part's map (units of

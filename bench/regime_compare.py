@@ -40,6 +40,12 @@ def _load(path: Path) -> dict:
         raise CompareError(f"{path}: cannot read a table JSON ({e})") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("results"), list):
         raise CompareError(f"{path}: not a bench table (no 'results' list)")
+    prov = doc.setdefault("provenance", {})
+    if "commits" not in prov and prov.get("commit"):  # a table of scapo evaluate: one commit, one dataset
+        prov["commits"] = [str(prov["commit"])]
+        cats = {r.get("category") for r in doc["results"]}
+        if prov.get("dataset_hash") and len(cats) == 1:
+            prov["datasets"] = {cats.pop(): str(prov["dataset_hash"])}
     return doc
 
 
@@ -135,7 +141,8 @@ def markdown(res: dict, tables: dict[str, dict], sources: dict[str, str]) -> str
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--table", action="append", required=True, metavar="LABEL=PATH")
+    p.add_argument("--table", action="append", required=True, metavar="LABEL=PATH[,PATH...]",
+                   help="a table JSON (several, comma-separated, are one table: e.g. one per category)")
     p.add_argument("--methods", required=True)
     p.add_argument("--categories", required=True)
     p.add_argument("--paper", action="append", default=[], metavar="METHOD=PAPER_ROW")
@@ -148,7 +155,12 @@ def main(argv=None) -> int:
             label, eq, path = t.partition("=")
             if not eq or not label or not path:
                 raise CompareError(f"--table {t!r} is not LABEL=PATH")
-            sources[label], tables[label] = path, _load(Path(path))
+            docs = [_load(Path(x)) for x in path.split(",")]  # several JSONs of one setting (e.g. per category)
+            merged = {**docs[0], "results": [r for d in docs for r in d["results"]]}
+            provs = [d.get("provenance", {}) for d in docs]
+            merged["provenance"] = {**provs[0], "commits": sorted({c for pr in provs for c in pr.get("commits", [])}),
+                                    "datasets": {k: v for pr in provs for k, v in pr.get("datasets", {}).items()}}
+            sources[label], tables[label] = path, merged
         paper = dict(x.split("=", 1) for x in args.paper if "=" in x)
         res = compare(tables, args.methods.split(","), args.categories.split(","), paper, args.within)
     except CompareError as e:

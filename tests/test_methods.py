@@ -684,7 +684,8 @@ def test_eap_joints_option_takes_the_heads_or_the_pairs_joint_carried_by_the_chi
 
 def test_npcs_infer_points_splits_the_cloud_into_training_density_subsets(trained_test_runs):
     """``--option infer_points=n``: every point gets the label and maps of the subset it was inferred in (the same
-    network outputs as inferring that subset alone); 0 is every point at once, as before; bad values are refused."""
+    network outputs as inferring that subset alone); the default (0) is the run's training point count; n >= N is
+    every point at once, as before issue 51; bad values are refused."""
     from scapo.methods import load_run
     from scapo.methods.learned import normalize_clouds
     from scapo.methods.npcs import NPCSOptions
@@ -700,6 +701,8 @@ def test_npcs_infer_points_splits_the_cloud_into_training_density_subsets(traine
     torch.testing.assert_close(co[:, first], co1)
     net.infer_points = 0
     torch.testing.assert_close(net.outputs(X)[0], net(normalize_clouds(X)[0])[0])
+    assert load_run(trained_test_runs["npcs"]).module.infer_points == method.preset.points == 128  # the default
+    assert load_run(trained_test_runs["npcs"], infer_points=100000).module.infer_points == 100000  # all at once
     out = method.predict_points(X.numpy())
     assert out["part_label"].shape == (2, 100) and out["part_pose"].shape == (2, 2, 4, 4)
     for bad in (-1, 8, True):

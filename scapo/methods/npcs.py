@@ -34,6 +34,9 @@ backbone                       PointNet++                                       
                                                                                             ``test``
 losses                         soft-IoU segmentation, L2 coordinates                       cross-entropy, smooth L1
 rotation robustness            none (views of upright objects)                             uniform rotation augment
+test-time points               not read here                                               the training's ``points``
+                                                                                            per subset, all points
+                                                                                            covered (``infer_points``)
 =============================  ==========================================================  =========================
 
 Details:
@@ -52,11 +55,12 @@ Details:
   least-squares relation between the two predicted maps on the inliers, which places the part in the object
   frame. The network uses the maps of the point's predicted part. Without ``part_npcs`` (the ``test``
   preset): NAOCS alone.
-- Inference density (``--option infer_points=n``, our addition, off by default): the network trains on random subsets
-  of the preset's ``points`` (256 in ``cpu``) and by default infers on the whole test cloud (1024 points), where the
-  ``k`` nearest neighbours of the ``vn`` backbone's edge layer span about half the distance they did in training;
-  ``infer_points=256`` infers interleaved random subsets of the training size instead
-  (:meth:`NPCSNet.outputs`). ``bench/npcs_diagnosis.py`` measures both (results/paper_regime/).
+- Inference density (``--option infer_points``): the network trains on random subsets of the preset's ``points``
+  (256 in ``cpu``) and, by default, infers each test cloud (1024 points) as interleaved random subsets of that many
+  points (:meth:`NPCSNet.outputs`), so that the network meets test clouds at the density it trained at. Inferring
+  all 1024 points at once (``infer_points=100000``, what the tables before issue 51 did) halves the span of the
+  ``vn`` backbone's k-nearest-neighbour patches: on paper-regime laptops (val) the labels fall to 40 % point accuracy
+  and the mean part rotation error rises from 5.7 to 121 deg (``bench/npcs_diagnosis.py``, results/paper_regime/).
 - Joints: from the relative motion of the child's pose against the parent's
   (:func:`~scapo.methods.joints.joint_from_part_poses`), signed by the training rest axes (which also
   stand in for an undefined axis at a tiny motion), or the rest joint carried by the parent (``joints``).
@@ -128,12 +132,13 @@ class NPCSOptions(LearnedOptions):
     experiment (``bench/methods_laptop.sh``; its ``npcs_joints_choice.json``)."""
 
     infer_points: int = 0
-    """0: the network sees every point of a test cloud at once (N, 1024 in the tables) although it trained on random
-    subsets of the preset's ``points`` (256 in ``cpu``), so that its k-nearest-neighbour patches are about half as
-    wide as in training; n > 0: the cloud's points are split at random into ceil(N / n) interleaved subsets of about
-    n points, each inferred on its own (the training density), and every point keeps its own subset's label and
-    coordinates; the poses are then fitted to all points as before. A switchable addition of ours, chosen on val
-    (results/paper_regime/)."""
+    """How many points the network sees at once at test time. 0 (default): the run's training points (the preset's
+    ``points``, 256 in ``cpu``): the test cloud's points are split at random into ceil(N / n) interleaved subsets of
+    about n points, each inferred on its own at the density the network trained at, and every point keeps its own
+    subset's label and coordinates; the poses are then fitted to all N points. n >= 16: subsets of about n points;
+    n >= N (e.g. 100000): every point at once, as the tables before issue 51 did, where the k nearest neighbours of
+    the ``vn`` backbone span about half the distance they did in training (1024 against 256 points) and the
+    labels and maps break down (``bench/npcs_diagnosis.py``; results/paper_regime/: chosen on val)."""
 
     def __post_init__(self):
         super().__post_init__()
@@ -186,12 +191,13 @@ class NPCSNet(nn.Module):
 
     def configure(self, options: NPCSOptions) -> None:
         self.joints = options.joints
-        self.infer_points = int(options.infer_points)
+        self.infer_points = int(options.infer_points) or int(self.preset.points)
 
     def outputs(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """The network's ``(logits (B, N, P), NAOCS (B, N, P, 3), part NPCS (B, N, P, 3) or None)`` for ``points (B,
-        N, 3)`` metres: at once, or with ``infer_points`` (:class:`NPCSOptions`) over interleaved random subsets of
-        about that many points, each normalised on its own as in training (a fixed permutation, seed 0)."""
+        N, 3)`` metres: over interleaved random subsets of about ``self.infer_points`` points (set from
+        :class:`NPCSOptions` by :meth:`configure`), each normalised on its own as in training (a fixed permutation,
+        seed 0), or at once where ``self.infer_points`` is 0 or at least N."""
         B, N, _ = points.shape
         n = self.infer_points
         if not n or N <= n:
