@@ -42,20 +42,39 @@ if [ -z "${FINISH:-}" ]; then
   exit 0
 fi
 
-mkdir -p "$OUT"
+mkdir -p "$OUT" "$WORK/density"
+# 1. the cells as the bench computed them (NPCS-style inferring all 1024 points at once, as before issue 51)
 scapo bench table1 --methods npcs,icp --categories laptop,eyeglasses --seeds 0,1,2 --finished-only \
   --name table1_paper_regime --out "$OUT" "${COMMON[@]}"
-"$PY" bench/regime_compare.py --table "paper=$OUT/table1_paper_regime.json" \
-  --table "sphere=results/table1_synthetic_sphere.json" --methods npcs,icp --categories laptop,eyeglasses \
-  --paper npcs=NPCS-EPN --paper icp=ICP --within 2 --out "$OUT/regimes"
-# views per training instance on val: 8 views (4,628 steps), 64 views at 4,628 steps, 64 views at the preset's 8,900
-for pair in "t8_steps4628=$T8/predictions_npcs_cpu_s0.npz@$T8" \
-            "t64_steps4628=$VAL/pred_npcs_t64_steps4628_s0.npz@$T64" \
-            "t64_steps8900=$T64/predictions_npcs_cpu_s0.npz@$T64"; do
-  label=${pair%%=*}; rest=${pair#*=}
-  scapo evaluate --data "${rest#*@}" --pred "${rest%@*}" --split val --out "$OUT/train_views_val" --name "$label"
+# 2. NPCS-style's default since issue 51, chosen on val (bench/npcs_diagnosis.py): the same runs, each test cloud
+#    inferred at the training's point count; this checkout's code predicts (FINISH runs it; the runs are the cells')
+for cat in laptop eyeglasses; do
+  D="$WORK/${cat}_i150_v8_t64_s1_paper"
+  preds=()
+  for s in 0 1 2; do
+    f="$WORK/density/${cat}_npcs_s$s.npz"
+    [ -f "$f" ] || "$PY" -m scapo.cli predict --run "$D/run_npcs_cpu_s$s" --data "$D" --out "$f"
+    preds+=("$f")
+  done
+  "$PY" -m scapo.cli evaluate --data "$D" --pred "${preds[@]}" --out "$OUT/training_density" --name "npcs_$cat"
 done
-# the supervised row's ladder, on val (choices) and test (the sanity check's explanation), every seed
+"$PY" bench/regime_compare.py \
+  --table "paper, training density=$OUT/training_density/npcs_laptop.json,$OUT/training_density/npcs_eyeglasses.json" \
+  --table "paper, all points=$OUT/table1_paper_regime.json" --table "sphere, all points=results/table1_synthetic_sphere.json" \
+  --methods npcs --categories laptop,eyeglasses --paper npcs=NPCS-EPN --within 2 --out "$OUT/regimes_npcs"
+"$PY" bench/regime_compare.py --table "paper=$OUT/table1_paper_regime.json" \
+  --table "sphere=results/table1_synthetic_sphere.json" --methods icp --categories laptop,eyeglasses \
+  --paper icp=ICP --within 2 --out "$OUT/regimes_icp"
+# 3. views per training instance on val, NPCS-style seed 0 at its default inference: 8 views (4,628 steps), 64 views
+#    at those 4,628 steps, 64 views at the preset's 8,900 steps (the cells' run)
+for spec in "t8_steps4628=$T8/run_npcs_cpu_s0@$T8" "t64_steps4628=$VAL/run_npcs_t64_steps4628_s0@$T64" \
+            "t64_steps8900=$T64/run_npcs_cpu_s0@$T64"; do
+  label=${spec%%=*}; rest=${spec#*=}; run=${rest%@*}; data=${rest#*@}
+  f="$WORK/density/val_$label.npz"
+  [ -f "$f" ] || "$PY" -m scapo.cli predict --run "$run" --data "$data" --out "$f"
+  "$PY" -m scapo.cli evaluate --data "$data" --pred "$f" --split val --out "$OUT/train_views_val" --name "$label"
+done
+# 4. the supervised row's ladder on val (the choice of the inference density) and test, every seed
 for cat in laptop eyeglasses; do
   D="$WORK/${cat}_i150_v8_t64_s1_paper"
   for split in val test; do

@@ -159,3 +159,15 @@ def test_generate_paper_viewpoints_and_training_views(tmp_path, category, mean, 
         assert len(ds) == views * len(card["splits"][split]["instances"])
         angles += [front_view_angle_deg(ds[i]["T_cam_obj"]) for i in range(len(ds))]
     assert abs(np.mean(angles) - mean) < tol and max(angles) <= most
+
+
+def test_per_object_euler_ranges_are_checked():
+    """An object dataset's per-object view overrides (--object-options) take the paper's Euler ranges too, checked
+    like --euler; a malformed one is a clear error naming the field."""
+    from scapo.sim.assets.objects import view_overrides
+
+    assert view_overrides({"object_euler_deg": [[-10, 10], [0, 0], [-5, 5]]}) == (
+        ("object_euler_deg", ((-10.0, 10.0), (0.0, 0.0), (-5.0, 5.0))),)
+    for bad in ([1, 2], [[0, 1]] * 2, [[0, 400]] * 3, "x"):
+        with pytest.raises(ConfigError, match="object_euler_deg"):
+            view_overrides({"object_euler_deg": bad})

@@ -374,7 +374,14 @@ def view_overrides(view: dict | None) -> tuple[tuple[str, object], ...]:
     out = {}
     for k, v in view.items():
         default = fields[k].default
-        if isinstance(default, tuple):  # a range: [low, high], finite, low <= high
+        if k == "object_euler_deg":  # the paper's viewpoints: three [low, high] ranges, checked by ViewConfig
+            try:
+                v = ViewConfig(object_euler_deg=v).object_euler_deg
+            except (ConfigError, TypeError):
+                raise ConfigError(f"view field 'object_euler_deg': {v!r} is not three ranges [low, high] of degrees "
+                                  "(x, y, z) within [-180, 180], e.g. [[-22.5, 22.5], [-22.5, 22.5], [-22.5, 22.5]]"
+                                  ) from None
+        elif isinstance(default, tuple):  # a range: [low, high], finite, low <= high
             ok = (isinstance(v, (list, tuple)) and len(v) == 2
                   and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
                   and v[0] <= v[1])
