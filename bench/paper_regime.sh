@@ -82,3 +82,32 @@ for cat in laptop eyeglasses; do
       --run "$D/run_npcs_cpu_s2" --split "$split" --infer-points 256 --out "$OUT/npcs_ladder_${cat}_${split}.json"
   done
 done
+# 5. the views as rendered: each sample's rotation away from the level front view (from its T_cam_obj), per split,
+#    and the rendering's cost (its run log) and size on disk
+"$PY" - "$WORK" "$OUT/view_angles.json" <<'PYEOF'
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from scapo.data import load
+from scapo.provenance import provenance
+from scapo.sim.render import front_view_angle_deg
+
+work, out = Path(sys.argv[1]), Path(sys.argv[2])
+doc = {"provenance": provenance(command="bench/paper_regime.sh FINISH (view angles)")}
+for cat in ("laptop", "eyeglasses"):
+    d = work / f"{cat}_i150_v8_t64_s1_paper"
+    card = json.loads((d / "card.json").read_text())
+    doc[cat] = {"dataset_hash": card["dataset_hash"], "viewpoints": card["viewpoints"],
+                "rejections": card["rejections"], "render": json.loads((d / "run_log.jsonl").read_text().splitlines()[0]),
+                "disk_mb": round(sum(f.stat().st_size for f in (d / "shards").glob("*.npz")) / 2**20, 1)}
+    for split in ("train", "val", "test"):
+        a = np.array([front_view_angle_deg(t) for t in load(d, split).arrays(["T_cam_obj"])["T_cam_obj"]])
+        doc[cat][split] = {"samples": len(a), "mean_deg": round(float(a.mean()), 1),
+                           "median_deg": round(float(np.median(a)), 1), "max_deg": round(float(a.max()), 1),
+                           "over_45_deg": int((a > 45).sum())}
+out.write_text(json.dumps(doc, indent=1, sort_keys=True))
+print(f"wrote {out}")
+PYEOF
