@@ -2,6 +2,7 @@
 rung scored by the project's evaluator on one split (val for choices, test for the sanity check's explanation).
 
     python bench/npcs_diagnosis.py --data DATA --run RUN [--run RUN ...] --split val --out results/paper_regime/x.json
+    python bench/npcs_diagnosis.py --digest LADDER.json [...]   # a Markdown table of ladders, means over their runs
 
 Rungs (each one changes one thing against the row above it; the pose and joint half is NPCS-style's own
 ``NPCSNet.fit_poses``, RANSAC-Umeyama at the run's preset, so only the per-point inputs change):
@@ -135,7 +136,46 @@ def ladder(data: Path, run: Path, split: str, infer_points: int, batch: int = 32
     return out
 
 
+RUNGS = ("oracle", "net labels + GT maps", "GT labels + net maps", "net (all points)")
+
+
+def digest(paths: list[Path]) -> str:
+    """A Markdown table of ladder JSONs (this script's ``--out``): per file, each rung's S, R (mean and median), R sym,
+    D and C averaged over the file's runs, then the per-point maps (label accuracy, NAOCS L2) of each inference mode
+    and of the training clouds."""
+    import statistics as st
+
+    head = "| ladder | rung | S % | R | R median | R sym | R sym median | D | C |"
+    lines = [head, "|---|---|--:|--:|--:|--:|--:|--:|--:|"]
+    for path in paths:
+        d = json.loads(Path(path).read_text())
+        runs = list(d["runs"].values())
+        name = f"{Path(str(d['data'])).name} {d['split']} ({len(runs)} runs)"
+        rungs = [r for r in RUNGS if r in runs[0]["rungs"]] + [r for r in runs[0]["rungs"] if r not in RUNGS]
+        for rung in rungs:
+            m = {k: st.fmean(r["rungs"][rung][k] for r in runs) for k in ("S", "R", "R_median", "R_sym",
+                                                                          "R_sym_median", "D", "C")}
+            lines.append(f"| {name} | {rung} | {m['S']:.1f} | {m['R']:.1f} | {m['R_median']:.1f} | {m['R_sym']:.1f} | "
+                         f"{m['R_sym_median']:.1f} | {m['D']:.1f} | {m['C']:.3f} |")
+        maps = [(f"maps, {k.replace('infer_points=0', 'all points')}", [r["maps"][k] for r in runs])
+                for k in runs[0]["maps"]]
+        if "maps_train" in runs[0]:
+            maps.append(("maps on training clouds, all points", [r["maps_train"] for r in runs]))
+        for label, ms in maps:
+            acc, l2 = st.fmean(m["seg_accuracy"] for m in ms), st.fmean(m["naocs_l2"] for m in ms)
+            lines.append(f"| {name} | {label}: label accuracy {acc:.3f}, NAOCS L2 {l2:.3f} | | | | | | | |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["--digest"]:  # python bench/npcs_diagnosis.py --digest LADDER.json ... [> table.md]
+        try:
+            print(digest([Path(a) for a in argv[1:]]), end="")
+        except (OSError, ValueError, KeyError) as e:
+            print(f"scapo: cannot digest the ladders ({type(e).__name__}: {e})", file=sys.stderr)
+            return 2
+        return 0
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", type=Path, required=True)
     p.add_argument("--run", type=Path, action="append", required=True, help="a finished NPCS-style run; repeat")

@@ -111,3 +111,4 @@ for cat in ("laptop", "eyeglasses"):
 out.write_text(json.dumps(doc, indent=1, sort_keys=True))
 print(f"wrote {out}")
 PYEOF
+"$PY" bench/npcs_diagnosis.py --digest "$OUT"/npcs_ladder_{laptop,eyeglasses}_{val,test}.json > "$OUT/npcs_ladders.md"

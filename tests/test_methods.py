@@ -733,3 +733,6 @@ def test_npcs_diagnosis_ladder_is_exact_from_ground_truth_maps(trained_test_runs
     assert 0.0 <= lad["maps"]["infer_points=64"]["seg_accuracy"] <= 1.0 and lad["maps_train"]["clouds"] > 0
     assert doc["provenance"]["commit"] and doc["dataset_hash"]
     assert mod.main(["--data", str(tmp_path / "none"), "--run", str(trained_test_runs["npcs"])]) == 2
+    assert mod.main(["--digest", str(out)]) == 0 and mod.main(["--digest", str(tmp_path / "none.json")]) == 2
+    table = mod.digest([out])
+    assert "| oracle | 100.0 | 0.0 |" in table and "maps on training clouds" in table
