@@ -237,7 +237,8 @@ VIEWPOINT_DATA = {"paper": {"viewpoints": "paper", "train_views": PAPER_TRAIN_VI
 #: How the bench labels each setting wherever it prints one (table titles, provenance).
 VIEWPOINT_LABELS = {"paper": "the paper's viewpoints (EAP's ranges per source dataset)",
                     "sphere": "whole sphere (uniform SO(3) object rotations; harder than the paper)",
-                    "upright": "upright (the category's view ranges; not the paper's setting)"}
+                    "upright": "upright (the category's view ranges, as real scans are; for Tables 1 and 3 the "
+                               "rotation diagnostic, not the paper's setting)"}
 #: How Table 2 renders its datasets: the realistic sensor (scapo.sim.sensor), upright as real scans are, cropped
 #: views rejected.
 REAL_STYLE_DATA = {"sensor": "realistic", "cropped": "reject", **BENCH_SPLITS}
@@ -717,6 +718,13 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
             raise ConfigError(f"{what} names {', '.join(map(str, twice))} more than once; give each once")
     name = opts.name or spec.name
     cells = spec.cells(methods, categories, opts)
+    if opts.progress or opts.dry_run:  # the data setting, said wherever the bench prints
+        kw = data or {}
+        vp = kw.get("viewpoints") or ("sphere" if kw.get("random_rotation") else "upright")
+        tv = int(kw.get("train_views") or 0)
+        print(f"scapo bench {spec.key}: viewpoints {vp}: {VIEWPOINT_LABELS[vp]}; {opts.instances} instances, "
+              f"{tv or opts.views} views per training instance, {opts.views} per val/test instance; data seed "
+              f"{opts.data_seed}", flush=True)
     write_table = getattr(writers, spec.writer)
     if spec.figures:
         write = _writer(write_table, name, opts.out_dir, opts.figures, opts.work_dir, opts.instances, opts.views,
