@@ -11,10 +11,10 @@ Rungs (each one changes one thing against the row above it; the pose and joint h
   instance, as training derives it); what the pose fitting and the evaluator give with perfect network outputs.
 - ``net labels + GT maps``: the network's labels, ground-truth coordinates (the cost of segmentation errors).
 - ``GT labels + net maps``: ground-truth labels, the network's coordinates (the cost of coordinate errors).
-- ``net (all points)``: the 1024-point cloud at once (what the tables did before issue 51; ``--option
+- ``net (all points)``: the 1024-point cloud at once (what the committed Tables 1-3 did; ``--option
   infer_points=100000``).
 - ``net (infer_points=n)``: the cloud split into interleaved random subsets of about n points (n = the training's
-  point count, 256 in ``cpu``, is the method's default since issue 51: the density the network's k-nearest-neighbour
+  point count, 256 in ``cpu``, is the method's default: the density the network's k-nearest-neighbour
   patches were trained at; :class:`scapo.methods.npcs.NPCSOptions`).
 
 Besides each rung's S, R, R sym (mean and median), D and C, the per-point quality of the network's outputs on object

@@ -43,10 +43,10 @@ if [ -z "${FINISH:-}" ]; then
 fi
 
 mkdir -p "$OUT" "$WORK/density"
-# 1. the cells as the bench computed them (NPCS-style inferring all 1024 points at once, as before issue 51)
+# 1. the cells as the bench computed them (NPCS-style inferring all 1024 points at once, as the committed Tables 1-3 did)
 scapo bench table1 --methods npcs,icp --categories laptop,eyeglasses --seeds 0,1,2 --finished-only \
   --name table1_paper_regime --out "$OUT" "${COMMON[@]}"
-# 2. NPCS-style's default since issue 51, chosen on val (bench/npcs_diagnosis.py): the same runs, each test cloud
+# 2. NPCS-style's default inference, chosen on val (bench/npcs_diagnosis.py): the same runs, each test cloud
 #    inferred at the training's point count; this checkout's code predicts (FINISH runs it; the runs are the cells')
 for cat in laptop eyeglasses; do
   D="$WORK/${cat}_i150_v8_t64_s1_paper"

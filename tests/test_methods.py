@@ -685,7 +685,7 @@ def test_eap_joints_option_takes_the_heads_or_the_pairs_joint_carried_by_the_chi
 def test_npcs_infer_points_splits_the_cloud_into_training_density_subsets(trained_test_runs):
     """``--option infer_points=n``: every point gets the label and maps of the subset it was inferred in (the same
     network outputs as inferring that subset alone); the default (0) is the run's training point count; n >= N is
-    every point at once, as before issue 51; bad values are refused."""
+    every point at once, as the committed tables did; bad values are refused."""
     from scapo.methods import load_run
     from scapo.methods.learned import normalize_clouds
     from scapo.methods.npcs import NPCSOptions

@@ -58,7 +58,7 @@ Details:
 - Inference density (``--option infer_points``): the network trains on random subsets of the preset's ``points``
   (256 in ``cpu``) and, by default, infers each test cloud (1024 points) as interleaved random subsets of that many
   points (:meth:`NPCSNet.outputs`), so that the network meets test clouds at the density it trained at. Inferring
-  all 1024 points at once (``infer_points=100000``, what the tables before issue 51 did) halves the span of the
+  all 1024 points at once (``infer_points=100000``, what the committed Tables 1-3 did) halves the span of the
   ``vn`` backbone's k-nearest-neighbour patches: on paper-regime laptops (val) the labels fall to 40 % point accuracy
   and the mean part rotation error rises from 5.7 to 121 deg (``bench/npcs_diagnosis.py``, results/paper_regime/).
 - Joints: from the relative motion of the child's pose against the parent's
@@ -136,7 +136,7 @@ class NPCSOptions(LearnedOptions):
     ``points``, 256 in ``cpu``): the test cloud's points are split at random into ceil(N / n) interleaved subsets of
     about n points, each inferred on its own at the density the network trained at, and every point keeps its own
     subset's label and coordinates; the poses are then fitted to all N points. n >= 16: subsets of about n points;
-    n >= N (e.g. 100000): every point at once, as the tables before issue 51 did, where the k nearest neighbours of
+    n >= N (e.g. 100000): every point at once, as the committed Tables 1-3 did, where the k nearest neighbours of
     the ``vn`` backbone span about half the distance they did in training (1024 against 256 points) and the
     labels and maps break down (``bench/npcs_diagnosis.py``; results/paper_regime/: chosen on val)."""
 
