@@ -9,7 +9,8 @@
 #   CHAIN=laptop bash bench/paper_regime.sh      # core 1: laptop cells, then the 8-view val run
 #   CHAIN=eyeglasses bash bench/paper_regime.sh  # core 2: eyeglasses cells, then 64 views at the 8-view step count
 #   FINISH=1 bash bench/paper_regime.sh          # the table, the comparison, the val choices and the ladders
-# About 4.4 core-hours on a 2-core AMD EPYC (each NPCS-style cell 8,900 steps, ~25 min on one core).
+# About 3.5 core-hours on a 2-core AMD EPYC (each NPCS-style cell 8,900 steps, 22-28 min on one core while the
+# other core trains too; the 8 cells recorded 2.66 h).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 ROOT=$(pwd)
