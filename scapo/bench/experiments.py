@@ -43,6 +43,7 @@ from scapo.bench.cells import (
     method_preset,
 )
 from scapo.data import generate, load, make_config
+from scapo.data.config import viewpoints_of
 from scapo.errors import ConfigError
 from scapo.files import check_output_dir
 from scapo.methods import METHODS, describe
@@ -460,7 +461,7 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
         kw = data_kwargs or SYNTHETIC_DATA
         prov = _provenance(title, done, records, hashes, instances, views, data_seed, protocol, preset, missing,
                            random_rotation=bool(kw.get("random_rotation", False)),
-                           viewpoints=kw.get("viewpoints") or ("sphere" if kw.get("random_rotation") else "upright"),
+                           viewpoints=viewpoints_of(kw),
                            train_views=int(kw.get("train_views") or 0))
         for p in write(results, done, prov):
             print(f"wrote {p}")
@@ -720,7 +721,7 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
     cells = spec.cells(methods, categories, opts)
     if opts.progress or opts.dry_run:  # the data setting, said wherever the bench prints
         kw = data or {}
-        vp = kw.get("viewpoints") or ("sphere" if kw.get("random_rotation") else "upright")
+        vp = viewpoints_of(kw)
         tv = int(kw.get("train_views") or 0)
         print(f"scapo bench {spec.key}: viewpoints {vp}: {VIEWPOINT_LABELS[vp]}; {opts.instances} instances, "
               f"{tv or opts.views} views per training instance, {opts.views} per val/test instance; data seed "

@@ -362,11 +362,12 @@ def cmd_evaluate(args) -> int:
     _print_summary(results, protocol)
     if args.out:
         from scapo.data import load
+        from scapo.data.config import viewpoints_of
 
         prov = provenance(dataset_hash=results[0].info["dataset_hash"], dataset=str(args.data),
                           predictions=[str(p) for p in args.pred], protocol=protocol, split=args.split,
                           methods=_method_provenance(results),
-                          data={"viewpoints": dataset_viewpoints(load(args.data, args.split).card)})
+                          data={"viewpoints": viewpoints_of(load(args.data, args.split).card)})
         paths = write_table1(results, args.out, prov, name=args.name, describe=describe)
         for res in results:
             seed = f"_s{res.info['seed']}" if res.info.get("seed") is not None else ""
@@ -376,17 +377,6 @@ def cmd_evaluate(args) -> int:
     if args.twin:
         _evaluate_twins(args, results)
     return 0
-
-
-def dataset_viewpoints(card: dict) -> str:
-    """A dataset's viewpoint setting ("upright", "paper", "sphere"; "unknown" for a converted dataset) from its card:
-    the card's ``viewpoints``, or for a card written before the field existed its config's view."""
-    if isinstance(card.get("viewpoints"), str):
-        return card["viewpoints"]
-    view = (card.get("config") or {}).get("view") or {}
-    if not view:
-        return "unknown"
-    return "sphere" if view.get("random_rotation") else "paper" if view.get("object_euler_deg") else "upright"
 
 
 def _evaluate_twins(args, results) -> None:

@@ -278,6 +278,21 @@ def make_config(
                           tuple(objects), tuple(parts), str(scale), int(train_views or 0), backend)
 
 
+def viewpoints_of(settings: dict) -> str:
+    """The viewpoint setting ("upright", "paper", "sphere") of :func:`make_config` keywords (``viewpoints``, or the
+    older ``random_rotation``), of a config's ``view`` dict (``object_euler_deg``, ``random_rotation``), or of a
+    dataset card (its ``viewpoints``, else its config's view; "unknown" for a card without either, e.g. a converted
+    dataset)."""
+    if isinstance(settings.get("viewpoints"), str):
+        return settings["viewpoints"]
+    if "config" in settings:  # a dataset card written before the field existed
+        view = (settings.get("config") or {}).get("view") or {}
+        return viewpoints_of(view) if view else "unknown"
+    if settings.get("object_euler_deg"):
+        return "paper"
+    return "sphere" if settings.get("random_rotation") else "upright"
+
+
 def resolve_viewpoints(viewpoints: str | None, random_rotation: bool = False) -> str:
     """The viewpoint setting of ``--viewpoints`` and its older alias ``--random-rotation`` ("sphere").
 
