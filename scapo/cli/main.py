@@ -154,8 +154,8 @@ def _euler(text: str) -> tuple[tuple[float, float], ...]:
     """``--euler LO,HI`` (every axis) or ``LO,HI:LO,HI:LO,HI`` (x:y:z), degrees -> three ranges."""
     parts = text.split(":")
     if len(parts) not in (1, 3):
-        raise ConfigError(f"--euler {text!r}: give one range for every axis (e.g. -22.5,22.5) or three, x:y:z "
-                          "(e.g. -90,90:-90,90:-30,30)")
+        raise ConfigError(f"--euler {text!r}: give one range for every axis (e.g. --euler=-22.5,22.5) or three, x:y:z "
+                          "(e.g. --euler=-90,90:-90,90:-30,30)")
     ranges = [_range(t, "--euler") for t in parts]
     for lo, hi in ranges:
         if not (math.isfinite(lo) and math.isfinite(hi)) or lo < -180 or hi > 180:
@@ -718,7 +718,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "(--min-part-fraction)")
     sp.add_argument("--euler", default=None, metavar="LO,HI[:LO,HI:LO,HI]",
                     help="--viewpoints paper: the object's Euler angle ranges in degrees, one for every axis or x:y:z "
-                    "(default: the category's [paper_view]; needed for --object datasets)")
+                    "(default: the category's [paper_view]; needed for --object datasets); write a range that starts "
+                    "with a minus sign with '=', e.g. --euler=-22.5,22.5")
     sp.add_argument("--random-rotation", action="store_true", help="uniform SO(3) object rotation (= --viewpoints "
                     "sphere)")
     sp.add_argument("--train-views", type=int, default=None, help="views of each training instance (default: "
