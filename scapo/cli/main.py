@@ -135,7 +135,8 @@ def cmd_generate(args) -> int:
                       min_part_fraction=args.min_part_fraction,
                       shard_size=args.shard_size, cropped=args.cropped,
                       symmetric_labels=args.symmetric_labels, objects=objects, parts=args.parts or (),
-                      scale=args.scale, view=view or None, backend=args.backend)
+                      scale=args.scale, view=view or None, backend=args.backend, complete=args.complete,
+                      state=args.state, one_shape=args.one_shape)
     rep = generate(cfg, args.out, workers=args.workers, progress=not args.no_progress, cache_dir=args.cache,
                    executor=args.executor, ray_address=args.ray_address, num_envs=args.num_envs)
     print(f"{rep.out}: {rep.samples} samples ({rep.rendered} rendered now, {rep.skipped_shards} shards already "
@@ -475,9 +476,32 @@ def cmd_bench_choose(args) -> int:
     return 0
 
 
+def cmd_bench_ladder(args) -> int:
+    """``scapo bench ladder``: the canonical-frame diagnosis ladder (:mod:`scapo.bench.ladder`)."""
+    from scapo.bench.ladder import LADDER_METHODS, RUNGS, run_ladder
+
+    if len(args.data) or args.categories:
+        raise ConfigError("bench ladder makes its own datasets: give --category (one), not --data or --categories")
+    rungs = args.rungs if args.rungs is not None else list(RUNGS)
+    methods = args.methods if args.methods is not None else list(LADDER_METHODS)
+    cmd = "scapo bench ladder " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "scapo bench ladder"
+    paths = run_ladder(args.category, methods, rungs, args.seeds, work=args.work / "ladder",
+                       out=args.out or Path("results/canonical_ladder"),
+                       budget_minutes=5.0 if args.budget_minutes is None else args.budget_minutes,
+                       instances=args.instances or 60, views=args.views or 8,
+                       train_views=16 if args.train_views is None else args.train_views, data_seed=args.seed,
+                       preset=args.preset, workers=max(args.workers), command=cmd, dry_run=args.dry_run,
+                       data_only=args.data_only)
+    for p in paths:
+        print(f"wrote {p}")
+    return 0
+
+
 def cmd_bench(args) -> int:
     if args.what == "choose":
         return cmd_bench_choose(args)
+    if args.what == "ladder":
+        return cmd_bench_ladder(args)
     if args.what in ("table1", "table2", "table3"):
         return cmd_bench_table(args)
     if len(args.data) > 1:
@@ -724,6 +748,13 @@ def build_parser() -> argparse.ArgumentParser:
                     "sphere)")
     sp.add_argument("--train-views", type=int, default=None, help="views of each training instance (default: "
                     "--views); val and test instances keep --views. EAP renders ~100 views per training instance")
+    sp.add_argument("--complete", action="store_true", help="points sampled on the whole posed mesh (area-weighted, "
+                    "then farthest-point sampled) instead of a rendered depth view: complete clouds, EAP's complete-"
+                    "shape setting; the viewpoint still sets the frame the points are given in")
+    sp.add_argument("--state", choices=("sampled", "rest"), default="sampled", help="joint states drawn within the "
+                    "limits (default) or every sample at the rest state")
+    sp.add_argument("--one-shape", action="store_true", help="every instance is instance 0's object (one shape "
+                    "seen in many views and states; procedural categories)")
     sp.add_argument("--width", type=int, default=None)
     sp.add_argument("--height", type=int, default=None)
     sp.add_argument("--test-fraction", type=float, default=0.1, help="fraction of instances in the test split")
@@ -829,7 +860,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("bench", help="benchmarks: perf (throughput), table1 / table3 (the paper's tables, resumable "
                         "per cell), choose (an option value on the val split)")
-    sp.add_argument("what", choices=["perf", "table1", "table2", "table3", "choose"])
+    sp.add_argument("what", choices=["perf", "table1", "table2", "table3", "choose", "ladder"])
+    sp.add_argument("--rungs", type=_names, default=None, help="ladder: rungs, easiest first (default one,complete,"
+                    "paper,sphere: complete clouds of one shape at rest; of all instances and states; single views in "
+                    "the paper's regime; from the whole sphere). Scored on val; --budget-minutes (default 5) core-"
+                    "minutes of training per cell; --instances 60, --views 8, --train-views 16, --methods "
+                    "scapo,op-align,eap,npcs by default; results in --out (default results/canonical_ladder)")
     sp.add_argument("--viewpoints", default=None, choices=["paper", "sphere", "upright"],
                     help="table1, table3: paper (default: EAP's views per source dataset, which the SCAPO paper "
                          "follows, see 'scapo generate --help'; datasets named ..._paper, --train-views views per "

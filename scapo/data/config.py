@@ -68,6 +68,9 @@ class GenerateConfig:
     """Object datasets: length factor, or ``fit:<rest bbox diagonal in metres>``."""
     train_views: int = 0
     """Samples per training instance (0: ``views``, as every dataset made before the field existed)."""
+    one_shape: bool = False
+    """Every instance is instance 0's object (one shape; the instances then differ only in their views and states):
+    the one-instance rung of ``scapo bench ladder``. Procedural categories only."""
     backend: str = "sapien"
     """Renderer: "sapien" (one view at a time) or "maniskill" (ManiSkill3's parallel sub-scenes, the same draws and
     ground truth; points equal to float rounding: median 1e-5 m, 98 % within 1 mm, labels 98 % equal, as
@@ -111,6 +114,10 @@ class GenerateConfig:
                               f"{self.val_fraction} and {self.test_fraction}")
         if self.backend not in BACKENDS:
             raise ConfigError(f"unknown backend {self.backend!r}; known: {', '.join(BACKENDS)}")
+        if self.backend != "sapien" and self.render.complete:
+            raise ConfigError("--complete samples mesh surfaces without rendering: use the default backend (sapien)")
+        if self.one_shape and self.objects:
+            raise ConfigError("--one-shape applies to procedural categories; for one object give --object once")
 
     @property
     def view_config(self) -> ViewConfig:
@@ -152,6 +159,12 @@ class GenerateConfig:
         # datasets keep their config hash and resume
         if d["render"]["cropped"] == "keep":
             del d["render"]["cropped"]
+        if not d["render"]["complete"]:  # rendered views, as before complete clouds existed
+            del d["render"]["complete"]
+        if d["render"]["state"] == "sampled":
+            del d["render"]["state"]
+        if not self.one_shape:
+            del d["one_shape"]
         if self.render.symmetric_labels == "asset" or self.symmetry is None or self.symmetry.front is None:
             # no effect (no symmetry, or one whose labels stay the asset's): as before the rule
             del d["render"]["symmetric_labels"]
@@ -208,7 +221,8 @@ def make_config(
     test_fraction: float = 0.1, min_part_fraction: float = 0.05, shard_size: int = 64, shader: str = "trivial",
     val_fraction: float = 0.1, cropped: str = "reject", objects=(), parts=(), scale: str = "1",
     view: dict | None = None, symmetric_labels: str = "view", backend: str = "sapien",
-    viewpoints: str | None = None, euler_deg=None, train_views: int = 0,
+    viewpoints: str | None = None, euler_deg=None, train_views: int = 0, complete: bool = False,
+    state: str = "sampled", one_shape: bool = False,
 ) -> GenerateConfig:
     """Convenience constructor used by the CLI (named sensor, optional SO(3) rotation, image size).
 
@@ -224,7 +238,9 @@ def make_config(
     "sphere" (uniform SO(3); ``random_rotation=True`` is its older spelling) or "paper" (EAP's: the object turned in
     front of a level front camera by Euler angles in ``euler_deg``, three ``(lo, hi)`` ranges in degrees, default
     the category template's ``[paper_view]``; required for object datasets and categories without one).
-    ``train_views``: samples per training instance (0: ``views``).
+    ``train_views``: samples per training instance (0: ``views``). ``complete``: points sampled on the whole posed
+    mesh instead of a rendered view (:attr:`~scapo.sim.render.RenderConfig.complete`); ``state``: "sampled" or
+    "rest" joint states; ``one_shape``: every instance is instance 0's object (:attr:`GenerateConfig.one_shape`).
 
     Raises:
         ConfigError: an unknown sensor or viewpoint setting, bad sizes, fractions, part map or scale, Euler ranges
@@ -249,7 +265,8 @@ def make_config(
     cam = dataclasses.replace(cam, width=cam.width if width is None else width,
                               height=cam.height if height is None else height)
     render = RenderConfig(camera=cam, num_points=num_points, min_part_fraction=min_part_fraction,
-                          shader=shader, sensor=SENSORS[sensor], cropped=cropped, symmetric_labels=symmetric_labels)
+                          shader=shader, sensor=SENSORS[sensor], cropped=cropped, symmetric_labels=symmetric_labels,
+                          complete=bool(complete), state=state)
     if not objects:
         from scapo.sim.assets.categories import CATEGORIES
 
@@ -275,7 +292,7 @@ def make_config(
     elif viewpoints == "paper":
         view_cfg = dataclasses.replace(view_cfg or base, object_euler_deg=tuple(tuple(r) for r in euler_deg))
     return GenerateConfig(category, instances, views, seed, test_fraction, render, view_cfg, shard_size, val_fraction,
-                          tuple(objects), tuple(parts), str(scale), int(train_views or 0), backend)
+                          tuple(objects), tuple(parts), str(scale), int(train_views or 0), bool(one_shape), backend)
 
 
 def viewpoints_of(settings: dict) -> str:

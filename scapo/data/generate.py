@@ -164,6 +164,9 @@ def dataset_assets(cfg: GenerateConfig, out: Path, cache_dir: Path | None = None
         ConfigError: objects whose part map cannot be applied or whose parts / joints disagree.
         URDFError / MissingMeshError: a malformed source object (named).
     """
+    if cfg.one_shape:  # every instance is instance 0's object
+        r = build_category(cfg.category, 1, cfg.seed, cache_dir, progress=progress)[0]
+        return [InstanceAsset(i, Path(r.urdf), r.digest) for i in range(cfg.instances)]
     if not cfg.objects:
         return [InstanceAsset(r.instance_id, Path(r.urdf), r.digest)
                 for r in build_category(cfg.category, cfg.instances, cfg.seed, cache_dir, progress=progress)]
@@ -185,7 +188,7 @@ def instance_asset_path(cfg: GenerateConfig, data: Path, instance_id: int, cache
         return path
     from scapo.sim.assets import build_instance
 
-    return Path(build_instance(cfg.category, int(instance_id), cfg.seed, cache_dir).urdf)
+    return Path(build_instance(cfg.category, 0 if cfg.one_shape else int(instance_id), cfg.seed, cache_dir).urdf)
 
 
 def load_instance(cfg: GenerateConfig, path: str | Path):
@@ -253,7 +256,8 @@ class ShardWorker:
                                        "on a filesystem every worker shares")
                 from scapo.sim.assets import build_instance
 
-                rec = build_instance(self.cfg.category, inst, self.cfg.seed, self.cache_dir)
+                rec = build_instance(self.cfg.category, 0 if self.cfg.one_shape else inst, self.cfg.seed,
+                                     self.cache_dir)
                 if self.digests and rec.digest != self.digests.get(str(inst)):
                     raise DatasetError(f"instance {inst} built on this worker differs from the driver's (digest "
                                        f"{rec.digest[:12]} vs {str(self.digests.get(str(inst)))[:12]}); run the same "

@@ -27,6 +27,9 @@ from scapo.sim.assets.templates import ViewTemplate
 from scapo.sim.assets.urdf import ArticulationSpec
 from scapo.sim.sensor import SensorConfig, apply_sensor
 
+#: Joint-state rules of :attr:`RenderConfig.state`.
+STATES = ("sampled", "rest")
+
 _VULKAN_HELP = (
     "SAPIEN found no Vulkan rendering device. On CPU-only machines it needs Mesa >= 24.3 (lavapipe); "
     "on Debian bookworm run 'bash scripts/setup.sh' (adds bookworm-backports and installs "
@@ -147,6 +150,14 @@ class RenderConfig:
     """Views whose object touches the image border: "keep" them (the default of datasets made before this
     rule existed, e.g. Table 1's), "reject" them (counted like other rejections) or "flag" them (kept, with a
     per-sample ``cropped`` flag in the shards and the manifest)."""
+    complete: bool = False
+    """Sample the points on the whole posed mesh (every surface, seen from the camera or not; area-weighted, then
+    farthest-point sampled to N) instead of rendering a depth view: EAP's complete-shape setting and the first rungs
+    of ``scapo bench ladder``. The camera pose is still drawn (it fixes the frame the points are given in); the
+    image, the sensor, the border rule and visibility play no part."""
+    state: str = "sampled"
+    """Joint states: "sampled" uniformly within the limits, or "rest" (every sample at the rest state: the
+    one-state rung of ``scapo bench ladder``)."""
     symmetric_labels: str = "asset"
     """Categories with a symmetry that exchanges parts (:mod:`scapo.sim.assets.symmetry`, e.g. basket): keep the
     "asset"'s part labels (the default of datasets made before this rule existed), or label "view" by view (of the
@@ -168,6 +179,10 @@ class RenderConfig:
                               f"{self.num_points} points per sample; raise --width/--height or lower --points")
         if self.max_attempts < 1:
             raise ConfigError(f"max_attempts must be >= 1, got {self.max_attempts}")
+        if self.state not in STATES:
+            raise ConfigError(f"unknown joint-state rule {self.state!r} (--state); known: {', '.join(STATES)}")
+        if self.complete and self.sensor.kind != "clean":
+            raise ConfigError("--complete samples the mesh surface: it has no sensor model; leave --sensor clean")
 
     @property
     def min_part_points(self) -> int:
@@ -589,10 +604,76 @@ def ground_truth(spec: ArticulationSpec, state: np.ndarray, T_world_cam: np.ndar
     }
 
 
+def _draw_state(spec: ArticulationSpec, cfg: RenderConfig, rng: np.random.Generator) -> np.ndarray:
+    """A sample's joint state under ``cfg.state`` (the draw is made either way, so that a "rest" dataset's views are
+    those of the "sampled" one)."""
+    state = sample_state(spec, rng)
+    return np.zeros_like(state) if cfg.state == "rest" else state
+
+
+_REST_MESHES: dict[tuple[str, int], object] = {}
+
+
+def _rest_mesh(spec: ArticulationSpec, part: int):
+    key = (str(spec.urdf), part)
+    if key not in _REST_MESHES:
+        from scapo.sim.assets.urdf import load_part_mesh
+
+        if len(_REST_MESHES) > 256:
+            _REST_MESHES.clear()
+        _REST_MESHES[key] = load_part_mesh(spec, part)
+    return _REST_MESHES[key]
+
+
+def sample_complete(renderer: Renderer, spec: ArticulationSpec, cfg: RenderConfig, view: ViewConfig,
+                    rng: np.random.Generator) -> dict:
+    """One sample of the ``complete`` setting (:attr:`RenderConfig.complete`): the joint state and camera pose are
+    drawn as for a rendered view, the parts are posed by SAPIEN (``Renderer.part_motion``, as rendered samples are),
+    ``8 N`` points are drawn on the union of the posed part meshes with probability proportional to area
+    (``trimesh.sample.sample_surface``), and farthest-point sampling keeps ``N``.
+
+    Returns the sample dict of :func:`process_frame` (camera-frame points in metres, exact part labels, NPCS and
+    ground truth). Raises RejectedViewError when a part keeps fewer than ``cfg.min_part_points`` points (a part of
+    tiny area) and AssetError when a part has no surface.
+    """
+    import trimesh
+
+    state = _draw_state(spec, cfg, rng)
+    T_world_cam = sample_camera_pose(view, spec.bbox_diag, rng)
+    renderer.load(spec)
+    renderer.set_state(state)
+    motion = renderer.part_motion()
+    T_cam_world = invert_transform(np.asarray(T_world_cam, dtype=np.float64))
+    meshes, labels = [], []
+    for p in range(spec.num_parts):
+        m = _rest_mesh(spec, p).copy()
+        if m.area <= 0:
+            raise AssetError(f"{spec.urdf}: part {p} {spec.part_names[p]!r} has no surface to sample")
+        m.apply_transform(T_cam_world @ motion[p])
+        meshes.append(m)
+        labels.append(np.full(len(m.faces), p, dtype=np.int64))
+    whole = trimesh.util.concatenate(meshes)
+    face_part = np.concatenate(labels)
+    N = cfg.num_points
+    pts, face = trimesh.sample.sample_surface(whole, 8 * N, seed=int(rng.integers(2**31)))
+    pts = np.asarray(pts, dtype=np.float64)
+    idx = farthest_point_indices(pts, N, rng)
+    points, part_label = pts[idx].astype(np.float32), face_part[np.asarray(face)[idx]]
+    counts = np.bincount(part_label, minlength=spec.num_parts)
+    if counts.min() < cfg.min_part_points:
+        p = int(counts.argmin())
+        raise RejectedViewError(f"part {p} {spec.part_names[p]!r} keeps {int(counts[p])} < {cfg.min_part_points} "
+                                "points")
+    sample = ground_truth(spec, state, T_world_cam, motion, points, part_label, renderer.K)
+    if cfg.cropped == "flag":
+        sample["cropped"] = False
+    return sample
+
+
 def _submit_attempt(renderer: Renderer, spec: ArticulationSpec, cfg: RenderConfig, view: ViewConfig,
                     rng: np.random.Generator, state=None, T_world_cam=None) -> Frame:
     if state is None:
-        state = sample_state(spec, rng)
+        state = _draw_state(spec, cfg, rng)
     if T_world_cam is None:
         T_world_cam = sample_camera_pose(view, spec.bbox_diag, rng)
     ground = cfg.sensor.kind == "realistic" and cfg.sensor.ground and view.viewpoints == "upright"
@@ -655,6 +736,9 @@ def render_many(
     Raises:
         RenderError: a job exhausted ``cfg.max_attempts`` views (names the object).
     """
+    if cfg.complete:
+        yield from _complete_many(renderer, jobs, cfg, view)
+        return
     queue = [(i, 0) for i in range(len(jobs))]
     results: dict[int, tuple[dict, Counter]] = {}
     reasons: dict[int, Counter] = {i: Counter() for i in range(len(jobs))}
@@ -691,6 +775,24 @@ def render_many(
             s, r = results.pop(next_out)
             yield jobs[next_out][0], s, r
             next_out += 1
+
+
+def _complete_many(renderer: Renderer, jobs, cfg: RenderConfig, view: ViewConfig):
+    """:func:`render_many` for the ``complete`` setting (:func:`sample_complete`): the same seeds per attempt."""
+    for key, spec, seed_key in jobs:
+        reasons = Counter()
+        for a in range(cfg.max_attempts):
+            try:
+                sample = sample_complete(renderer, spec, cfg, view, np.random.default_rng((*seed_key, a)))
+            except RejectedViewError as e:
+                reasons[_reason_key(e.reason)] += 1
+                continue
+            sample["attempts"] = a + 1
+            yield key, sample, reasons
+            break
+        else:
+            raise RenderError(f"{Path(spec.urdf)}: all {cfg.max_attempts} complete samples were rejected "
+                              f"({dict(reasons)}); {_rejection_hint(reasons, cfg)}")
 
 
 def render_with_retries(

@@ -1,0 +1,307 @@
+"""The canonical-frame diagnosis ladder: ``scapo bench ladder`` (:func:`run_ladder`).
+
+Each rung removes one difficulty of the paper's task, so the first rung where a method's canonical frame breaks
+names the difficulty that breaks it:
+
+========== ================================================================================================
+rung       data (one dataset per rung and category, :data:`RUNGS`)
+========== ================================================================================================
+one        complete clouds (points on the whole posed mesh, ``scapo generate --complete``) of one shape
+           (``--one-shape``) at its rest state (``--state rest``) under uniform SO(3)
+complete   complete clouds of every instance and joint state under uniform SO(3)
+paper      single rendered views in the paper's regime (``--viewpoints paper``)
+sphere     single rendered views from the whole sphere (``--viewpoints sphere``)
+========== ================================================================================================
+
+Every rung has the same instances, views per instance and splits (only the difficulty changes), and every
+trained method gets the same training compute on every rung: ``budget_minutes`` of one CPU core, turned into
+epochs (or iterations) per method from its clouds/s measured on the ladder's own data through the engine
+(:func:`scapo.perf.bench_train_data` and :func:`scapo.perf.training_budget`, as the tables' equal budget is
+made). The scores are on the **val** split (a diagnosis chooses what to fix; test stays for the tables):
+frame consistency (:func:`frame_consistency`), S, D, mean and median part rotation error R, strict and
+symmetry-aware, and the evaluator's training-split alignment inlier ratio.
+
+A cell (rung x method x seed) is resumable: its record ``<work>/<rung>/<method>_s<seed>.json`` is written last, and
+a finished cell is never recomputed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from scapo.errors import ConfigError
+from scapo.files import check_output_dir, write_json
+
+#: The rungs, easiest first: keywords of :func:`scapo.data.make_config` (besides the shared sizes).
+RUNGS = {
+    "one": {"complete": True, "one_shape": True, "state": "rest", "viewpoints": "sphere"},
+    "complete": {"complete": True, "viewpoints": "sphere"},
+    "paper": {"viewpoints": "paper"},
+    "sphere": {"viewpoints": "sphere"},
+}
+RUNG_LABELS = {
+    "one": "complete clouds, one shape, rest state, uniform SO(3)",
+    "complete": "complete clouds, all instances and states, uniform SO(3)",
+    "paper": "single views, the paper's viewpoints",
+    "sphere": "single views, the whole sphere",
+}
+#: The methods of the ladder: the trained ones (ICP, fitted without training, may be added with --methods).
+LADDER_METHODS = ("scapo", "op-align", "eap", "npcs")
+#: Prediction options of the ladder's cells: one-pass SCAPO (no test-time refinement), as Table 1's one-pass rows.
+CELL_OPTIONS = {"scapo": {"refine_steps": 0}}
+#: Inlier threshold of :func:`frame_consistency` (the evaluator's alignment uses the same).
+CONSISTENCY_DEG = 15.0
+
+
+def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = CONSISTENCY_DEG) -> float:
+    """Share of samples whose object-frame rotation offset agrees with the one frame most of them agree on.
+
+    For each sample the offset ``O = R_pred^T R_gt`` maps the ground-truth object frame into the method's canonical
+    frame; a method with one canonical frame has one offset for every sample (1.0), a method whose frame depends on
+    the shape or view scatters them. The share is the inlier fraction of
+    :func:`scapo.eval.alignment.robust_rotation_mean` (RANSAC over the offsets, within ``inlier_deg`` degrees).
+    A supervised method predicts in the ground-truth frame: its share is that of samples within ``inlier_deg`` of
+    one common offset, near the identity.
+
+    Args:
+        pred_T, gt_T: ``(M, 4, 4)`` float64 predicted and ground-truth ``T_cam_obj`` of the same samples.
+
+    Returns:
+        The share in [0, 1] (NaN for no samples).
+    """
+    from scapo.eval.alignment import robust_rotation_mean
+
+    pred_T, gt_T = np.asarray(pred_T, dtype=np.float64), np.asarray(gt_T, dtype=np.float64)
+    if pred_T.shape != gt_T.shape or pred_T.ndim != 3 or pred_T.shape[1:] != (4, 4):
+        raise ValueError(f"frame_consistency needs two (M, 4, 4) arrays, got {pred_T.shape} and {gt_T.shape}")
+    if len(pred_T) == 0:
+        return float("nan")
+    O = np.einsum("mji,mjk->mik", pred_T[:, :3, :3], gt_T[:, :3, :3])
+    _, inliers = robust_rotation_mean(O, inlier_deg)
+    return float(inliers.mean())
+
+
+def rung_dir(work: Path, category: str, rung: str, instances: int, views: int, train_views: int, seed: int) -> Path:
+    """The dataset folder of one rung: ``<work>/data/<category>_<rung>_i<I>_v<V>_t<T>_s<seed>``."""
+    return Path(work) / "data" / f"{category}_{rung}_i{instances}_v{views}_t{train_views}_s{seed}"
+
+
+def rung_config(category: str, rung: str, instances: int, views: int, train_views: int, seed: int):
+    """The :class:`~scapo.data.config.GenerateConfig` of one rung (the bench's splits: 20 % test, 10 % val)."""
+    from scapo.data import make_config
+
+    if rung not in RUNGS:
+        raise ConfigError(f"unknown rung {rung!r}; known: {', '.join(RUNGS)}")
+    return make_config(category, instances, views, seed, train_views=train_views, test_fraction=0.2,
+                       val_fraction=0.1, cropped="reject", **RUNGS[rung])
+
+
+def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float, preset: str, work: Path) -> dict:
+    """Per trained method, its ``preset`` with the epochs (iterations) that fill ``budget_minutes`` of one core on
+    ``data``'s training split, from speeds measured once (``<work>/speed_<method>.json``, reused)."""
+    from scapo.config import override
+    from scapo.data import load
+    from scapo.methods import METHODS
+    from scapo.perf import bench_train_data, training_budget
+
+    trained = [m for m in methods if METHODS.get(m).trained]
+    rows = []
+    for m in trained:  # one file per method, so that ladders of other methods can share the work folder
+        speed_file = work / f"speed_{m}.json"
+        if not speed_file.is_file():
+            print(f"scapo bench ladder: measuring the training speed of {m} on {data.name}", flush=True)
+            clouds = len(load(data, "train"))
+            steps = max(2, min(10, clouds // METHODS.get(m).preset(preset).batch_size))
+            write_json(speed_file, bench_train_data(data, [m], preset=preset, steps=steps, work=work / "speed_runs"))
+        rows += json.loads(speed_file.read_text())
+    clouds = len(load(data, "train"))
+    out = {}
+    for r in training_budget([r for r in rows if r["method"] in trained], budget_minutes, clouds):
+        base = METHODS.get(r["method"]).preset(preset)
+        if "budget_min" in r:
+            values = ({"stage1_epochs": r["stage1_epochs_for_budget"], "stage2_epochs": r["stage2_epochs_for_budget"]}
+                      if hasattr(base, "stage2_epochs") else {"epochs": r["stage1_epochs_for_budget"]})
+        else:  # a preset of a fixed number of iterations: the iterations that fill the budget
+            sec = max(budget_minutes * 60 - float(r.get("fixed_s", 0.0)), 1.0)
+            values = {"iterations": max(1, int(sec * r["stage1_clouds_per_s"] / r["batch_size"]))}
+        out[r["method"]] = (override(base, values, f"{r['method']} preset"), values)
+    return out
+
+
+def _cell(data: Path, work: Path, rung: str, method: str, seed: int, preset, values: dict, protocol: str) -> dict:
+    """Train (trained methods), predict and score one cell on the val split; returns (and writes) its record."""
+    from scapo.data import load
+    from scapo.eval import evaluate
+    from scapo.methods import METHODS, run_method, train_method
+    from scapo.provenance import provenance
+
+    rec_path = work / rung / f"{method}_s{seed}.json"
+    if rec_path.is_file():
+        return json.loads(rec_path.read_text())
+    run = work / rung / f"{method}_s{seed}_run"
+    wall = {}
+    t0 = time.perf_counter()
+    threads = None
+    if METHODS.get(method).trained:
+        import torch
+
+        threads = torch.get_num_threads()
+        train_method(method, data, run, preset, progress=False, seed=seed)
+        timing = json.loads((run / "timing.json").read_text())
+        wall["train_s"] = float(timing["seconds"])
+        wall["train_steps"] = timing.get("steps")
+    t1 = time.perf_counter()
+    opts = {"run": run, **CELL_OPTIONS.get(method, {})} if METHODS.get(method).trained else {}
+    preds_path = work / rung / f"{method}_s{seed}_predictions.npz"
+    preds = run_method(method, data, preds_path, progress=False, **opts)
+    wall["predict_s"] = round(time.perf_counter() - t1, 1)
+    res = evaluate(data, preds, split="val")
+    val = load(data, "val")
+    gt = val.arrays(["T_cam_obj"])["T_cam_obj"]
+    keys = {k: i for i, k in enumerate(val.keys())}
+    rows = [i for i in range(len(preds)) if str(preds.split[i]) == "val"]
+    order = np.array([keys[(int(preds.instance_id[i]), int(preds.view_id[i]))] for i in rows])
+    consistency = frame_consistency(preds.T_cam_obj[rows], gt[order])
+    s = res.summary
+    rec = {
+        "rung": rung, "rung_label": RUNG_LABELS[rung], "method": method, "seed": seed, "split": "val",
+        "protocol": protocol, "dataset": data.name, "dataset_hash": val.dataset_hash,
+        "preset": getattr(preset, "name", preset), "budget_values": values,
+        "frame_consistency": round(consistency, 4),
+        "alignment_inlier_ratio": res.info.get("alignment_inlier_ratio"),
+        "S": s.get("S"), "D": s.get("D"), "D_median": s.get("D_median"), "C": s.get("C"),
+        "R": s.get("R"), "R_median": s.get("R_median"), "R_sym": s.get("R_sym"), "R_sym_median": s.get("R_sym_median"),
+        "R_over90": s.get("R_over90"), "R_sym_over90": s.get("R_sym_over90"),
+        "wall": {**wall, "cell_s": round(time.perf_counter() - t0, 1)}, "torch_threads": threads,
+        "provenance": provenance(),
+    }
+    rec = json.loads(json.dumps(rec, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+    write_json(rec_path, rec)
+    return rec
+
+
+def _fmt(v, nd: int = 1) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    if isinstance(v, list):
+        return " / ".join(_fmt(x, 2) for x in v)
+    return f"{v:.{nd}f}"
+
+
+def write_ladder(records: Sequence[dict], out: Path, name: str, meta: dict) -> list[Path]:
+    """``<out>/<name>.{md,json,csv}``: one row per rung x method x seed (the records), with provenance."""
+    import pandas as pd
+
+    from scapo.report import markdown_table
+
+    out = check_output_dir(out, "ladder output folder")
+    cols = ["rung", "method", "seed", "frame_consistency", "alignment_inlier_ratio", "S", "D", "D_median", "C", "R",
+            "R_median", "R_sym", "R_sym_median", "R_sym_over90"]
+    flat = []
+    for r in records:
+        row = {k: r.get(k) for k in cols}
+        row["alignment_inlier_ratio"] = (None if r.get("alignment_inlier_ratio") is None
+                                         else float(np.mean(r["alignment_inlier_ratio"])))
+        row["train_min"] = None if r["wall"].get("train_s") is None else r["wall"]["train_s"] / 60
+        row["commit"] = r["provenance"].get("commit")
+        row["dataset_hash"] = r["dataset_hash"]
+        flat.append(row)
+    header = ["rung", "method", "seed", "frame cons.", "align. inliers (train)", "S %", "D", "D med", "C", "R",
+              "R med", "R sym", "R sym med", "R sym > 90 %", "train min"]
+    body = [[r["rung"], r["method"], r["seed"], _fmt(r["frame_consistency"], 2), _fmt(r["alignment_inlier_ratio"], 2),
+             _fmt(r["S"]), _fmt(r["D"]), _fmt(r["D_median"]), _fmt(r["C"], 3), _fmt(r["R"]), _fmt(r["R_median"]),
+             _fmt(r["R_sym"]), _fmt(r["R_sym_median"]), _fmt(r["R_sym_over90"]), _fmt(r["train_min"])] for r in flat]
+    commits = sorted({r["commit"] for r in flat})
+    md = [f"# Canonical-frame ladder: {meta['category']} ({meta['split']} split)", "",
+          "Rungs: " + "; ".join(f"**{k}**: {RUNG_LABELS[k]}" for k in meta["rungs"]) + ".", "",
+          f"Equal training compute: {meta['budget_minutes']} core-minutes per trained cell (epochs from the measured "
+          f"clouds/s, `speed_<method>.json`). One-pass predictions. Frame consistency: share of val samples whose object-frame "
+          f"offset is within {CONSISTENCY_DEG:g} deg of the common one (1 = one canonical frame); the alignment inlier "
+          "ratio is the evaluator's, on the training split, per part.", "",
+          markdown_table(header, body), "",
+          f"Provenance: commits {', '.join(commits)}; {meta['instances']} instances, {meta['views']} views per val/test "
+          f"instance, {meta['train_views']} per training instance, data seed {meta['data_seed']}, preset "
+          f"{meta['preset']!r}, protocol {meta['protocol']!r}; written by `{meta['command']}`.", ""]
+    paths = [out / f"{name}.md", out / f"{name}.json", out / f"{name}.csv"]
+    from scapo.files import atomic_write_text
+
+    atomic_write_text(paths[0], "\n".join(md))
+    write_json(paths[1], {"meta": meta, "records": list(records)})
+    atomic_write_text(paths[2], pd.DataFrame(flat).to_csv(index=False))
+    return paths
+
+
+def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS, rungs: Sequence[str] = tuple(RUNGS),
+               seeds: Sequence[int] = (0,), work: str | Path = "bench_work/ladder", out: str | Path = "results/canonical_ladder",
+               budget_minutes: float = 5.0, instances: int = 60, views: int = 8, train_views: int = 16,
+               data_seed: int = 1, preset: str = "cpu", protocol: str = "scapo", workers: int = 1,
+               command: str = "scapo bench ladder", dry_run: bool = False, data_only: bool = False) -> list[Path]:
+    """Run (or resume) the ladder for ``category``: generate each rung's dataset, train every method with the same
+    budget, predict one-pass, score on val, write ``<out>/ladder_<category>.{md,json,csv}``.
+
+    Args:
+        methods: registered method names (trained ones get ``budget_minutes``). rungs: names of :data:`RUNGS`.
+        seeds: training seeds. instances, views, train_views, data_seed: the datasets' sizes (equal on every rung).
+        dry_run: list the cells, compute nothing. data_only: generate the rungs' datasets and stop.
+
+    Raises:
+        ConfigError: an empty or unknown list, a budget <= 0, sizes too small for a val split.
+        UnknownNameError: an unknown method. Otherwise as generation, training and evaluation.
+    """
+    from scapo.data import generate
+    from scapo.methods import METHODS
+
+    methods, rungs, seeds = list(methods), list(rungs), list(seeds)
+    if not methods or not rungs or not seeds:
+        raise ConfigError("give at least one method, one rung and one seed")
+    for m in methods:
+        METHODS.get(m)
+    bad = [r for r in rungs if r not in RUNGS]
+    if bad:
+        raise ConfigError(f"unknown rung(s) {', '.join(bad)}; known: {', '.join(RUNGS)}")
+    if not budget_minutes > 0 or not math.isfinite(budget_minutes):
+        raise ConfigError(f"--budget-minutes must be a positive number, got {budget_minutes}")
+    if instances < 10:
+        raise ConfigError(f"--instances must be >= 10 (a val and a test split of their own), got {instances}")
+    if any(s < 0 for s in seeds):
+        raise ConfigError(f"training seeds must be >= 0, got {seeds}")
+    work = check_output_dir(work, "ladder work folder")
+    check_output_dir(out, "ladder output folder")
+    cfgs = {r: rung_config(category, r, instances, views, train_views, data_seed) for r in rungs}
+    print(f"scapo bench ladder: {category}, rungs {', '.join(rungs)}; methods {', '.join(methods)}; seeds "
+          f"{seeds}; {budget_minutes} core-minutes per trained cell", flush=True)
+    if dry_run:
+        for r in rungs:
+            for m in methods:
+                for s in seeds:
+                    print(f"  {r:9s} {m:9s} seed {s}: {rung_dir(work, category, r, instances, views, train_views, data_seed)}")
+        return []
+    for r in rungs:
+        generate(cfgs[r], rung_dir(work, category, r, instances, views, train_views, data_seed), workers=workers,
+                 progress=False)
+    if data_only:
+        return []
+    ref = rung_dir(work, category, "paper" if "paper" in rungs else rungs[0], instances, views, train_views, data_seed)
+    presets = _training_presets(methods, ref, budget_minutes, preset, work)
+    meta = {"category": category, "rungs": rungs, "methods": methods, "seeds": seeds, "split": "val",
+            "budget_minutes": budget_minutes, "instances": instances, "views": views, "train_views": train_views,
+            "data_seed": data_seed, "preset": preset, "protocol": protocol, "command": command}
+    records = []
+    for r in rungs:
+        data = rung_dir(work, category, r, instances, views, train_views, data_seed)
+        for m in methods:
+            for s in seeds:
+                pc, values = presets.get(m, (None, {}))
+                t0 = time.perf_counter()
+                rec = _cell(data, work, r, m, s, pc, values, protocol)
+                print(f"  {r:9s} {m:9s} seed {s}: frame consistency {_fmt(rec['frame_consistency'], 2)}, S "
+                      f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "
+                      f"{_fmt(rec['R_sym_median'])} ({time.perf_counter() - t0:.0f} s)", flush=True)
+                records.append(rec)
+    return write_ladder(records, Path(out), f"ladder_{category}", meta)
