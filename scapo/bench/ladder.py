@@ -59,37 +59,61 @@ CELL_OPTIONS = {"scapo": {"refine_steps": 0}}
 CONSISTENCY_DEG = 15.0
 
 
-def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = CONSISTENCY_DEG) -> float:
+def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = CONSISTENCY_DEG,
+                      symmetries: np.ndarray | None = None) -> float:
     """Share of samples whose object-frame rotation offset agrees with the one frame most of them agree on.
 
     For each sample the offset ``O = R_pred^T R_gt`` maps the ground-truth object frame into the method's canonical
     frame; a method with one canonical frame has one offset for every sample (1.0), a method whose frame depends on
-    the shape or view scatters them. The share is the inlier fraction of
-    :func:`scapo.eval.alignment.robust_rotation_mean` (RANSAC over the offsets, within ``inlier_deg`` degrees).
-    A supervised method predicts in the ground-truth frame: its share is that of samples within ``inlier_deg`` of
-    one common offset, near the identity.
+    the shape, view or sampling scatters them. Every offset is a hypothesis (RANSAC over all of them, at most 400);
+    the share is the largest fraction of samples within ``inlier_deg`` degrees of one hypothesis, as the inlier
+    fraction of :func:`scapo.eval.alignment.robust_rotation_mean`. A supervised method predicts in the ground-truth
+    frame: its share is that of samples within ``inlier_deg`` of one common offset, near the identity.
 
     Args:
         pred_T, gt_T: ``(M, 4, 4)`` float64 predicted and ground-truth ``T_cam_obj`` of the same samples.
+        symmetries: ``(K, 3, 3)`` rotations of the object's declared symmetries, identity first
+            (:func:`scapo.eval.evaluator.declared_rotations`); a sample then agrees when any of its symmetric ground
+            truths ``R_gt S_k^T`` does (the symmetry-aware share, beside the strict one of ``None``).
 
     Returns:
         The share in [0, 1] (NaN for no samples).
+
+    Raises:
+        ValueError: arrays that are not two ``(M, 4, 4)`` of one ``M``.
     """
-    from scapo.eval.alignment import robust_rotation_mean
+    from scapo.ops.rigid import project_to_so3
 
     pred_T, gt_T = np.asarray(pred_T, dtype=np.float64), np.asarray(gt_T, dtype=np.float64)
     if pred_T.shape != gt_T.shape or pred_T.ndim != 3 or pred_T.shape[1:] != (4, 4):
         raise ValueError(f"frame_consistency needs two (M, 4, 4) arrays, got {pred_T.shape} and {gt_T.shape}")
-    if len(pred_T) == 0:
+    M = len(pred_T)
+    if M == 0:
         return float("nan")
-    O = np.einsum("mji,mjk->mik", pred_T[:, :3, :3], gt_T[:, :3, :3])
-    _, inliers = robust_rotation_mean(O, inlier_deg)
-    return float(inliers.mean())
+    S = np.eye(3)[None] if symmetries is None else np.asarray(symmetries, dtype=np.float64).reshape(-1, 3, 3)
+    O = project_to_so3(np.einsum("mji,mjk,skl->msil", pred_T[:, :3, :3], gt_T[:, :3, :3],
+                                 S.transpose(0, 2, 1)).reshape(-1, 3, 3)).reshape(M, len(S), 3, 3)
+    hyp = O.reshape(-1, 3, 3)
+    if len(hyp) > 400:
+        hyp = hyp[np.random.default_rng(0).choice(len(hyp), 400, replace=False)]
+    cos_thr = np.cos(np.radians(inlier_deg))
+    tr = np.einsum("hij,msij->hms", hyp, O)  # tr(H^T O) = 1 + 2 cos(angle)
+    inl = ((tr - 1.0) / 2.0 >= cos_thr - 1e-12).any(-1)  # (H, M)
+    return float(inl.sum(1).max() / M)
 
 
 def rung_dir(work: Path, category: str, rung: str, instances: int, views: int, train_views: int, seed: int) -> Path:
     """The dataset folder of one rung: ``<work>/data/<category>_<rung>_i<I>_v<V>_t<T>_s<seed>``."""
     return Path(work) / "data" / f"{category}_{rung}_i{instances}_v{views}_t{train_views}_s{seed}"
+
+
+def _finished_dataset(folder: Path, cfg) -> bool:
+    """Whether ``folder`` holds a finished dataset (its card, written last) of exactly ``cfg``."""
+    try:
+        card = json.loads((Path(folder) / "card.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return card.get("config") == json.loads(cfg.to_json())
 
 
 def rung_config(category: str, rung: str, instances: int, views: int, train_views: int, seed: int):
@@ -134,17 +158,103 @@ def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float,
     return out
 
 
-def _cell(data: Path, work: Path, rung: str, method: str, seed: int, preset, values: dict, protocol: str) -> dict:
-    """Train (trained methods), predict and score one cell on the val split; returns (and writes) its record."""
+def parse_variant(text: str) -> tuple[str, str, dict[str, str]]:
+    """``"scapo:consensus:losses.consensus=1,losses.align=0"`` -> ``("scapo", "consensus", {...})``: a trained
+    method's preset with fields replaced (the ``--set`` keys of ``scapo train``), a row of its own named
+    ``METHOD:LABEL``, at the same budget as the method's default row.
+
+    Raises:
+        ConfigError: not of the form ``METHOD:LABEL:KEY=VALUE[,KEY=VALUE...]``, or a label that is not a plain name."""
+    from scapo.config import parse_assignments
+
+    method, _, rest = str(text).partition(":")
+    label, _, sets = rest.partition(":")
+    if not method or not label or not sets or not all(c.isalnum() or c in "_-." for c in label):
+        raise ConfigError(f"--variant {text!r}: write METHOD:LABEL:KEY=VALUE[,KEY=VALUE...] with LABEL a plain name "
+                          "(letters, digits, '_', '-', '.'), e.g. scapo:consensus:losses.consensus=1")
+    return method, label, parse_assignments(sets.split(","), "--variant")
+
+
+def _consistency(data: Path, preds) -> tuple[float, float]:
+    """:func:`frame_consistency` of ``preds`` on the val split of ``data``: strict and symmetry-aware."""
     from scapo.data import load
+    from scapo.eval.evaluator import declared_rotations
+
+    val = load(data, "val")
+    gt = val.arrays(["T_cam_obj"])["T_cam_obj"]
+    keys = {k: i for i, k in enumerate(val.keys())}
+    rows = [i for i in range(len(preds)) if str(preds.split[i]) == "val"]
+    order = np.array([keys[(int(preds.instance_id[i]), int(preds.view_id[i]))] for i in rows])
+    strict = frame_consistency(preds.T_cam_obj[rows], gt[order])
+    sym = declared_rotations(val.card)
+    return strict, (frame_consistency(preds.T_cam_obj[rows], gt[order], symmetries=sym) if len(sym) > 1 else strict)
+
+
+def resampling_stability(method, points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
+    """How much a method's object frame moves when the same view is sampled again: the angle (degrees) between the
+    ``T_cam_obj`` rotations it predicts from two disjoint random subsets of ``n`` points of each cloud (two
+    overlapping ones when a cloud has fewer than ``2 n`` points). An equivariant network gives the same frame for a
+    rotated copy of one cloud; this measures whether it also gives it for another sample of one surface, which a
+    category-level frame needs before any other difficulty.
+
+    Args:
+        method: a loaded trained method (:func:`scapo.methods.load`). points: ``(B, N, 3)`` float32 camera-frame
+            clouds (metres). n: points per subset (the method's training density).
+
+    Returns:
+        ``(B,)`` float64 angles in degrees.
+    """
+    rng = np.random.default_rng(seed)
+    B, N, _ = points.shape
+    n = min(n, N)
+    a_idx, b_idx = [], []
+    for _ in range(B):
+        perm = rng.permutation(N)
+        a_idx.append(perm[:n])
+        b_idx.append(perm[n:2 * n] if 2 * n <= N else rng.permutation(N)[:n])
+    pa = np.take_along_axis(points, np.stack(a_idx)[..., None], 1)
+    pb = np.take_along_axis(points, np.stack(b_idx)[..., None], 1)
+    Ra = np.asarray(method.predict_points(pa)["T_cam_obj"], dtype=np.float64)[:, :3, :3]
+    Rb = np.asarray(method.predict_points(pb)["T_cam_obj"], dtype=np.float64)[:, :3, :3]
+    cos = (np.einsum("bij,bij->b", Ra, Rb) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def _stability(run: Path, data: Path, method: str, preset, limit: int = 64) -> float:
+    """Median :func:`resampling_stability` of a run on the first ``limit`` val clouds at its training density, with
+    the cell's prediction options (:data:`CELL_OPTIONS`: one-pass)."""
+    from scapo.data import load
+    from scapo.methods import load_run
+
+    pts = load(data, "val").arrays(["points"])["points"][:limit]
+    n = int(getattr(preset, "train_points", getattr(preset, "points", 256)))
+    return float(np.median(resampling_stability(load_run(run, **CELL_OPTIONS.get(method, {})), pts, n)))
+
+
+def _cell(data: Path, work: Path, rung: str, method: str, seed: int, preset, values: dict, protocol: str,
+          label: str | None = None) -> dict:
+    """Train (trained methods), predict and score one cell on the val split; returns (and writes) its record."""
     from scapo.eval import evaluate
     from scapo.methods import METHODS, run_method, train_method
     from scapo.provenance import provenance
 
-    rec_path = work / rung / f"{method}_s{seed}.json"
+    name = method if label is None else f"{method}:{label}"
+    key = name.replace(":", "--")
+    rec_path = work / rung / f"{key}_s{seed}.json"
     if rec_path.is_file():
-        return json.loads(rec_path.read_text())
-    run = work / rung / f"{method}_s{seed}_run"
+        rec = json.loads(rec_path.read_text())
+        if "frame_consistency_sym" not in rec:  # a record made before the symmetry-aware share: add it
+            from scapo.eval import Predictions
+            from scapo.provenance import git_commit
+
+            preds = Predictions.load(work / rung / f"{key}_s{seed}_predictions.npz")
+            rec["frame_consistency"], rec["frame_consistency_sym"] = (round(x, 4) for x in _consistency(data, preds))
+            if METHODS.get(method).trained:
+                rec["resampling_deg"] = _stability(work / rung / f"{key}_s{seed}_run", data, method, preset)
+            rec["consistency_commit"] = git_commit()
+            write_json(rec_path, rec)
+        return rec
+    run = work / rung / f"{key}_s{seed}_run"
     wall = {}
     t0 = time.perf_counter()
     threads = None
@@ -158,23 +268,19 @@ def _cell(data: Path, work: Path, rung: str, method: str, seed: int, preset, val
         wall["train_steps"] = timing.get("steps")
     t1 = time.perf_counter()
     opts = {"run": run, **CELL_OPTIONS.get(method, {})} if METHODS.get(method).trained else {}
-    preds_path = work / rung / f"{method}_s{seed}_predictions.npz"
+    preds_path = work / rung / f"{key}_s{seed}_predictions.npz"
     preds = run_method(method, data, preds_path, progress=False, **opts)
     wall["predict_s"] = round(time.perf_counter() - t1, 1)
+    stability = _stability(run, data, method, preset) if METHODS.get(method).trained else None
     res = evaluate(data, preds, split="val")
-    val = load(data, "val")
-    gt = val.arrays(["T_cam_obj"])["T_cam_obj"]
-    keys = {k: i for i, k in enumerate(val.keys())}
-    rows = [i for i in range(len(preds)) if str(preds.split[i]) == "val"]
-    order = np.array([keys[(int(preds.instance_id[i]), int(preds.view_id[i]))] for i in rows])
-    consistency = frame_consistency(preds.T_cam_obj[rows], gt[order])
+    consistency, consistency_sym = _consistency(data, preds)
     s = res.summary
     rec = {
-        "rung": rung, "rung_label": RUNG_LABELS[rung], "method": method, "seed": seed, "split": "val",
-        "protocol": protocol, "dataset": data.name, "dataset_hash": val.dataset_hash,
+        "rung": rung, "rung_label": RUNG_LABELS[rung], "method": name, "seed": seed, "split": "val",
+        "protocol": protocol, "dataset": data.name, "dataset_hash": res.info["dataset_hash"],
         "preset": getattr(preset, "name", preset), "budget_values": values,
-        "frame_consistency": round(consistency, 4),
-        "alignment_inlier_ratio": res.info.get("alignment_inlier_ratio"),
+        "frame_consistency": round(consistency, 4), "frame_consistency_sym": round(consistency_sym, 4),
+        "alignment_inlier_ratio": res.info.get("alignment_inlier_ratio"), "resampling_deg": stability,
         "S": s.get("S"), "D": s.get("D"), "D_median": s.get("D_median"), "C": s.get("C"),
         "R": s.get("R"), "R_median": s.get("R_median"), "R_sym": s.get("R_sym"), "R_sym_median": s.get("R_sym_median"),
         "R_over90": s.get("R_over90"), "R_sym_over90": s.get("R_sym_over90"),
@@ -201,7 +307,8 @@ def write_ladder(records: Sequence[dict], out: Path, name: str, meta: dict) -> l
     from scapo.report import markdown_table
 
     out = check_output_dir(out, "ladder output folder")
-    cols = ["rung", "method", "seed", "frame_consistency", "alignment_inlier_ratio", "S", "D", "D_median", "C", "R",
+    cols = ["rung", "method", "seed", "frame_consistency", "frame_consistency_sym", "alignment_inlier_ratio",
+            "resampling_deg", "S", "D", "D_median", "C", "R",
             "R_median", "R_sym", "R_sym_median", "R_sym_over90"]
     flat = []
     for r in records:
@@ -212,20 +319,27 @@ def write_ladder(records: Sequence[dict], out: Path, name: str, meta: dict) -> l
         row["commit"] = r["provenance"].get("commit")
         row["dataset_hash"] = r["dataset_hash"]
         flat.append(row)
-    header = ["rung", "method", "seed", "frame cons.", "align. inliers (train)", "S %", "D", "D med", "C", "R",
+    header = ["rung", "method", "seed", "frame cons.", "frame cons. sym", "align. inliers (train)", "resampling deg",
+              "S %", "D", "D med", "C", "R",
               "R med", "R sym", "R sym med", "R sym > 90 %", "train min"]
-    body = [[r["rung"], r["method"], r["seed"], _fmt(r["frame_consistency"], 2), _fmt(r["alignment_inlier_ratio"], 2),
+    body = [[r["rung"], r["method"], r["seed"], _fmt(r["frame_consistency"], 2),
+             _fmt(r.get("frame_consistency_sym"), 2), _fmt(r["alignment_inlier_ratio"], 2), _fmt(r["resampling_deg"]),
              _fmt(r["S"]), _fmt(r["D"]), _fmt(r["D_median"]), _fmt(r["C"], 3), _fmt(r["R"]), _fmt(r["R_median"]),
              _fmt(r["R_sym"]), _fmt(r["R_sym_median"]), _fmt(r["R_sym_over90"]), _fmt(r["train_min"])] for r in flat]
     commits = sorted({r["commit"] for r in flat})
     md = [f"# Canonical-frame ladder: {meta['category']} ({meta['split']} split)", "",
           "Rungs: " + "; ".join(f"**{k}**: {RUNG_LABELS[k]}" for k in meta["rungs"]) + ".", "",
           f"Equal training compute: {meta['budget_minutes']} core-minutes per trained cell (epochs from the measured "
-          f"clouds/s, `speed_<method>.json`). One-pass predictions. Frame consistency: share of val samples whose object-frame "
-          f"offset is within {CONSISTENCY_DEG:g} deg of the common one (1 = one canonical frame); the alignment inlier "
-          "ratio is the evaluator's, on the training split, per part.", "",
+          f"clouds/s, `speed_<method>.json`). One-pass predictions. Frame consistency: share of val samples whose "
+          "object-frame "
+          f"offset is within {CONSISTENCY_DEG:g} deg of the common one (1 = one canonical frame), strict and against "
+          "the category's declared symmetric ground truths (sym; e.g. a laptop's base/lid exchange); the alignment "
+          "inlier ratio is the evaluator's, on the training split, per part (the frame consistency the tables "
+          "report); resampling deg: median angle between the object frames predicted from two disjoint random "
+          "subsets (training density) of one val view.", "",
           markdown_table(header, body), "",
-          f"Provenance: commits {', '.join(commits)}; {meta['instances']} instances, {meta['views']} views per val/test "
+          f"Provenance: commits {', '.join(commits)}; {meta['instances']} instances, {meta['views']} views per "
+          "val/test "
           f"instance, {meta['train_views']} per training instance, data seed {meta['data_seed']}, preset "
           f"{meta['preset']!r}, protocol {meta['protocol']!r}; written by `{meta['command']}`.", ""]
     paths = [out / f"{name}.md", out / f"{name}.json", out / f"{name}.csv"]
@@ -238,10 +352,12 @@ def write_ladder(records: Sequence[dict], out: Path, name: str, meta: dict) -> l
 
 
 def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS, rungs: Sequence[str] = tuple(RUNGS),
-               seeds: Sequence[int] = (0,), work: str | Path = "bench_work/ladder", out: str | Path = "results/canonical_ladder",
+               seeds: Sequence[int] = (0,), work: str | Path = "bench_work/ladder",
+               out: str | Path = "results/canonical_ladder",
                budget_minutes: float = 5.0, instances: int = 60, views: int = 8, train_views: int = 16,
                data_seed: int = 1, preset: str = "cpu", protocol: str = "scapo", workers: int = 1,
-               command: str = "scapo bench ladder", dry_run: bool = False, data_only: bool = False) -> list[Path]:
+               command: str = "scapo bench ladder", dry_run: bool = False, data_only: bool = False,
+               variants: Sequence[str] = ()) -> list[Path]:
     """Run (or resume) the ladder for ``category``: generate each rung's dataset, train every method with the same
     budget, predict one-pass, score on val, write ``<out>/ladder_<category>.{md,json,csv}``.
 
@@ -249,6 +365,7 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         methods: registered method names (trained ones get ``budget_minutes``). rungs: names of :data:`RUNGS`.
         seeds: training seeds. instances, views, train_views, data_seed: the datasets' sizes (equal on every rung).
         dry_run: list the cells, compute nothing. data_only: generate the rungs' datasets and stop.
+        variants: :func:`parse_variant` texts: extra rows of a method's preset with fields replaced.
 
     Raises:
         ConfigError: an empty or unknown list, a budget <= 0, sizes too small for a val split.
@@ -271,6 +388,12 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         raise ConfigError(f"--instances must be >= 10 (a val and a test split of their own), got {instances}")
     if any(s < 0 for s in seeds):
         raise ConfigError(f"training seeds must be >= 0, got {seeds}")
+    parsed = [parse_variant(v) for v in variants]
+    for m, label, _ in parsed:
+        if not METHODS.get(m).trained:
+            raise ConfigError(f"--variant {m}:{label}: {m!r} is not trained; a variant replaces fields of its preset")
+    if len({(m, label) for m, label, _ in parsed}) != len(parsed):
+        raise ConfigError("--variant: two variants with one METHOD:LABEL")
     work = check_output_dir(work, "ladder work folder")
     check_output_dir(out, "ladder output folder")
     cfgs = {r: rung_config(category, r, instances, views, train_views, data_seed) for r in rungs}
@@ -280,15 +403,17 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         for r in rungs:
             for m in methods:
                 for s in seeds:
-                    print(f"  {r:9s} {m:9s} seed {s}: {rung_dir(work, category, r, instances, views, train_views, data_seed)}")
+                    folder = rung_dir(work, category, r, instances, views, train_views, data_seed)
+                    print(f"  {r:9s} {m:9s} seed {s}: {folder}")
         return []
     for r in rungs:
-        generate(cfgs[r], rung_dir(work, category, r, instances, views, train_views, data_seed), workers=workers,
-                 progress=False)
+        folder = rung_dir(work, category, r, instances, views, train_views, data_seed)
+        if not _finished_dataset(folder, cfgs[r]):  # a finished one is not touched (other chains may be reading it)
+            generate(cfgs[r], folder, workers=workers, progress=False)
     if data_only:
         return []
     ref = rung_dir(work, category, "paper" if "paper" in rungs else rungs[0], instances, views, train_views, data_seed)
-    presets = _training_presets(methods, ref, budget_minutes, preset, work)
+    presets = _training_presets(sorted(set(methods) | {m for m, _, _ in parsed}), ref, budget_minutes, preset, work)
     meta = {"category": category, "rungs": rungs, "methods": methods, "seeds": seeds, "split": "val",
             "budget_minutes": budget_minutes, "instances": instances, "views": views, "train_views": train_views,
             "data_seed": data_seed, "preset": preset, "protocol": protocol, "command": command}
@@ -304,4 +429,17 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
                       f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "
                       f"{_fmt(rec['R_sym_median'])} ({time.perf_counter() - t0:.0f} s)", flush=True)
                 records.append(rec)
+        for m, label, sets in parsed:
+            from scapo.config import override
+
+            pc, values = presets[m]
+            pv = override(pc, sets, f"{m} preset (--variant {label})")
+            for s in seeds:
+                t0 = time.perf_counter()
+                rec = _cell(data, work, r, m, s, pv, {**values, **sets}, protocol, label=label)
+                print(f"  {r:9s} {m}:{label} seed {s}: frame consistency {_fmt(rec['frame_consistency'], 2)}, S "
+                      f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "
+                      f"{_fmt(rec['R_sym_median'])} ({time.perf_counter() - t0:.0f} s)", flush=True)
+                records.append(rec)
+    meta["variants"] = list(variants)
     return write_ladder(records, Path(out), f"ladder_{category}", meta)

@@ -491,7 +491,7 @@ def cmd_bench_ladder(args) -> int:
                        instances=args.instances or 60, views=args.views or 8,
                        train_views=16 if args.train_views is None else args.train_views, data_seed=args.seed,
                        preset=args.preset, workers=max(args.workers), command=cmd, dry_run=args.dry_run,
-                       data_only=args.data_only)
+                       data_only=args.data_only, variants=args.variant)
     for p in paths:
         print(f"wrote {p}")
     return 0
@@ -878,6 +878,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--train-views", type=int, default=None,
                     help="table1, table3: views per training instance (default: 64 with --viewpoints paper, chosen on "
                          "val (results/paper_regime/); --views otherwise)")
+    sp.add_argument("--variant", action="append", default=[], metavar="METHOD:LABEL:KEY=VALUE[,KEY=VALUE]",
+                    help="ladder: an extra row of METHOD with preset fields replaced (scapo train --set keys), same "
+                    "budget, e.g. scapo:consensus:losses.consensus=1; repeatable")
     sp.add_argument("--no-sj", action="store_true", help="table2: leave out the semi-supervised (SJ) rows")
     sp.add_argument("--data", type=Path, action="append", default=[], help="choose: the dataset (its val split is "
                     "used); repeat to choose one value for several datasets (mean of their scores); perf --what "

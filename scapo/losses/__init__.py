@@ -44,6 +44,9 @@ class LossConfig:
     align_in_stage2: bool = False
     """Keep the cross-instance alignment during stage 2. Off: it holds the whole-object frame and, on
     a laptop, tilts the learned hinge axis (see results/cpu_preset_history.md)."""
+    rec_one_sided: bool = False
+    """Stage 1's ``L_rec`` from the input to the reconstruction only (:func:`reconstruction_loss`; an addition to the
+    paper for partial views, Li et al.'s partial setting; preset part ``one-sided``)."""
     consensus: float = 0.0
     """Batch-consensus frame pseudo-label in stage 1 (an addition to the paper; 0 switches it off)."""
     consensus_small_deg: float = 25.0
@@ -97,7 +100,7 @@ def stage1_terms(model, X: torch.Tensor, s1: Stage1Output, cfg: LossConfig | Non
     ``align`` False leaves out the cross-instance alignment term; ``consensus`` is computed when
     ``cfg`` gives it a positive weight."""
     terms = {
-        "rec": reconstruction_loss(X, s1.X_rec),
+        "rec": reconstruction_loss(X, s1.X_rec, one_sided=cfg is not None and cfg.rec_one_sided),
         "ortho": orthonormality_loss(s1.enc.R_raw),
         "aug_consist": augmentation_consistency_loss(model, X, s1, max_batch=max(2, X.shape[0] // 2)),
         "can_consist": canonical_consistency_loss(model, s1.S_dec[: max(2, X.shape[0] // 2)]),

@@ -23,8 +23,14 @@ EPS = 1e-8
 
 
 # ------------------------------------------------------------------------------ stage 1
-def reconstruction_loss(X: torch.Tensor, X_rec: torch.Tensor) -> torch.Tensor:
-    """``L_rec``: Chamfer distance between the input ``X (B, N, 3)`` and ``R S_dec + t (B, M, 3)``."""
+def reconstruction_loss(X: torch.Tensor, X_rec: torch.Tensor, one_sided: bool = False) -> torch.Tensor:
+    """``L_rec``: Chamfer distance between the input ``X (B, N, 3)`` and ``R S_dec + t (B, M, 3)`` (paper Eq. 1).
+
+    ``one_sided``: only the input's side, ``mean_x min_y |x - y|^2`` (an addition to the paper, switch
+    ``LossConfig.rec_one_sided``): a partial view does not show the reconstruction's unseen side, so that side is not
+    penalised (Li et al., NeurIPS 2021, dragonlong/equi-pose, its partial-input setting)."""
+    if one_sided:
+        return trimmed_one_sided_chamfer(X, X_rec, 1.0).mean()
     return chamfer_distance(X, X_rec).mean()
 
 
@@ -136,8 +142,12 @@ def consensus_rotation_loss(X: torch.Tensor, t: torch.Tensor, R_raw: torch.Tenso
 
 def canonical_consistency_loss(model, S_dec: torch.Tensor) -> torch.Tensor:
     """``L_can_consist``: the decoded canonical shape, encoded again, has identity pose:
-    ``||R(S) - I||^2 + ||t(S)||^2`` (the canonical frame is a fixed point of the encoder)."""
-    enc = model.encoder(S_dec.detach())
+    ``||R(S) - I||^2 + ||t(S)||^2`` (the canonical frame is a fixed point of the encoder; with a hypothesis set of
+    frames, ``ModelConfig.anchors``, of the encoder and its anchor choice)."""
+    S = S_dec.detach()
+    enc = model.encoder(S)
+    if getattr(model.cfg, "anchors", ""):
+        enc = model.choose_anchor(S, enc, model.decoder(enc.code)[0])
     eye = torch.eye(3, dtype=S_dec.dtype, device=S_dec.device)
     return (((enc.R_raw - eye) ** 2).sum((1, 2)) + (enc.t ** 2).sum(-1)).mean()
 

@@ -24,7 +24,8 @@ def _model_config(d: dict) -> ModelConfig:
     return ModelConfig(num_parts=d["num_parts"], joint_types=tuple(d["joint_types"]),
                        joint_parts=tuple(tuple(p) for p in d["joint_parts"]), encoder=enc,
                        template_points=d["template_points"], gamma=d["gamma"], joint_widths=tuple(d["joint_widths"]),
-                       head_width=d["head_width"], root_motion=d.get("root_motion", False))
+                       head_width=d["head_width"], root_motion=d.get("root_motion", False),
+                       anchors=d.get("anchors", ""))
 
 
 #: Points per cloud that :meth:`Predictor.predict` accepts: below ``MIN_POINTS`` the encoder's k-nearest-

@@ -46,6 +46,10 @@ class TrainConfig:
     """At the start of stage 2, fit a correction of the stage-1 frames' minority branch (the half-turned
     frames of near-symmetric shapes) from the training views without labels, and use the corrected
     frames in stage 2 and at inference (:mod:`scapo.models.branch`, an addition to the paper)."""
+    anchors: str = ""
+    """A hypothesis set of stage-1 frames, the name of a rotation group ("T", "O", "I"; "" off): each cloud's frame is
+    the regressed one turned by the group element whose reconstruction fits the input best
+    (``ModelConfig.anchors``, an addition to the paper; preset part ``anchors-O``)."""
     supervision: str = ""
     """Labels training may use (:mod:`scapo.losses.supervised`): "" (self-supervised, the paper's Table 1),
     "S" segmentation, "J" joints, "SJ" both (the paper's Table 2 setting); preset suffix ``/sj``."""

@@ -27,7 +27,7 @@ from torch import nn
 
 from scapo.models.branch import apply_branch
 from scapo.models.refine import RefineConfig, refine_articulation
-from scapo.nn.encoder import EncoderConfig, SE3Encoder, ShapeDecoder
+from scapo.nn.encoder import EncoderConfig, EncoderOutput, SE3Encoder, ShapeDecoder
 from scapo.nn.outputs import SCAPOOutput, Stage1Output
 from scapo.nn.skinning import (
     apply_per_part,
@@ -65,7 +65,17 @@ class ModelConfig:
     frame the learned joint states come out as a fraction of the true ones (measurements in
     results/cpu_preset_history.md)."""
 
+    anchors: str = ""
+    """A hypothesis set of frames in stage 1 (an addition to the paper; "" off): the name of a finite rotation group
+    of :func:`scapo.ops.groups.rotation_group` ("T" 12, "O" 24, "I" 60 rotations). Each cloud's frame is
+    ``R G_k`` for the anchor ``G_k`` whose reconstruction ``S_dec G_k^T R^T + t`` is nearest to the input (one-sided
+    Chamfer from the input, no gradient through the choice), so a shape whose regressed frame lands in another
+    discrete orientation is not pulled towards it by the gradient (EPN-style anchors with a minimum over hypotheses
+    as in OP-Align's ``models/art_so3net_pn.py`` around lines 259-275 and Li et al.'s equi-pose)."""
+
     def __post_init__(self):
+        if self.anchors not in ("", "T", "O", "I"):
+            raise ValueError(f"anchors must be '', 'T', 'O' or 'I', got {self.anchors!r}")
         if len(self.joint_types) != len(self.joint_parts):
             raise ValueError("joint_types and joint_parts must have one entry per joint")
         if len(self.joint_parts) != self.num_parts - 1:
@@ -160,6 +170,11 @@ class SCAPOModel(nn.Module):
         # trainer at the start of stage 2 when TrainConfig.branch_flip is on
         self.register_buffer("branch", torch.zeros(3, 3))
         self.register_buffer("branch_flip", torch.eye(3))
+        if cfg.anchors:
+            from scapo.ops.groups import rotation_group
+
+            self.register_buffer("anchor_rotations", torch.tensor(rotation_group(cfg.anchors), dtype=torch.float32),
+                                 persistent=False)
 
     # ------------------------------------------------------------------ helpers
     def load_checkpoint_state(self, state: dict) -> None:
@@ -184,14 +199,34 @@ class SCAPOModel(nn.Module):
         was_training = self.training
         self.eval()
         try:
-            return apply_branch(self.encoder(self.normalize(points)[0]).R, self.branch, self.branch_flip)
+            return apply_branch(self.stage1(self.normalize(points)[0]).enc.R, self.branch, self.branch_flip)
         finally:
             self.train(was_training)
+
+    def choose_anchor(self, X: torch.Tensor, enc: EncoderOutput, S_dec: torch.Tensor) -> EncoderOutput:
+        """The frame of each cloud under the hypothesis set (``ModelConfig.anchors``): ``enc`` with ``R`` and
+        ``R_raw`` turned by the anchor ``G_k (3, 3)`` whose reconstruction ``S_dec (B, M, 3)`` posed by ``R G_k, t``
+        is nearest to ``X (B, N, 3)`` (mean squared distance from the input's points, no gradient); ``enc`` itself
+        without anchors."""
+        if not self.cfg.anchors:
+            return enc
+        from scapo.ops.chamfer import nearest_sq_dist
+
+        G = self.anchor_rotations.to(X)
+        B, K = X.shape[0], G.shape[0]
+        with torch.no_grad():
+            RG = enc.R.unsqueeze(1) @ G.unsqueeze(0)  # (B, K, 3, 3)
+            rec = torch.einsum("bmj,bkij->bkmi", S_dec, RG) + enc.t[:, None, None]  # (B, K, M, 3)
+            d = nearest_sq_dist(X.unsqueeze(1).expand(B, K, *X.shape[1:]).reshape(B * K, -1, 3),
+                                rec.reshape(B * K, -1, 3)).mean(-1).reshape(B, K)
+            Gk = G[d.argmin(1)]  # (B, 3, 3)
+        return EncoderOutput(enc.t, enc.R_raw @ Gk, enc.R @ Gk, enc.code)
 
     def stage1(self, X: torch.Tensor) -> Stage1Output:
         """Canonicalisation on normalised points ``X (B, N, 3)``."""
         enc = self.encoder(X)
         S_dec, F_x = self.decoder(enc.code)
+        enc = self.choose_anchor(X, enc, S_dec)
         X_rec = S_dec @ enc.R.transpose(1, 2) + enc.t[:, None]  # rigid: R in SO(3) (Gram-Schmidt of R_raw)
         return Stage1Output(enc=enc, S_dec=S_dec, F_x=F_x, X_rec=X_rec)
 

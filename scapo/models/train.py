@@ -113,16 +113,17 @@ def model_config(card: dict, preset: TrainConfig) -> ModelConfig:
     """The network's structure for a dataset's category (parts and joints from its card)."""
     return ModelConfig(num_parts=len(card["part_names"]), joint_types=tuple(card["joint_type"]),
                        joint_parts=tuple(tuple(p) for p in card["joint_parts"]), encoder=preset.encoder,
-                       template_points=preset.template_points, gamma=preset.gamma, root_motion=preset.root_motion)
+                       template_points=preset.template_points, gamma=preset.gamma, root_motion=preset.root_motion,
+                       anchors=preset.anchors)
 
 
 #: preset fields that only affect inference; a checkpoint is not refused when they differ
 INFERENCE_FIELDS = ("refine",)
 #: preset fields added after runs were trained, with the value those runs had: at that value a field is
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
-ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False}
+ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": ""}
 #: the same for fields added to the preset's LossConfig
-LOSS_ADDED_FIELDS = {"seg_labels": "nearest"}
+LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False}
 
 
 def _run_identity(preset: TrainConfig, card: dict) -> dict:

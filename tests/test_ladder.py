@@ -1,0 +1,181 @@
+"""The canonical-frame ladder: complete clouds (``--complete``), rest states, one shape, frame consistency, variants
+and a small end-to-end ladder."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+
+from scapo.bench.ladder import RUNGS, frame_consistency, parse_variant, rung_config
+from scapo.data import generate, load, make_config
+from scapo.errors import ConfigError
+from scapo.ops.groups import random_rotation as _random_rotation
+
+
+def random_rotation(n: int, seed: int):
+    import torch
+
+    return _random_rotation(n, generator=torch.Generator().manual_seed(seed))
+
+
+@pytest.fixture(scope="module")
+def complete_data(tmp_path_factory):
+    out = tmp_path_factory.mktemp("complete") / "laptop"
+    generate(make_config("laptop", 4, 3, seed=2, complete=True, viewpoints="sphere", test_fraction=0.25,
+                         val_fraction=0.0, num_points=512), out, progress=False)
+    return out
+
+
+def _surface_distance(ds, i):
+    """Distance of every point of sample ``i`` to its part's rest mesh, after undoing the part's pose."""
+    from scapo.data.config import GenerateConfig
+    from scapo.data.generate import instance_asset_path, load_instance
+    from scapo.sim.assets.urdf import load_part_mesh
+
+    cfg = GenerateConfig.from_dict(ds.card["config"])
+    s = ds[i]
+    spec = load_instance(cfg, instance_asset_path(cfg, ds.root, int(s["instance_id"])))
+    d = np.zeros(len(s["points"]))
+    for p in range(spec.num_parts):
+        m = s["part_label"] == p
+        inv = np.linalg.inv(s["part_pose"][p])
+        rest = s["points"][m] @ inv[:3, :3].T + inv[:3, 3]
+        d[m] = np.abs(trimesh.proximity.signed_distance(load_part_mesh(spec, p), rest))
+    return d, s
+
+
+def test_complete_clouds_lie_on_every_part_and_both_sides(complete_data):
+    ds = load(complete_data, "train")
+    assert ds.card["config"]["render"]["complete"] is True
+    for i in (0, len(ds) - 1):
+        d, s = _surface_distance(ds, i)
+        assert (s["part_label"] >= 0).all()
+        assert set(np.unique(s["part_label"])) == {0, 1}  # every part sampled
+        assert d.max() < 1e-4 * float(s["bbox_diag"]) + 1e-6  # on the posed mesh
+        # complete: both faces of the thin base slab carry points, not only the side facing the camera. In the base's
+        # rest frame its thickness is along z: points above and below its mid-plane.
+        base = s["part_label"] == 0
+        inv = np.linalg.inv(s["part_pose"][0])
+        z = (s["points"][base] @ inv[:3, :3].T + inv[:3, 3])[:, 2]
+        mid = 0.5 * (z.min() + z.max())
+        assert (z > mid).mean() > 0.2 and (z < mid).mean() > 0.2
+
+
+def test_complete_clouds_follow_area(complete_data):
+    """Area-weighted sampling: each part's share of the points is near its share of the posed surface."""
+    from scapo.data.config import GenerateConfig
+    from scapo.data.generate import instance_asset_path, load_instance
+    from scapo.sim.assets.urdf import load_part_mesh
+
+    ds = load(complete_data, "train")
+    cfg = GenerateConfig.from_dict(ds.card["config"])
+    s = ds[0]
+    spec = load_instance(cfg, instance_asset_path(cfg, ds.root, int(s["instance_id"])))
+    area = np.array([load_part_mesh(spec, p).area for p in range(spec.num_parts)])
+    share = np.bincount(s["part_label"], minlength=spec.num_parts) / len(s["part_label"])
+    assert np.allclose(share, area / area.sum(), atol=0.1)
+
+
+def test_rest_state_and_one_shape(tmp_path):
+    out = tmp_path / "one"
+    generate(make_config("laptop", 4, 2, seed=2, complete=True, viewpoints="sphere", state="rest", one_shape=True,
+                         test_fraction=0.25, val_fraction=0.0, num_points=256), out, progress=False)
+    ds = load(out, "train")
+    a = ds.arrays(["joint_state", "bbox_diag"])
+    assert np.all(a["joint_state"] == 0.0)
+    assert len(set(np.round(a["bbox_diag"], 9))) == 1  # one shape for every instance
+    assert len(set(ds.card["assets"].values())) == 1  # every instance's asset digest is instance 0's
+
+
+def test_new_settings_keep_older_config_hashes():
+    """The defaults of --complete, --state and --one-shape leave a config's dict as before they existed."""
+    d = make_config("laptop", 10, 2, seed=1).to_dict()
+    assert "complete" not in d["render"] and "state" not in d["render"] and "one_shape" not in d
+    d = make_config("laptop", 10, 2, seed=1, complete=True, state="rest", one_shape=True).to_dict()
+    assert d["render"]["complete"] is True and d["render"]["state"] == "rest" and d["one_shape"] is True
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ConfigError, match="state"):
+        make_config("laptop", 10, 2, state="open")
+    with pytest.raises(ConfigError, match="sensor"):
+        make_config("laptop", 10, 2, complete=True, sensor="realistic")
+    with pytest.raises(ConfigError, match="backend"):
+        make_config("laptop", 10, 2, complete=True, backend="maniskill")
+
+
+def test_rungs_differ_in_one_setting_each():
+    cfgs = {r: rung_config("laptop", r, 20, 2, 4, 1).to_dict() for r in RUNGS}
+    for a in cfgs.values():  # the same sizes and splits on every rung
+        assert (a["instances"], a["views"], a["train_views"], a["test_fraction"], a["val_fraction"]) == (20, 2, 4, 0.2,
+                                                                                                         0.1)
+    assert cfgs["one"]["one_shape"] and cfgs["one"]["render"]["state"] == "rest"
+    assert cfgs["complete"]["render"]["complete"] and "one_shape" not in cfgs["complete"]
+    assert "complete" not in cfgs["paper"]["render"] and cfgs["paper"]["view"]["object_euler_deg"]
+    assert cfgs["sphere"]["view"]["random_rotation"] and "complete" not in cfgs["sphere"]["render"]
+
+
+def test_frame_consistency_on_hand_built_offsets():
+    M = 40
+    gt = np.tile(np.eye(4), (M, 1, 1))
+    gt[:, :3, :3] = random_rotation(M, seed=1).numpy()
+    offset = random_rotation(1, seed=2).numpy()[0]
+    pred = gt.copy()
+    pred[:, :3, :3] = gt[:, :3, :3] @ offset.T  # one canonical frame: R_pred^T R_gt = offset for every sample
+    assert frame_consistency(pred, gt) == 1.0
+    bad = pred.copy()
+    bad[:10, :3, :3] = random_rotation(10, seed=3).numpy()  # a quarter in frames of their own
+    assert frame_consistency(bad, gt) == pytest.approx(0.75, abs=0.03)
+    scattered = pred.copy()
+    scattered[:, :3, :3] = random_rotation(M, seed=4).numpy()
+    assert frame_consistency(scattered, gt) < 0.2
+    with pytest.raises(ValueError):
+        frame_consistency(pred[:, :3], gt[:, :3])
+    assert np.isnan(frame_consistency(np.zeros((0, 4, 4)), np.zeros((0, 4, 4))))
+
+
+def test_parse_variant():
+    assert parse_variant("scapo:cons:losses.consensus=1,losses.align=0") == (
+        "scapo", "cons", {"losses.consensus": "1", "losses.align": "0"})
+    for bad in ("scapo", "scapo:cons", "scapo::a=1", "scapo:a b:x=1", "scapo:x:novalue"):
+        with pytest.raises(ConfigError):
+            parse_variant(bad)
+
+
+def test_ladder_end_to_end(tmp_path):
+    """A tiny ladder (two rungs, NPCS-style and a SCAPO variant at their test presets) writes its table and resumes
+    without recomputing."""
+    cmd = [sys.executable, "-m", "scapo.cli", "bench", "ladder", "--category", "laptop", "--rungs", "one,paper",
+           "--methods", "npcs", "--variant", "npcs:wide:lr=0.002", "--preset", "test", "--budget-minutes", "0.05",
+           "--instances", "10", "--views", "2", "--train-views", "8", "--work", str(tmp_path / "w"), "--out",
+           str(tmp_path / "o"), "--no-progress"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    table = json.loads((tmp_path / "o" / "ladder_laptop.json").read_text())
+    rows = {(x["rung"], x["method"]) for x in table["records"]}
+    assert rows == {("one", "npcs"), ("one", "npcs:wide"), ("paper", "npcs"), ("paper", "npcs:wide")}
+    for x in table["records"]:
+        assert 0.0 <= x["frame_consistency"] <= 1.0 and x["split"] == "val" and x["provenance"]["commit"]
+    md = (tmp_path / "o" / "ladder_laptop.md").read_text()
+    assert "frame cons." in md and "npcs:wide" in md
+    r2 = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert r2.returncode == 0 and "measuring" not in r2.stdout
+    assert json.loads((tmp_path / "o" / "ladder_laptop.json").read_text())["records"] == table["records"]
+
+
+@pytest.mark.parametrize("args,match", [
+    (["--rungs", "bogus"], "unknown rung"),
+    (["--rungs", "one", "--variant", "scapo"], "METHOD:LABEL"),
+    (["--rungs", "one", "--variant", "icp:x:a=1"], "not trained"),
+    (["--rungs", "one", "--budget-minutes", "0"], "budget"),
+])
+def test_ladder_refuses_bad_arguments(tmp_path, args, match):
+    r = subprocess.run([sys.executable, "-m", "scapo.cli", "bench", "ladder", "--work", str(tmp_path / "w"), "--out",
+                        str(tmp_path / "o"), *args], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and match in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "w" / "ladder" / "data").exists()  # refused before any work
