@@ -124,6 +124,8 @@ INFERENCE_FIELDS = ("refine",)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": ""}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False}
+#: the same for fields added to the preset's EncoderConfig
+ENCODER_ADDED_FIELDS = {"frame": "regressed"}
 
 
 def _run_identity(preset: TrainConfig, card: dict) -> dict:
@@ -138,6 +140,9 @@ def _training_identity(identity: dict) -> dict:
     if isinstance(preset.get("losses"), dict):
         preset["losses"] = {k: v for k, v in preset["losses"].items()
                             if not (k in LOSS_ADDED_FIELDS and v == LOSS_ADDED_FIELDS[k])}
+    if isinstance(preset.get("encoder"), dict):
+        preset["encoder"] = {k: v for k, v in preset["encoder"].items()
+                             if not (k in ENCODER_ADDED_FIELDS and v == ENCODER_ADDED_FIELDS[k])}
     return {**identity, "preset": preset}
 
 

@@ -45,6 +45,17 @@ class EncoderConfig:
     """Points of the decoded canonical shape S_dec."""
     attention_points: int = 8
     """Soft keypoints (attention-weighted means of the centred points) feeding the rotation head."""
+    frame: str = "regressed"
+    """How ``R_g`` is read: "regressed" (the paper: Gram-Schmidt of two equivariant vectors of the rotation head) or
+    "principal" (an addition to the paper: the principal axes of the centred cloud, :func:`principal_frame`). A
+    shape with a two-fold rotation symmetry (a laptop's base and lid exchanged by a half-turn about the bisector of
+    its opening) forces every pooled equivariant vector onto the symmetry axis, so the regressed frame's turn about
+    that axis is decided by sampling noise (``scapo bench ladder``'s resampling column); principal axes stay defined
+    up to signs and order, which a hypothesis set (``ModelConfig.anchors = "O"``) resolves."""
+
+    def __post_init__(self):
+        if self.frame not in ("regressed", "principal"):
+            raise ValueError(f"encoder frame must be 'regressed' or 'principal', got {self.frame!r}")
 
 
 @dataclass
@@ -56,6 +67,24 @@ class EncoderOutput:
     R_raw: torch.Tensor
     R: torch.Tensor
     code: torch.Tensor
+
+
+def principal_frame(points: torch.Tensor) -> torch.Tensor:
+    """Rotations ``(B, 3, 3)`` (columns: the principal axes of ``points (B, N, 3)`` about their centroid, largest
+    variance first) with equivariant signs: each of the first two axes points to the side of positive third moment
+    of the points' coordinates along it, the third completes a right-handed frame. ``R(Q X + u) = Q R(X)`` for
+    every rotation ``Q`` and translation ``u`` where the variances and third moments are distinct from zero and each
+    other; otherwise the order or signs are ambiguous (a hypothesis set over the 24 signed permutations resolves
+    them). No gradient (the axes of equal variances have none that is finite)."""
+    with torch.no_grad():
+        xc = points - points.mean(1, keepdim=True)
+        cov = xc.transpose(1, 2) @ xc / points.shape[1]
+        _, vec = torch.linalg.eigh(cov.double())  # ascending
+        vec = vec.flip(-1).to(points.dtype)  # (B, 3, 3) columns, largest first
+        proj = xc @ vec  # (B, N, 3)
+        sign = torch.where((proj ** 3).mean(1) >= 0, 1.0, -1.0).to(points.dtype)  # (B, 3)
+        e1, e2 = vec[..., 0] * sign[:, :1], vec[..., 1] * sign[:, 1:2]
+        return torch.stack([e1, e2, torch.cross(e1, e2, dim=-1)], dim=-1)
 
 
 class SE3Encoder(nn.Module):
@@ -102,7 +131,10 @@ class SE3Encoder(nn.Module):
         pooled = torch.cat([g.mean(-1), keypts], dim=1)  # (B, C + K, 3)
         v = self.r_out(self.r_head(pooled.unsqueeze(-1))).squeeze(-1)  # (B, 3, 3): three vectors (rows)
         R_raw = v.transpose(1, 2)  # columns are the vectors
-        R = rotation_from_6d(v[:, 0], v[:, 1])
+        if self.cfg.frame == "principal":
+            R = R_raw = principal_frame(points)
+        else:
+            R = rotation_from_6d(v[:, 0], v[:, 1])
         inv = torch.einsum("bci,bij->bcj", pooled, R)  # coordinates in the frame R: invariant
         return EncoderOutput(t, R_raw, R, self.code(inv.reshape(B, -1)))
 
