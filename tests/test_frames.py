@@ -1,0 +1,108 @@
+"""SCAPO's stage-1 frame switches: the hypothesis set of frames (``anchors``), the principal-axes frame
+(``encoder.frame=principal``) and the one-sided reconstruction term (``losses.rec_one_sided``), each on a
+hand-built case."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+
+from scapo.losses.scapo_losses import reconstruction_loss
+from scapo.models.scapo_model import ModelConfig, SCAPOModel
+from scapo.nn.encoder import EncoderConfig, EncoderOutput, principal_frame
+from scapo.ops.groups import random_rotation, rotation_group
+
+SMALL = EncoderConfig(k=6, rot_channels=(8, 16), trans_channels=(4, 8), code_dim=16, decoder_points=64,
+                      decoder_hidden=(32, 32))
+
+
+def _skewed_cloud(n=200, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    x = torch.randn(1, n, 3, generator=g) * torch.tensor([3.0, 2.0, 1.0])
+    return x + 0.3 * x ** 2  # distinct variances and third moments on every axis
+
+
+def test_anchor_choice_picks_the_anchor_that_fits():
+    """A decoded shape that is the input turned by a known group element: the choice recovers that element and the
+    frame it returns reconstructs the input exactly."""
+    model = SCAPOModel(ModelConfig(num_parts=2, joint_types=(0,), joint_parts=((0, 1),), encoder=SMALL,
+                                   template_points=32, anchors="O"))
+    G = torch.tensor(rotation_group("O"), dtype=torch.float32)
+    X = _skewed_cloud(64)
+    X = X - X.mean(1, keepdim=True)
+    R = random_rotation(1, torch.float32, torch.Generator().manual_seed(1))
+    k_true = 7
+    # the input is S_dec posed by R G_k: S_dec = X R G_k (rows), i.e. X = S_dec G_k^T R^T
+    S_dec = X @ R @ G[k_true]
+    enc = EncoderOutput(torch.zeros(1, 3), R.clone(), R.clone(), torch.zeros(1, 16))
+    out = model.choose_anchor(X, enc, S_dec)
+    assert torch.allclose(out.R, R @ G[k_true], atol=1e-5)
+    assert torch.allclose(S_dec @ out.R.transpose(1, 2), X, atol=1e-4)
+
+
+def test_without_anchors_the_frame_is_the_encoders():
+    model = SCAPOModel(ModelConfig(num_parts=2, joint_types=(0,), joint_parts=((0, 1),), encoder=SMALL,
+                                   template_points=32))
+    X = _skewed_cloud(64)
+    enc = EncoderOutput(torch.zeros(1, 3), torch.eye(3)[None], torch.eye(3)[None], torch.zeros(1, 16))
+    assert model.choose_anchor(X, enc, X) is enc
+    with pytest.raises(ValueError, match="anchors"):
+        ModelConfig(num_parts=2, joint_types=(0,), joint_parts=((0, 1),), anchors="X")
+
+
+def test_one_sided_reconstruction_ignores_an_unseen_half():
+    """The reconstruction holds a whole box; the input is its visible half. The one-sided term is zero (every input
+    point lies on the reconstruction); the two-sided Chamfer distance charges the unseen half."""
+    g = torch.Generator().manual_seed(0)
+    whole = torch.rand(1, 400, 3, generator=g) - 0.5
+    seen = whole[:, whole[0, :, 0] < 0]  # the half facing the camera
+    assert reconstruction_loss(seen, whole, one_sided=True).item() == pytest.approx(0.0, abs=1e-10)
+    assert reconstruction_loss(seen, whole).item() > 1e-3
+    # a reconstruction that misses the seen points is still charged
+    assert reconstruction_loss(seen, whole + 1.0, one_sided=True).item() > 0.5
+
+
+def test_principal_frame_is_equivariant_and_right_handed():
+    X = _skewed_cloud(300).repeat(4, 1, 1)
+    Q = random_rotation(4, torch.float32, torch.Generator().manual_seed(2))
+    R1 = principal_frame(X)
+    R2 = principal_frame(X @ Q.transpose(1, 2) + torch.tensor([0.3, -1.0, 2.0]))
+    assert torch.allclose(Q @ R1, R2, atol=1e-4)
+    assert torch.allclose(torch.det(R1), torch.ones(4), atol=1e-5)
+    assert torch.allclose(R1.transpose(1, 2) @ R1, torch.eye(3).expand(4, 3, 3), atol=1e-5)
+
+
+def test_principal_frame_is_stable_under_resampling_where_the_regressed_one_need_not_be():
+    """Two disjoint halves of one skewed cloud: the principal frame moves by about a degree."""
+    X = _skewed_cloud(2000, seed=3)
+    perm = torch.randperm(2000, generator=torch.Generator().manual_seed(4))
+    Ra, Rb = principal_frame(X[:, perm[:1000]]), principal_frame(X[:, perm[1000:]])
+    cos = ((Ra * Rb).sum((1, 2)) - 1) / 2
+    assert float(torch.rad2deg(torch.arccos(cos.clamp(-1, 1)))) < 5.0
+
+
+def test_a_principal_encoder_runs_and_keeps_its_frame_under_rotation():
+    enc_cfg = dataclasses.replace(SMALL, frame="principal")
+    model = SCAPOModel(ModelConfig(num_parts=2, joint_types=(0,), joint_parts=((0, 1),), encoder=enc_cfg,
+                                   template_points=32, anchors="O")).eval()
+    X = _skewed_cloud(128).repeat(2, 1, 1)
+    Q = random_rotation(2, torch.float32, torch.Generator().manual_seed(5))
+    with torch.no_grad():
+        s1, s2 = model.stage1(X), model.stage1(X @ Q.transpose(1, 2))
+    assert torch.allclose(Q @ s1.enc.R, s2.enc.R, atol=1e-3)
+    with pytest.raises(ValueError, match="frame"):
+        EncoderConfig(frame="pca")
+
+
+def test_older_runs_keep_their_identity():
+    """Fields added for these switches are left out of a run's identity at their off values."""
+    from scapo.models.presets import get_preset
+    from scapo.models.train import _training_identity
+
+    d = dataclasses.asdict(get_preset("cpu"))
+    ident = _training_identity({"preset": d})["preset"]
+    assert "anchors" not in ident and "rec_one_sided" not in ident["losses"] and "frame" not in ident["encoder"]
+    on = dataclasses.asdict(dataclasses.replace(get_preset("cpu"), anchors="O"))
+    assert _training_identity({"preset": on})["preset"]["anchors"] == "O"
