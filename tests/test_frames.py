@@ -106,3 +106,22 @@ def test_older_runs_keep_their_identity():
     assert "anchors" not in ident and "rec_one_sided" not in ident["losses"] and "frame" not in ident["encoder"]
     on = dataclasses.asdict(dataclasses.replace(get_preset("cpu"), anchors="O"))
     assert _training_identity({"preset": on})["preset"]["anchors"] == "O"
+
+
+def test_the_learned_residual_of_the_principal_frame_keeps_equivariance_and_its_bound():
+    enc_cfg = dataclasses.replace(SMALL, frame="principal", residual_deg=18.0)
+    model = SCAPOModel(ModelConfig(num_parts=2, joint_types=(0,), joint_parts=((0, 1),), encoder=enc_cfg,
+                                   template_points=32)).eval()
+    with torch.no_grad():  # a residual that is not zero
+        model.encoder.frame_residual.weight.normal_(0, 1.0, generator=torch.Generator().manual_seed(0))
+        model.encoder.frame_residual.bias.fill_(5.0)
+    X = _skewed_cloud(128).repeat(2, 1, 1)
+    Q = random_rotation(2, torch.float32, torch.Generator().manual_seed(6))
+    with torch.no_grad():
+        e1, e2 = model.encoder(X), model.encoder(X @ Q.transpose(1, 2))
+    assert torch.allclose(Q @ e1.R, e2.R, atol=1e-3)
+    turn = principal_frame(X).transpose(1, 2) @ e1.R  # the residual alone
+    angle = torch.rad2deg(torch.arccos(((turn.diagonal(dim1=1, dim2=2).sum(-1) - 1) / 2).clamp(-1, 1)))
+    assert (angle > 1.0).all() and (angle <= 18.0 * 3 ** 0.5 + 1e-3).all()
+    with pytest.raises(ValueError, match="residual_deg"):
+        EncoderConfig(frame="principal", residual_deg=-1.0)

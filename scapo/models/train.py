@@ -125,7 +125,7 @@ ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "lab
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False}
 #: the same for fields added to the preset's EncoderConfig
-ENCODER_ADDED_FIELDS = {"frame": "regressed"}
+ENCODER_ADDED_FIELDS = {"frame": "regressed", "residual_deg": 0.0}
 
 
 def _run_identity(preset: TrainConfig, card: dict) -> dict:

@@ -10,6 +10,7 @@ our ``R_g^T``). Local geometry enters through k-nearest-neighbour edge features 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -24,7 +25,7 @@ from scapo.nn.vn import (
     knn_indices,
     vn_mean_pool,
 )
-from scapo.ops.so3 import rotation_from_6d
+from scapo.ops.so3 import rotation_from_6d, rotation_from_rotvec
 
 
 @dataclass(frozen=True)
@@ -53,7 +54,14 @@ class EncoderConfig:
     that axis is decided by sampling noise (``scapo bench ladder``'s resampling column); principal axes stay defined
     up to signs and order, which a hypothesis set (``ModelConfig.anchors = "O"``) resolves."""
 
+    residual_deg: float = 0.0
+    """With ``frame="principal"``: a learned turn of the principal frame, at most this many degrees about each axis
+    (a rotation vector ``residual_deg * tanh(W code)`` from the invariant code, zero at the start; OP-Align's
+    anchors carry a learned residual of at most 18 deg the same way, ``models/art_so3net_pn.py``); 0: none."""
+
     def __post_init__(self):
+        if not 0.0 <= self.residual_deg <= 90.0:
+            raise ValueError(f"encoder residual_deg must be in [0, 90], got {self.residual_deg!r}")
         if self.frame not in ("regressed", "principal"):
             raise ValueError(f"encoder frame must be 'regressed' or 'principal', got {self.frame!r}")
 
@@ -105,6 +113,10 @@ class SE3Encoder(nn.Module):
         self.r_out = VNLinear(c_r[-1], 3)
         self.code = nn.Sequential(nn.Linear((c_r[-1] + cfg.attention_points) * 3, cfg.code_dim), nn.LeakyReLU(0.2),
                                   nn.Linear(cfg.code_dim, cfg.code_dim))
+        if cfg.frame == "principal" and cfg.residual_deg > 0:
+            self.frame_residual = nn.Linear(cfg.code_dim, 3)
+            nn.init.zeros_(self.frame_residual.weight)
+            nn.init.zeros_(self.frame_residual.bias)
 
     def forward(self, points: torch.Tensor) -> EncoderOutput:
         B, N, _ = points.shape
@@ -136,7 +148,11 @@ class SE3Encoder(nn.Module):
         else:
             R = rotation_from_6d(v[:, 0], v[:, 1])
         inv = torch.einsum("bci,bij->bcj", pooled, R)  # coordinates in the frame R: invariant
-        return EncoderOutput(t, R_raw, R, self.code(inv.reshape(B, -1)))
+        code = self.code(inv.reshape(B, -1))
+        if self.cfg.frame == "principal" and self.cfg.residual_deg > 0:
+            w = math.radians(self.cfg.residual_deg) * torch.tanh(self.frame_residual(code))  # invariant
+            R = R_raw = R @ rotation_from_rotvec(w)
+        return EncoderOutput(t, R_raw, R, code)
 
 
 class ShapeDecoder(nn.Module):
