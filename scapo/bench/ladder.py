@@ -21,8 +21,8 @@ made). The scores are on the **val** split (a diagnosis chooses what to fix; tes
 frame consistency (:func:`frame_consistency`), S, D, mean and median part rotation error R, strict and
 symmetry-aware, and the evaluator's training-split alignment inlier ratio.
 
-A cell (rung x method x seed) is resumable: its record ``<work>/<rung>/<method>_s<seed>.json`` is written last, and
-a finished cell is never recomputed.
+A cell (rung x method x seed) is resumable: its record ``<work>/<category>/<rung>/<method>_s<seed>.json`` is written
+last, and a finished cell is never recomputed.
 """
 
 from __future__ import annotations
@@ -231,8 +231,8 @@ def _stability(run: Path, data: Path, method: str, preset, limit: int = 64) -> f
     return float(np.median(resampling_stability(load_run(run, **CELL_OPTIONS.get(method, {})), pts, n)))
 
 
-def _cell(data: Path, work: Path, rung: str, method: str, seed: int, preset, values: dict, protocol: str,
-          label: str | None = None) -> dict:
+def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: int, preset, values: dict,
+          protocol: str, label: str | None = None) -> dict:
     """Train (trained methods), predict and score one cell on the val split; returns (and writes) its record."""
     from scapo.eval import evaluate
     from scapo.methods import METHODS, run_method, train_method
@@ -240,21 +240,22 @@ def _cell(data: Path, work: Path, rung: str, method: str, seed: int, preset, val
 
     name = method if label is None else f"{method}:{label}"
     key = name.replace(":", "--")
-    rec_path = work / rung / f"{key}_s{seed}.json"
+    cells = work / category / rung  # a cell's record, predictions and run
+    rec_path = cells / f"{key}_s{seed}.json"
     if rec_path.is_file():
         rec = json.loads(rec_path.read_text())
         if "frame_consistency_sym" not in rec:  # a record made before the symmetry-aware share: add it
             from scapo.eval import Predictions
             from scapo.provenance import git_commit
 
-            preds = Predictions.load(work / rung / f"{key}_s{seed}_predictions.npz")
+            preds = Predictions.load(cells / f"{key}_s{seed}_predictions.npz")
             rec["frame_consistency"], rec["frame_consistency_sym"] = (round(x, 4) for x in _consistency(data, preds))
             if METHODS.get(method).trained:
-                rec["resampling_deg"] = _stability(work / rung / f"{key}_s{seed}_run", data, method, preset)
+                rec["resampling_deg"] = _stability(cells / f"{key}_s{seed}_run", data, method, preset)
             rec["consistency_commit"] = git_commit()
             write_json(rec_path, rec)
         return rec
-    run = work / rung / f"{key}_s{seed}_run"
+    run = cells / f"{key}_s{seed}_run"
     wall = {}
     t0 = time.perf_counter()
     threads = None
@@ -268,7 +269,7 @@ def _cell(data: Path, work: Path, rung: str, method: str, seed: int, preset, val
         wall["train_steps"] = timing.get("steps")
     t1 = time.perf_counter()
     opts = {"run": run, **CELL_OPTIONS.get(method, {})} if METHODS.get(method).trained else {}
-    preds_path = work / rung / f"{key}_s{seed}_predictions.npz"
+    preds_path = cells / f"{key}_s{seed}_predictions.npz"
     preds = run_method(method, data, preds_path, progress=False, **opts)
     wall["predict_s"] = round(time.perf_counter() - t1, 1)
     stability = _stability(run, data, method, preset) if METHODS.get(method).trained else None
@@ -424,7 +425,7 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
             for s in seeds:
                 pc, values = presets.get(m, (None, {}))
                 t0 = time.perf_counter()
-                rec = _cell(data, work, r, m, s, pc, values, protocol)
+                rec = _cell(data, work, category, r, m, s, pc, values, protocol)
                 print(f"  {r:9s} {m:9s} seed {s}: frame consistency {_fmt(rec['frame_consistency'], 2)}, S "
                       f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "
                       f"{_fmt(rec['R_sym_median'])} ({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -436,7 +437,7 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
             pv = override(pc, sets, f"{m} preset (--variant {label})")
             for s in seeds:
                 t0 = time.perf_counter()
-                rec = _cell(data, work, r, m, s, pv, {**values, **sets}, protocol, label=label)
+                rec = _cell(data, work, category, r, m, s, pv, {**values, **sets}, protocol, label=label)
                 print(f"  {r:9s} {m}:{label} seed {s}: frame consistency {_fmt(rec['frame_consistency'], 2)}, S "
                       f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "
                       f"{_fmt(rec['R_sym_median'])} ({time.perf_counter() - t0:.0f} s)", flush=True)
