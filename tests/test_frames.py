@@ -125,3 +125,16 @@ def test_the_learned_residual_of_the_principal_frame_keeps_equivariance_and_its_
     assert (angle > 1.0).all() and (angle <= 18.0 * 3 ** 0.5 + 1e-3).all()
     with pytest.raises(ValueError, match="residual_deg"):
         EncoderConfig(frame="principal", residual_deg=-1.0)
+
+
+def test_the_principal_preset_part():
+    from scapo.errors import UnknownNameError
+    from scapo.models.presets import get_preset
+
+    on = get_preset("cpu/principal")
+    assert (on.encoder.frame, on.anchors, on.name) == ("principal", "O", "cpu/principal")
+    off = get_preset("cpu/no-principal")
+    assert (off.encoder.frame, off.anchors) == ("regressed", "")
+    assert get_preset("cpu").encoder == off.encoder
+    with pytest.raises(UnknownNameError):
+        get_preset("cpu/principle")

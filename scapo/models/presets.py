@@ -129,7 +129,12 @@ PRESETS.add("test", TrainConfig(
 #: The ablations of the paper's Table 3: the regularisers switched off one at a time.
 ABLATIONS = ("shape_var", "dir_align", "joint_prox", "joint_boundary")
 #: Our additions to the paper that a preset can switch off the same way (``cpu/no-branch_flip``).
-ADDITIONS = ("branch_flip", "part_init", "root_motion")
+ADDITIONS = ("branch_flip", "part_init", "root_motion", "principal")
+#: ``BASE/principal`` (``BASE/no-principal``): stage 1's frame from the cloud's principal axes with the hypothesis
+#: set of the 24 signed permutations (``encoder.frame="principal"``, ``anchors="O"``; the regressed frame of the
+#: paper without). Measured by ``scapo bench ladder`` (results/canonical_ladder/).
+PRINCIPAL_ON = {"frame": "principal", "anchors": "O"}
+PRINCIPAL_OFF = {"frame": "regressed", "anchors": ""}
 
 
 def get_preset(name: str) -> TrainConfig:
@@ -140,7 +145,9 @@ def get_preset(name: str) -> TrainConfig:
     and tables name the ablation. The paper's Table 3 rows are ``cpu/no-shape_var``, ``cpu/no-dir_align``,
     ``cpu/no-joint_prox`` and ``cpu/no-joint_boundary`` (or with ``paper``). A part ``sj`` (or ``s``, ``j``)
     trains with those labels (``TrainConfig.supervision``, the paper's Table 2 setting), e.g. ``cpu/sj``; a
-    part ``seg-gaussian`` takes ``L_seg``'s targets from Gaussian parts (``LossConfig.seg_labels``).
+    part ``seg-gaussian`` takes ``L_seg``'s targets from Gaussian parts (``LossConfig.seg_labels``); a part
+    ``principal`` (``no-principal``) reads stage 1's frame from principal axes with a hypothesis set
+    (:data:`PRINCIPAL_ON`), or the paper's regressed frame.
 
     Raises:
         UnknownNameError: an unknown base preset or regulariser (the message lists the known ones).
@@ -158,12 +165,19 @@ def get_preset(name: str) -> TrainConfig:
     if parsed.supervision:  # the semi-supervised setting of Table 2
         off["supervision"] = parsed.supervision
         off["label_init"] = "S" in parsed.supervision  # the template's parts in the labels' order
+    principal = None
     for part in parsed.rest:
+        if part == "principal":
+            principal = PRINCIPAL_ON
+            continue
         if part != "seg-gaussian":
             raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "
                                    f"{', '.join(REGULARISERS + ADDITIONS)} (e.g. {parsed.base}/no-shape_var)")
         seg_labels = "gaussian"  # L_seg's targets from Gaussian parts (LossConfig.seg_labels; our addition)
     for term in parsed.disabled:
+        if term == "principal":
+            principal = PRINCIPAL_OFF
+            continue
         if term in ADDITIONS:
             off[term] = False
             continue
@@ -172,6 +186,9 @@ def get_preset(name: str) -> TrainConfig:
                                    f"{', '.join(REGULARISERS + ADDITIONS)} (e.g. {parsed.base}/no-shape_var)")
         if term not in disabled:
             disabled.append(term)
+    if principal is not None:
+        off["encoder"] = replace(cfg.encoder, frame=principal["frame"])
+        off["anchors"] = principal["anchors"]
     return replace(cfg, name=str(name), losses=replace(cfg.losses, disabled=tuple(disabled), seg_labels=seg_labels),
                    **off)
 
