@@ -234,6 +234,26 @@ def _stability(run: Path, data: Path, method: str, preset, limit: int = 64) -> f
     return float(np.median(resampling_stability(load_run(run, **CELL_OPTIONS.get(method, {})), pts, n)))
 
 
+def _upgrade(rec_path: Path, data: Path, method: str, preset) -> dict:
+    """A cell's record, with the symmetry-aware consistency and the resampling stability added when it was written
+    before they existed (from the cell's own predictions and run; ``consistency_commit`` names the code)."""
+    from scapo.eval import Predictions
+    from scapo.methods import METHODS
+    from scapo.provenance import git_commit
+
+    rec = json.loads(rec_path.read_text())
+    if "frame_consistency_sym" in rec and "resampling_deg" in rec:
+        return rec
+    stem = rec_path.name[: -len(".json")]
+    preds = Predictions.load(rec_path.parent / f"{stem}_predictions.npz")
+    rec["frame_consistency"], rec["frame_consistency_sym"] = (round(x, 4) for x in _consistency(data, preds))
+    rec["resampling_deg"] = (_stability(rec_path.parent / f"{stem}_run", data, method, preset)
+                             if METHODS.get(method).trained else None)
+    rec["consistency_commit"] = git_commit()
+    write_json(rec_path, rec)
+    return rec
+
+
 def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: int, preset, values: dict,
           protocol: str, label: str | None = None) -> dict:
     """Train (trained methods), predict and score one cell on the val split; returns (and writes) its record."""
@@ -246,18 +266,7 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
     cells = work / category / rung  # a cell's record, predictions and run
     rec_path = cells / f"{key}_s{seed}.json"
     if rec_path.is_file():
-        rec = json.loads(rec_path.read_text())
-        if "frame_consistency_sym" not in rec:  # a record made before the symmetry-aware share: add it
-            from scapo.eval import Predictions
-            from scapo.provenance import git_commit
-
-            preds = Predictions.load(cells / f"{key}_s{seed}_predictions.npz")
-            rec["frame_consistency"], rec["frame_consistency_sym"] = (round(x, 4) for x in _consistency(data, preds))
-            if METHODS.get(method).trained:
-                rec["resampling_deg"] = _stability(cells / f"{key}_s{seed}_run", data, method, preset)
-            rec["consistency_commit"] = git_commit()
-            write_json(rec_path, rec)
-        return rec
+        return _upgrade(rec_path, data, method, preset)
     run = cells / f"{key}_s{seed}_run"
     wall = {}
     t0 = time.perf_counter()
@@ -319,26 +328,33 @@ def write_ladder(records: Sequence[dict], out: Path, name: str, meta: dict) -> l
         row = {k: r.get(k) for k in cols}
         row["alignment_inlier_ratio"] = (None if r.get("alignment_inlier_ratio") is None
                                          else float(np.mean(r["alignment_inlier_ratio"])))
-        row["train_min"] = None if r["wall"].get("train_s") is None else r["wall"]["train_s"] / 60
+        row["train_steps"] = r["wall"].get("train_steps")
+        row["train_wall_min"] = None if r["wall"].get("train_s") is None else r["wall"]["train_s"] / 60
         row["commit"] = r["provenance"].get("commit")
         row["dataset_hash"] = r["dataset_hash"]
         flat.append(row)
     header = ["rung", "method", "seed", "frame cons.", "frame cons. sym", "align. inliers (train)", "resampling deg",
               "S %", "D", "D med", "C", "R",
-              "R med", "R sym", "R sym med", "R sym > 90 %", "train min"]
+              "R med", "R sym", "R sym med", "R sym > 90 %", "steps"]
     body = [[r["rung"], r["method"], r["seed"], _fmt(r["frame_consistency"], 2),
              _fmt(r.get("frame_consistency_sym"), 2), _fmt(r["alignment_inlier_ratio"], 2), _fmt(r["resampling_deg"]),
              _fmt(r["S"]), _fmt(r["D"]), _fmt(r["D_median"]), _fmt(r["C"], 3), _fmt(r["R"]), _fmt(r["R_median"]),
-             _fmt(r["R_sym"]), _fmt(r["R_sym_median"]), _fmt(r["R_sym_over90"]), _fmt(r["train_min"])] for r in flat]
+             _fmt(r["R_sym"]), _fmt(r["R_sym_median"]), _fmt(r["R_sym_over90"]),
+             "-" if r["train_steps"] is None else str(r["train_steps"])] for r in flat]
     commits = sorted({r["commit"] for r in flat})
-    # per method: the symmetry-aware object-frame consistency rung by rung, and the first rung below BREAK
+    # per method: the symmetry-aware object-frame consistency rung by rung (mean over its seeds), and the first rung
+    # whose mean is below BREAK
     names = list(dict.fromkeys(r["method"] for r in flat))
-    by = {(r["method"], r["rung"]): r for r in flat}
     summary = []
     for m in names:
-        vals = [by.get((m, k), {}).get("frame_consistency_sym") for k in meta["rungs"]]
+        vals, cells = [], []
+        for k in meta["rungs"]:
+            v = [r["frame_consistency_sym"] for r in flat if r["method"] == m and r["rung"] == k
+                 and r.get("frame_consistency_sym") is not None]
+            vals.append(float(np.mean(v)) if v else None)
+            cells.append(f"{_fmt(vals[-1], 2)} ({len(v)})" if v else "-")
         broken = next((k for k, v in zip(meta["rungs"], vals) if v is not None and v < BREAK), None)
-        summary.append([m, *(_fmt(v, 2) for v in vals), broken or f"none (all >= {BREAK:g})"])
+        summary.append([m, *cells, broken or f"none (all >= {BREAK:g})"])
     md = [f"# Canonical-frame ladder: {meta['category']} ({meta['split']} split)", "",
           "Rungs: " + "; ".join(f"**{k}**: {RUNG_LABELS[k]}" for k in meta["rungs"]) + ".", "",
           f"Equal training compute: {meta['budget_minutes']} core-minutes per trained cell (epochs from the measured "
@@ -350,14 +366,15 @@ def write_ladder(records: Sequence[dict], out: Path, name: str, meta: dict) -> l
           "report); resampling deg: median angle between the object frames predicted from two disjoint random "
           "subsets (training density) of one val view.", "",
           markdown_table(header, body), "",
-          f"Where the frame breaks: the symmetry-aware object-frame consistency per rung (seed {meta['seeds'][0]}"
-          f"{' and others' if len(meta['seeds']) > 1 else ''}; the last seed's cell where several) and the first rung "
-          f"below {BREAK:g}.", "",
+          "Where the frame breaks: the symmetry-aware object-frame consistency per rung, mean over the training seeds "
+          f"(their number in brackets), and the first rung below {BREAK:g}.", "",
           markdown_table(["method", *meta["rungs"], "first rung below"], summary), "",
           f"Provenance: commits {', '.join(commits)}; {meta['instances']} instances, {meta['views']} views per "
           "val/test "
           f"instance, {meta['train_views']} per training instance, data seed {meta['data_seed']}, preset "
-          f"{meta['preset']!r}, protocol {meta['protocol']!r}; written by `{meta['command']}`.", ""]
+          f"{meta['preset']!r}, protocol {meta['protocol']!r}; written by `{meta['command']}`."
+          + (f" {len(meta['missing'])} cells of these rungs, methods and seeds are not computed (listed in the JSON's "
+             "`meta.missing`)." if meta.get("missing") else ""), ""]
     paths = [out / f"{name}.md", out / f"{name}.json", out / f"{name}.csv"]
     from scapo.files import atomic_write_text
 
@@ -367,13 +384,44 @@ def write_ladder(records: Sequence[dict], out: Path, name: str, meta: dict) -> l
     return paths
 
 
+def _write_finished(work: Path, category: str, rungs, methods, parsed, seeds, out: Path, meta: dict) -> list[Path]:
+    """The table of the finished cells only (``--finished-only``): nothing is trained or predicted (a record written
+    before the symmetry-aware consistency and the resampling column existed gets them, :func:`_upgrade`)."""
+    from scapo.config import override
+    from scapo.methods import METHODS
+
+    records, missing = [], []
+    sets = {(m, label): v for m, label, v in parsed}
+    names = [(m, None) for m in methods] + [(m, label) for m, label, _ in parsed]
+    for r in rungs:
+        for m, label in names:
+            key = (m if label is None else f"{m}:{label}").replace(":", "--")
+            for s in seeds:
+                path = work / category / r / f"{key}_s{s}.json"
+                if path.is_file():
+                    preset = None
+                    if METHODS.get(m).trained:
+                        preset = METHODS.get(m).preset(meta["preset"])
+                        if label is not None:
+                            preset = override(preset, sets[(m, label)], f"{m} preset")
+                    data = rung_dir(work, category, r, meta["instances"], meta["views"], meta["train_views"],
+                                    meta["data_seed"])
+                    records.append(_upgrade(path, data, m, preset))
+                else:
+                    missing.append(f"{r}/{key}_s{s}")
+    if not records:
+        raise ConfigError(f"no finished ladder cell of {category} in {work}; run the ladder without --finished-only")
+    meta["missing"] = missing
+    return write_ladder(records, out, f"ladder_{category}", meta)
+
+
 def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS, rungs: Sequence[str] = tuple(RUNGS),
                seeds: Sequence[int] = (0,), work: str | Path = "bench_work/ladder",
                out: str | Path = "results/canonical_ladder",
                budget_minutes: float = 5.0, instances: int = 60, views: int = 8, train_views: int = 16,
                data_seed: int = 1, preset: str = "cpu", protocol: str = "scapo", workers: int = 1,
                command: str = "scapo bench ladder", dry_run: bool = False, data_only: bool = False,
-               variants: Sequence[str] = ()) -> list[Path]:
+               variants: Sequence[str] = (), finished_only: bool = False) -> list[Path]:
     """Run (or resume) the ladder for ``category``: generate each rung's dataset, train every method with the same
     budget, predict one-pass, score on val, write ``<out>/ladder_<category>.{md,json,csv}``.
 
@@ -382,6 +430,8 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         seeds: training seeds. instances, views, train_views, data_seed: the datasets' sizes (equal on every rung).
         dry_run: list the cells, compute nothing. data_only: generate the rungs' datasets and stop.
         variants: :func:`parse_variant` texts: extra rows of a method's preset with fields replaced.
+        finished_only: compute nothing; write the table of the cells whose records exist (the others are listed in
+            its ``missing``).
 
     Raises:
         ConfigError: an empty or unknown list, a budget <= 0, sizes too small for a val split.
@@ -404,6 +454,13 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         raise ConfigError(f"--instances must be >= 10 (a val and a test split of their own), got {instances}")
     if any(s < 0 for s in seeds):
         raise ConfigError(f"training seeds must be >= 0, got {seeds}")
+
+    def meta_of() -> dict:
+        return {"category": category, "rungs": rungs, "methods": methods, "seeds": seeds, "split": "val",
+                "budget_minutes": budget_minutes, "instances": instances, "views": views, "train_views": train_views,
+                "data_seed": data_seed, "preset": preset, "protocol": protocol, "command": command,
+                "variants": list(variants)}
+
     parsed = [parse_variant(v) for v in variants]
     for m, label, _ in parsed:
         if not METHODS.get(m).trained:
@@ -422,6 +479,8 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
                     folder = rung_dir(work, category, r, instances, views, train_views, data_seed)
                     print(f"  {r:9s} {m:9s} seed {s}: {folder}")
         return []
+    if finished_only:
+        return _write_finished(work, category, rungs, methods, parsed, seeds, Path(out), meta_of())
     for r in rungs:
         folder = rung_dir(work, category, r, instances, views, train_views, data_seed)
         if not _finished_dataset(folder, cfgs[r]):  # a finished one is not touched (other chains may be reading it)
@@ -429,10 +488,8 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
     if data_only:
         return []
     ref = rung_dir(work, category, "paper" if "paper" in rungs else rungs[0], instances, views, train_views, data_seed)
+    meta = meta_of()
     presets = _training_presets(sorted(set(methods) | {m for m, _, _ in parsed}), ref, budget_minutes, preset, work)
-    meta = {"category": category, "rungs": rungs, "methods": methods, "seeds": seeds, "split": "val",
-            "budget_minutes": budget_minutes, "instances": instances, "views": views, "train_views": train_views,
-            "data_seed": data_seed, "preset": preset, "protocol": protocol, "command": command}
     records = []
     for r in rungs:
         data = rung_dir(work, category, r, instances, views, train_views, data_seed)
@@ -457,5 +514,4 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
                       f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "
                       f"{_fmt(rec['R_sym_median'])} ({time.perf_counter() - t0:.0f} s)", flush=True)
                 records.append(rec)
-    meta["variants"] = list(variants)
     return write_ladder(records, Path(out), f"ladder_{category}", meta)

@@ -491,7 +491,7 @@ def cmd_bench_ladder(args) -> int:
                        instances=args.instances or 60, views=args.views or 8,
                        train_views=16 if args.train_views is None else args.train_views, data_seed=args.seed,
                        preset=args.preset, workers=max(args.workers), command=cmd, dry_run=args.dry_run,
-                       data_only=args.data_only, variants=args.variant)
+                       data_only=args.data_only, variants=args.variant, finished_only=args.finished_only)
     for p in paths:
         print(f"wrote {p}")
     return 0
