@@ -68,9 +68,10 @@ def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = 
 
     For each sample the offset ``O = R_pred^T R_gt`` maps the ground-truth object frame into the method's canonical
     frame; a method with one canonical frame has one offset for every sample (1.0), a method whose frame depends on
-    the shape, view or sampling scatters them. Every offset is a hypothesis (RANSAC over all of them, at most 400);
-    the share is the largest fraction of samples within ``inlier_deg`` degrees of one hypothesis, as the inlier
-    fraction of :func:`scapo.eval.alignment.robust_rotation_mean`. A supervised method predicts in the ground-truth
+    the shape, view or sampling scatters them. Every offset is a hypothesis (at most 400 of them, drawn with a fixed
+    seed); the share is the largest fraction of samples within ``inlier_deg`` degrees of one hypothesis (the
+    hypothesis step of :func:`scapo.eval.alignment.robust_rotation_mean`, which cannot take several symmetric
+    offsets per sample). A supervised method predicts in the ground-truth
     frame: its share is that of samples within ``inlier_deg`` of one common offset, near the identity.
 
     Args:
@@ -138,16 +139,15 @@ def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float,
     from scapo.perf import bench_train_data, training_budget
 
     trained = [m for m in methods if METHODS.get(m).trained]
+    clouds = len(load(data, "train"))
     rows = []
     for m in trained:  # one file per method, so that ladders of other methods can share the work folder
         speed_file = work / f"speed_{m}.json"
         if not speed_file.is_file():
             print(f"scapo bench ladder: measuring the training speed of {m} on {data.name}", flush=True)
-            clouds = len(load(data, "train"))
             steps = max(2, min(10, clouds // METHODS.get(m).preset(preset).batch_size))
             write_json(speed_file, bench_train_data(data, [m], preset=preset, steps=steps, work=work / "speed_runs"))
         rows += json.loads(speed_file.read_text())
-    clouds = len(load(data, "train"))
     out = {}
     for r in training_budget([r for r in rows if r["method"] in trained], budget_minutes, clouds):
         base = METHODS.get(r["method"]).preset(preset)

@@ -144,10 +144,7 @@ def canonical_consistency_loss(model, S_dec: torch.Tensor) -> torch.Tensor:
     """``L_can_consist``: the decoded canonical shape, encoded again, has identity pose:
     ``||R(S) - I||^2 + ||t(S)||^2`` (the canonical frame is a fixed point of the encoder; with a hypothesis set of
     frames, ``ModelConfig.anchors``, of the encoder and its anchor choice)."""
-    S = S_dec.detach()
-    enc = model.encoder(S)
-    if getattr(model.cfg, "anchors", ""):
-        enc = model.choose_anchor(S, enc, model.decoder(enc.code)[0])
+    enc = model.frame(S_dec.detach())
     eye = torch.eye(3, dtype=S_dec.dtype, device=S_dec.device)
     return (((enc.R_raw - eye) ** 2).sum((1, 2)) + (enc.t ** 2).sum(-1)).mean()
 

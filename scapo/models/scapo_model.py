@@ -199,7 +199,7 @@ class SCAPOModel(nn.Module):
         was_training = self.training
         self.eval()
         try:
-            return apply_branch(self.stage1(self.normalize(points)[0]).enc.R, self.branch, self.branch_flip)
+            return apply_branch(self.frame(self.normalize(points)[0]).R, self.branch, self.branch_flip)
         finally:
             self.train(was_training)
 
@@ -221,6 +221,12 @@ class SCAPOModel(nn.Module):
                                 rec.reshape(B * K, -1, 3)).mean(-1).reshape(B, K)
             Gk = G[d.argmin(1)]  # (B, 3, 3)
         return EncoderOutput(enc.t, enc.R_raw @ Gk, enc.R @ Gk, enc.code)
+
+    def frame(self, X: torch.Tensor) -> EncoderOutput:
+        """The stage-1 pose of normalised clouds ``X (B, N, 3)``: the encoder's, with the anchor choice when the model
+        has a hypothesis set (which needs the decoded shape; without one the decoder is not run)."""
+        enc = self.encoder(X)
+        return self.choose_anchor(X, enc, self.decoder(enc.code)[0]) if self.cfg.anchors else enc
 
     def stage1(self, X: torch.Tensor) -> Stage1Output:
         """Canonicalisation on normalised points ``X (B, N, 3)``."""

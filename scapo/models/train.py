@@ -256,7 +256,7 @@ class Trainer:
             self._init_branch(data)
         X, _ = SCAPOModel.normalize(data.clouds[idx].to(self.device))
         self.model.eval()
-        enc = self.model.encoder(X)
+        enc = self.model.frame(X)
         R = apply_branch(enc.R, self.model.branch, self.model.branch_flip)
         self.model.train()
         clouds = ((X - enc.t[:, None]) @ R).cpu()
@@ -294,7 +294,7 @@ class Trainer:
         Rs, Ss = [], []
         for k in range(0, len(idx), 64):
             X, _ = SCAPOModel.normalize(data.clouds[idx[k:k + 64]].to(self.device))
-            enc = self.model.encoder(X)
+            enc = self.model.frame(X)
             Rs.append(enc.R.cpu())
             Ss.append(((X - enc.t[:, None]) @ enc.R).cpu()[:, sel])
         self.model.train()
