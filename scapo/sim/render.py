@@ -477,9 +477,7 @@ _HULLS: dict[tuple[str, int], np.ndarray] = {}
 def _hull_vertices(spec: ArticulationSpec, part: int) -> np.ndarray:
     key = (str(spec.urdf), part)
     if key not in _HULLS:
-        from scapo.sim.assets.urdf import load_part_mesh
-
-        _HULLS[key] = np.asarray(load_part_mesh(spec, part).convex_hull.vertices)
+        _HULLS[key] = np.asarray(_rest_mesh(spec, part).convex_hull.vertices)
     return _HULLS[key]
 
 
