@@ -462,9 +462,12 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
                 "variants": list(variants)}
 
     parsed = [parse_variant(v) for v in variants]
-    for m, label, _ in parsed:
+    from scapo.config import override
+
+    for m, label, sets in parsed:
         if not METHODS.get(m).trained:
             raise ConfigError(f"--variant {m}:{label}: {m!r} is not trained; a variant replaces fields of its preset")
+        override(METHODS.get(m).preset(preset), sets, f"{m} preset (--variant {label})")  # bad keys before any work
     if len({(m, label) for m, label, _ in parsed}) != len(parsed):
         raise ConfigError("--variant: two variants with one METHOD:LABEL")
     work = check_output_dir(work, "ladder work folder")
