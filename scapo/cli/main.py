@@ -22,6 +22,10 @@ def _ints(text: str) -> list[int]:
     return [int(x) for x in text.split(",") if x.strip()]
 
 
+def _floats(text: str) -> list[float]:
+    return [float(x) for x in text.split(",") if x.strip()]
+
+
 def _names(text: str) -> list[str]:
     return [x.strip() for x in text.split(",") if x.strip()]
 
@@ -497,7 +501,33 @@ def cmd_bench_ladder(args) -> int:
     return 0
 
 
+def cmd_bench_compute(args) -> int:
+    """``scapo bench compute``: accuracy against training compute (:mod:`scapo.bench.compute`)."""
+    from scapo.bench.compute import COMPUTE_BUDGETS, run_compute_curve
+    from scapo.bench.ladder import LADDER_METHODS
+
+    if len(args.data) or args.categories:
+        raise ConfigError("bench compute uses the ladder's datasets: give --category (one), not --data or "
+                          "--categories")
+    rungs = args.rungs if args.rungs is not None else ["paper"]
+    if len(rungs) != 1:
+        raise ConfigError(f"bench compute: give one rung (--rungs paper), got {','.join(rungs)}")
+    cmd = "scapo bench compute " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "scapo bench compute"
+    paths = run_compute_curve(args.category, args.methods if args.methods is not None else list(LADDER_METHODS),
+                              args.budgets if args.budgets is not None else list(COMPUTE_BUDGETS), args.seeds,
+                              work=args.work / "ladder", out=args.out or Path("results"), rung=rungs[0],
+                              instances=args.instances or 60, views=args.views or 8,
+                              train_views=16 if args.train_views is None else args.train_views, data_seed=args.seed,
+                              preset=args.preset, workers=max(args.workers), command=cmd, dry_run=args.dry_run,
+                              finished_only=args.finished_only)
+    for p in paths:
+        print(f"wrote {p}")
+    return 0
+
+
 def cmd_bench(args) -> int:
+    if args.what == "compute":
+        return cmd_bench_compute(args)
     if args.what == "choose":
         return cmd_bench_choose(args)
     if args.what == "ladder":
@@ -860,7 +890,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("bench", help="benchmarks: perf (throughput), table1 / table3 (the paper's tables, resumable "
                         "per cell), choose (an option value on the val split)")
-    sp.add_argument("what", choices=["perf", "table1", "table2", "table3", "choose", "ladder"])
+    sp.add_argument("what", choices=["perf", "table1", "table2", "table3", "choose", "ladder", "compute"])
     sp.add_argument("--rungs", type=_names, default=None, help="ladder: rungs, easiest first (default one,complete,"
                     "paper,sphere: complete clouds of one shape at rest; of all instances and states; single views in "
                     "the paper's regime; from the whole sphere). Scored on val; --budget-minutes (default 5) core-"
@@ -903,6 +933,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--budget-minutes", type=float, default=None, help="perf --what train: the training budget per "
                     "cell in minutes (one torch thread); adds each preset's planned minutes and the epochs per stage "
                     "that fill the budget")
+    sp.add_argument("--budgets", type=_floats, default=None, help="compute: training budgets in core-minutes per "
+                    "cell (default 5,15,45,120); accuracy against training compute on one ladder rung (--rungs, "
+                    "default paper), val split, --methods scapo,op-align,eap,npcs by default, one --seeds seed; "
+                    "datasets and speeds shared with the ladder (WORK/ladder); writes OUT (default results)/"
+                    "accuracy_vs_compute.{md,csv,json,png}")
     sp.add_argument("--train-clouds", type=int, default=None, help="perf --what train --budget-minutes: training "
                     "clouds of a cell (default: the --data training split, else 840: the tables' 150 instances x 8 "
                     "views, 105 training instances)")
