@@ -9,21 +9,27 @@ import pytest
 
 def test_compute_curve_end_to_end(tmp_path):
     """Two budgets of the NPCS-style method at its test preset: each cell trains from scratch with the steps its
-    budget buys (more for the larger one), the table and figure are written, and a rerun recomputes nothing."""
+    budget buys (more for the larger one), the table and figure are written, and a rerun recomputes nothing;
+    ``--data-only`` renders the data and measures the speed first."""
     cmd = [sys.executable, "-m", "scapo.cli", "bench", "compute", "--category", "laptop", "--rungs", "one",
-           "--methods", "npcs", "--budgets", "0.02,0.06", "--preset", "test", "--instances", "10", "--views", "2",
+           "--methods", "npcs", "--budgets", "0.05,0.2", "--preset", "test", "--instances", "10", "--views", "2",
            "--train-views", "8", "--work", str(tmp_path / "w"), "--out", str(tmp_path / "o"), "--no-progress"]
+    r0 = subprocess.run([*cmd, "--data-only"], capture_output=True, text=True, timeout=300)
+    assert r0.returncode == 0, r0.stderr
+    assert (tmp_path / "w" / "ladder" / "speed_npcs.json").is_file()  # measured alone, before any cell
+    assert not (tmp_path / "w" / "ladder" / "compute").exists() and not (tmp_path / "o").exists()
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
+    assert "measuring" not in r.stdout
     name = "accuracy_vs_compute_laptop_one"
     table = json.loads((tmp_path / "o" / f"{name}.json").read_text())
     recs = sorted(table["records"], key=lambda x: x["budget_min"])
-    assert [(x["method"], x["budget_min"]) for x in recs] == [("npcs", 0.02), ("npcs", 0.06)]
+    assert [(x["method"], x["budget_min"]) for x in recs] == [("npcs", 0.05), ("npcs", 0.2)]
     assert recs[0]["wall"]["train_steps"] < recs[1]["wall"]["train_steps"]  # the budget buys steps
     assert recs[0]["budget_values"] != recs[1]["budget_values"]
     for x in recs:
         assert x["split"] == "val" and 0.0 <= x["frame_consistency_sym"] <= 1.0 and x["provenance"]["commit"]
-    assert (tmp_path / "w" / "ladder" / "compute" / "b0.02" / "laptop" / "one" / "npcs_s0.json").is_file()
+    assert (tmp_path / "w" / "ladder" / "compute" / "b0.05" / "laptop" / "one" / "npcs_s0.json").is_file()
     assert (tmp_path / "o" / f"{name}.png").stat().st_size > 1000
     md = (tmp_path / "o" / f"{name}.md").read_text()
     assert "core-min" in md and "frame cons. sym" in md and "Provenance" in md

@@ -15,7 +15,8 @@ Cells: ``<work>/compute/b<budget>/<category>/<rung>/<method>_s<seed>.{json,_pred
 and speed files are the ladder's (``<work>/data/``, ``<work>/speed_<method>.json``). A cell's record is written
 last and never recomputed; an unfinished cell's training resumes from its run folder's checkpoint, so a
 120-minute cell may span sessions. Several processes may share one work folder if they take different methods
-(``--methods``); each writes the table of every finished cell at its end (``--finished-only`` writes it alone).
+(``--methods``) after ``--data-only`` has rendered the dataset and measured every method's speed alone; each writes
+the table of every finished cell at its end (``--finished-only`` writes it alone).
 
 Outputs: ``<out>/accuracy_vs_compute.{md,csv,json,png}``.
 """
@@ -149,7 +150,7 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
                       work: str | Path = "bench_work/ladder", out: str | Path = "results", rung: str = "paper",
                       instances: int = 60, views: int = 8, train_views: int = 16, data_seed: int = 1,
                       preset: str = "cpu", protocol: str = "scapo", workers: int = 1,
-                      command: str = "scapo bench compute", dry_run: bool = False,
+                      command: str = "scapo bench compute", dry_run: bool = False, data_only: bool = False,
                       finished_only: bool = False) -> list[Path]:
     """Run (or resume) the accuracy-against-compute cells and write ``<out>/accuracy_vs_compute.{md,csv,json,png}``.
 
@@ -160,6 +161,8 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
         work: the ladder's work folder (datasets and speed files are shared with ``scapo bench ladder``).
         rung: the ladder rung whose dataset is used (:data:`scapo.bench.ladder.RUNGS`).
         dry_run: list the cells, compute nothing. finished_only: write the table of the finished cells.
+        data_only: render the dataset and measure every method's training speed (one after another, so that no
+            measurement shares the machine), then stop: run it before chains of methods run side by side.
 
     Raises:
         ConfigError: an untrained or unknown method, a budget <= 0 or repeated, an unknown rung, a negative seed,
@@ -174,7 +177,8 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
     if instances < 10:
         raise ConfigError(f"--instances must be >= 10 (a val and a test split of their own), got {instances}")
     work = check_output_dir(work, "compute curve work folder")
-    check_output_dir(out, "compute curve output folder")
+    if not data_only:
+        check_output_dir(out, "compute curve output folder")
     cfg = rung_config(category, rung, instances, views, train_views, data_seed)
     data = rung_dir(work, category, rung, instances, views, train_views, data_seed)
     name = ("accuracy_vs_compute" if (category, rung) == ("laptop", "paper")
@@ -194,6 +198,8 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
         if not _finished_dataset(data, cfg):
             generate(cfg, data, workers=workers, progress=False)
         presets = {b: _training_presets(methods, data, b, preset, work) for b in budgets}
+        if data_only:
+            return []
         for b, m, s in cells:
             pc, values = presets[b][m]
             t0 = time.perf_counter()

@@ -519,7 +519,7 @@ def cmd_bench_compute(args) -> int:
                               instances=args.instances or 60, views=args.views or 8,
                               train_views=16 if args.train_views is None else args.train_views, data_seed=args.seed,
                               preset=args.preset, workers=max(args.workers), command=cmd, dry_run=args.dry_run,
-                              finished_only=args.finished_only)
+                              data_only=args.data_only, finished_only=args.finished_only)
     for p in paths:
         print(f"wrote {p}")
     return 0
