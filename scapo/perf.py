@@ -231,12 +231,12 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
 
 
 def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list[dict]:
-    """Issue 30's equal training budget from measured speeds: for each ``--what train`` row (its clouds/s per stage
-    and its preset's schedule: ``stage<k>_epochs``, ``max_steps_per_epoch``, ``iterations``), the wall time of a
-    training run on ``train_clouds`` clouds at that schedule (``planned_min``: ``floor(clouds / batch)`` steps per
-    epoch, as the engine drops a last partial batch, capped by ``max_steps_per_epoch``; each step at the measured
-    clouds/s) and the epochs per stage that fill ``minutes`` (``stage<k>_epochs_for_budget``: every stage scaled
-    by the same factor, at least 1).
+    """The tables' equal training budget from measured speeds (every method gets the same core-minutes): for each
+    ``--what train`` row (its clouds/s per stage and its preset's schedule: ``stage<k>_epochs``,
+    ``max_steps_per_epoch``, ``iterations``), the wall time of a training run on ``train_clouds`` clouds at that
+    schedule (``planned_min``: ``floor(clouds / batch)`` steps per epoch, as the engine drops a last partial batch,
+    capped by ``max_steps_per_epoch``; each step at the measured clouds/s) and the epochs per stage that fill
+    ``minutes`` (``stage<k>_epochs_for_budget``: every stage scaled by the same factor, at least 1).
     A row's ``stage<k>_epoch_s`` and ``fixed_s`` (from :func:`bench_train_data`: the seconds each epoch adds
     around its steps, and the run's one-time seconds) are added: the epochs fill the budget less the fixed cost.
     The tables' cells run one torch thread per core, so measure with one thread. Rows without a schedule pass
@@ -426,9 +426,10 @@ def bench_method(method: str, preset: str = "cpu", device: str | None = None, da
 
 def bench_train(methods=None, preset: str = "cpu", device: str | None = None, iters: int = 5,
                 threads: int | None = None) -> list[dict]:
-    """Training speed of every trained method (issue 30: ``scapo bench perf --what train``): clouds per second of
-    one optimiser step (loss, backward, Adam step) at ``preset``'s batch size and training points, per training
-    stage (SCAPO has two), on the given device (default CPU), with ``threads`` torch threads (default: torch's).
+    """Training speed of every trained method (``scapo bench perf --what train``; the equal training budget is made
+    from it): clouds per second of one optimiser step (loss, backward, Adam step) at ``preset``'s batch size and
+    training points, per training stage (SCAPO has two), on the given device (default CPU), with ``threads`` torch
+    threads (default: torch's).
     Each method times itself through its entry's ``train_speed`` hook (:class:`~scapo.methods.registry.MethodEntry`:
     freshly initialised networks of the preset's size for a two-part, one-revolute-joint structure on box clouds,
     medians over ``iters`` steps after a warm-up). Compare two commits by running this at each on the same idle

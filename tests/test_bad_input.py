@@ -486,7 +486,7 @@ def test_ctrl_c_names_what_is_kept_per_command(monkeypatch, laptop_data, tmp_pat
     def interrupt(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("scapo.models.train.Trainer.train", interrupt)
+    monkeypatch.setattr("scapo.engine.lifecycle.train", interrupt)
     code, _, err = cli("train", "--data", laptop_data, "--preset", "test", "--out", tmp_path / "r")
     assert code == 130 and "last finished epoch is kept" in err and "shards" not in err
     monkeypatch.setattr("scapo.methods.run_method", interrupt)

@@ -87,7 +87,7 @@ def test_label_init_puts_the_templates_part_k_on_the_labelled_part_k(laptop_data
     t = Trainer(laptop_data, tmp_path / "run", p, progress=False)
     t.train()
     data = TrainingClouds(laptop_data, p.train_points, "S")
-    lab = t._init_template(data)
+    lab = t.job._init_template(data)
     K = t.model.keypoints.net[-1].bias.detach().view(2, -1)[:, :3]
     Y = t.model.y_base.detach()
     assert lab is not None and lab.shape == (len(Y),)
@@ -100,7 +100,7 @@ def test_label_init_puts_the_templates_part_k_on_the_labelled_part_k(laptop_data
     t2 = Trainer(laptop_data, tmp_path / "run2", dataclasses.replace(p, label_init=False, part_init=False),
                  progress=False)
     t2.train()
-    assert t2._init_template(TrainingClouds(laptop_data, p.train_points)) is None
+    assert t2.job._init_template(TrainingClouds(laptop_data, p.train_points)) is None
 
 
 def test_semi_supervised_training_uses_the_labels_and_marks_its_predictions(laptop_data, tmp_path):

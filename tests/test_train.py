@@ -159,7 +159,7 @@ def test_stage2_starts_from_the_rigid_split_of_the_canonical_clouds(laptop_data,
 
     fixed = t.model.keypoints.net[-1].bias.detach().clone()
     y0 = t.model.y_base.detach().clone()
-    t._init_template(TrainingClouds(laptop_data, p.train_points))
+    t.job._init_template(TrainingClouds(laptop_data, p.train_points))
     kb = t.model.keypoints.net[-1].bias.detach().view(2, 12)
     jb = t.model.joints.out[-1].bias.detach().view(1, 7)
     assert not torch.equal(kb.reshape(-1), fixed)  # keypoints moved from the fixed initialisation
@@ -270,3 +270,47 @@ def test_gaussian_seg_labels_are_a_preset_part_and_leave_older_runs_current(lapt
     assert _identity_hash(gauss) != _identity_hash(ident)
     with pytest.raises(ValueError, match="seg_labels"):
         dataclasses.replace(TEST.losses, seg_labels="nope")
+
+
+def test_set_on_an_existing_run_starts_from_the_runs_own_preset(laptop_data, finished_run, tmp_path):
+    """``scapo train --set FIELD=VALUE`` on an existing run without ``--preset`` replaces a field of the run's own
+    preset (``--preset``'s help: "default: an existing run's own preset, else cpu"), not of ``cpu``: an
+    inference-only field keeps the run's training identity, so the finished run is accepted as it is."""
+    from scapo.cli.main import main
+
+    run = tmp_path / "run"
+    shutil.copytree(finished_run, run)
+    before = (run / "checkpoint.pt").read_bytes()
+    assert main(["train", "--data", str(laptop_data), "--out", str(run), "--set", "refine.steps=3",
+                 "--no-progress"]) == 0
+    assert (run / "checkpoint.pt").read_bytes() == before  # found finished, nothing trained
+    # from cpu (what the command did before the engine resolved the preset once) the same --set is another run
+    assert main(["train", "--data", str(laptop_data), "--out", str(run), "--preset", "cpu", "--set",
+                 "refine.steps=3", "--no-progress"]) == 2
+
+
+def test_the_lifecycle_resolves_preset_overrides_and_seed_once(tmp_path):
+    """:func:`scapo.engine.lifecycle.run_preset`: the given preset, else the run's own (its run.json), else cpu;
+    then the overrides; then the seed."""
+    import json
+
+    from scapo.engine.lifecycle import run_preset
+    from scapo.errors import ConfigError
+    from scapo.models.train import SCAPO_RUN
+
+    assert run_preset(SCAPO_RUN, tmp_path / "none").name == "cpu"
+    run = tmp_path / "r"
+    run.mkdir()
+    (run / "run.json").write_text(json.dumps({"preset": dataclasses.asdict(TEST)}))
+    assert run_preset(SCAPO_RUN, run) == TEST
+    pc = run_preset(SCAPO_RUN, run, overrides={"stage1_epochs": "7", "losses.rec": 2.0}, seed=3)
+    assert (pc.name, pc.stage1_epochs, pc.losses.rec, pc.seed) == ("test", 7, 2.0, 3)
+    assert run_preset(SCAPO_RUN, run, "cpu").name == "cpu"  # a given preset wins over the run's own
+    (run / "run.json").write_text(json.dumps({"method": "npcs", "preset": {"epochs": 1}}))
+    assert run_preset(SCAPO_RUN, run).name == "cpu"  # another method's run names no SCAPO preset
+    for bad in ({"no_such_field": 1}, {"stage1_epochs": "many"}):
+        with pytest.raises(ConfigError):
+            run_preset(SCAPO_RUN, run, "test", overrides=bad)
+    for seed in (-1, 2 ** 32, 1.5):
+        with pytest.raises(ConfigError, match="training seed"):
+            run_preset(SCAPO_RUN, None, "test", seed=seed)

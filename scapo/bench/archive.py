@@ -2,7 +2,7 @@
 lost with its machine costs only the datasets' generation, never a trained cell.
 
 A bench work folder holds large files (datasets, checkpoints) that cannot be committed, and a machine whose
-processes and disks end with its session loses them; a table regenerated over many sessions (issue 31) then
+processes and disks end with its session loses them; a table regenerated over many sessions then
 recomputes every cell. The archive keeps, per finished cell, what makes its record valid again
 (:func:`scapo.bench.cells._read_record`) beside a regenerated dataset::
 
@@ -30,7 +30,7 @@ The archive also pins each dataset's bytes (:func:`archive_dataset`, :func:`reco
 
 A dataset is generated deterministically from its config on one kind of CPU, but not bit for bit across kinds:
 numpy's and the renderer's vector kernels round the last bit of some double-precision values differently (measured
-on issue 31's datasets: ICP's poses and segmentation on the two machines' laptop datasets were bit-identical, its
+on the tables' datasets: ICP's poses and segmentation on the two machines' laptop datasets were bit-identical, its
 joint axes 1.6e-15 apart, and the dataset hashes differed). A cell belongs to the bytes it was computed on, so
 :func:`reconcile_dataset` makes a regenerated dataset byte-identical to the archived one when it differs only so:
 every array that is not double-precision ground truth must be bit-identical, every double-precision array within
@@ -293,7 +293,7 @@ def archive_conflict(data: Path, archive: Path) -> str:
 
     A dataset other than the pinned one (one that :func:`reconcile_dataset` could not make the pinned bytes), or,
     with nothing pinned, a dataset other than the one every archived cell names, would put cells of two datasets
-    under one name, and a table takes the cells of one. Issue 31's runner computes no cell of such a dataset.
+    under one name, and a table takes the cells of one. The tables' runner computes no cell of such a dataset.
 
     Raises:
         DatasetError: ``data`` has no readable card. ConfigError: an archived record or card is unreadable.
@@ -326,8 +326,8 @@ def _npcs_again(arrays: dict[str, np.ndarray]) -> np.ndarray:
 
 #: float32 fields that the generator derives from double-precision ground truth, with the function that derives
 #: them: rounding moves such a value by one float32 ulp where the double it is rounded from crosses a float32
-#: boundary (measured: one value in each of two of washer's shards, issue 31), so a regenerated dataset's field is
-#: computed again from the archived ground truth and must then have the archived digest.
+#: boundary (measured: one value in each of two of washer's shards, Table 1's dataset), so a regenerated dataset's
+#: field is computed again from the archived ground truth and must then have the archived digest.
 DERIVED = {"npcs": _npcs_again}
 #: How far a regenerated derived field may be from the one computed again from the archived ground truth (relative:
 #: a few float32 ulps); more means this machine's generator computes it otherwise, and nothing is reconciled.

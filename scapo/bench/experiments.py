@@ -20,7 +20,7 @@ and wall times), not of the moment the tables were written.
 from __future__ import annotations
 
 import math
-import sys
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -44,7 +44,7 @@ from scapo.bench.cells import (
 )
 from scapo.data import generate, load, make_config
 from scapo.data.config import viewpoints_of
-from scapo.errors import ConfigError
+from scapo.errors import ConfigError, ScapoWarning
 from scapo.files import check_output_dir
 from scapo.methods import METHODS, describe
 from scapo.provenance import git_commit
@@ -101,7 +101,7 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
     with a test-time refinement of its own (its entry's ``one_pass`` options) predicts without it, and with
     ``refine_rows`` every method with a whole-object model (``MethodEntry.refinable``) gets the method-independent
     refinement (:mod:`scapo.methods.refine`) of the same run's one-pass prediction as a row of its own, labelled
-    ``<method>+refine`` (issue 29: equal treatment).
+    ``<method>+refine`` (equal treatment: no row gets a test-time search another lacks).
 
     Raises:
         UnknownNameError: unknown method. ConfigError: a preset a trained method does not have, a
@@ -219,7 +219,7 @@ def print_plan(rows: list[dict]) -> None:
 
 
 #: The splits of every bench dataset: a fifth of the instances for test and a tenth for val, so that the default
-#: 150 instances give 30 test instances per category (issue 29: 8 could not separate methods).
+#: 150 instances give 30 test instances per category (8 were too few for the bootstrap to separate methods).
 BENCH_SPLITS = {"test_fraction": 0.2, "val_fraction": 0.1}
 #: How Tables 1 and 3 rendered their datasets before the paper's viewpoints existed, and render them with
 #: ``--viewpoints sphere``: clean sensor, the object's rotation drawn uniformly from SO(3) for every view (harder than
@@ -287,15 +287,15 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
                   f"{rep['dataset_hash'][:12]} ({rep['shards']} shard(s); double-precision values moved by at most "
                   f"{moved:.2g}{again})", flush=True)
         elif rep["status"] == "different":
-            print(f"scapo bench: warning: {data.name} is not the archived dataset {rep['archived'][:12]} "
-                  f"({rep['why']}); its archived cells are computed again", file=sys.stderr, flush=True)
+            warnings.warn(f"{data.name} is not the archived dataset {rep['archived'][:12]} ({rep['why']}); its "
+                          "archived cells are computed again", ScapoWarning, stacklevel=2)
         pinned = archive_dataset(data, archive)
         if pinned == "archived":
             print(f"{data.name}: dataset {load(data, 'test').dataset_hash[:12]} pinned in the archive {archive}",
                   flush=True)
         elif pinned == "unpinned cells":
-            print(f"scapo bench: warning: {data.name}: {archive_conflict(data, archive)}; those cells are not "
-                  "restored here", file=sys.stderr, flush=True)
+            warnings.warn(f"{data.name}: {archive_conflict(data, archive)}; those cells are not restored here",
+                          ScapoWarning, stacklevel=2)
 
     for c in cells:
         data = dataset_dir(work, c.category, instances, views, data_seed, data_kwargs)
@@ -647,7 +647,7 @@ class BenchOptions:
     made the pinned one before its cells are restored. An upright bench uses ``<archive>/upright/``."""
     data_only: bool = False
     """Generate the datasets (with ``archive``: reconcile, pin, restore their cells) and compute no cell; writes
-    no table. Prepares a work folder whose cells are computed by another checkout (issue 31's worktree)."""
+    no table. Prepares a work folder whose cells are computed by another checkout (a clean worktree of the commit)."""
 
 
 #: The paper's tables: ``scapo bench table1|table2|table3``.

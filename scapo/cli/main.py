@@ -290,18 +290,13 @@ def cmd_preview(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from scapo.config import override, parse_assignments, read_config
-    from scapo.methods import METHODS, train_method
+    from scapo.config import parse_assignments, read_config
+    from scapo.methods import train_method
 
-    preset = args.preset
+    # the preset (the run's own on resume), --config / --set and the seed are resolved once, by the engine
     values = {**(read_config(args.config) if args.config else {}), **parse_assignments(args.set)}
-    if values:  # the preset with those fields replaced (checked against its dataclass); run.json records them
-        entry = METHODS.get(args.method)
-        if entry.preset is None:
-            raise ConfigError(f"method {args.method!r} is not trained: it has no preset to --set")
-        preset = override(entry.preset(preset or "cpu"), values, f"{args.method} preset")
-    ck = train_method(args.method, args.data, args.out, preset, progress=not args.no_progress,
-                      device=args.device, seed=args.seed)
+    ck = train_method(args.method, args.data, args.out, args.preset, progress=not args.no_progress,
+                      device=args.device, seed=args.seed, overrides=values or None)
     if os.environ.get("RANK", "0") == "0":  # under torchrun, rank 0 speaks for the run
         print(f"trained: {ck} (loss curves in {Path(args.out) / 'losses.png'})")
     return 0

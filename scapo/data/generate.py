@@ -307,6 +307,19 @@ _POOL_WORKER: list[ShardWorker] = []
 
 
 def _pool_init(args: tuple, queue) -> None:
+    import warnings
+
+    from scapo.errors import ScapoWarning
+
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):  # a worker's warning as the CLI prints it
+        if issubclass(category, ScapoWarning):
+            print(f"scapo generate: warning: {message}", file=sys.stderr, flush=True)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
     _POOL_WORKER[:] = [ShardWorker(*args)]
     _POOL_WORKER[0].queue = queue
     _POOL_WORKER[0].ready()
@@ -419,7 +432,12 @@ def _check_out_folder(out: Path) -> None:
 
 
 def _warn(msg: str) -> None:
-    print(f"scapo generate: warning: {msg}", file=sys.stderr, flush=True)
+    """A :class:`~scapo.errors.ScapoWarning` (the command line prints it as one ``scapo generate: warning:`` line)."""
+    import warnings
+
+    from scapo.errors import ScapoWarning
+
+    warnings.warn(msg, ScapoWarning, stacklevel=3)
 
 
 # ---------------------------------------------------------------------------- driver

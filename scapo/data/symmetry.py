@@ -23,10 +23,10 @@ Three measurements, all in float64, lengths in units of the instance's rest ``bb
    door), one that only the half turn maps has a discrete one.
 3. **Ambiguous views** (:func:`view_ambiguity`), two independent criteria on the same rendered view:
 
-   - *full surface, one-sided* (the measure of issue 29): the whole posed object moved rigidly by each
-     cube-group rotation about its box centre, refined by ICP of the observed points onto it; the view is
-     ambiguous when a refined map ending more than ``min_angle_deg`` from the truth explains the observed
-     points (mean distance observed -> surface) within ``ratio`` x the truth's + ``slack``.
+   - *full surface, one-sided* (the measure behind the declared symmetries, ``results/symmetry/``): the whole posed
+     object moved rigidly by each cube-group rotation about its box centre, refined by ICP of the observed points onto
+     it; the view is ambiguous when a refined map ending more than ``min_angle_deg`` from the truth explains the
+     observed points (mean distance observed -> surface) within ``ratio`` x the truth's + ``slack``.
    - *visible surface, two-sided*: from each end point above, ICP is continued on the part of the moved
      surface the camera sees (a z-buffer of the surface points through the sample's intrinsics), scoring
      the mean of both directions of the Chamfer distance between the observed points and that visible
@@ -35,7 +35,7 @@ Three measurements, all in float64, lengths in units of the instance's rest ``bb
    A map is *declared* when its rotation is within ``min_angle_deg`` of a declared symmetry (moved to the
    camera frame); the shares of views ambiguous under undeclared maps are the numbers to keep under 5 %.
 
-The cube-group search and the 30 deg / 1.25x / 0.004 diag rule follow the measurement of issue 29; the
+The cube-group search and the 30 deg / 1.25x / 0.004 diag rule follow the measurement in ``results/symmetry/``; the
 symmetric mean distance as a self-map criterion is the "maximum symmetric surface distance" family of BOP
 (Hodan et al., ECCV 2020 workshop, ``pose_error.py`` ``mssd``), used as a mean here because a point
 sampling's maximum is noise.

@@ -41,7 +41,7 @@ from scapo.report import latex_escape, markdown_table
 #: Category column order of Table 1 in the paper, then the other categories.
 CATEGORY_ORDER = ("laptop", "safe", "eyeglasses", "oven", "washer", "basket", "drawer", "scissors", "suitcase")
 #: Table 1's blocks: the paper's S, D, C, R, t, with the symmetry-aware R sym (:data:`ROBUST_METRICS`) beside the
-#: strict R (issue 31: both in the paper layout; the paper has no R sym row).
+#: strict R (both in the paper layout, so that a symmetric category's flips are seen; the paper has no R sym row).
 TABLE1_BLOCKS = ("S", "D", "C", "R", "R_sym", "t")
 
 #: ``describe(label) -> (display name, supervision marks) | None``: how a table names a method's row
@@ -86,7 +86,8 @@ def _cells(results: Sequence[EvalResult], metrics) -> dict[tuple[str, str, str],
 
 def is_refined(label: str) -> bool:
     """Whether a row is a method's "+ refine" row (label ``<method>+refine``, :mod:`scapo.methods.refine`): the
-    tables put these after the one-pass rows and order the self-supervised rows of each kind apart (issue 29)."""
+    tables put these after the one-pass rows and order the self-supervised rows of each kind apart (a test-time
+    search is never mixed with one-pass rows)."""
     return label.endswith("+refine")
 
 

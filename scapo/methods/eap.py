@@ -46,7 +46,7 @@ PyTorch, CPU-sized); no part-shape symmetry handling or multi-stage schedule; Ch
 Fidelity (read against Meowuu7/equi-articulated-pose at 8cceb65: the model
 ``SPConvNets/models/unsup_seg_so3_pose_conv_pn_40_multi_stage.py`` (``M40`` below), the trainer
 ``SPConvNets/trainer_unsup_arti_align.py`` and ``scripts/train/*.sh``; "same", "simplified" (the component's
-role kept in another form) or "absent"; issue 30 closes the gaps):
+role kept in another form) or "absent"; a gap is closed or stated, never silent):
 
 =======================================  ================================================  ========================
 component                                original (file: lines)                            ours
@@ -165,7 +165,7 @@ class EAPOptions(LearnedOptions):
 
 
 PRESETS: Registry[EAPPreset] = Registry("eap preset")
-# cpu: issue 30's equal budget (15 minutes of training per cell on one core, the tables' 840 training clouds);
+# cpu: the tables' equal training budget (15 minutes of training per cell on one core, the tables' 840 training clouds);
 # the epochs fill it at the speed measured by scapo bench perf --what train --data
 # (results/perf/train_cpu_laptop_i150_v8_s1_eap.md)
 PRESETS.add("cpu", EAPPreset(name="cpu", epochs=38, batch_size=16, lr=1e-3, points=256, max_steps_per_epoch=100,

@@ -30,9 +30,10 @@ import numpy as np
 import torch
 
 from scapo.data.dataset import ArticulationDataset, load
-from scapo.engine import CloudSet, FitConfig, RunFolder, Stage, TrainJob, train_run
-from scapo.engine.runs import read_checkpoint, read_run_json, resolve_device
-from scapo.errors import ConfigError, DatasetError, TrainingError
+from scapo.engine import CloudSet, FitConfig, Stage, TrainJob, lifecycle
+from scapo.engine.lifecycle import RunSpec
+from scapo.engine.runs import read_checkpoint, resolve_device
+from scapo.errors import ConfigError, TrainingError
 from scapo.eval.predictions import Predictions
 from scapo.registry import Registry, parse_preset
 
@@ -153,40 +154,40 @@ def _identity(spec: LearnedSpec, preset, card: dict) -> dict:
             "joint_type": list(card["joint_type"]), "joint_parts": [list(p) for p in card["joint_parts"]]}
 
 
-def train_learned(spec: LearnedSpec, data: str | Path, run: str | Path, preset=None, progress: bool = True,
-                  device: str | None = None, seed: int | None = None) -> Path:
-    """Train (or resume) a learned baseline into the run folder ``run`` with the engine
-    (:func:`scapo.engine.train_run`: one stage, ``spec.build(card, preset).losses`` as its loss); returns the
-    checkpoint path.
+def run_spec(spec: LearnedSpec) -> RunSpec:
+    """``spec`` as the engine's run lifecycle sees it (:class:`scapo.engine.lifecycle.RunSpec`): presets by
+    :func:`resolve_preset`, a run's own preset from its ``run.json`` (``method`` must be ``spec.method``), the
+    identity of :func:`_identity` and the job of :func:`learned_job`."""
+    cls = type(spec.presets.get(spec.presets.names()[0]))
 
-    ``preset``: a name of ``spec.presets`` or a preset object; None resumes an existing run with its own
-    preset and starts a new one with ``cpu``. ``seed`` replaces the preset's seed (a different run).
+    def stored(ident: dict):
+        if ident.get("method") != spec.method or not isinstance(ident.get("preset"), dict):
+            return None
+        try:
+            return _preset_from_dict(cls, ident["preset"])
+        except (TypeError, ValueError, KeyError):
+            return None
+
+    return RunSpec(method=spec.method, preset=lambda name: resolve_preset(spec, name), stored_preset=stored,
+                   identity=lambda pc, card: _identity(spec, pc, card),
+                   job=lambda pc, data, run, dev, ctx: learned_job(spec, pc, load(data, "train"), dev))
+
+
+def train_learned(spec: LearnedSpec, data: str | Path, run: str | Path, preset=None, progress: bool = True,
+                  device: str | None = None, seed: int | None = None, overrides: dict | None = None) -> Path:
+    """Train (or resume) a learned baseline into the run folder ``run`` with the engine's run lifecycle
+    (:func:`scapo.engine.lifecycle.train`: ``preset`` None resumes a run with its own preset and starts a new one
+    with ``cpu``; ``overrides`` replace preset fields; ``seed`` the preset's seed, a different run) and one stage
+    of ``spec.build(card, preset).losses``; returns the checkpoint path.
 
     Raises:
-        UnknownNameError: unknown preset. ConfigError: bad seed, device, or run folder (a file or a
+        UnknownNameError: unknown preset. ConfigError: bad seed, override, device, or run folder (a file or a
         foreign non-empty folder). OutputError: run folder not writable. DatasetError: empty training
         split or missing fields. TrainingError: a checkpoint or run.json of another method, preset, seed
         or dataset; an unreadable checkpoint; a NaN/inf loss (the last good checkpoint is kept).
     """
-    run = Path(run)
-    cls = type(spec.presets.get(spec.presets.names()[0]))
-    if preset is None:
-        old = read_run_json(run)
-        if old is not None and old.get("method") == spec.method and isinstance(old.get("preset"), dict):
-            preset = _preset_from_dict(cls, old["preset"])
-        else:
-            preset = "cpu"
-    pc = resolve_preset(spec, preset)
-    if seed is not None:
-        if int(seed) < 0:
-            raise ConfigError(f"seed must be >= 0, got {seed}")
-        pc = dataclasses.replace(pc, seed=int(seed))
-    dev = resolve_device(device or pc.device)
-    train = load(data, "train")
-    if len(train) == 0:
-        raise DatasetError(f"{data}: the training split is empty")
-    folder = RunFolder(run, _identity(spec, pc, train.card))
-    return train_run(folder, lambda dev, ctx: learned_job(spec, pc, train, dev), dev, progress)
+    return lifecycle.train(run_spec(spec), data, run, preset, seed=seed, overrides=overrides, device=device,
+                           progress=progress)
 
 
 def learned_job(spec: LearnedSpec, pc, train: ArticulationDataset, dev: torch.device) -> TrainJob:
@@ -228,10 +229,7 @@ def run_is_current(spec: LearnedSpec, run: str | Path, data: str | Path, preset:
     """Whether ``run`` holds the run ``train_learned(spec, data, run, preset, seed=seed)`` would start
     now (same ``run.json`` identity: method, the registered preset's fields today, dataset, structure);
     False without a readable ``run.json`` or when the preset's fields changed since (stale results)."""
-    pc = resolve_preset(spec, preset)
-    if seed is not None:
-        pc = dataclasses.replace(pc, seed=int(seed))
-    return RunFolder(run, _identity(spec, pc, load(data, "train").card)).is_current()
+    return lifecycle.run_is_current(run_spec(spec), run, data, preset, seed)
 
 
 # ---------------------------------------------------------------------------------------------- predict
@@ -437,14 +435,11 @@ def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, need
     def factory(**options) -> LearnedMethod:
         return LearnedMethod(spec, supervision, needs_alignment, options_cls(**options))
 
-    def trainer(data, run, preset=None, progress=True, device=None, seed=None) -> Path:
-        return train_learned(spec, data, run, preset, progress=progress, device=device, seed=seed)
-
     def current(run, data, preset, seed=None) -> bool:
         return run_is_current(spec, run, data, preset, seed)
 
     register_method(spec.method, options=options_cls, display=display, supervision=supervision,
-                    needs_alignment=needs_alignment, summary=summary, train=trainer,
+                    needs_alignment=needs_alignment, summary=summary, run_spec=lambda: run_spec(spec),
                     presets=tuple(spec.presets.names()), run_is_current=current,
                     preset=lambda name: resolve_preset(spec, name),
                     speed=lambda **kw: learned_speed(spec, **kw), refinable=refinable,

@@ -45,8 +45,8 @@ Details:
   :class:`~scapo.methods.nets.VNPointEncoder`): labels and NPCS are rotation-invariant targets, and the
   invariant part of an SO(3)-equivariant encoder gives the same outputs for any rotation of the input, as the
   paper's NPCS-EPN row uses an equivariant backbone (EPN) where ANCSH used PointNet++. Table 1's objects come
-  under arbitrary rotations (issue 29), where a ResNet-PointNet (``backbone = "resnet"``, the ``test`` preset)
-  must learn every rotation from augmentation (``rotation_augment``, kept on in both presets; the targets stay
+  under arbitrary rotations (the whole-sphere regime), where a ResNet-PointNet (``backbone = "resnet"``, the ``test``
+  preset) must learn every rotation from augmentation (``rotation_augment``, kept on in both presets; the targets stay
   in the object frame, as NOCS trains for unseen poses).
 - Coordinates (``part_npcs``): two maps per part, the part's own NPCS (its rest-state points centred on the
   part's box and divided by the box diagonal) and the articulation-aware object coordinates NAOCS (rest-state
@@ -150,7 +150,7 @@ class NPCSOptions(LearnedOptions):
 
 
 PRESETS: Registry[NPCSPreset] = Registry("npcs preset")
-# cpu: issue 30's equal budget (15 minutes of training per cell on one core, the tables' 840 training clouds);
+# cpu: the tables' equal training budget (15 minutes of training per cell on one core, the tables' 840 training clouds);
 # the epochs fill it at the speed measured by scapo bench perf --what train --data
 # (results/perf/train_cpu_laptop_i150_v8_s1_npcs.md)
 PRESETS.add("cpu", NPCSPreset(name="cpu", epochs=89, batch_size=16, lr=1e-3, points=256, max_steps_per_epoch=100,

@@ -38,7 +38,7 @@ What differs (and why):
   the input's relative state minus the canonical shape's.
 
 Fidelity (read against YC-Che/OP-Align at f3323dd; "same" = same component and rule, "simplified" = the
-component's role kept with a different form, "absent" = not implemented; issue 30 closes the gaps):
+component's role kept with a different form, "absent" = not implemented; a gap is closed or stated, never silent):
 
 =========================================  ==============================================  ==========================
 component                                  original (file: lines)                          ours
@@ -171,7 +171,7 @@ class OPAlignPreset(LearnedPreset):
 
 
 PRESETS: Registry[OPAlignPreset] = Registry("op-align preset")
-# cpu: issue 30's equal budget (15 minutes of training per cell on one core, the tables' 840 training clouds);
+# cpu: the tables' equal training budget (15 minutes of training per cell on one core, the tables' 840 training clouds);
 # the epochs fill it at the speed measured by scapo bench perf --what train --data
 # (results/perf/train_cpu_laptop_i150_v8_s1_op-align.md)
 PRESETS.add("cpu", OPAlignPreset(name="cpu", epochs=28, batch_size=16, lr=1e-3, points=256, max_steps_per_epoch=100,

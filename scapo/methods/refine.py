@@ -1,4 +1,5 @@
-"""Test-time refinement as a method-independent step (issue 29: "+ refine" rows for every method that can use it).
+"""Test-time refinement as a method-independent step ("+ refine" rows for every method that can use it, so no row gets
+a search another lacks).
 
 A method with a canonical shape or template (SCAPO's template, OP-Align-style's decoded canonical shape,
 EAP-style's decoded canonical parts) gives, with its one-pass prediction of a view, a whole-object model:

@@ -64,7 +64,8 @@ class MethodEntry:
         needs_alignment: its canonical frame is arbitrary (self-supervised), so the evaluator aligns it
             to the ground-truth canonical frame from training-split predictions.
         summary: one line for ``scapo list``.
-        train: for trained methods, ``train(data, run, preset, progress, device, seed) -> checkpoint``.
+        run_spec: for trained methods, ``run_spec() -> RunSpec``: how the engine sets up and trains one of its runs
+            (:class:`scapo.engine.lifecycle.RunSpec`; :func:`train_method`).
         presets: preset names of a trained method (``scapo train --method NAME --preset P``).
         variants: other labels its predictions may carry (e.g. a second row of one run) -> display name.
         inference: for trained methods whose predictions depend on settings that are not part of the
@@ -101,7 +102,7 @@ class MethodEntry:
     supervision: Mapping[str, bool]
     needs_alignment: bool
     summary: str = ""
-    train: Callable[..., Path] | None = None
+    run_spec: Callable[[], Any] | None = None
     presets: tuple[str, ...] = ()
     variants: Mapping[str, str] = field(default_factory=dict)
     inference: Callable[[Path, dict], dict] | None = None
@@ -117,7 +118,7 @@ class MethodEntry:
     @property
     def trained(self) -> bool:
         """Whether the method is trained by ``scapo train`` (else its ``fit`` is all it needs)."""
-        return self.train is not None
+        return self.run_spec is not None
 
     def marks(self) -> str:
         """Supervision marks as three characters, e.g. ``"-S-"`` (Pose, Segmentation, Joint)."""
@@ -129,7 +130,7 @@ METHODS: Registry[MethodEntry] = Registry("method")
 
 
 def register_method(name: str, *, options: type, display: str, supervision: Mapping[str, bool],
-                    needs_alignment: bool, summary: str = "", train: Callable[..., Path] | None = None,
+                    needs_alignment: bool, summary: str = "", run_spec: Callable[[], Any] | None = None,
                     presets: tuple[str, ...] = (), variants: Mapping[str, str] | None = None,
                     inference: Callable[[Path, dict], dict] | None = None,
                     run_is_current: Callable[..., bool] | None = None, preset: Callable[[str], Any] | None = None,
@@ -149,7 +150,7 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
 
     def deco(factory):
         METHODS.add(name, MethodEntry(name, factory, options, display, dict(supervision), needs_alignment, summary,
-                                      train, tuple(presets), dict(variants or {}), inference, run_is_current,
+                                      run_spec, tuple(presets), dict(variants or {}), inference, run_is_current,
                                       preset, tuple(ablations), speed, dict(quick_options or {}),
                                       dict(one_pass or {}), bool(refinable), train_speed))
         factory.options = options
@@ -328,29 +329,34 @@ def load_run(run: str | Path, device: str | None = None, **options):
 
 
 #: training seeds are 32-bit: the engine derives each epoch's seed from them (scapo.engine.loop)
-MAX_TRAIN_SEED = 2 ** 32
 
 
-def train_method(name: str, data: str | Path, run: str | Path, preset: str | None = None, progress: bool = True,
-                 device: str | None = None, seed: int | None = None) -> Path:
+def train_method(name: str, data: str | Path, run: str | Path, preset=None, progress: bool = True,
+                 device: str | None = None, seed: int | None = None, overrides: dict | None = None) -> Path:
     """Train (or resume) method ``name`` on ``data`` into the run folder ``run``; returns the checkpoint.
+
+    The run is set up once, by the engine (:func:`scapo.engine.lifecycle.train`): ``preset`` (a name, a preset
+    object, or None: the run's own preset, else ``cpu``), then ``overrides`` (``scapo train --set``: field ->
+    value), then ``seed``.
 
     Raises:
         UnknownNameError: unknown method or preset. ConfigError: a method that is not trained (its
-        ``fit`` is all it needs). Otherwise as the method's trainer.
+        ``fit`` is all it needs), a dataset of a category without a movable joint, a bad override or seed.
+        Otherwise as the engine's :func:`~scapo.engine.lifecycle.train`.
     """
     entry = METHODS.get(name)
-    if entry.train is None:
+    if entry.run_spec is None:
         trained = [n for n in METHODS if METHODS.get(n).trained]
         raise ConfigError(f"method {name!r} is not trained ('scapo predict --method {name}' fits it); trained "
                           f"methods: {', '.join(trained)}")
-    for s in (seed, getattr(preset, "seed", None)):
-        if s is not None and not (isinstance(s, int) and 0 <= s < MAX_TRAIN_SEED):
-            raise ConfigError(f"training seed must be an integer in [0, 2**32), got {s}")
+    from scapo.engine import lifecycle
+
+    lifecycle.check_seed(seed)  # before the dataset is read; the engine checks the resolved preset's seed too
     train = load(data, "train")
     if not train.card.get("joint_type"):
         raise ConfigError(f"{data} is a dataset of {train.card.get('category')!r}, which has no movable joint: the "
                           "trained methods estimate articulated poses (parts and joints); use an articulated object")
     if os.environ.get("RANK", "0") == "0":  # under torchrun, rank 0 speaks for the run
         warn_few_instances(train.num_instances, "train", data, "a model trained on it and its scores")
-    return entry.train(data, run, preset, progress=progress, device=device, seed=seed)
+    return lifecycle.train(entry.run_spec(), data, run, preset, seed=seed, overrides=overrides, device=device,
+                           progress=progress)

@@ -177,10 +177,10 @@ def _run_is_current(run, data, preset, seed=None) -> bool:
     return run_is_current(run, data, preset, seed)
 
 
-def _train(data, run, preset=None, progress=True, device=None, seed=None):
-    from scapo.models.train import train
+def _run_spec():
+    from scapo.models.train import SCAPO_RUN
 
-    return train(data, run, preset, progress=progress, device=device, seed=seed)
+    return SCAPO_RUN
 
 
 def _train_speed(preset: str = "cpu", device: str = "cpu", iters: int = 5) -> dict:
@@ -198,7 +198,7 @@ def _speed(preset: str = "cpu", device: str | None = None, iters: int = 5, num_p
 
 @register_method("scapo", options=SCAPOOptions, display="SCAPO (ours)", supervision=SCAPOMethod.supervision,
                  needs_alignment=True, summary="self-supervised SE(3)-equivariant skinning (the paper's method)",
-                 train=_train, presets=tuple(PRESETS.names()),
+                 run_spec=_run_spec, presets=tuple(PRESETS.names()),
                  variants={"scapo-no-refine": "SCAPO (ours, no refinement)"},
                  inference=inference_settings, run_is_current=_run_is_current, preset=get_preset,
                  ablations=ABLATIONS, speed=_speed, one_pass={"refine_steps": 0}, refinable=True,

@@ -100,8 +100,8 @@ PRESETS.add("cpu", TrainConfig(
     # upright_deg: about half of the views' frames took the half-turned branch of a near-symmetric shape
     # (laptop base and screen swapped, eyeglasses upside down); the prior, chosen on the val split over two
     # laptop seeds and one eyeglasses run (results/scapo_upright_choice/), resolves most of them
-    # epochs: issue 30's equal budget, 15 minutes of training per cell on one core for the tables' 840 training
-    # clouds at the speed measured by scapo bench perf --what train --data (results/perf/
+    # epochs: the tables' equal training budget, 15 minutes of training per cell on one core for the tables' 840
+    # training clouds at the speed measured by scapo bench perf --what train --data (results/perf/
     # train_cpu_laptop_i150_v8_s1_scapo.md; before it, 20 + 16)
     name="cpu", stage1_epochs=27, stage2_epochs=22, lr_stage2=3e-4, batch_size=16, train_points=256,
     max_steps_per_epoch=100, root_motion=True,

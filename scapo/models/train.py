@@ -19,10 +19,10 @@ import numpy as np
 import torch
 
 from scapo.data.dataset import load
-from scapo.engine import CloudSet, FitConfig, RunFolder, Stage, TrainJob, train_run
-from scapo.engine.distributed import dist_context
-from scapo.engine.runs import read_run_json, resolve_device
-from scapo.errors import ConfigError, DatasetError
+from scapo.engine import CloudSet, FitConfig, Stage, TrainJob, lifecycle
+from scapo.engine.lifecycle import RunSpec
+from scapo.engine.runs import read_run_json
+from scapo.errors import DatasetError
 from scapo.files import write_json
 from scapo.losses import LossConfig, stage1_terms, stage2_terms, weighted_total
 from scapo.models.branch import apply_branch
@@ -160,55 +160,33 @@ def preset_from_dict(d: dict) -> TrainConfig:
     return TrainConfig(**d)
 
 
-class Trainer:
-    """Trains SCAPO on ``data`` into the run folder ``run`` (resuming from its checkpoint).
+class ScapoJob:
+    """SCAPO's training job for the engine (:func:`scapo.engine.lifecycle.train` sets the run up): the network for
+    the dataset's category, initialised from ``preset.seed``; stage 1 trains the encoder and decoder on the stage-1
+    terms; stage 2 starts from the template initialisation (:meth:`_init_template`) and trains everything on both
+    stages' terms (:func:`loss_terms`).
 
     Args:
-        data: dataset folder (its training split is used, points only).
-        run: run folder. preset: a :class:`TrainConfig` or a preset name.
-        progress: show a progress bar. device: overrides the preset's device.
-
-    Raises:
-        TrainingError: the run folder holds a checkpoint of another preset or dataset, a loss
-            becomes NaN/inf (named), or the checkpoint is unreadable.
-        UnknownNameError: unknown preset name.
+        preset: the resolved :class:`~scapo.models.presets.TrainConfig`. data: dataset folder (its training split,
+            points only unless ``preset.supervision`` names labels). run: the run folder (``branch.json`` is written
+            there). device: the process's device. ctx: the data-parallel context (rank 0 writes files).
     """
 
-    def __init__(self, data: str | Path, run: str | Path, preset: TrainConfig | str = "cpu", progress: bool = True,
-                 device: str | None = None):
+    def __init__(self, preset: TrainConfig, data: str | Path, run: str | Path, device: torch.device, ctx):
+        self.preset = preset
         self.data = Path(data)
         self.run = Path(run)
-        self.preset = get_preset(preset) if isinstance(preset, str) else preset
-        self.progress = progress
-        train = load(self.data, "train")
-        self.card = train.card
-        self.identity = _run_identity(self.preset, self.card)
-        requested = resolve_device(device or self.preset.device)
-        self.dist = dist_context(requested.type)  # data-parallel under torchrun (scapo.engine); else world 1
-        self.device = self.dist.device(requested)
+        self.device = device
+        self.dist = ctx
+        self.card = load(self.data, "train").card
         self.mcfg = model_config(self.card, self.preset)
         with torch.random.fork_rng(devices=[]):  # the caller's global RNG is left as it was
             torch.manual_seed(self.preset.seed)  # parameter initialisation is part of the run's identity
             self.model = SCAPOModel(self.mcfg).to(self.device)
 
-        self.folder = RunFolder(self.run, self.identity, _training_identity)
-
-    def train(self) -> Path:
-        """Run (or resume) both stages with the engine (:func:`scapo.engine.train_run`); returns the checkpoint path.
-
-        Everything is checked before anything is written: the run folder (a file, a foreign non-empty
-        folder, or not writable), another process training into it, and a checkpoint or ``run.json`` of
-        another preset or dataset.
-
-        Raises:
-            ConfigError, OutputError: unusable run folder. TrainingError: see the class docstring.
-        """
-        return train_run(self.folder, lambda dev, ctx: self.job(), self.device, self.progress, ctx=self.dist)
-
     def job(self) -> TrainJob:
-        """SCAPO's schedule for the engine: stage 1 trains the encoder and decoder on the stage-1 terms; stage 2
-        starts from the template initialisation (:meth:`_init_template`) and trains everything on both
-        stages' terms (:func:`loss_terms`)."""
+        """The engine's :class:`~scapo.engine.TrainJob`: both stages, their epochs and learning rates from the
+        preset."""
         pc = self.preset
         data = TrainingClouds(self.data, pc.train_points, pc.supervision)
         stages = [Stage(index=1, epochs=pc.stage1_epochs, lr=pc.lr_stage1, params=lambda: self._params(1),
@@ -337,47 +315,75 @@ class Trainer:
             jb[j, 3:6] = (axis if axes[j] is None else axes[j]).to(jb)
 
 
-def run_preset(run: str | Path) -> TrainConfig | None:
-    """The preset a run folder was started with (from its ``run.json``), or None when there is none."""
-    ident = read_run_json(run)
+def _stored_preset(ident: dict) -> TrainConfig | None:
+    """The preset a SCAPO run was started with, from its ``run.json`` (None for another method's run)."""
+    if ident.get("method", "scapo") != "scapo":
+        return None
     try:
         return preset_from_dict(ident["preset"])
     except (ValueError, KeyError, TypeError):
         return None
 
 
-def train(data: str | Path, run: str | Path, preset: str | TrainConfig | None = None, progress: bool = True,
-          device: str | None = None, seed: int | None = None) -> Path:
-    """Train (or resume) SCAPO; see :class:`Trainer`.
+#: SCAPO's description for the engine's run lifecycle (:mod:`scapo.engine.lifecycle`).
+SCAPO_RUN = RunSpec(method="scapo", preset=get_preset, stored_preset=_stored_preset, identity=_run_identity,
+                    job=lambda pc, data, run, device, ctx: ScapoJob(pc, data, run, device, ctx).job(),
+                    compare=_training_identity)
 
-    ``preset=None`` resumes an existing run with its own preset (from ``run.json``) and starts a new
-    run with the ``cpu`` preset. ``seed`` replaces the preset's training seed (parameter
-    initialisation, batches, augmentations); it is part of the run's identity, so each seed needs its
-    own run folder.
+
+class Trainer:
+    """SCAPO's training from Python, keeping the network: ``Trainer(data, run, preset).train()`` trains (or resumes)
+    through the engine's run lifecycle exactly as :func:`train` does, and afterwards ``.model`` is the trained
+    :class:`~scapo.models.scapo_model.SCAPOModel` and ``.job`` its :class:`ScapoJob` (both None when the run
+    was already finished: the engine builds nothing for it).
+
+    Args:
+        data, run, preset, progress, device: as :func:`train` (``preset`` None: the run's own, else ``cpu``).
+    """
+
+    def __init__(self, data: str | Path, run: str | Path, preset: TrainConfig | str | None = None,
+                 progress: bool = True, device: str | None = None):
+        self.data, self.run, self.preset, self.progress, self.device = Path(data), Path(run), preset, progress, device
+        self.job: ScapoJob | None = None
+
+    @property
+    def model(self) -> SCAPOModel | None:
+        return None if self.job is None else self.job.model
+
+    def _make(self, pc, data, run, device, ctx) -> TrainJob:
+        self.job = ScapoJob(pc, data, run, device, ctx)
+        return self.job.job()
+
+    def train(self) -> Path:
+        """Train or resume; returns the checkpoint path. Raises as :func:`scapo.engine.lifecycle.train`."""
+        return lifecycle.train(dataclasses.replace(SCAPO_RUN, job=self._make), self.data, self.run, self.preset,
+                               device=self.device, progress=self.progress)
+
+
+def run_preset(run: str | Path) -> TrainConfig | None:
+    """The preset a run folder was started with (from its ``run.json``), or None when there is none."""
+    ident = read_run_json(run)
+    return _stored_preset(ident) if isinstance(ident, dict) else None
+
+
+def train(data: str | Path, run: str | Path, preset: str | TrainConfig | None = None, progress: bool = True,
+          device: str | None = None, seed: int | None = None, overrides: dict | None = None) -> Path:
+    """Train (or resume) SCAPO with the engine's run lifecycle (:func:`scapo.engine.lifecycle.train`, which says how
+    ``preset`` (None: the run's own, else ``cpu``), ``overrides`` and ``seed`` are resolved); returns the
+    checkpoint path. ``seed`` is part of the run's identity, so each seed needs its own run folder.
 
     Raises:
-        ConfigError: a negative seed. Otherwise as :class:`Trainer`.
+        As :func:`scapo.engine.lifecycle.train`.
     """
-    if preset is None:
-        preset = run_preset(run) or "cpu"
-    if seed is not None:
-        if int(seed) < 0:
-            raise ConfigError(f"seed must be >= 0, got {seed}")
-        preset = dataclasses.replace(get_preset(preset) if isinstance(preset, str) else preset, seed=int(seed))
-    return Trainer(data, run, preset, progress, device).train()
+    return lifecycle.train(SCAPO_RUN, data, run, preset, seed=seed, overrides=overrides, device=device,
+                           progress=progress)
 
 
 def run_is_current(run: str | Path, data: str | Path, preset: str, seed: int | None = None) -> bool:
-    """Whether the run folder ``run`` was started as ``train(data, run, preset, seed=seed)`` would start
-    it now: its ``run.json`` has the training identity (preset fields other than the inference-only
-    ones, dataset, category structure) of the registered ``preset`` today. False for a folder without
-    a readable ``run.json`` and for a run of a preset whose training fields have changed since (its
-    results are stale). Raises UnknownNameError for an unknown preset."""
-    cfg = get_preset(preset)
-    if seed is not None:
-        cfg = dataclasses.replace(cfg, seed=int(seed))
-    return RunFolder(run, _run_identity(cfg, load(data, "train").card), _training_identity).is_current()
+    """Whether the run folder ``run`` was started as ``train(data, run, preset, seed=seed)`` would start it now
+    (:func:`scapo.engine.lifecycle.run_is_current`). Raises UnknownNameError for an unknown preset."""
+    return lifecycle.run_is_current(SCAPO_RUN, run, data, preset, seed)
 
 
-__all__ = ["Trainer", "TrainingClouds", "model_config", "preset_from_dict", "run_is_current",
+__all__ = ["SCAPO_RUN", "ScapoJob", "Trainer", "TrainingClouds", "model_config", "preset_from_dict", "run_is_current",
            "run_preset", "train"]

@@ -18,7 +18,6 @@ import hashlib
 import json
 import os
 import shutil
-import sys
 import tempfile
 import zlib
 from dataclasses import dataclass
@@ -193,8 +192,12 @@ def build_instance(category: str, instance_id: int, seed: int, cache_dir: Path |
 
 
 def _replace(out: Path, fresh: Path, why: str) -> None:
-    """Swap a damaged cache folder ``out`` for the freshly built ``fresh`` (warning on stderr)."""
-    print(f"scapo: warning: cached asset {out} {why}; rebuilt it", file=sys.stderr)
+    """Swap a damaged cache folder ``out`` for the freshly built ``fresh`` (a :class:`~scapo.errors.ScapoWarning`)."""
+    import warnings
+
+    from scapo.errors import ScapoWarning
+
+    warnings.warn(f"cached asset {out} {why}; rebuilt it", ScapoWarning, stacklevel=2)
     old = out.with_name(f".{out.name}.tmp-{os.getpid()}-old")
     os.rename(out, old)
     os.rename(fresh, out)
