@@ -56,7 +56,7 @@ install_python() {
   local vpy="$venv/bin/python"
   local stamp="$venv/.scapo-installed"
   local want
-  want="$(cat "$here/pyproject.toml" "$here/constraints.txt" | sha256sum | cut -c1-16)"
+  want="$(cat "$here/pyproject.toml" "$here/setup.py" "$here/constraints.txt" | sha256sum | cut -c1-16)"
   if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && "$vpy" -c "import scapo, sapien, torch" 2>/dev/null; then
     log "python environment up to date"
     return 0

@@ -1,7 +1,7 @@
 """Procedural generators of the nine benchmark categories (SPEC section 4).
 
 Each generator takes a :class:`ParamSampler` (ranges and styles from
-``scapo/sim_assets/categories/<name>.toml``) and returns an :class:`ArticulatedDesign` in the object
+``sim_assets/categories/<name>.toml``) and returns an :class:`ArticulatedDesign` in the object
 frame at rest: +z up, front facing -x. Positive joint states open the object (screen back,
 door out, drawer out, temples open, handles up, blades apart, lid up). The design is centred on
 its bounding box afterwards by :func:`scapo.sim.assets.design.finalize`.

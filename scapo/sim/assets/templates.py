@@ -1,6 +1,6 @@
 """Category templates: parameter ranges, styles, joint ranges and view ranges, kept as data.
 
-Each category has one TOML file in ``scapo/sim_assets/categories/<name>.toml`` (see that folder).
+Each category has one TOML file in ``sim_assets/categories/<name>.toml`` (see that folder).
 The templates ship inside the package (package data), so a wheel install or a remote worker (Ray) finds
 them where it imports scapo from; ``$SCAPO_SIM_ASSETS`` points to another folder of templates instead.
 """
@@ -21,21 +21,26 @@ from scapo.errors import ConfigError
 
 
 def sim_assets_dir() -> Path:
-    """Directory holding the category templates: ``$SCAPO_SIM_ASSETS`` when set, else the package's own
-    ``scapo/sim_assets`` (package data).
+    """Directory holding the category templates: ``$SCAPO_SIM_ASSETS`` when set, else the repository's top-level
+    ``sim_assets/`` (a checkout or an editable install), else the installed package data ``scapo/sim_assets/`` (a
+    wheel: ``setup.py`` maps the folder there).
 
     Raises:
         ConfigError: the folder has no ``categories/`` (a ``$SCAPO_SIM_ASSETS`` pointing elsewhere, or an
             installation made without the package data).
     """
     env = os.environ.get("SCAPO_SIM_ASSETS")
-    c = Path(env) if env else Path(__file__).resolve().parents[2] / "sim_assets"
-    if (c / "categories").is_dir():
-        return c
+    here = Path(__file__).resolve().parents[2]  # the installed (or checked-out) scapo package
+    options = [Path(env)] if env else [here.parent / "sim_assets", here / "sim_assets"]
+    for c in options:
+        if (c / "categories").is_dir():
+            return c
+    c = options[-1]
     raise ConfigError(
         f"cannot find the category templates in {c / 'categories'}; "
         + ("set SCAPO_SIM_ASSETS to a folder holding categories/*.toml" if env else
-           "reinstall scapo ('pip install .'): its package data (scapo/sim_assets) is missing")
+           "reinstall scapo ('pip install .'): its package data (scapo/sim_assets, from the repository's "
+           "sim_assets/) is missing")
     )
 
 
@@ -219,7 +224,7 @@ def parse_template(path: Path) -> CategoryTemplate:
 
 @cache
 def load_template(category: str) -> CategoryTemplate:
-    """The template of ``category`` from ``scapo/sim_assets/categories/<category>.toml``.
+    """The template of ``category`` from ``sim_assets/categories/<category>.toml``.
 
     Raises:
         ConfigError: if the file is missing or malformed.
