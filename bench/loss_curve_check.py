@@ -70,7 +70,7 @@ def main() -> int:
                      "last10_total_after_seed1": last(seed1)})
         print(rows[-1], flush=True)
     sys.path.insert(0, str(a.after.resolve()))
-    from scapo.perf import write_perf
+    from scapo.bench.perf import write_perf
 
     write_perf(rows, a.out, "train_loss_check", before_commit=commits["before"], after_commit=commits["after"],
                data=str(a.data), caps=json.dumps(CAPS), wall_s=round(time.time() - t0, 1), threads=1)

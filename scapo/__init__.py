@@ -12,7 +12,7 @@ by ``tests/test_layers.py``):
 - :mod:`scapo.losses`    SCAPO's losses
 - :mod:`scapo.models`    the SCAPO network, its training and inference
 - :mod:`scapo.methods`   the method registry: ICP, SCAPO, OP-Align-style, EAP-style, NPCS-style
-- :mod:`scapo.bench`, :mod:`scapo.perf`, :mod:`scapo.demo`, :mod:`scapo.viz`  experiments and reports
+- :mod:`scapo.bench`       experiments and reports: the tables, the ladder, perf, the demo, figures, the viewer
 - :mod:`scapo.cli`       the ``scapo`` console script
 
 Conventions (hold everywhere): metres and radians; 4x4 homogeneous transforms with

@@ -57,8 +57,8 @@ def test_icp_through_the_evaluator_gives_plausible_numbers(laptop_data, icp_run)
 def test_prediction_figure_draws_ground_truth_and_predictions(laptop_data, icp_run, tmp_path, cache_dir):
     from PIL import Image
 
+    from scapo.bench.viz import prediction_figure
     from scapo.eval.predictions import Predictions
-    from scapo.viz import prediction_figure
 
     path, _ = icp_run
     png = prediction_figure(laptop_data, Predictions.load(path), tmp_path / "fig.png", count=2, cache_dir=cache_dir)
@@ -70,7 +70,7 @@ def test_prediction_figure_draws_ground_truth_and_predictions(laptop_data, icp_r
 def test_batched_search_matches_the_exhaustive_one_on_a_small_split(laptop_data):
     """ICP's batched search (one vectorised ICP over all hypotheses and starts) segments as well as the
     exhaustive one (within 5 IoU points on four clouds); its speed is measured by scapo bench perf --what icp."""
-    from scapo.perf import bench_icp
+    from scapo.bench.perf import bench_icp
 
     rows = bench_icp(laptop_data, limit=4)
     ex, ba = rows

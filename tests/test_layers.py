@@ -19,7 +19,7 @@ STAGES = [
     ("scapo.engine",),
     ("scapo.models",),
     ("scapo.methods",),
-    ("scapo.bench", "scapo.perf", "scapo.viz", "scapo.demo", "scapo.viewer"),
+    ("scapo.bench",),
     ("scapo.cli",),
 ]
 

@@ -182,7 +182,7 @@ def test_an_unfinished_learned_run_is_refused_by_predict(laptop_data, tmp_path, 
 
 
 def test_perf_reports_each_learned_methods_inference_time():
-    from scapo.perf import bench_method
+    from scapo.bench.perf import bench_method
 
     for name in LEARNED:
         (row,) = bench_method(name, "test", device="cpu", iters=1, num_points=256)
@@ -467,7 +467,7 @@ def test_eap_joint_terms_vanish_on_a_consistent_joint_and_not_on_a_wrong_one():
 def test_perf_train_times_every_trained_methods_step_and_refuses_icp(tmp_path, capsys):
     """``scapo bench perf --what train`` (issue 30): clouds/s of one training step per stage for every trained
     method (two stages for SCAPO), written with provenance; ICP, which is not trained, is refused."""
-    from scapo.perf import bench_train
+    from scapo.bench.perf import bench_train
 
     rows = bench_train(["npcs", "scapo"], "test", iters=1)
     by = {r["method"]: r for r in rows}
@@ -488,7 +488,7 @@ def test_perf_train_times_every_trained_methods_step_and_refuses_icp(tmp_path, c
     assert row["stage1_clouds_per_s_speedup"] == pytest.approx(  # rounded to 0.01
         row["stage1_clouds_per_s"] / row["stage1_clouds_per_s_before"], abs=0.0051)
     assert out["provenance"]["baseline_commit"]
-    from scapo.perf import compare_train
+    from scapo.bench.perf import compare_train
 
     with pytest.raises(ConfigError, match="points=128, now 64"):
         compare_train([{**row, "points": 64}], tmp_path / "train_test_npcs.json")
@@ -584,7 +584,7 @@ def test_training_budget_turns_measured_speeds_into_epochs_that_fill_the_budget(
     """``perf --what train --budget-minutes``: the planned minutes of each preset's schedule on the tables'
     training clouds, and the epochs per stage (same factor for every stage) that fill the budget; a fixed
     iteration count is planned but not rescaled; bad budgets are refused."""
-    from scapo.perf import training_budget
+    from scapo.bench.perf import training_budget
 
     rows = [{"method": "a", "batch_size": 16, "stage1_clouds_per_s": 32.0, "stage1_epochs": 10,
              "max_steps_per_epoch": 0, "iterations": 0},
@@ -608,7 +608,7 @@ def test_train_speed_on_a_dataset_separates_steps_from_fixed_costs(laptop_data, 
     turns them into epochs that fill the budget (the fixed cost left out of it)."""
     import json
 
-    from scapo.perf import bench_train_data, training_budget
+    from scapo.bench.perf import bench_train_data, training_budget
 
     (row,) = bench_train_data(laptop_data, ["scapo"], "test", steps=2, work=tmp_path / "w")
     assert row["stage1_clouds_per_s"] > 0 and row["stage2_clouds_per_s"] > 0 and row["fixed_s"] >= 0
@@ -642,7 +642,7 @@ def test_cpu_presets_fill_the_equal_training_budget(name):
     import json
     from pathlib import Path
 
-    from scapo.perf import training_budget
+    from scapo.bench.perf import training_budget
 
     measured = json.loads((Path(__file__).parents[1] / "results" / "perf" /
                            f"train_cpu_laptop_i150_v8_s1_{name}.json").read_text())

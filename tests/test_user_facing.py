@@ -444,7 +444,7 @@ def test_loss_plot_gives_every_term_its_own_style_and_labelled_axes():
 
 
 def test_prediction_figures_colour_parts_as_the_ground_truth_and_list_only_what_is_drawn():
-    from scapo.viz import _axis_handles, _matched_labels
+    from scapo.bench.viz import _axis_handles, _matched_labels
 
     gt = np.array([0, 0, 1, 1, 1, -1])
     pred = np.array([1, 1, 0, 0, 0, 0])  # a correct laptop with its slots in the other order

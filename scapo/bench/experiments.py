@@ -506,8 +506,8 @@ def _figures(cells, results, work, instances, views, data_seed, protocol, out_di
              data_kwargs=None) -> list[Path]:
     """Per category: test views with ground truth and each method's output (its lowest training seed);
     one figure of the error distributions of every cell."""
+    from scapo.bench.viz import error_distribution_figure, methods_figure
     from scapo.eval import Predictions
-    from scapo.viz import error_distribution_figure, methods_figure
 
     paths = []
     for cat in dict.fromkeys(c.category for c in cells):

@@ -16,7 +16,7 @@ sphere     single rendered views from the whole sphere (``--viewpoints sphere``)
 Every rung has the same instances, views per instance and splits (only the difficulty changes), and every
 trained method gets the same training compute on every rung: ``budget_minutes`` of one CPU core, turned into
 epochs (or iterations) per method from its clouds/s measured on the ladder's own data through the engine
-(:func:`scapo.perf.bench_train_data` and :func:`scapo.perf.training_budget`, as the tables' equal budget is
+(:func:`scapo.bench.perf.bench_train_data` and :func:`scapo.bench.perf.training_budget`, as the tables' equal budget is
 made). The scores are on the **val** split (a diagnosis chooses what to fix; test stays for the tables):
 frame consistency (:func:`frame_consistency`), S, D, mean and median part rotation error R, strict and
 symmetry-aware, and the evaluator's training-split alignment inlier ratio.
@@ -133,10 +133,10 @@ def rung_config(category: str, rung: str, instances: int, views: int, train_view
 def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float, preset: str, work: Path) -> dict:
     """Per trained method, its ``preset`` with the epochs (iterations) that fill ``budget_minutes`` of one core on
     ``data``'s training split, from speeds measured once (``<work>/speed_<method>.json``, reused)."""
+    from scapo.bench.perf import bench_train_data, training_budget
     from scapo.config import override
     from scapo.data import load
     from scapo.methods import METHODS
-    from scapo.perf import bench_train_data, training_budget
 
     trained = [m for m in methods if METHODS.get(m).trained]
     clouds = len(load(data, "train"))

@@ -52,6 +52,7 @@ def retire_stale_outputs(out: Path) -> Path | None:
 def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12, seed: int = 0,
              cache_dir: Path | None = None, category: str = "laptop", preset: str = "demo") -> dict:
     """Run the demo; returns a dict with the evaluation summary and the written paths."""
+    from scapo.bench.viz import prediction_figure
     from scapo.data import generate, make_config
     from scapo.errors import StaleAssetsError
     from scapo.eval import evaluate
@@ -60,7 +61,6 @@ def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12,
     from scapo.methods import METHODS, describe, run_method, train_method
     from scapo.provenance import provenance, render_device
     from scapo.sim.assets import build_category
-    from scapo.viz import prediction_figure
 
     t0 = time.perf_counter()
     METHODS.get("scapo").preset(preset)  # an unknown preset is refused before any work

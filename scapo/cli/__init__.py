@@ -1,0 +1,1 @@
+"""The ``scapo`` console script (:mod:`scapo.cli.main`) and its command groups."""

@@ -1,0 +1,317 @@
+"""``scapo bench``: perf, the paper's tables, choices on val, the canonical-frame ladder and accuracy against
+training compute (the parser beside its handlers)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from scapo.cli.common import add_cache, floats, ints, names
+from scapo.errors import ConfigError
+
+
+def cmd_bench_choose(args) -> int:
+    """``scapo bench choose``: pick an option value on the val split, averaged over seeds."""
+    import glob
+
+    from scapo.bench import choose_on_val
+    from scapo.files import check_output_file, write_json
+    from scapo.provenance import provenance
+
+    if not args.data or not args.candidate:
+        raise ConfigError("bench choose needs --data DIR and one --candidate VALUE=GLOB per value")
+    if args.out:
+        check_output_file(args.out, "choice file", "choice.json")
+    several = len(args.data) > 1
+    candidates = {}
+    for spec in args.candidate:
+        value, eq, pattern = spec.partition("=")
+        if not eq:
+            raise ConfigError(f"--candidate {spec!r} is not of the form VALUE=GLOB (e.g. 0.3='work/pred_*_m0.3.npz')")
+        if several and "{data}" not in pattern:
+            raise ConfigError(f"--candidate {value}: with several --data, write the dataset's place in the GLOB as "
+                              f"{{data}} (e.g. {value}='{{data}}/predictions_*.npz'), got {pattern!r}")
+        lists = []
+        for d in args.data:
+            p = pattern.replace("{data}", str(d))
+            files = sorted(glob.glob(p))
+            if not files:
+                raise ConfigError(f"--candidate {value}: no file matches {p!r}")
+            lists.append([Path(f) for f in files])
+        candidates[value] = lists if several else lists[0]
+    chosen, rows = choose_on_val(args.data if several else args.data[0], candidates, args.criterion,
+                                 args.protocol or "scapo")
+    print(f"{'value':>8s} {'score':>9s} {'val S':>7s} {'val D':>7s} {'val R':>7s}  files")
+    for r in rows:
+        for p in r.get("per_dataset", ()):
+            print(f"{'':>8s} {p['score']:9.3f} {p['val_S']:7.2f} {p['val_D']:7.2f} {p['val_R']:7.2f}  "
+                  f"{len(p['files'])}  {p['dataset']}")
+        print(f"{r['value']:>8s} {r['score']:9.3f} {r['val_S']:7.2f} {r['val_D']:7.2f} {r['val_R']:7.2f}  "
+              f"{len(r['files'])}{'  (mean over datasets)' if several else ''}")
+    if args.out:
+        write_json(args.out, {"chosen": chosen, "criterion": args.criterion, "split": "val",
+                              "protocol": args.protocol or "scapo", "candidates": rows,
+                              "provenance": provenance(dataset=", ".join(str(d) for d in args.data))})
+    print(json.dumps({"chosen": chosen}))
+    return 0
+
+
+def cmd_bench_ladder(args) -> int:
+    """``scapo bench ladder``: the canonical-frame diagnosis ladder (:mod:`scapo.bench.ladder`)."""
+    from scapo.bench.ladder import LADDER_METHODS, RUNGS, run_ladder
+
+    if len(args.data) or args.categories:
+        raise ConfigError("bench ladder makes its own datasets: give --category (one), not --data or --categories")
+    rungs = args.rungs if args.rungs is not None else list(RUNGS)
+    methods = args.methods if args.methods is not None else list(LADDER_METHODS)
+    cmd = "scapo bench ladder " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "scapo bench ladder"
+    paths = run_ladder(args.category, methods, rungs, args.seeds, work=args.work / "ladder",
+                       out=args.out or Path("results/canonical_ladder"),
+                       budget_minutes=5.0 if args.budget_minutes is None else args.budget_minutes,
+                       instances=args.instances or 60, views=args.views or 8,
+                       train_views=16 if args.train_views is None else args.train_views, data_seed=args.seed,
+                       preset=args.preset, workers=max(args.workers), command=cmd, dry_run=args.dry_run,
+                       data_only=args.data_only, variants=args.variant, finished_only=args.finished_only)
+    for p in paths:
+        print(f"wrote {p}")
+    return 0
+
+
+def cmd_bench_compute(args) -> int:
+    """``scapo bench compute``: accuracy against training compute (:mod:`scapo.bench.compute`)."""
+    from scapo.bench.compute import COMPUTE_BUDGETS, run_compute_curve
+    from scapo.bench.ladder import LADDER_METHODS
+
+    if len(args.data) or args.categories:
+        raise ConfigError("bench compute uses the ladder's datasets: give --category (one), not --data or "
+                          "--categories")
+    rungs = args.rungs if args.rungs is not None else ["paper"]
+    if len(rungs) != 1:
+        raise ConfigError(f"bench compute: give one rung (--rungs paper), got {','.join(rungs)}")
+    cmd = "scapo bench compute " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "scapo bench compute"
+    paths = run_compute_curve(args.category, args.methods if args.methods is not None else list(LADDER_METHODS),
+                              args.budgets if args.budgets is not None else list(COMPUTE_BUDGETS), args.seeds,
+                              work=args.work / "ladder", out=args.out or Path("results"), rung=rungs[0],
+                              instances=args.instances or 60, views=args.views or 8,
+                              train_views=16 if args.train_views is None else args.train_views, data_seed=args.seed,
+                              preset=args.preset, workers=max(args.workers), command=cmd, dry_run=args.dry_run,
+                              data_only=args.data_only, finished_only=args.finished_only)
+    for p in paths:
+        print(f"wrote {p}")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    if args.what == "compute":
+        return cmd_bench_compute(args)
+    if args.what == "choose":
+        return cmd_bench_choose(args)
+    if args.what == "ladder":
+        return cmd_bench_ladder(args)
+    if args.what in ("table1", "table2", "table3"):
+        return cmd_bench_table(args)
+    if len(args.data) > 1:
+        raise ConfigError(f"bench {args.what} takes one --data, got {len(args.data)}")
+    args.data = args.data[0] if args.data else None
+    instances, views = args.instances or 20, args.views or 30
+    if min(args.workers) < 1 or instances < 1 or views < 1:
+        raise ConfigError("--workers, --instances and --views must be >= 1")
+    from scapo.files import check_output_dir
+
+    if args.out:
+        check_output_dir(args.out, "benchmark output folder")
+    from scapo.bench.perf import write_perf
+
+    if (args.baseline or args.budget_minutes is not None) and args.target != "train":
+        raise ConfigError("--baseline and --budget-minutes go with 'bench perf --what train'; leave them out for "
+                          f"--what {args.target}")
+    extra_prov: dict = {}
+    if args.target == "growth":
+        from scapo.bench.perf import bench_growth
+
+        rows = bench_growth(args.category, sizes=tuple(args.sizes), workers=args.workers[0], cache_dir=args.cache)
+        name = f"growth_{args.category}"
+    elif args.target == "maniskill":
+        from scapo.bench.perf import bench_maniskill
+
+        rows = bench_maniskill(args.category, instances=args.instances or 4, views=args.views or 32,
+                               cache_dir=args.cache)
+        name = f"maniskill_{args.category}"
+    elif args.target == "icp":
+        from scapo.bench.perf import bench_icp
+
+        if args.data is None:
+            raise ConfigError("bench perf --what icp needs --data DATASET (ICP's template comes from its training "
+                              "split)")
+        rows = bench_icp(args.data, limit=args.limit)
+        name = f"icp_{Path(args.data).name}"
+    elif args.target == "generate":
+        from scapo.bench.perf import bench_generate
+
+        rows = bench_generate(args.category, instances, views, tuple(args.workers), args.seed, args.cache)
+        name = f"generate_{args.category}"
+    elif args.target == "train":
+        from scapo.bench.perf import bench_train
+
+        if args.data is not None:  # real training steps on a dataset, through the engine
+            from scapo.bench.perf import bench_train_data
+
+            rows = bench_train_data(args.data, [args.method] if args.method else None, args.preset,
+                                    steps=args.steps)
+            name = f"train_{args.preset}_{Path(args.data).name}" + (f"_{args.method}" if args.method else "")
+        else:
+            rows = bench_train([args.method] if args.method else None, args.preset, device=args.device)
+            name = f"train_{args.preset}" + (f"_{args.method}" if args.method else "")
+        if args.budget_minutes is not None:
+            from scapo.bench.perf import training_budget
+
+            clouds = args.train_clouds or (rows[0].get("train_clouds") if rows else None) or 840
+            rows = training_budget(rows, args.budget_minutes, clouds)
+            extra_prov.update(budget_minutes=args.budget_minutes, train_clouds=clouds)
+        if args.baseline:
+            from scapo.bench.perf import compare_train
+
+            rows, extra_prov = compare_train(rows, args.baseline)
+            name += "_vs_baseline"
+    elif args.method is None:  # SCAPO's training and inference speed
+        from scapo.bench.perf import bench_method
+
+        rows = bench_method("scapo", args.preset, device=args.device)
+        name = f"model_{args.preset}"
+    else:
+        from scapo.bench.perf import bench_method
+
+        rows = bench_method(args.method, args.preset, device=args.device, data=args.data)
+        name = f"model_{args.method}_{args.preset}"
+    for r in rows:
+        print(r)
+    if args.out:
+        paths = write_perf(rows, args.out, name, **extra_prov)
+        print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def cmd_bench_table(args) -> int:
+    """``scapo bench table1|table2|table3``: the paper's tables, resumable per cell (``--dry-run`` lists the
+    cells)."""
+    from scapo.bench import parse_category_seeds
+    from scapo.bench.experiments import BenchOptions, run_table
+
+    instances = BenchOptions.instances if args.instances is None else args.instances
+    views = BenchOptions.views if args.views is None else args.views
+    if min(args.workers) < 1 or instances < 1 or views < 1:
+        raise ConfigError("--workers, --instances and --views must be >= 1")
+    run_table(args.what, args.methods, args.categories, instances=instances, views=views, data_seed=args.seed,
+              work_dir=args.work, out_dir=args.out or Path("results"), preset=args.preset, seeds=args.seeds,
+              category_seeds=parse_category_seeds(args.category_seeds), protocol=args.protocol, name=args.name,
+              workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run, progress=not args.no_progress,
+              device=args.device, finished_only=args.finished_only, recompute_dirty=args.recompute_dirty,
+              allow_dirty=args.allow_dirty, allow_mixed_commits=args.allow_mixed_commits,
+              sj=not args.no_sj, upright=args.upright, archive=args.archive, data_only=args.data_only,
+              viewpoints=args.viewpoints, train_views=args.train_views)
+    return 0
+
+
+def add_parsers(sub) -> None:
+    """Add this group's commands to the ``scapo`` parser's sub-parsers ``sub``."""
+    sp = sub.add_parser("bench", help="benchmarks: perf (throughput), table1 / table3 (the paper's tables, resumable "
+                        "per cell), choose (an option value on the val split)")
+    sp.add_argument("what", choices=["perf", "table1", "table2", "table3", "choose", "ladder", "compute"])
+    sp.add_argument("--rungs", type=names, default=None, help="ladder: rungs, easiest first (default one,complete,"
+                    "paper,sphere: complete clouds of one shape at rest; of all instances and states; single views in "
+                    "the paper's regime; from the whole sphere). Scored on val; --budget-minutes (default 5) core-"
+                    "minutes of training per cell; --instances 60, --views 8, --train-views 16, --methods "
+                    "scapo,op-align,eap,npcs by default; results in --out (default results/canonical_ladder)")
+    sp.add_argument("--viewpoints", default=None, choices=["paper", "sphere", "upright"],
+                    help="table1, table3: paper (default: EAP's views per source dataset, which the SCAPO paper "
+                         "follows, see 'scapo generate --help'; datasets named ..._paper, --train-views views per "
+                         "training instance), sphere (whole sphere: objects under uniform SO(3) rotations, harder than "
+                         "the paper; the tables made before the paper's views existed; table named <table>_sphere) or "
+                         "upright (the category's view ranges, the rotation diagnostic; datasets and cells in "
+                         "WORK/upright/, table named <table>_upright). Table 2 is upright (real scans are natural "
+                         "views)")
+    sp.add_argument("--upright", action="store_true", help="table1, table3: --viewpoints upright")
+    sp.add_argument("--train-views", type=int, default=None,
+                    help="table1, table3: views per training instance (default: 64 with --viewpoints paper, chosen on "
+                         "val (results/paper_regime/); --views otherwise)")
+    sp.add_argument("--variant", action="append", default=[], metavar="METHOD:LABEL:KEY=VALUE[,KEY=VALUE]",
+                    help="ladder: an extra row of METHOD with preset fields replaced (scapo train --set keys), same "
+                    "budget, e.g. scapo:consensus:losses.consensus=1; repeatable")
+    sp.add_argument("--no-sj", action="store_true", help="table2: leave out the semi-supervised (SJ) rows")
+    sp.add_argument("--data", type=Path, action="append", default=[], help="choose: the dataset (its val split is "
+                    "used); repeat to choose one value for several datasets (mean of their scores); perf --what "
+                    "icp / --method: the dataset")
+    sp.add_argument("--candidate", action="append", default=[], help="choose: VALUE=GLOB of that value's "
+                    "predictions files (one per training seed; with several --data, {data} stands for each "
+                    "dataset); repeat per value")
+    sp.add_argument("--criterion", default="D+R", help="choose: what to minimise on val, averaged over seeds "
+                    "(D+R, R, D, R_median, -S)")
+    sp.add_argument("--protocol", default=None, help="choose, table1, table3: evaluation protocol (default scapo); "
+                    "table2: default op-align, as the paper's Table 2")
+    sp.add_argument("--limit", type=int, default=0, help="perf --what icp: time the first N test clouds (0: all)")
+    sp.add_argument("--sizes", type=ints, default=[100, 1000, 10000], help="perf --what growth: dataset sizes")
+    sp.add_argument("--what", dest="target", choices=["generate", "model", "train", "icp", "maniskill", "growth"],
+                    default="generate",
+                    help="perf: generation throughput (generate), SCAPO's or a method's training/inference speed "
+                    "(model), every trained method's training clouds/s per stage (train; --method for one), "
+                    "ICP's two searches (icp, with --data), the ManiSkill3 backend against SAPIEN "
+                    "(maniskill), generation and evaluation time against dataset size (growth)")
+    sp.add_argument("--budget-minutes", type=float, default=None, help="perf --what train: the training budget per "
+                    "cell in minutes (one torch thread); adds each preset's planned minutes and the epochs per stage "
+                    "that fill the budget")
+    sp.add_argument("--budgets", type=floats, default=None, help="compute: training budgets in core-minutes per "
+                    "cell (default 5,15,45,120); accuracy against training compute on one ladder rung (--rungs, "
+                    "default paper), val split, --methods scapo,op-align,eap,npcs by default, one --seeds seed; "
+                    "datasets and speeds shared with the ladder (WORK/ladder); writes OUT (default results)/"
+                    "accuracy_vs_compute.{md,csv,json,png}")
+    sp.add_argument("--train-clouds", type=int, default=None, help="perf --what train --budget-minutes: training "
+                    "clouds of a cell (default: the --data training split, else 840: the tables' 150 instances x 8 "
+                    "views, 105 training instances)")
+    sp.add_argument("--steps", type=int, default=20, help="perf --what train --data: steps per epoch of the timed "
+                    "two-epoch run (per stage)")
+    sp.add_argument("--baseline", default=None, help="perf --what train: an earlier run's .json (e.g. at another "
+                    "commit, same machine and threads): adds each stage's clouds/s before and the speed-up")
+    sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3; a "
+                    "method's per-category preset PRESET-CATEGORY is used where it has one)")
+    sp.add_argument("--method", default=None, help="perf --what model: time this method's inference (default: "
+                    "SCAPO training and inference; icp also needs --data)")
+    sp.add_argument("--device", default=None, help="perf --what model, table1, table3: cpu | cuda")
+    sp.add_argument("--category", default="laptop", help="perf: category")
+    sp.add_argument("--categories", type=names, default=None,
+                    help="table1: default laptop,safe,eyeglasses,oven,washer; table3: default laptop,eyeglasses")
+    sp.add_argument("--methods", type=names, default=None, help="table1: default every registered method")
+    sp.add_argument("--instances", type=int, default=None,
+                    help="instances per category (tables: 150, a fifth of them test; perf: 20)")
+    sp.add_argument("--views", type=int, default=None, help="views per instance (tables: 8; perf: 30)")
+    sp.add_argument("--workers", type=ints, default=[1, 2])
+    sp.add_argument("--seed", type=int, default=0, help="seed of the data (assets, splits, views)")
+    sp.add_argument("--seeds", type=ints, default=[0], help="table1/3: training seeds of trained methods (e.g. 0,1,2)")
+    sp.add_argument("--category-seeds", action="append", default=[], metavar="CAT=SEEDS",
+                    help="table1/3: training seeds for one category instead of --seeds (e.g. safe=0); repeatable")
+    sp.add_argument("--work", type=Path, default=Path("bench_work"), help="table1/3: datasets, runs, predictions, "
+                    "cell records")
+    sp.add_argument("--dry-run", action="store_true", help="table1/3: list the cells and which are done; compute "
+                    "nothing")
+    sp.add_argument("--finished-only", action="store_true", help="table1/2/3: train and predict nothing; write the "
+                    "tables of the cells that are done or predicted (scored again when the evaluator changed "
+                    "since; the others are listed in the provenance)")
+    sp.add_argument("--data-only", action="store_true", help="table1/2/3: generate the datasets (with --archive: "
+                    "made the archived dataset's bytes where they differ only by rounding, pinned in the archive "
+                    "otherwise, their archived cells restored) and compute no cell")
+    sp.add_argument("--recompute-dirty", action="store_true", help="table1/2/3: compute again, from scratch, the done "
+                    "cells whose record names a -dirty commit (computed from uncommitted code; the old files are "
+                    "moved to <dataset>/dirty/)")
+    sp.add_argument("--allow-dirty", action="store_true", help="table1/2/3: compute or score cells from a checkout "
+                    "with uncommitted changes (refused otherwise: their code could not be recovered)")
+    sp.add_argument("--allow-mixed-commits", action="store_true", help="table1/2/3: write a table whose cells come "
+                    "from several commits (refused otherwise, naming the cells of each commit)")
+    sp.add_argument("--archive", type=Path, default=None, help="table1/2/3: keep every done cell's small files "
+                    "(record, per-sample metrics, compressed predictions, run identity) in this folder, and restore "
+                    "the cells archived there once their dataset is generated (a lost work folder then costs only "
+                    "the datasets)")
+    sp.add_argument("--name", default=None, help="table1/3: file name stem (table1_synthetic, table3_ablation)")
+    sp.add_argument("--no-progress", action="store_true")
+    sp.add_argument("--out", type=Path, default=None, help="write result files here (table1/3: default results/)")
+    add_cache(sp)
+    sp.set_defaults(func=cmd_bench)
