@@ -167,9 +167,11 @@ def test_a_moved_work_folder_keeps_its_predictions_and_the_plan_says_what_comput
 
 
 def test_a_lost_work_folder_is_restored_from_the_cells_archive(bench, monkeypatch, tmp_path):
-    """Issue 31's cells outlive their machine: the archive keeps each done cell's record, per-sample metrics,
-    compressed predictions and run identity; a fresh work folder whose dataset has the same hash gets them back
-    byte for byte and computes nothing, and one of another dataset gets nothing."""
+    """Issue 31's cells outlive their machine: the archive keeps each done cell's record (with its predictions'
+    sha256), per-sample metrics and run identity, not its predictions (most of an archive's size; reproducible); a
+    fresh work folder whose dataset has the same hash gets the cells back and writes the same table computing
+    nothing, and one of another dataset gets nothing. With ``archive_predictions`` the predictions are kept too and
+    come back byte for byte."""
     import shutil
 
     from scapo.bench.archive import restore_cells
@@ -185,7 +187,11 @@ def test_a_lost_work_folder_is_restored_from_the_cells_archive(bench, monkeypatc
         "scapo_test_s0.scapo.parquet"]
     assert sorted(p.name for p in (kept / "run_scapo_test_s0").iterdir()) == ["run.json", "timing.json"]
     original = work / "laptop_i10_v2_s0" / "predictions_scapo_test_s0.npz"
-    assert (kept / "predictions_scapo_test_s0.npz.xz").stat().st_size < original.stat().st_size
+    assert not list(kept.glob("predictions_*"))  # their sha256 is in the records
+    with_preds = tmp_path / "archive_with_predictions"
+    run_table1(["npcs", "scapo"], ["laptop"], work_dir=work, out_dir=None, seeds=[0], archive=with_preds,
+               archive_predictions=True, **SMALL)
+    assert (with_preds / kept.name / "predictions_scapo_test_s0.npz.xz").stat().st_size < original.stat().st_size
     # a fresh machine: the dataset generated again (here: copied without the runs, predictions and records)
     fresh = tmp_path / "fresh"
     shutil.copytree(work / "laptop_i10_v2_s0", fresh / "laptop_i10_v2_s0",
@@ -198,9 +204,16 @@ def test_a_lost_work_folder_is_restored_from_the_cells_archive(bench, monkeypatc
     again = run_table1(["npcs", "scapo"], ["laptop"], work_dir=fresh, out_dir=tmp_path / "out", seeds=[0],
                        archive=archive, **SMALL)
     assert _same(again, results)
-    assert (fresh / "laptop_i10_v2_s0" / original.name).read_bytes() == original.read_bytes()
+    assert not (fresh / "laptop_i10_v2_s0" / original.name).exists()  # tabled from its record and per-sample metrics
     assert json.loads((tmp_path / "out" / "table1_synthetic_sphere.json").read_text())["provenance"]["cells"] == \
         json.loads((out / "table1_synthetic_sphere.json").read_text())["provenance"]["cells"]
+    assert (tmp_path / "out" / "table1_synthetic_sphere.md").is_file()
+    kept_preds = tmp_path / "fresh_kept"
+    shutil.copytree(work / "laptop_i10_v2_s0", kept_preds / "laptop_i10_v2_s0",
+                    ignore=shutil.ignore_patterns("run_*", "predictions_*", "cells", "stale", "dirty"))
+    assert _same(run_table1(["npcs", "scapo"], ["laptop"], work_dir=kept_preds, out_dir=None, seeds=[0],
+                            archive=with_preds, **SMALL), results)
+    assert (kept_preds / "laptop_i10_v2_s0" / original.name).read_bytes() == original.read_bytes()
     # another dataset under the same folder name restores nothing, and a restore never overwrites
     other = tmp_path / "other" / "laptop_i10_v2_s0"
     other.mkdir(parents=True)
@@ -808,7 +821,7 @@ def test_cells_of_an_unpinned_dataset_are_adopted_by_its_regeneration_only_when_
     shutil.copytree(work / data.name, data)
     legacy = tmp_path / "legacy"
     run_table1(["icp", "npcs", "scapo"], ["laptop"], work_dir=data.parent, out_dir=None, seeds=[0], archive=legacy,
-               **SMALL)
+               archive_predictions=True, **SMALL)  # adoption scores the archived predictions again
     shutil.rmtree(legacy / data.name / "dataset")  # archived before datasets were pinned
     old = load(data, "test").dataset_hash
 

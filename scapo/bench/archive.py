@@ -9,7 +9,8 @@ recomputes every cell. The archive keeps, per finished cell, what makes its reco
     <archive>/<dataset folder name>/
         cells/<key>.<protocol>.json       the cell's record (scores, provenance, dataset hash, predictions' sha256)
         cells/<key>.<protocol>.parquet    its per-sample metrics
-        predictions_<key>.npz.xz          its predictions, xz-compressed (restored byte for byte: the sha256 holds)
+        predictions_<key>.npz.xz          only with ``predictions=True``: its predictions, xz-compressed (restored
+                                          byte for byte: the sha256 holds)
         run_<run key>/run.json            the trained run's identity (preset fields, dataset, seed) ...
         run_<run key>/timing.json         ... and its training wall time and steps (no checkpoint)
 
@@ -17,7 +18,11 @@ recomputes every cell. The archive keeps, per finished cell, what makes its reco
 :func:`restore_cells` copies the archived cells of a dataset back into a work folder whose dataset has the same
 hash (a dataset is generated deterministically from its config; one of another hash gets nothing restored, and
 its cells are computed again). Restoring never overwrites a file of the work folder, and a record is written last,
-so an interrupted restore leaves no cell that looks done without its predictions. Nothing in the archive is run:
+so an interrupted restore leaves no cell that looks done without its per-sample metrics. Predictions are most of an
+archive's size and are reproducible from the commit, the dataset and the seed, so they are kept only on request: a
+cell restored without them is tabled from its record and per-sample metrics (its predictions' sha256 stays in the
+record, so predictions made again can be checked against it), and one whose record the evaluator no longer accepts is
+computed again. :func:`adopt_dataset` and :func:`rescore_cell` need archived predictions. Nothing in the archive is run:
 records and run files are JSON, predictions are loaded by :meth:`scapo.eval.Predictions.load` with its checks.
 
 The archive also pins each dataset's bytes (:func:`archive_dataset`, :func:`reconcile_dataset`)::
@@ -99,7 +104,7 @@ def _copy(src: Path, dst: Path) -> None:
     _write(dst, data)
 
 
-def archive_cell(data: Path, cell: Cell, protocol: str, archive: Path) -> bool:
+def archive_cell(data: Path, cell: Cell, protocol: str, archive: Path, predictions: bool = False) -> bool:
     """Copy one done cell's small files from its dataset folder ``data`` into ``archive/<data.name>/``.
 
     Args:
@@ -107,6 +112,7 @@ def archive_cell(data: Path, cell: Cell, protocol: str, archive: Path) -> bool:
         cell: the cell (its record must exist: the bench calls this after :func:`~scapo.bench.cells.compute_cell`).
         protocol: the protocol the record was scored under (``scapo``, ``eap``, ``op-align``).
         archive: the archive's root folder (created when missing).
+        predictions: also keep the cell's predictions (xz-compressed); by default only their sha256 (in the record).
 
     Returns:
         True when anything was written (a cell new to the archive, or one whose record changed), else False.
@@ -123,7 +129,7 @@ def archive_cell(data: Path, cell: Cell, protocol: str, archive: Path) -> bool:
     if dst.record.is_file() and dst.record.read_bytes() == record:
         return False
     xz = dst.predictions.with_name(dst.predictions.name + ".xz")
-    if src.predictions.is_file():
+    if predictions and src.predictions.is_file():
         _write(xz, lzma.compress(src.predictions.read_bytes(), preset=6))
     if cell.trained:
         for name in RUN_FILES:

@@ -165,15 +165,17 @@ def cell_paths(data: Path, cell: Cell, protocol: str) -> CellPaths:
 
 
 def _read_record(paths: CellPaths, dataset_hash: str) -> dict | None:
-    """The cell's record when it is still valid (same dataset, predictions and evaluator), else None."""
+    """The cell's record when it is still valid (same dataset and evaluator, per-sample metrics present, and its
+    predictions, where present, the ones it scored: a cell restored from an archive kept without predictions has
+    none), else None."""
     try:
         rec = json.loads(paths.record.read_text())
     except (OSError, ValueError):
         return None
     if (rec.get("dataset_hash") != dataset_hash or rec.get("evaluator") != evaluator_fingerprint()
-            or not paths.predictions.is_file() or not paths.per_sample.is_file()
-            or rec.get("predictions_sha256") != sha256_file(paths.predictions)):
-        return None
+            or not paths.per_sample.is_file()
+            or (paths.predictions.is_file() and rec.get("predictions_sha256") != sha256_file(paths.predictions))):
+        return None  # a record restored from an archive without its predictions stays valid while its scores are
     cell = rec.get("cell", {})
     if cell.get("seed") is not None and not _run_current(paths.run, cell.get("method", ""), cell.get("preset"),
                                                         cell.get("seed")):

@@ -259,13 +259,14 @@ def data_settings(category: str, data_kwargs: dict | None = None, category_data:
 def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str,
              workers: int, cache_dir, progress: bool, device: str | None, finished_only: bool = False,
              data_kwargs: dict | None = None, recompute_dirty: bool = False, category_data: dict | None = None,
-             archive: Path | None = None, data_only: bool = False):
+             archive: Path | None = None, data_only: bool = False, archive_predictions: bool = False):
     """Generate each dataset once (resumes), then compute every cell in order; with ``finished_only``
     nothing is computed and only the cells that are done are returned (the others in ``missing``). With
     ``archive`` (:mod:`scapo.bench.archive`), each generated dataset is first made the archived dataset's bytes
     where it differs from it only by rounding (:func:`~scapo.bench.archive.reconcile_dataset`), or pinned in the
     archive when none is (:func:`~scapo.bench.archive.archive_dataset`); the archived cells of each dataset are
-    restored into the work folder once the dataset exists, and every done cell is archived. With ``data_only``
+    restored into the work folder once the dataset exists, and every done cell is archived (its predictions only with
+    ``archive_predictions``). With ``data_only``
     the datasets are generated (reconciled, pinned, their cells restored) and no cell is computed or returned."""
     results, records, hashes, done, missing = [], [], {}, [], []
 
@@ -322,7 +323,7 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
         res, rec, computed = compute_cell(data, c, protocol, progress=progress, device=device,
                                           recompute_dirty=recompute_dirty, evaluate_only=finished_only)
         if archive is not None:
-            archive_cell(data, c, protocol, archive)
+            archive_cell(data, c, protocol, archive, predictions=archive_predictions)
         s = res.summary
         print(f"{'computed' if computed else 'cached  '} {c.category:11s} {c.key:44s} "
               + " ".join(f"{k}={s[k]:.3f}" for k in ("S", "D", "C", "R", "R_median")), flush=True)
@@ -430,7 +431,8 @@ def _writer(write_table, name, out_dir, figures, work_dir, instances, views, dat
 
 def _bench(title, cells, methods, categories, write, instances, views, data_seed, work_dir, out_dir, preset, protocol,
            workers, cache_dir, dry_run, progress, device, finished_only, data_kwargs=None, recompute_dirty=False,
-           category_data=None, allow_dirty=False, allow_mixed_commits=False, archive=None, data_only=False):
+           category_data=None, allow_dirty=False, allow_mixed_commits=False, archive=None, data_only=False,
+           archive_predictions=False):
     """What both tables do: check names and outputs, list the cells (dry run) or compute them, and
     ``write(results, done cells, provenance) -> paths`` into ``out_dir`` (one clean commit for every cell unless
     allowed: :func:`check_commits`)."""
@@ -455,7 +457,7 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
     results, records, hashes, done, missing = _compute(cells, work_dir, instances, views, data_seed, protocol,
                                                        workers, cache_dir, progress, device, finished_only,
                                                        data_kwargs, recompute_dirty, category_data, archive,
-                                                       data_only)
+                                                       data_only, archive_predictions)
     if out_dir is not None and not data_only:
         check_commits(done, records, allow_dirty, allow_mixed_commits)
         kw = data_kwargs or SYNTHETIC_DATA
@@ -512,12 +514,19 @@ def _figures(cells, results, work, instances, views, data_seed, protocol, out_di
     paths = []
     for cat in dict.fromkeys(c.category for c in cells):
         data = dataset_dir(work, cat, instances, views, data_seed, data_kwargs)
-        preds = {}
+        preds, absent = {}, []
         for c in sorted((c for c in cells if c.category == cat), key=lambda c: -1 if c.seed is None else c.seed):
-            if c.label not in preds:
-                preds[c.label] = Predictions.load(cell_paths(data, c, protocol).predictions)
-        paths.append(methods_figure(data, preds, Path(out_dir) / f"{name}_{cat}.png",
-                                    names={k: (describe(k) or (k,))[0] for k in preds}))
+            path = cell_paths(data, c, protocol).predictions
+            if c.label not in preds and path.is_file():
+                preds[c.label] = Predictions.load(path)
+            elif not path.is_file():
+                absent.append(c.key)
+        if absent:  # restored from an archive kept without predictions: the figure shows the rows it can
+            print(f"{cat}: no predictions for {', '.join(absent)} (restored without them); the figure of test "
+                  "views leaves them out", flush=True)
+        if preds:
+            paths.append(methods_figure(data, preds, Path(out_dir) / f"{name}_{cat}.png",
+                                        names={k: (describe(k) or (k,))[0] for k in preds}))
     paths.append(error_distribution_figure(results, Path(out_dir) / f"{name}_errors.png",
                                            names={r.method: (describe(r.method) or (r.method,))[0] for r in results}))
     return paths
@@ -639,12 +648,17 @@ class BenchOptions:
     """Write a table whose cells were computed at several commits (the provenance lists each cell's); refused
     otherwise, naming the cells of each commit."""
     archive: Path | None = None
-    """A cells archive (:mod:`scapo.bench.archive`): every done cell's small files (record, per-sample metrics,
-    compressed predictions, the run's identity and timing) are copied there, and the archived cells of a dataset are
+    """A cells archive (:mod:`scapo.bench.archive`): every done cell's small files (record with its predictions'
+    sha256, per-sample metrics, the run's identity and timing) are copied there, and the archived cells of a dataset are
     restored into the work folder once the dataset is generated (same dataset hash only), so that a work folder lost
     with its machine costs only the datasets. The archive also pins each dataset's bytes: a dataset generated on
     another kind of CPU, which differs from the pinned one only by the rounding of double-precision ground truth, is
     made the pinned one before its cells are restored. An upright bench uses ``<archive>/upright/``."""
+    archive_predictions: bool = False
+    """With ``archive``, also keep each cell's predictions there (xz-compressed; restored byte for byte). Without them
+    (the default: they are most of an archive's size, and reproducible from the commit, the dataset and the seed) a
+    restored cell is scored and tabled from its record and per-sample metrics; a cell whose record the evaluator no
+    longer accepts is then computed again, and the tables' per-category figures of predictions are left out."""
     data_only: bool = False
     """Generate the datasets (with ``archive``: reconcile, pin, restore their cells) and compute no cell; writes
     no table. Prepares a work folder whose cells are computed by another checkout (a clean worktree of the commit)."""
@@ -737,7 +751,7 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
                   opts.work_dir, opts.out_dir, opts.preset, opts.protocol or spec.protocol, opts.workers,
                   opts.cache_dir, opts.dry_run, opts.progress, opts.device, opts.finished_only, data,
                   opts.recompute_dirty, spec.category_data or None, opts.allow_dirty, opts.allow_mixed_commits,
-                  opts.archive, opts.data_only)
+                  opts.archive, opts.data_only, opts.archive_predictions)
 
 
 def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGORIES, **options):

@@ -209,7 +209,7 @@ def cmd_bench_table(args) -> int:
               device=args.device, finished_only=args.finished_only, recompute_dirty=args.recompute_dirty,
               allow_dirty=args.allow_dirty, allow_mixed_commits=args.allow_mixed_commits,
               sj=not args.no_sj, upright=args.upright, archive=args.archive, data_only=args.data_only,
-              viewpoints=args.viewpoints, train_views=args.train_views)
+              archive_predictions=args.archive_predictions, viewpoints=args.viewpoints, train_views=args.train_views)
     return 0
 
 
@@ -307,9 +307,12 @@ def add_parsers(sub) -> None:
     sp.add_argument("--allow-mixed-commits", action="store_true", help="table1/2/3: write a table whose cells come "
                     "from several commits (refused otherwise, naming the cells of each commit)")
     sp.add_argument("--archive", type=Path, default=None, help="table1/2/3: keep every done cell's small files "
-                    "(record, per-sample metrics, compressed predictions, run identity) in this folder, and restore "
-                    "the cells archived there once their dataset is generated (a lost work folder then costs only "
-                    "the datasets)")
+                    "(record with its predictions' sha256, per-sample metrics, run identity) in this folder, and "
+                    "restore the cells archived there once their dataset is generated (a lost work folder then costs "
+                    "only the datasets; a restored cell is tabled from its record and per-sample metrics)")
+    sp.add_argument("--archive-predictions", action="store_true", help="table1/2/3 --archive: also keep each "
+                    "cell's predictions (xz; most of an archive's size), so that a restored cell can be scored again "
+                    "by a changed evaluator or adopted by a dataset regenerated on another CPU kind")
     sp.add_argument("--name", default=None, help="table1/3: file name stem (table1_synthetic, table3_ablation)")
     sp.add_argument("--no-progress", action="store_true")
     sp.add_argument("--out", type=Path, default=None, help="write result files here (table1/3: default results/)")

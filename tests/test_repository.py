@@ -1,0 +1,27 @@
+"""The repository stays a code repository: ``results/`` within its size budget, no predictions committed."""
+
+from pathlib import Path
+
+import scapo
+
+ROOT = Path(scapo.__file__).resolve().parent.parent
+#: ``results/``'s budget in MB. Today's tree (records, per-sample metrics, pinned datasets, tables, figures) is
+#: 68 MB; the next step down is one per-sample metrics file per table instead of 510 small parquet files (36 MB).
+RESULTS_BUDGET_MB = 72
+
+
+def test_results_fit_their_size_budget():
+    files = [p for p in (ROOT / "results").rglob("*") if p.is_file()]
+    total = sum(p.stat().st_size for p in files) / 2 ** 20
+    largest = sorted(files, key=lambda p: -p.stat().st_size)[:5]
+    assert total <= RESULTS_BUDGET_MB, (
+        f"results/ is {total:.1f} MB, over its {RESULTS_BUDGET_MB} MB budget; largest: "
+        + ", ".join(f"{p.relative_to(ROOT)} ({p.stat().st_size / 2 ** 20:.1f} MB)" for p in largest)
+        + ". Keep predictions and checkpoints out of results/ (a cells archive keeps records, per-sample metrics and "
+          "the predictions' sha256), and let superseded tables and figures leave the tree")
+
+
+def test_no_predictions_or_checkpoints_are_committed_in_results():
+    heavy = [p.relative_to(ROOT) for p in (ROOT / "results").rglob("*")
+             if p.is_file() and (p.name.startswith("predictions_") or p.suffix == ".pt")]
+    assert not heavy, f"predictions or checkpoints in results/: {heavy[:5]}"
