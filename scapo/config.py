@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +45,8 @@ def read_config(path: str | Path) -> dict[str, Any]:
 
     Raises:
         ConfigError: missing or unreadable file, a syntax error (with the parser's message), another suffix, a
-            file that is not a table of settings, or YAML without PyYAML installed."""
+            file that is not a table of settings, a setting given twice (a repeated YAML key, or one key spelled
+            both dotted and in its table), or YAML without PyYAML installed."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"--config {path}: no such file")
@@ -66,8 +68,22 @@ def read_config(path: str | Path) -> dict[str, Any]:
         except ImportError:
             raise ConfigError(f"--config {path}: reading YAML needs PyYAML (pip install pyyaml); or write the "
                               "file as TOML") from None
+        class UniqueKeys(yaml.SafeLoader):  # plain data only (no tags, no code), and no key given twice
+            pass
+
+        def mapping(loader, node, deep=False):
+            seen = set()
+            for key_node, _ in node.value:
+                key = loader.construct_object(key_node, deep=deep)
+                if key in seen:
+                    raise ConfigError(f"--config {path} gives the key {key!r} twice (line "
+                                      f"{key_node.start_mark.line + 1}); give each setting once")
+                seen.add(key)
+            return loader.construct_mapping(node, deep)
+
+        UniqueKeys.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
         try:
-            data = yaml.safe_load(text)  # plain data only: no tags, no code
+            data = yaml.load(text, Loader=UniqueKeys)  # noqa: S506 - a SafeLoader subclass
         except yaml.YAMLError as e:
             raise ConfigError(f"--config {path} is not valid YAML ({e})") from None
     else:
@@ -84,6 +100,9 @@ def read_config(path: str | Path) -> dict[str, Any]:
             key = f"{prefix}{k}"
             if isinstance(v, dict):
                 walk(key + ".", v)
+            elif key in flat:  # e.g. "losses.seg" and [losses] seg: one setting spelled twice
+                raise ConfigError(f"--config {path} gives {key!r} twice (once as a dotted key, once in its table); "
+                                  "give each setting once")
             else:
                 flat[key] = v
 
@@ -190,3 +209,33 @@ def override(settings: Any, values: Mapping[str, Any], what: str = "preset") -> 
         return dataclasses.replace(settings, **changes)
     except (ValueError, TypeError) as e:
         raise ConfigError(f"{what}: {e}") from None
+
+
+def check_settings(obj: Any, *, positive: Sequence[str] = (), non_negative: Sequence[str] = (),
+                   minimum: Mapping[str, int] | None = None, positive_tuples: Sequence[str] = ()) -> None:
+    """The range checks of a settings dataclass, for its ``__post_init__``: every float field finite (no NaN or
+    infinity), the fields in ``positive`` > 0, in ``non_negative`` >= 0, each of ``minimum`` at least its value, and
+    each of ``positive_tuples`` a non-empty tuple of positive integers.
+
+    Raises:
+        ValueError: naming the first field that fails and its value (:func:`override` turns it into a ConfigError of
+            the ``--set`` key)."""
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError(f"invalid {f.name}: must be a finite number, got {v!r}")
+    for name in positive:
+        if not getattr(obj, name) > 0:
+            raise ValueError(f"invalid {name}: must be > 0, got {getattr(obj, name)!r}")
+    for name in non_negative:
+        if not getattr(obj, name) >= 0:
+            raise ValueError(f"invalid {name}: must be >= 0, got {getattr(obj, name)!r}")
+    for name, low in (minimum or {}).items():
+        v = getattr(obj, name)
+        if isinstance(v, bool) or not isinstance(v, int) or v < low:
+            raise ValueError(f"invalid {name}: must be an integer >= {low}, got {v!r}")
+    for name in positive_tuples:
+        v = getattr(obj, name)
+        if not isinstance(v, tuple) or not v or not all(isinstance(x, int) and not isinstance(x, bool) and x > 0
+                                                         for x in v):
+            raise ValueError(f"invalid {name}: must be a non-empty list of positive integers, got {v!r}")

@@ -133,14 +133,38 @@ def _make_dir(folder: Path, what: str) -> None:
             from e
 
 
-def check_output_dir(folder: str | Path, what: str = "output folder") -> Path:
+#: Files that make a folder a scapo dataset's (its card, journal or config) or a training run's (identity,
+#: checkpoint): every other output is refused there, so that it can never replace or mix with them.
+DATASET_FILES = ("card.json", "shards.jsonl", "manifest.parquet")
+RUN_FOLDER_FILES = ("run.json", "checkpoint.pt")
+
+
+def owner_of(folder: str | Path) -> str | None:
+    """``"dataset"`` or ``"run"`` when ``folder`` is a scapo dataset or training-run folder, else None."""
+    folder = Path(folder)
+    if any((folder / f).is_file() for f in DATASET_FILES) or ((folder / "config.json").is_file()
+                                                              and (folder / "shards").is_dir()):
+        return "dataset"
+    if any((folder / f).is_file() for f in RUN_FOLDER_FILES):
+        return "run"
+    return None
+
+
+def check_output_dir(folder: str | Path, what: str = "output folder", own: str | None = None) -> Path:
     """Create ``folder`` if needed and check that files can be written in it; returns it.
+
+    ``own``: the kind of folder the caller writes (``"dataset"`` for ``scapo generate``, ``"run"`` for training); any
+    other caller is refused a dataset or run folder (:func:`owner_of`), whose files its outputs could replace.
 
     Raises:
         OutputError: ``folder`` (or a parent) is a file, cannot be created, or is not writable
-            (read-only mount, permissions).
+            (read-only mount, permissions); ``folder`` is a dataset or run folder another writer owns.
     """
     folder = Path(folder)
+    owner = owner_of(folder) if folder.is_dir() else None
+    if owner is not None and owner != own:
+        raise OutputError(f"{what} {folder} is a scapo {owner} folder; its files are not for other outputs (they "
+                          f"could be replaced): give another folder")
     _make_dir(folder, what)
     _probe_writable(folder, what)
     return folder
@@ -310,6 +334,65 @@ def load_npz_object(path: str | Path, key: str = "arr_0"):
         else:
             arr = np.frombuffer(f.read(), dtype=dtype).reshape(shape, order="F" if fortran else "C")
     return arr.item() if isinstance(arr, np.ndarray) and arr.shape == () else arr
+
+
+#: The key (JSON) or PNG text field that marks a file as an output scapo wrote, with its kind as the value
+#: (``"scapo preview"``, ``"scapo assets symmetry"``): a file is replaced only when it carries the same mark.
+OUTPUT_MARK = "scapo_output"
+
+
+def output_mark(kind: str) -> dict:
+    """The mark of an output of ``kind`` (e.g. ``"scapo preview"``): ``{OUTPUT_MARK: kind}``, a JSON object's key or
+    (``metadata=`` of :func:`atomic_savefig`) a PNG's text field."""
+    return {OUTPUT_MARK: kind}
+
+
+def is_output(path: str | Path, kind: str) -> bool:
+    """Whether the file ``path`` is an output of ``kind`` that scapo wrote (its mark: :func:`output_mark`)."""
+    import json
+
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".json":
+            return json.loads(path.read_text()).get(OUTPUT_MARK) == kind
+        if path.suffix.lower() == ".png":
+            from PIL import Image
+
+            with Image.open(path) as im:
+                return im.text.get(OUTPUT_MARK) == kind
+    except Exception:  # noqa: BLE001 - unreadable, not JSON or not a PNG: not ours
+        return False
+    return False
+
+
+def check_output_owned_file(path: str | Path, kind: str, what: str, example: str) -> Path:
+    """:func:`check_output_file` for an output that replaces only its own kind (:func:`is_output`) and is never written
+    into a dataset or run folder (:func:`owner_of`).
+
+    Raises:
+        OutputError: as :func:`check_output_file`; the folder is a dataset or run folder; ``path`` exists and is not
+            such an output (naming it)."""
+    path = Path(path)
+    owner = owner_of(path.parent) if path.parent.is_dir() else None
+    if owner is not None:
+        raise OutputError(f"{what} {path} would be written into a scapo {owner} folder; give a path outside it")
+    return check_output_file(path, what, example, replaceable=lambda p: is_output(p, kind))
+
+
+def check_name(name: str, flag: str = "--name") -> str:
+    """``name`` as a file-name stem of an output (``table1``, ``laptop_twin``): no folder separator, no ``..``, not
+    hidden, not empty, so that it stays inside its ``--out`` folder.
+
+    Raises:
+        ConfigError: naming the flag and what a good name looks like."""
+    from scapo.errors import ConfigError
+
+    text = str(name)
+    if (not text or text != text.strip() or "/" in text or "\\" in text or text.startswith(".")
+            or any(ord(c) < 32 for c in text)):
+        raise ConfigError(f"{flag} {name!r} must be a plain file name (letters, digits, '_', '-'; no folders, not "
+                          "starting with '.'), e.g. table1")
+    return text
 
 
 def check_own_files(paths, marker: Path, what: str, hint: str) -> None:

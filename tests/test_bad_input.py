@@ -618,3 +618,95 @@ def test_perf_growth_command_writes_its_rows(tmp_path, capsys):
     rows = json.loads((tmp_path / "perf" / "growth_laptop.json").read_text())["rows"]
     assert [r["samples"] for r in rows] == [20, 40] and "generate_growth_exponent" in rows[1]
     assert rows[1]["test_samples"] > 0
+
+
+def test_outputs_never_leave_out_or_land_in_a_dataset_or_run_folder(laptop_data, run, tmp_path):
+    """One ownership rule for every writer: a ``--name`` stays inside ``--out``; no table, report or image is written
+    into a dataset or run folder (their card, run.json or checkpoint could be replaced); an existing file is replaced
+    only by an output of its own kind (its mark)."""
+    import shutil
+
+    preds = tmp_path / "p.npz"
+    assert cli("predict", "--method", "icp", "--data", laptop_data, "--out", preds)[0] == 0
+    for name in ("../escaped", "a/b", ".hidden", ""):
+        assert_clear_error(cli("evaluate", "--data", laptop_data, "--pred", preds, "--out", tmp_path / "t", "--name",
+                               name), "evaluate", "must be a plain file name")
+    assert not (tmp_path / "escaped.json").exists()
+    data = tmp_path / "data"
+    shutil.copytree(laptop_data, data)
+    card = (data / "card.json").read_bytes()
+    assert_clear_error(cli("evaluate", "--data", laptop_data, "--pred", preds, "--out", data, "--name", "card"),
+                       "evaluate", "is a scapo dataset folder")
+    assert (data / "card.json").read_bytes() == card
+    r = tmp_path / "run"
+    shutil.copytree(run, r)
+    ident = (r / "run.json").read_bytes()
+    assert_clear_error(cli("evaluate", "--data", laptop_data, "--pred", preds, "--out", r, "--name", "run"),
+                       "evaluate", "is a scapo run folder")
+    assert (r / "run.json").read_bytes() == ident
+    assert_clear_error(cli("assets", "symmetry", "--category", "laptop", "--instances", "1", "--views", "1",
+                           "--json", data / "card.json"), "assets", "scapo dataset folder")
+    mine = tmp_path / "notes.json"
+    mine.write_text('{"provenance": "my own notes"}')
+    assert_clear_error(cli("assets", "symmetry", "--category", "laptop", "--instances", "1", "--views", "1",
+                           "--json", mine), "assets", "exists and is not a symmetry report")
+    photo = tmp_path / "holiday.png"
+    photo.write_bytes(b"\x89PNG\r\n\x1a\n not really")
+    assert_clear_error(cli("preview", "--data", laptop_data, "--out", photo), "preview", "is not a preview image")
+    assert mine.read_text() == '{"provenance": "my own notes"}' and photo.read_bytes().endswith(b"not really")
+
+
+def test_an_output_of_its_own_kind_is_replaced(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from scapo.errors import OutputError
+    from scapo.files import atomic_savefig, check_output_owned_file, output_mark, write_json
+
+    png, js = tmp_path / "p.png", tmp_path / "s.json"
+    atomic_savefig(plt.figure(), png, metadata=output_mark("scapo preview"))
+    write_json(js, {**output_mark("scapo assets symmetry"), "x": 1})
+    assert check_output_owned_file(png, "scapo preview", "preview image", "preview.png") == png
+    assert check_output_owned_file(js, "scapo assets symmetry", "symmetry report", "symmetry.json") == js
+    with pytest.raises(OutputError, match="is not a preview image"):  # another kind's mark is not this kind's
+        check_output_owned_file(png, "scapo twin", "preview image", "preview.png")
+
+
+def test_statistics_and_lists_that_would_mislead_are_refused(laptop_data, run, tmp_path):
+    """Two predictions files of one run are not two training seeds; an empty --categories / --methods does not mean
+    "everything"; a candidate value given twice is not silently dropped; seeds and folders are checked before any
+    dataset is rendered, and the dry run checks what the real run checks."""
+    p1, p2 = tmp_path / "a.npz", tmp_path / "b.npz"
+    assert cli("predict", "--run", run, "--data", laptop_data, "--out", p1)[0] == 0
+    assert cli("predict", "--run", run, "--data", laptop_data, "--out", p2, "--option", "refine_steps=0")[0] == 0
+    assert_clear_error(cli("evaluate", "--data", laptop_data, "--pred", p1, "--pred", p2), "evaluate",
+                       "are predictions of one run")
+    for flag in ("--categories", "--methods"):
+        for empty in ("", ","):
+            err = io.StringIO()
+            with contextlib.redirect_stderr(err), pytest.raises(SystemExit) as exit_:  # argparse's usage error
+                main(["bench", "table1", flag, empty, "--dry-run", "--work", str(tmp_path / "w")])
+            assert exit_.value.code == 2 and "names nothing" in err.getvalue() and "Traceback" not in err.getvalue()
+    assert_clear_error(cli("bench", "choose", "--data", laptop_data, "--candidate", f"1={p1}", "--candidate",
+                           f"1={p2}"), "bench", "is given twice")
+    for dry in ((), ("--dry-run",)):
+        assert_clear_error(cli("bench", "table1", "--seeds", "-1", "--categories", "laptop", "--work",
+                               tmp_path / "w", *dry), "bench", "training seeds must be integers")
+        assert not (tmp_path / "w").exists()
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    assert_clear_error(cli("bench", "table1", "--dry-run", "--work", a_file), "bench", "is (or is inside) a file")
+
+
+def test_ranges_and_indices_that_would_mislead_are_refused(laptop_data, tmp_path):
+    from scapo.data import load
+
+    assert_clear_error(cli("generate", "--category", "laptop", "--instances", "2", "--views", "1", "--azimuth",
+                           "nan,nan", "--out", tmp_path / "d"), "generate", "both ends must be finite")
+    ds = load(laptop_data, "test")
+    for bad in (1.5, "1", True):
+        with pytest.raises(TypeError, match="must be an integer"):
+            ds[bad]
+    assert ds[np.int64(1)]["view_id"] == ds[1]["view_id"]

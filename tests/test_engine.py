@@ -270,3 +270,20 @@ def test_training_takes_the_usable_cores_at_most_omp_num_threads(monkeypatch, tm
     monkeypatch.setattr(loop, "fit", lambda *a, **k: seen.append(torch.get_num_threads()))
     train_method("npcs", DATA / "pin_laptop", tmp_path / "run", "test", progress=False)
     assert seen == [1]
+
+
+def test_nan_weights_stop_training_with_the_tensor_named():
+    """An optimiser step can make weights NaN or infinite while every loss it saw was finite (an extreme learning
+    rate at the last step of an epoch); the engine checks the weights before each checkpoint."""
+    import torch
+
+    from scapo.engine.loop import _check_weights
+    from scapo.errors import TrainingError
+
+    net = torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.Linear(4, 2))
+    _check_weights(net, 1, 0)  # finite: nothing said
+    with torch.no_grad():
+        net[1].bias[0] = float("inf")
+    with pytest.raises(TrainingError, match=r"1 weight tensor\(s\) became NaN or infinite in stage 2, epoch 3 "
+                                            r"\(first: 1.bias\)"):
+        _check_weights(net, 2, 3)

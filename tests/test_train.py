@@ -274,19 +274,33 @@ def test_gaussian_seg_labels_are_a_preset_part_and_leave_older_runs_current(lapt
 
 def test_set_on_an_existing_run_starts_from_the_runs_own_preset(laptop_data, finished_run, tmp_path):
     """``scapo train --set FIELD=VALUE`` on an existing run without ``--preset`` replaces a field of the run's own
-    preset (``--preset``'s help: "default: an existing run's own preset, else cpu"), not of ``cpu``: an
-    inference-only field keeps the run's training identity, so the finished run is accepted as it is."""
+    preset (``--preset``'s help: "default: an existing run's own preset, else cpu"), not of ``cpu``: an interrupted
+    run resumes with the change recorded; on a finished run, which is never trained again, it is refused with what to
+    do instead."""
+    import json
+
     from scapo.cli.main import main
 
+    p = dataclasses.replace(TEST, stage1_epochs=2, stage2_epochs=1)  # the run's own preset, not the registry's
     run = tmp_path / "run"
-    shutil.copytree(finished_run, run)
-    before = (run / "checkpoint.pt").read_bytes()
+    interrupt_at(Trainer(laptop_data, run, p, progress=False), 1, 1)
     assert main(["train", "--data", str(laptop_data), "--out", str(run), "--set", "refine.steps=3",
                  "--no-progress"]) == 0
-    assert (run / "checkpoint.pt").read_bytes() == before  # found finished, nothing trained
+    ident = json.loads((run / "run.json").read_text())["preset"]
+    assert (ident["name"], ident["stage1_epochs"], ident["refine"]["steps"]) == ("test", 2, 3)
     # from cpu (what the command did before the engine resolved the preset once) the same --set is another run
-    assert main(["train", "--data", str(laptop_data), "--out", str(run), "--preset", "cpu", "--set",
+    other = tmp_path / "other"
+    interrupt_at(Trainer(laptop_data, other, p, progress=False), 1, 1)
+    assert main(["train", "--data", str(laptop_data), "--out", str(other), "--preset", "cpu", "--set",
                  "refine.steps=3", "--no-progress"]) == 2
+    done = tmp_path / "done"
+    shutil.copytree(finished_run, done)
+    before = (done / "checkpoint.pt").read_bytes()
+    with pytest.raises(Exception, match="finished run"):
+        from scapo.methods import train_method
+
+        train_method("scapo", laptop_data, done, overrides={"refine.steps": "3"})
+    assert (done / "checkpoint.pt").read_bytes() == before
 
 
 def test_the_lifecycle_resolves_preset_overrides_and_seed_once(tmp_path):

@@ -191,6 +191,21 @@ def test_set_and_config_override_preset_fields_and_are_recorded(tmp_path):
     (["--set", "part_init=maybe"], "part_init='maybe' is not a valid bool"),
     (["--set", "batch_size=0"], "invalid"),
     (["--config", "missing.toml"], "no such file"),
+    (["--set", "lr_stage1=nan"], "invalid lr_stage1: must be a finite number"),
+    (["--set", "lr_stage1=-1"], "invalid lr_stage1: must be > 0"),
+    (["--set", "lr_stage1=inf"], "invalid lr_stage1: must be a finite number"),
+    (["--set", "lr_stage2=inf"], "invalid lr_stage2: must be a finite number"),
+    (["--set", "weight_decay=-1"], "invalid weight_decay: must be >= 0"),
+    (["--set", "gamma=0"], "invalid gamma: must be > 0"),
+    (["--set", "template_points=0"], "invalid template_points"),
+    (["--set", "encoder.k=0"], "invalid k"),
+    (["--set", "encoder.rot_channels="], "rot_channels"),
+    (["--set", "losses.seg=nan"], "invalid seg"),
+    (["--set", "max_steps_per_epoch=-1"], "invalid max_steps_per_epoch"),
+    (["--set", "stage1_epochs=0", "--set", "stage2_epochs=0"], "nothing would be trained"),
+    (["--set", "train_points=100000"], "clouds have 256"),
+    (["--seed", "1", "--set", "seed=5"], "given twice"),
+    (["--set", "anchors=X"], "anchors must be"),
 ])
 def test_bad_overrides_are_clear_errors_before_anything_is_written(args, fragment, tmp_path):
     code, _, err = run_cli("train", "--data", PIN, "--preset", "test", *args, "--out", tmp_path / "r", "--no-progress")
@@ -201,7 +216,9 @@ def test_bad_overrides_are_clear_errors_before_anything_is_written(args, fragmen
 def test_bad_config_files_are_clear_errors(tmp_path):
     for name, text, fragment in [("a.toml", "epochs = [", "not valid TOML"), ("a.json", "{}", "give a .toml"),
                                  ("b.toml", "epochs = 'x'", "is not a valid int"),
-                                 ("c.toml", "[nope]\nx = 1", "unknown npcs preset field 'nope'")]:
+                                 ("c.toml", "[nope]\nx = 1", "unknown npcs preset field 'nope'"),
+                                 ("d.yaml", "epochs: 3\nepochs: 4\n", "gives the key 'epochs' twice"),
+                                 ("e.toml", '"a.b" = 1\n[a]\nb = 2\n', "gives 'a.b' twice")]:
         (tmp_path / name).write_text(text)
         code, _, err = run_cli("train", "--method", "npcs", "--data", PIN, "--preset", "test", "--config",
                                tmp_path / name, "--out", tmp_path / "r", "--no-progress")

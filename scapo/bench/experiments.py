@@ -117,6 +117,9 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
         cat_seeds = [int(s) for s in category_seeds.get(cat, seeds)]
         if not cat_seeds:
             raise ConfigError("no training seeds given (--seeds 0,1,2)")
+        bad = [x for x in cat_seeds if not 0 <= x < 2 ** 32]
+        if bad:  # checked with the cells, before any dataset is rendered (the dry run too)
+            raise ConfigError(f"training seeds must be integers in [0, 2**32), got {bad} for {cat}")
         for m in methods:
             entry = METHODS.get(m)
             if not entry.trained:
@@ -443,7 +446,10 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
                           "--recompute-dirty and --dry-run")
     protocol = _check(methods, categories, protocol, None if dry_run else work_dir,
                       None if dry_run else out_dir)
-    if dry_run:
+    if dry_run:  # the real run's folder checks, without creating anything
+        for folder, what in ((work_dir, "--work"), (archive, "--archive"), (out_dir, "--out")):
+            if folder is not None and any(p.exists() and not p.is_dir() for p in (Path(folder), *Path(folder).parents)):
+                raise ConfigError(f"{what} {folder} is (or is inside) a file, not a folder; give a folder")
         rows = plan(cells, work_dir, instances, views, data_seed, protocol, recompute_dirty, archive, data_kwargs)
         print_plan(rows)
         return rows

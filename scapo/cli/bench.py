@@ -29,6 +29,8 @@ def cmd_bench_choose(args) -> int:
         value, eq, pattern = spec.partition("=")
         if not eq:
             raise ConfigError(f"--candidate {spec!r} is not of the form VALUE=GLOB (e.g. 0.3='work/pred_*_m0.3.npz')")
+        if value in candidates:
+            raise ConfigError(f"--candidate {value} is given twice; give each value once (all its files in one GLOB)")
         if several and "{data}" not in pattern:
             raise ConfigError(f"--candidate {value}: with several --data, write the dataset's place in the GLOB as "
                               f"{{data}} (e.g. {value}='{{data}}/predictions_*.npz'), got {pattern!r}")

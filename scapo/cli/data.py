@@ -51,13 +51,13 @@ def cmd_assets_build(args) -> int:
 
 def cmd_assets_symmetry(args) -> int:
     from scapo.data.symmetry import Tolerance, measure_meshes, measure_views
-    from scapo.files import check_output_file, write_json
+    from scapo.files import check_output_owned_file, output_mark, write_json
 
     for name in ("instances", "views", "states"):
         if getattr(args, name) < (0 if name == "views" else 1):
             raise ConfigError(f"--{name} must be >= {0 if name == 'views' else 1}, got {getattr(args, name)}")
     if args.json is not None:
-        check_output_file(args.json, "symmetry report", example="symmetry.json")
+        check_output_owned_file(args.json, "scapo assets symmetry", "symmetry report", "symmetry.json")
     tol = Tolerance(args.ratio, args.slack, args.min_angle)
     rep = measure_meshes(args.category, min(args.instances, args.mesh_instances), args.states, args.seed,
                          tol=tol, cache_dir=args.cache)
@@ -71,7 +71,7 @@ def cmd_assets_symmetry(args) -> int:
 
         from scapo.provenance import provenance
 
-        write_json(args.json, {**rep.to_dict(), "tolerance": asdict(tol),
+        write_json(args.json, {**output_mark("scapo assets symmetry"), **rep.to_dict(), "tolerance": asdict(tol),
                                "provenance": provenance(command="scapo assets symmetry", seed=args.seed)})
         print(f"wrote {args.json}")
     return 0
@@ -162,6 +162,8 @@ def _range(text: str, flag: str) -> tuple[float, float]:
         lo, hi = (float(x) for x in text.split(","))
     except ValueError:
         raise ConfigError(f"{flag} {text!r}: give a range as two numbers, e.g. {flag} -60,60") from None
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ConfigError(f"{flag} {text!r}: both ends must be finite numbers, e.g. {flag} -60,60")
     if not lo <= hi:
         raise ConfigError(f"{flag} {text!r}: the lower end exceeds the upper one")
     return lo, hi

@@ -94,13 +94,15 @@ def cmd_evaluate(args) -> int:
         raise ConfigError(f"--pred {same[0]} and {same[1]} are the same predictions; give each file once (several "
                           "files of one method are its training seeds)")
     if args.out:
-        from scapo.files import check_own_files
+        from scapo.files import check_name, check_own_files
 
+        args.name = check_name(args.name)
         check_output_dir(args.out, "table folder")
         check_own_files([Path(args.out) / f"{args.name}.{k}" for k in ("csv", "md", "tex")],
                         Path(args.out) / f"{args.name}.json", "table file",
                         "choose another --out folder or --name")
     results = [evaluate(args.data, p, protocol=protocol, split=args.split) for p in args.pred]
+    _one_file_per_run(results, args.pred)
     _print_summary(results, protocol)
     if args.out:
         from scapo.data import load
@@ -131,6 +133,27 @@ def _evaluate_twins(args, results) -> None:
                      limit=args.twin_limit, out=args.out, name=args.name))
     if args.out:
         print(f"wrote {Path(args.out) / (args.name + '_twin.md')}")
+
+
+def _one_file_per_run(results, paths) -> None:
+    """Several predictions files of one method are its training seeds (mean ± std): refuse two of one run.
+
+    Raises:
+        ConfigError: two files of one method from the same run folder (or naming the same training seed of a run
+            trained on the same data), naming both."""
+    seen = {}
+    for res, path in zip(results, paths):
+        info = res.info or {}
+        if info.get("run"):
+            key = (res.method, str(Path(info["run"]).resolve()))
+        elif info.get("seed") is not None and info.get("trained_on"):
+            key = (res.method, f"seed {info['seed']} on {info['trained_on']}")
+        else:
+            continue  # a fitted method (ICP): one file is all it has
+        if key in seen:
+            raise ConfigError(f"--pred {seen[key]} and {path} are predictions of one run ({key[1]}) of {res.method}; "
+                              "several files of one method count as its training seeds: give one file per seed")
+        seen[key] = str(path)
 
 
 def _duplicates(paths) -> tuple[str, str] | None:

@@ -20,12 +20,12 @@ def cmd_view(args) -> int:
 
 def cmd_preview(args) -> int:
     from scapo.bench.viz import render_dataset_samples
-    from scapo.files import check_output_file
+    from scapo.files import check_output_owned_file
     from scapo.sim.preview import save_preview
 
     if args.count < 1:
         raise ConfigError(f"--count must be >= 1, got {args.count}")
-    check_output_file(args.out, "preview image", "preview.png")
+    check_output_owned_file(args.out, "scapo preview", "preview image", "preview.png")
     samples, titles, names = render_dataset_samples(args.data, args.split, args.count, args.cache)
     path = save_preview(samples, args.out, titles, names)
     print(f"wrote {path}")

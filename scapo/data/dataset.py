@@ -136,6 +136,10 @@ class ArticulationDataset(Dataset):
         return arrays
 
     def __getitem__(self, i: int) -> dict:
+        import numbers
+
+        if isinstance(i, bool) or not isinstance(i, numbers.Integral):
+            raise TypeError(f"a sample index must be an integer, got {i!r} ({type(i).__name__})")
         if not -len(self) <= i < len(self):
             raise IndexError(f"index {i} out of range for {len(self)} samples")
         i = int(i) % len(self)

@@ -501,7 +501,7 @@ def generate(
             raise ConfigError("--executor ray needs Ray: pip install 'scapo[ray]' (or pip install ray)") from None
     out = Path(out)
     _check_out_folder(out)
-    check_output_dir(out, "dataset folder")
+    check_output_dir(out, "dataset folder", own="dataset")
     with FolderLock(out, "generate"):
         return _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0, executor, ray_address,
                                 num_envs)

@@ -249,7 +249,7 @@ def convert_opalign_real(root: str | Path, category: str, out: str | Path, num_p
         elif old != source:
             raise ConfigError(f"--out {out} is not empty and holds no conversion with these arguments; choose a new "
                               f"folder (or remove it: rm -r {out})")
-    check_output_dir(out, "dataset folder")
+    check_output_dir(out, "dataset folder", own="dataset")
     (out / "shards").mkdir(parents=True, exist_ok=True)
     train_inst = sorted({a for a, _ in frames["train"]})
     rng = np.random.default_rng([int(seed), 0x0A11])

@@ -90,6 +90,9 @@ def run_preset(spec: RunSpec, run: str | Path | None = None, preset=None, overri
         preset = (spec.stored_preset(stored) if isinstance(stored, dict) else None) or DEFAULT_PRESET
     pc = spec.preset(preset) if isinstance(preset, str) else preset
     if overrides:
+        if seed is not None and "seed" in overrides:
+            raise ConfigError(f"the training seed is given twice (--seed {seed} and --set seed="
+                              f"{overrides['seed']}); give it once")
         pc = override(pc, dict(overrides), f"{spec.method} preset")
     check_seed(seed)
     check_seed(getattr(pc, "seed", None), "training seed (the preset's seed field)")
@@ -116,12 +119,23 @@ def train(spec: RunSpec, data: str | Path, run: str | Path, preset=None, *, seed
         device: overrides the preset's device (``cpu``, ``cuda``, ``auto``).
 
     Raises:
-        As :func:`run_preset`; DatasetError: an empty training split; ConfigError, OutputError: an unusable run
-        folder; TrainingError: a checkpoint or ``run.json`` of another method, preset, seed or dataset, an
-        unreadable checkpoint, a NaN/inf loss (the last good checkpoint is kept).
+        As :func:`run_preset`. ConfigError: ``overrides`` for a finished run (nothing would change); a preset that
+        trains on more points per cloud than the dataset's clouds have; an unusable run folder. DatasetError: an
+        empty training split. OutputError: an unwritable run folder. TrainingError: a checkpoint or ``run.json`` of
+        another method, preset, seed or dataset, an unreadable checkpoint, a NaN/inf loss or weight (the last good
+        checkpoint is kept).
     """
+    if overrides and (Path(run) / "timing.json").is_file():
+        raise ConfigError(f"{run} is a finished run: --set and --config change nothing of it (a finished run is never "
+                          f"trained again); give prediction settings to 'scapo predict --run {run} --option "
+                          "KEY=VALUE', and train another run (another --out) for other training settings")
     pc = run_preset(spec, run, preset, overrides, seed)
     card = _training_card(data)
+    stored = card.get("num_points")
+    wanted = getattr(pc, "train_points", getattr(pc, "points", None))
+    if isinstance(stored, int) and isinstance(wanted, int) and wanted > stored:
+        raise ConfigError(f"the preset trains on {wanted} points per cloud, but {data}'s clouds have {stored}; set "
+                          f"the preset's points to {stored} or fewer, or generate the dataset with --points {wanted}")
     folder = RunFolder(Path(run), spec.identity(pc, card), spec.compare)
     dev = resolve_device(device or getattr(pc, "device", "auto"))
     return train_run(folder, lambda d, ctx: spec.job(pc, Path(data), Path(run), d, ctx), dev, progress)

@@ -220,7 +220,7 @@ def train_run(folder: RunFolder, make_job: Callable[[torch.device, DistContext],
     device = ctx.device(device)
     try:
         if ctx.is_main:
-            check_output_dir(folder.path, "run folder")
+            check_output_dir(folder.path, "run folder", own="run")
         with FolderLock(folder.path, "train") if ctx.is_main else contextlib.nullcontext():
             if ctx.is_main:
                 clean_stale_temps(folder.path, any_pid=True)
@@ -289,6 +289,7 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
             for epoch in range(first, stage.epochs):
                 ts = time.perf_counter()
                 run_epoch(job, stage, epoch, opt, sched, steps, folder, bar, device, ctx, columns, board)
+                _check_weights(job.model, stage.index, epoch)  # before the checkpoint: the last good one is kept
                 te = time.perf_counter()
                 part["steps"], part["epochs"], part["step_s"] = part["steps"] + steps, part["epochs"] + 1, \
                     part["step_s"] + te - ts
@@ -334,6 +335,16 @@ def _breakdown(parts: dict, final_s: float, session_s: float) -> dict:
                        for k, p in parts.items()},
             "final_s": round(final_s, 3), "other_s": round(max(session_s - done, 0.0), 3),
             "session_s": round(session_s, 3)}
+
+
+def _check_weights(model: torch.nn.Module, stage: int, epoch: int) -> None:
+    """Raise TrainingError when a weight of ``model`` is NaN or infinite (an optimiser step can make them so while
+    every loss it saw was finite, e.g. at an extreme learning rate), naming the first such tensor."""
+    bad = [n for n, p in model.named_parameters() if not bool(torch.isfinite(p).all())]
+    if bad:
+        raise TrainingError(f"{len(bad)} weight tensor(s) became NaN or infinite in stage {stage}, epoch {epoch} "
+                            f"(first: {bad[0]}); the checkpoint of the last finished epoch is kept; lower the stage's "
+                            "learning rate or the gradient clip and train into a new run folder")
 
 
 def epoch_batches(data: CloudSet, cfg: FitConfig, seed: int, ctx: DistContext) -> Iterable[dict]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import torch
@@ -84,6 +85,12 @@ class LossConfig:
     ``bench/seg_ceiling.py``; preset suffix ``/seg-gaussian``)."""
 
     def __post_init__(self):
+        from scapo.config import check_settings
+
+        weights = [f.name for f in dataclasses.fields(self) if isinstance(getattr(self, f.name), float)]
+        check_settings(self, non_negative=weights)  # every weight and scale finite and >= 0
+        if self.boundary_temperature <= 0:
+            raise ValueError(f"boundary_temperature must be > 0, got {self.boundary_temperature!r}")
         unknown = set(self.disabled) - set(REGULARISERS)
         if unknown:
             raise ValueError(f"unknown regularisers {sorted(unknown)}; known: {', '.join(REGULARISERS)}")

@@ -72,10 +72,23 @@ class TrainConfig:
     """"auto" (CUDA when available), "cpu" or "cuda"."""
 
     def __post_init__(self):
+        from scapo.config import check_settings
         from scapo.losses.supervised import check_supervision
 
-        if self.stage1_epochs < 0 or self.stage2_epochs < 0 or self.batch_size < 1 or self.train_points < 32:
-            raise ConfigError(f"preset {self.name!r}: invalid epochs, batch size or point count")
+        try:
+            check_settings(self, positive=("lr_stage1", "lr_stage2", "gamma", "grad_clip"),
+                           non_negative=("min_lr", "weight_decay", "sup_weight"),
+                           minimum={"stage1_epochs": 0, "stage2_epochs": 0, "batch_size": 1, "train_points": 32,
+                                    "template_points": 16, "max_steps_per_epoch": 0, "seed": 0})
+        except ValueError as e:
+            raise ConfigError(f"preset {self.name!r}: {e}") from None
+        if self.stage1_epochs + self.stage2_epochs < 1:
+            raise ConfigError(f"preset {self.name!r}: stage1_epochs + stage2_epochs must be >= 1 (nothing would be "
+                              "trained and no checkpoint written)")
+        if self.seed >= 2 ** 32:
+            raise ConfigError(f"preset {self.name!r}: training seed must be an integer in [0, 2**32), got {self.seed}")
+        if self.anchors not in ("", "T", "O", "I"):
+            raise ConfigError(f"preset {self.name!r}: anchors must be '', 'T', 'O' or 'I', got {self.anchors!r}")
         if check_supervision(self.supervision) != self.supervision:
             raise ConfigError(f"preset {self.name!r}: write supervision as one of '', 'S', 'J', 'SJ', got "
                               f"{self.supervision!r}")

@@ -60,6 +60,10 @@ class EncoderConfig:
     anchors carry a learned residual of at most 18 deg the same way, ``models/art_so3net_pn.py``); 0: none."""
 
     def __post_init__(self):
+        from scapo.config import check_settings
+
+        check_settings(self, minimum={"k": 2, "code_dim": 1, "decoder_points": 16, "attention_points": 1},
+                       positive_tuples=("trans_channels", "rot_channels", "decoder_hidden"))
         if not 0.0 <= self.residual_deg <= 90.0:
             raise ValueError(f"encoder residual_deg must be in [0, 90], got {self.residual_deg!r}")
         if self.frame not in ("regressed", "principal"):

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scapo.files import atomic_savefig, check_output_file
+from scapo.files import atomic_savefig, check_output_file, output_mark
 from scapo.ops.rigid import closest_point_on_line
 
 PART_COLORS = np.array([
@@ -122,7 +122,8 @@ def save_preview(samples: Sequence[dict], path: str | Path, titles: Sequence[str
     fig.tight_layout()
     path = Path(path)
     check_output_file(path, "figure", "preview.png")
-    atomic_savefig(fig, path, dpi=110)
+    mark = {"metadata": output_mark("scapo preview")} if Path(path).suffix.lower() == ".png" else {}
+    atomic_savefig(fig, path, dpi=110, **mark)  # marked as a preview: a rerun may replace it, nothing else
     plt.close(fig)
     return path
 
