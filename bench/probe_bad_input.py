@@ -67,6 +67,30 @@ def main() -> int:
     (tmp / "bad.toml").write_text("epochs = [")
     (tmp / "garbage.npz").write_bytes(b"garbage")
     (tmp / "empty").mkdir()
+    (tmp / "dup.yaml").write_text("epochs: 3\nepochs: 4\n")
+    (tmp / "twice.toml").write_text('"lr" = 0.1\n[losses]\nseg = 1\n"losses.seg" = 2\n')
+    (tmp / "twice2.toml").write_text('"losses.seg" = 2\n[losses]\nseg = 1\n')
+    (tmp / "notes.json").write_text('{"provenance": "mine"}')
+    (tmp / "photo.png").write_bytes(b"\x89PNG\r\n\x1a\n not a preview")
+    box = '<visual><geometry><box size="0.1 0.1 0.1"/></geometry></visual>'
+    links = f'<link name="a">{box}</link><link name="b">{box}</link>'
+    joint = ('<joint name="{0}" type="{1}"><parent link="{2}"/><child link="{3}"/><axis xyz="0 0 1"/>'
+             '<limit lower="{4}" upper="{5}"/></joint>')
+    (tmp / "loop.urdf").write_text(f'<robot name="o">{links}{joint.format("j1", "revolute", "a", "b", 0, 1)}'
+                                   f'{joint.format("j2", "revolute", "b", "a", 0, 1)}</robot>')
+    (tmp / "slide.urdf").write_text(f'<robot name="o">{links}{joint.format("s", "prismatic", "a", "b", -1e9, 1e9)}'
+                                    '</robot>')
+    pred2 = tmp / "p2.npz"
+    assert sh(["predict", "--run", run, "--data", d, "--out", pred2, "--option", "infer_points=128"], tmp, 600,
+              env)[0] == 0
+    import numpy as np
+
+    np.savez(tmp / "extra.npz", **dict(np.load(pred, allow_pickle=False)), extra=np.zeros(3))
+    d2 = tmp / "data2"
+    assert sh(["generate", "--category", "laptop", "--instances", "4", "--views", "1", "--test-fraction", "0.5",
+               "--val-fraction", "0", "--points", "256", "--seed", "3", "--out", d2, "--no-progress"], tmp, 600,
+              env)[0] == 0
+    scapo_base = ["train", "--data", d, "--preset", "test", "--no-progress"]
     cases = [  # (args, expected: "error" or "ok", files that must survive)
         (["list", "--bogus"], "error", []),
         (["assets", "build", "--category", "nope"], "error", []),
@@ -140,6 +164,52 @@ def main() -> int:
         (["bench", "perf", "--what", "model", "--method", "icp"], "error", []),
         (["bench", "perf", "--what", "model", "--method", "npcs", "--preset", "nope"], "error", []),
         (["demo", "--out", tmp / "afile"], "error", [tmp / "afile"]),
+        # issue 54's cases: configuration reaching a preset
+        *[([*scapo_base, "--set", kv, "--out", tmp / f"s{i}"], "error", []) for i, kv in enumerate((
+            "lr_stage1=nan", "lr_stage1=-1", "lr_stage1=inf", "lr_stage2=inf", "weight_decay=-1", "gamma=0",
+            "template_points=0", "encoder.k=0", "encoder.rot_channels=", "max_steps_per_epoch=-1",
+            "train_points=100000", "losses.seg=nan", "anchors=Q", "grad_clip=0"))],
+        ([*scapo_base, "--set", "stage1_epochs=0", "--set", "stage2_epochs=0", "--out", tmp / "s20"], "error", []),
+        ([*scapo_base, "--seed", "1", "--set", "seed=5", "--out", tmp / "s21"], "error", []),
+        (["train", "--method", "npcs", "--data", d, "--config", tmp / "dup.yaml", "--out", tmp / "s22"], "error", []),
+        ([*scapo_base, "--config", tmp / "twice2.toml", "--out", tmp / "s23"], "error", []),
+        (["train", "--method", "npcs", "--data", d, "--out", run, "--set", "lr=0.01"], "error", [run]),
+        # outputs: names, dataset and run folders, files of other kinds
+        (["evaluate", "--data", d, "--pred", pred, "--out", tmp / "o", "--name", "../escaped"], "error", []),
+        (["evaluate", "--data", d, "--pred", pred, "--out", d, "--name", "card"], "error", [d]),
+        (["evaluate", "--data", d, "--pred", pred, "--out", run, "--name", "run"], "error", [run]),
+        (["assets", "symmetry", "--category", "laptop", "--instances", "1", "--views", "1", "--json", d / "card.json"],
+         "error", [d]),
+        (["assets", "symmetry", "--category", "laptop", "--instances", "1", "--views", "1", "--json",
+          tmp / "notes.json"], "error", [tmp / "notes.json"]),
+        (["preview", "--data", d, "--out", tmp / "photo.png"], "error", [tmp / "photo.png"]),
+        (["export", "--data", d, "--pred", pred, "--sample", "0", "--out", run], "error", [run]),
+        # statistics and lists
+        (["evaluate", "--data", d, "--pred", pred, "--pred", pred2], "error", []),
+        (["evaluate", "--data", d, "--pred", tmp / "extra.npz"], "error", []),
+        (["bench", "table1", "--categories", "", "--dry-run", "--work", tmp / "w"], "error", []),
+        (["bench", "table1", "--methods", ",", "--dry-run", "--work", tmp / "w"], "error", []),
+        (["bench", "choose", "--data", d, "--candidate", f"1={pred}", "--candidate", f"1={pred2}"], "error", []),
+        (["bench", "table1", "--seeds", "-1", "--categories", "laptop", "--work", tmp / "w2"], "error", []),
+        (["bench", "table1", "--seeds", "-1", "--dry-run", "--work", tmp / "w2"], "error", []),
+        (["bench", "table1", "--dry-run", "--work", tmp / "afile"], "error", [tmp / "afile"]),
+        (["bench", "table1", "--dry-run", "--archive", tmp / "afile", "--work", tmp / "w"], "error", [tmp / "afile"]),
+        (["bench", "compute", "--budgets", "5,5", "--work", tmp / "w3"], "error", []),
+        (["bench", "compute", "--methods", "icp", "--work", tmp / "w3"], "error", []),
+        (["bench", "ladder", "--rungs", "nope", "--work", tmp / "w3"], "error", []),
+        # refusals before work
+        (["generate", "--category", "laptop", "--instances", "2", "--views", "1", "--backend", "maniskill",
+          "--num-envs", "4", "--out", tmp / "m0"], "error", []),
+        (["generate", "--category", "laptop", "--instances", "2", "--views", "1", "--num-envs", "0", "--out",
+          tmp / "m1"], "error", []),
+        (["generate", "--category", "laptop", "--instances", "2", "--views", "1", "--azimuth", "nan,nan", "--out",
+          tmp / "m2"], "error", []),
+        (["generate", "--category", "laptop", "--instances", "2", "--views", "1", "--width", "100000", "--height",
+          "100000", "--out", tmp / "m3"], "error", []),
+        (["assets", "check", tmp / "loop.urdf"], "error", []),
+        (["assets", "check", tmp / "slide.urdf"], "error", []),
+        (["view", "--data", d2, "--pred", pred, "--port", "0"], "error", []),
+        (["predict", "--method", "icp", "--data", d, "--out", tmp / "q2.npz", "--option", f"run={run}"], "error", []),
         (["doctor", "--no-progress"], "ok", []),
         (["list", "--no-progress"], "ok", []),
         (["--version"], "ok", []),

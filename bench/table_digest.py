@@ -45,9 +45,19 @@ def load_table(path: Path) -> dict:
         d = json.loads(Path(path).read_text())
     except (OSError, ValueError) as e:
         raise DigestError(f"cannot read {path} ({e}); give a table JSON written by scapo bench") from e
+    if not isinstance(d, dict):
+        raise DigestError(f"{path} holds a {type(d).__name__}, not a table written by scapo bench table1|2|3")
     missing = [k for k in ("provenance", "results", "pairwise_bootstrap") if k not in d]
     if missing:
         raise DigestError(f"{path} has no {', '.join(missing)}: not a table written by scapo bench table1|2|3")
+    if (not isinstance(d["provenance"], dict) or not isinstance(d["results"], list)
+            or not isinstance(d["pairwise_bootstrap"], dict)
+            or not all(isinstance(r, dict) and isinstance(r.get("summary"), dict) and "method" in r
+                       and "category" in r for r in d["results"])):
+        raise DigestError(f"{path}: its provenance, results or pairwise_bootstrap are not shaped as scapo bench writes "
+                          "them; give a table JSON written by scapo bench")
+    if not d["results"]:
+        raise DigestError(f"{path} holds no cell (an empty table): nothing to digest")
     return d
 
 
@@ -117,6 +127,16 @@ def ordering_lines(table: dict, key: str) -> list[str]:
 def digest(paths: list[Path], pairs: list[tuple[str, str]], means: list[str]) -> str:
     """The whole digest as text (see the module docstring); DigestError on a bad table or name."""
     tables = [load_table(p) for p in paths]
+    methods_all = {r["method"] for t in tables for r in t["results"]}
+    unknown = sorted({m for a, b in pairs for m in (a, b)} - methods_all)
+    if unknown:
+        raise DigestError(f"--pair names {', '.join(unknown)}, which no given table holds; its methods: "
+                          f"{', '.join(sorted(methods_all))}")
+    fields_all = {k for t in tables for r in t["results"] for k in r["summary"]}
+    unknown = sorted(set(means) - fields_all)
+    if unknown:
+        raise DigestError(f"--mean names {', '.join(unknown)}, which no given table's cells hold; e.g. "
+                          f"{', '.join(sorted(fields_all)[:12])}")
     out = []
     for path, t in zip(paths, tables):
         p = t["provenance"]
@@ -165,6 +185,10 @@ def main(argv: list[str] | None = None) -> int:
         pairs.append((a, b))
     try:
         print(digest(args.tables, pairs, [f for f in args.mean.split(",") if f]))
+    except (KeyError, TypeError, ValueError) as e:  # a field of the expected name with a value of another shape
+        print(f"scapo: a table's fields are not shaped as scapo bench writes them ({type(e).__name__}: {e}); give "
+              "table JSONs written by scapo bench", file=sys.stderr)
+        return 2
     except DigestError as e:
         print(f"scapo: {e}", file=sys.stderr)
         return 2

@@ -252,6 +252,9 @@ EDITS = {
     "joint pivot of 4 numbers": ("joint_pivot", lambda a: np.concatenate([a, a[..., :1]], -1), "expected (M, 1, 3)"),
     "joint type 7": ("joint_type", lambda a: a + 7, "joint_type must be 0"),
     "NaN state": ("joint_state", lambda a: a * np.nan, "NaN/inf"),
+    "object 1e300 m away": ("T_cam_obj", lambda a: a + np.pad(np.full((len(a), 3, 1), 1e300), ((0, 0), (0, 1), (3, 0))),
+                            "more than 10000 m from the camera"),
+    "pivot 1e300 m away": ("joint_pivot", lambda a: a + 1e300, "more than 10000 m from the camera"),
     "duplicate samples": ("view_id", lambda a: np.where(np.arange(len(a)) == 1, a[0], a), "duplicate samples"),
 }
 
@@ -710,3 +713,21 @@ def test_ranges_and_indices_that_would_mislead_are_refused(laptop_data, tmp_path
         with pytest.raises(TypeError, match="must be an integer"):
             ds[bad]
     assert ds[np.int64(1)]["view_id"] == ds[1]["view_id"]
+
+
+def test_predictions_files_and_options_that_would_be_guessed_at_are_refused(small, tmp_path):
+    """A predictions file with arrays scapo does not write is refused, not half-read; ``--option run=`` is the
+    ``--run`` flag; the viewer, like the evaluator, shows predictions of its own dataset only."""
+    import numpy as np
+
+    preds = tmp_path / "p.npz"
+    assert cli("predict", "--method", "icp", "--data", small / "lap0", "--out", preds)[0] == 0
+    arrays = dict(np.load(preds, allow_pickle=False))
+    np.savez(tmp_path / "extra.npz", **arrays, extra_thing=np.zeros(3))
+    assert_clear_error(cli("evaluate", "--data", small / "lap0", "--pred", tmp_path / "extra.npz"), "evaluate",
+                       "holds arrays a scapo predictions file has not (extra_thing)")
+    assert_clear_error(cli("predict", "--method", "scapo", "--option", "run=somewhere", "--data", small / "lap0",
+                           "--out", tmp_path / "q.npz"), "predict", "is given as --run")
+    pytest.importorskip("viser")
+    assert_clear_error(cli("view", "--data", small / "lap1", "--pred", preds, "--port", "0"), "view",
+                       "was made on dataset")

@@ -928,7 +928,12 @@ def test_table_digest_reads_the_tables_numbers(tmp_path):
     assert "b minus a:\n  mean S: +17.5 [+15, +20]\n" in out
     assert "## together: 7 distinct cells, 6.0 core-hours" in out  # 5 + 3 cells, one shared; 6 trainings
     (tmp_path / "bad.json").write_text(json.dumps({"results": []}))
-    for args in (["missing.json"], [str(tmp_path / "bad.json")], [str(tmp_path / "t1.json"), "--pair", "a"]):
+    (tmp_path / "nan.json").write_text("NaN")
+    (tmp_path / "empty.json").write_text(json.dumps({**t1, "results": []}))
+    (tmp_path / "shape.json").write_text(json.dumps({**t1, "results": [1, 2]}))
+    for args in (["missing.json"], [str(tmp_path / "bad.json")], [str(tmp_path / "t1.json"), "--pair", "a"],
+                 [str(tmp_path / "nan.json")], [str(tmp_path / "empty.json")], [str(tmp_path / "shape.json")],
+                 [str(tmp_path / "t1.json"), "--pair", "a,nosuch"], [str(tmp_path / "t1.json"), "--mean", "nosuch"]):
         bad = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, cwd=tmp_path)
         assert bad.returncode == 2 and bad.stderr.startswith("scapo: ") and "Traceback" not in bad.stderr, args
 

@@ -287,3 +287,33 @@ def test_nan_weights_stop_training_with_the_tensor_named():
     with pytest.raises(TrainingError, match=r"1 weight tensor\(s\) became NaN or infinite in stage 2, epoch 3 "
                                             r"\(first: 1.bias\)"):
         _check_weights(net, 2, 3)
+
+
+def test_a_corrected_rerun_starts_over_after_a_run_that_failed_before_its_first_checkpoint(tmp_path):
+    """A run refused in its first epoch (a NaN loss, a full disk) leaves its identity and the record of its failure:
+    the corrected run, of another preset, starts over in the folder; a run merely interrupted there stays protected
+    (``test_bad_input.py``)."""
+    import torch
+
+    from scapo.engine import CloudSet, FitConfig, RunFolder, Stage, TrainJob, train_run
+    from scapo.errors import TrainingError
+
+    def job(lr):
+        net = torch.nn.Linear(3, 3)
+        data = CloudSet({"points": torch.randn(8, 16, 3)}, 16)
+
+        def losses(batch, progress):
+            out = net(batch["points"]).pow(2).mean()
+            return {"fit": out * (float("nan") if lr > 1 else 1.0)}, out
+
+        return TrainJob(model=net, data=data, stages=[Stage(index=1, epochs=1, lr=lr, params=lambda: list(
+            net.parameters()), losses=losses, terms=("fit",))], config=FitConfig(batch_size=4))
+
+    run = tmp_path / "run"
+    bad = RunFolder(run, {"method": "toy", "preset": {"name": "a", "lr": 10.0}})
+    with pytest.raises(TrainingError, match="became nan"):
+        train_run(bad, lambda dev, ctx: job(10.0), torch.device("cpu"), progress=False)
+    assert (run / "failed.json").is_file() and not (run / "checkpoint.pt").exists()
+    good = RunFolder(run, {"method": "toy", "preset": {"name": "a", "lr": 0.01}})
+    assert train_run(good, lambda dev, ctx: job(0.01), torch.device("cpu"), progress=False).is_file()
+    assert not (run / "failed.json").exists() and good.is_current()

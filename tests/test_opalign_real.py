@@ -151,3 +151,17 @@ def test_frames_with_a_zero_axis_or_a_segmentation_id_beyond_the_parts_are_refus
     seg[seg == 2] = 3  # a third part id on a two-part object
     with pytest.raises(InputError, match="segmentation ids up to 3"):
         frame_to_sample({**frame, "segmentation": seg}, [0], [[0, 1]], 256, rng, (H, W))
+    neg = frame["segmentation"].copy()
+    neg[neg == 2] = -4  # an id below background
+    with pytest.raises(InputError, match="segmentation ids down to -4"):
+        frame_to_sample({**frame, "segmentation": neg}, [0], [[0, 1]], 256, rng, (H, W))
+    with pytest.raises(InputError, match="all background"):
+        frame_to_sample({**frame, "segmentation": np.zeros_like(neg)}, [0], [[0, 1]], 256, rng, (H, W))
+
+
+def test_a_known_categorys_joints_are_not_relabelled(real_root, tmp_path):
+    root, _ = real_root
+    with pytest.raises(ConfigError, match="would relabel them"):
+        convert_opalign_real(root, "laptop", tmp_path / "slide", joint_type=[1], joint_parts=[[0, 1]],
+                             image_size=(H, W))
+    assert not (tmp_path / "slide").exists()

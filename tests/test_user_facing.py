@@ -414,6 +414,19 @@ def test_urdf_joints_that_would_be_sampled_wrongly_are_refused(tmp_path):
         parse_urdf(mimic)
     ok = _urdf(tmp_path, hinge.format(1, "b", 0, 1, "") + hinge.format(2, "c", 0, 1, ""))
     assert parse_urdf(ok).num_joints == 2
+    slide = ('<joint name="s" type="prismatic"><parent link="a"/><child link="b"/><axis xyz="1 0 0"/>'
+             '<limit lower="-1e9" upper="1e9"/></joint>')
+    with pytest.raises(URDFError, match="reach beyond 100 units"):
+        parse_urdf(_urdf(tmp_path, slide))
+    loop = hinge.format(1, "b", 0, 1, "").replace('<parent link="a"/>', '<parent link="c"/>') + \
+        hinge.format(2, "c", 0, 1, "").replace('<parent link="a"/>', '<parent link="b"/>')
+    with pytest.raises(URDFError, match="form a loop"):
+        parse_urdf(_urdf(tmp_path, loop))  # b and c are each other's parent (a is the root, outside the loop)
+    every = hinge.format(1, "b", 0, 1, "").replace('<parent link="a"/>', '<parent link="c"/>') + \
+        hinge.format(2, "c", 0, 1, "").replace('<parent link="a"/>', '<parent link="b"/>') + \
+        hinge.format(3, "a", 0, 1, "").replace('<parent link="a"/>', '<parent link="b"/>')
+    with pytest.raises(URDFError, match="form a loop"):
+        parse_urdf(_urdf(tmp_path, every))  # every link a child: no root
 
 
 def test_opalign_conversion_refuses_bad_frames_and_arguments(tmp_path):

@@ -94,6 +94,10 @@ class Viewer:
             raise ConfigError(f"the {split} split of {data} is empty; choose another --split")
         self.split = split
         self.preds = [Predictions.load(p) for p in predictions]
+        for path, p in zip(predictions, self.preds):  # the evaluator's rule: predictions of this dataset only
+            if p.dataset_hash != self.ds.dataset_hash:
+                raise ConfigError(f"--pred {path} was made on dataset {p.dataset_hash[:12] or '(none named)'}, not "
+                                  f"on {data} ({self.ds.dataset_hash[:12]}); predict on this dataset first")
         self.rows = []
         for p in self.preds:
             index = {(int(i), int(v), str(s)): k for k, (i, v, s) in enumerate(zip(p.instance_id, p.view_id, p.split))}

@@ -52,6 +52,8 @@ def cmd_predict(args) -> int:
         k, eq, v = kv.partition("=")
         if not eq or not k.strip():
             raise ConfigError(f"--option {kv!r} is not of the form key=value")
+        if k.strip() in ("run", "device"):
+            raise ConfigError(f"--option {k.strip()}=... is given as --{k.strip()} {v} (a flag of its own)")
         opts[k.strip()] = v  # converted to the option's type by the method's options dataclass
     method = args.method
     if args.run is not None:

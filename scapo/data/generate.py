@@ -480,14 +480,22 @@ def generate(
     t0 = time.perf_counter()
     if int(workers) < 1:
         raise ConfigError(f"workers must be >= 1, got {workers}")
-    if int(num_envs) < 1 or (int(num_envs) > 1 and cfg.backend != "maniskill"):
-        raise ConfigError(f"--num-envs {num_envs}: parallel sub-scenes (>= 1) are the ManiSkill3 backend's "
-                          "(--backend maniskill)")
-    if cfg.backend == "maniskill":
+    if int(num_envs) < 1:
+        raise ConfigError(f"--num-envs must be >= 1 (views rendered at once), got {num_envs}")
+    if int(num_envs) > 1 and cfg.backend != "maniskill":
+        raise ConfigError(f"--num-envs {num_envs}: parallel sub-scenes are the ManiSkill3 backend's (--backend "
+                          "maniskill); the SAPIEN backend renders one view at a time (--workers for processes)")
+    if cfg.backend == "maniskill":  # everything the backend needs, checked before the dataset folder is touched
         from scapo.sim.maniskill import available
 
         if not available():
             raise ConfigError("--backend maniskill needs ManiSkill3: pip install 'scapo[maniskill]'")
+        if int(num_envs) > 1:
+            import torch
+
+            if not torch.cuda.is_available():
+                raise ConfigError(f"--num-envs {num_envs}: ManiSkill's CPU simulation holds one sub-scene; without "
+                                  "a GPU use --num-envs 1 (or --workers for processes)")
     if executor == "local" and int(workers) > 4 * usable_cores():
         raise ConfigError(f"--workers {workers} would start {workers} SAPIEN processes on {usable_cores()} usable "
                           f"core(s); use at most {4 * usable_cores()} (one per core is fastest), or --executor ray "

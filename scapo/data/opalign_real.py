@@ -160,6 +160,12 @@ def frame_to_sample(frame: dict, joint_type: Sequence[int], joint_parts: Sequenc
     if (labels_all >= P).any():
         raise InputError(f"segmentation ids up to {int(labels_all.max()) + 1} but the frame has {P} parts "
                          "(ids 1..P, 0 background)")
+    if (labels_all < -1).any():
+        raise InputError(f"segmentation ids down to {int(labels_all.min()) + 1}: ids are 1..{P} for the parts and 0 "
+                         "for background")
+    if not (labels_all >= 0).any():
+        raise InputError("no pixel of the detected object carries a part id (its segmentation is all background): "
+                         "nothing to score a segmentation against")
     half = np.abs(part[:, 12:15]) / 2
     corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
     box = np.concatenate([(corners * half[p]) @ pose[p, :3, :3].T + pose[p, :3, 3] for p in range(P)])
@@ -216,6 +222,13 @@ def convert_opalign_real(root: str | Path, category: str, out: str | Path, num_p
         DatasetError: a damaged frame file (named). OutputError: ``out`` cannot be written.
     """
     t0 = time.time()
+    if category in REAL_CATEGORIES and joint_type is not None:
+        known_types, known_parts = REAL_CATEGORIES[category]
+        if list(map(int, joint_type)) != known_types or (joint_parts is not None and
+                                                         [list(map(int, p)) for p in joint_parts] != known_parts):
+            raise ConfigError(f"{category}'s joints are known (types {known_types}, parts {known_parts}; 0 revolute, "
+                              "1 prismatic): --joint-types / --joint-parts would relabel them (a hinge as a slide); "
+                              "leave them out, or give the data another category name")
     if joint_type is None or joint_parts is None:
         if category not in REAL_CATEGORIES:
             raise ConfigError(f"category {category!r} has no known joints; known: {', '.join(REAL_CATEGORIES)} (or "

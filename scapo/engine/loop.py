@@ -231,7 +231,12 @@ def train_run(folder: RunFolder, make_job: Callable[[torch.device, DistContext],
                     return folder.checkpoint
                 if ctx.is_main:
                     folder.write_identity()
-                return fit(make_job(device, ctx), folder, state, device, progress, ctx)
+                try:
+                    return fit(make_job(device, ctx), folder, state, device, progress, ctx)
+                except (TrainingError, OSError) as e:
+                    if ctx.is_main and not folder.checkpoint.exists():  # nothing of value was trained: a
+                        folder.mark_failed(e)  # corrected rerun may start over here (RunFolder.load_checkpoint)
+                    raise
     finally:
         ctx.close()
 

@@ -70,6 +70,10 @@ def _plain(identity: dict) -> dict:
     return json.loads(json.dumps(identity, default=str))
 
 
+#: The record of a run that failed before its first checkpoint (:meth:`RunFolder.mark_failed`).
+FAILED = "failed.json"
+
+
 class RunFolder:
     """One run folder and the identity of the run it holds.
 
@@ -151,6 +155,12 @@ class RunFolder:
         """
         if not self.checkpoint.is_file():
             old = read_run_json(self.path)
+            if old is not None and (self.path / FAILED).is_file():
+                # a run that failed before its first checkpoint (a NaN, a full disk) left only its identity and
+                # the log of its failure: the corrected run starts over here (nothing trained is lost)
+                for name in (FAILED, "log.csv", "losses.png"):
+                    (self.path / name).unlink(missing_ok=True)
+                return None
             if old is not None:
                 self._refuse(self.path, old, started=True)
             return None
@@ -159,6 +169,14 @@ class RunFolder:
         return state
 
     # ------------------------------------------------------------------ writes
+    def mark_failed(self, error: Exception) -> None:
+        """Record that this run failed before its first checkpoint (``failed.json``: the error), so that a corrected
+        run of another identity may start over in the folder; an interrupted run (no such record) stays protected."""
+        try:
+            write_json(self.path / FAILED, {"error": f"{type(error).__name__}: {error}", "identity": self.identity})
+        except OSError:  # the disk that failed the run may refuse this too; the run then stays protected
+            pass
+
     def write_identity(self) -> None:
         write_json(self.path / "run.json", self.identity)
 

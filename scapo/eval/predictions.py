@@ -37,6 +37,8 @@ import numpy as np
 from scapo.errors import PredictionError
 from scapo.files import atomic_write_bytes, check_output_file, clean_stale_temps
 
+#: Positions (translations, pivots) a prediction may hold, in metres from the camera: far beyond any scene.
+MAX_DISTANCE_M = 1e4
 _FIELDS = {
     "part_label": (np.int64, 2),
     "part_pose": (np.float64, 4),
@@ -128,6 +130,14 @@ class Predictions:
         if self.part_pose.shape[-2:] != (4, 4) or self.T_cam_obj.shape[-2:] != (4, 4):
             raise PredictionError(f"part_pose and T_cam_obj must have shape (M, S, 4, 4) and (M, 4, 4), got "
                                   f"{self.part_pose.shape} and {self.T_cam_obj.shape}")
+        for name, coords in (("T_cam_obj", self.T_cam_obj[..., :3, 3]), ("part_pose", self.part_pose[..., :3, 3]),
+                             ("joint_pivot", self.joint_pivot)):
+            far = np.abs(np.asarray(coords, dtype=np.float64)).reshape(M, -1).max(1, initial=0.0) > MAX_DISTANCE_M
+            if far.any():  # a score in metres of such a value overflows, and would show as '-' in a table
+                first = self._where(int(np.argmax(far)))
+                raise PredictionError(f"predictions field {name!r} places {int(far.sum())} of {M} samples more than "
+                                      f"{MAX_DISTANCE_M:g} m from the camera (first: {first}); positions are in "
+                                      "metres in the camera frame")
         J = self.joint_axis.shape[1]
         for name, shape in (("joint_axis", (J, 3)), ("joint_pivot", (J, 3)), ("joint_parts", (J, 2)),
                             ("joint_state", (J,)), ("joint_type", (J,))):
@@ -215,9 +225,15 @@ class Predictions:
             raise PredictionError(f"predictions file {path} does not exist") from None
         except (zipfile.BadZipFile, ValueError, OSError, EOFError) as e:
             raise PredictionError(f"predictions file {path} cannot be read: {e}") from e
-        missing = ({"meta", "instance_id", "view_id", "split"} | set(_FIELDS)) - set(arrays)
+        known = {"meta", "instance_id", "view_id", "split"} | set(_FIELDS)
+        missing = known - set(arrays)
         if missing:
             raise PredictionError(f"predictions file {path} lacks fields {sorted(missing)}")
+        extra = sorted(set(arrays) - known)
+        if extra:  # not written by scapo (a file of another tool, or edited): nothing in it is guessed at
+            raise PredictionError(f"predictions file {path} holds arrays a scapo predictions file has not "
+                                  f"({', '.join(extra[:5])}); write it with Predictions.save (its fields: "
+                                  f"{', '.join(sorted(known))})")
         try:
             meta = json.loads(str(arrays.pop("meta")))
         except ValueError as e:

@@ -38,6 +38,11 @@ _VULKAN_HELP = (
 )
 
 
+#: The largest image side the renderer is asked for (Vulkan's common image limit is 16384; a 4096 x 4096 depth image
+#: already holds 16 M points, 16000 x more than a cloud keeps).
+MAX_IMAGE_SIDE = 4096
+
+
 @dataclass(frozen=True)
 class CameraConfig:
     """Pinhole camera of the renderer."""
@@ -56,6 +61,9 @@ class CameraConfig:
     def __post_init__(self):
         if self.width < 1 or self.height < 1:
             raise ConfigError(f"image size must be at least 1 x 1 pixels, got {self.width} x {self.height}")
+        if self.width > MAX_IMAGE_SIDE or self.height > MAX_IMAGE_SIDE:
+            raise ConfigError(f"image size {self.width} x {self.height} is beyond what the renderer allocates (at most "
+                              f"{MAX_IMAGE_SIDE} pixels a side); the default 256 x 256 gives 1024-point clouds")
         if not 0.0 < self.fovy_deg < 180.0:
             raise ConfigError(f"fovy_deg must be in (0, 180), got {self.fovy_deg}")
         if not 0.0 < self.near < self.far:

@@ -32,6 +32,9 @@ from scapo.errors import MissingMeshError, URDFError
 from scapo.ops.rigid import as_transform, closest_point_on_line, joint_motion, normalize, transform_points
 
 MOVABLE = {"revolute": 0, "continuous": 0, "prismatic": 1}
+#: The longest slide a prismatic joint may have (URDF length units, from the rest state): far beyond any furniture or
+#: appliance part, in metres or in PartNet-Mobility's unit-box scale.
+MAX_SLIDE = 100.0
 SUPPORTED = set(MOVABLE) | {"fixed"}
 
 
@@ -274,6 +277,10 @@ def parse_urdf(urdf: str | Path, category: str | None = None, part_names: dict[s
                 raise URDFError(f"{where}: non-numeric limits") from None
             if not (math.isfinite(limit[0]) and math.isfinite(limit[1]) and limit[0] <= limit[1]):
                 raise URDFError(f"{where}: limits must be finite with lower <= upper, got {limit}")
+            if jtype == "prismatic" and max(abs(limit[0]), abs(limit[1])) > MAX_SLIDE:
+                raise URDFError(f"{where}: prismatic limits {limit} reach beyond {MAX_SLIDE:g} units from the rest "
+                                "state: a part slid that far cannot be in view with its object; give the real travel "
+                                "(the object's lengths are scaled by --scale afterwards)")
             if jtype == "revolute" and limit[1] - limit[0] > 2 * math.pi + 1e-6:
                 span = limit[1] - limit[0]
                 raise URDFError(f"{where}: revolute limits {limit} span more than a full turn ({span:.1f} rad); give "
@@ -286,9 +293,22 @@ def parse_urdf(urdf: str | Path, category: str | None = None, part_names: dict[s
     if len(set(children)) != len(children):
         raise URDFError(f"{urdf}: a link is the child of several joints")
     roots = [n for n in links if n not in children]
+    if not roots:
+        raise URDFError(f"{urdf}: the joints form a loop (every link is some joint's child, so none is the root); "
+                        "an articulated object is a tree: make one link the child of no joint")
     if len(roots) != 1:
-        raise URDFError(f"{urdf}: expected exactly one root link, found {roots}")
+        raise URDFError(f"{urdf}: expected exactly one root link, found {len(roots)} ({', '.join(roots[:6])}); "
+                        "connect every link to the tree by a joint")
     root = roots[0]
+    parent_of = {j.child: j.parent for j in joints}
+    for start in links:  # a loop below the root (a link reached from itself) is not a tree either
+        seen, at = {start}, start
+        while at in parent_of:
+            at = parent_of[at]
+            if at in seen:
+                raise URDFError(f"{urdf}: the joints form a loop through link {at!r}; an articulated object is a "
+                                "tree")
+            seen.add(at)
     return _build_spec(urdf, root_el.get("name") or urdf.stem, category, links, tuple(joints), root,
                        part_names or {}, continuous_range)
 
