@@ -1,4 +1,4 @@
-"""Symmetries measured (scapo.data.symmetry, ``scapo assets symmetry``): declared symmetries hold on the meshes, no
+"""Symmetries measured (scapo.data.symmetry_measure, ``scapo assets symmetry``): declared symmetries hold on the meshes, no
 undeclared one does, views of the procedural objects are not explained by an undeclared pose, and hand-made cases
 with known answers (a z-buffer, an undeclared flip that must be flagged, the laptop's root-exchanging twin)."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scapo.data.symmetry import (
+from scapo.data.symmetry_measure import (
     Tolerance,
     declared_rotation,
     declared_symmetry_error,

@@ -50,7 +50,7 @@ def cmd_assets_build(args) -> int:
 
 
 def cmd_assets_symmetry(args) -> int:
-    from scapo.data.symmetry import Tolerance, measure_meshes, measure_views
+    from scapo.data.symmetry_measure import Tolerance, measure_meshes, measure_views
     from scapo.files import check_output_owned_file, output_mark, write_json
 
     for name in ("instances", "views", "states"):

@@ -1,9 +1,9 @@
 """The ``scapo`` console script: one entry point, one sub-command per job.
 
 Run ``scapo <command> --help`` for the options of each command. Each group of commands is a module of this
-package with its parsers beside its handlers (:mod:`scapo.cli.data`, :mod:`scapo.cli.runs`, :mod:`scapo.cli.view`,
-:mod:`scapo.cli.bench`); this one builds the parser and turns errors into one line. Heavy modules are imported
-inside the commands so that ``scapo --help`` is instant.
+package with its parsers beside its handlers (:mod:`scapo.cli.data`, :mod:`scapo.cli.train_predict`,
+:mod:`scapo.cli.view`, :mod:`scapo.cli.bench`); this one builds the parser and turns errors into one line. Heavy
+modules are imported inside the commands so that ``scapo --help`` is instant.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import contextlib
 import os
 import sys
 
-from scapo.cli import bench, data, runs, view
+from scapo.cli import bench, data, train_predict, view
 from scapo.errors import ScapoError
 from scapo.provenance import git_commit
 
@@ -63,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 "benchmark (SCAPO, CVPR 2026).")
     p.add_argument("--version", action="version", version=_version_text())
     sub = p.add_subparsers(dest="command", required=True)
-    for group in (data, runs, view, bench):  # each group's parsers beside its handlers
+    for group in (data, train_predict, view, bench):  # each group's parsers beside its handlers
         group.add_parsers(sub)
     _every_command_takes_no_progress(p)
     return p

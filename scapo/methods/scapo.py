@@ -184,14 +184,14 @@ def _run_spec():
 
 
 def _train_speed(preset: str = "cpu", device: str = "cpu", iters: int = 5) -> dict:
-    """Clouds/s of one training step per stage (:func:`scapo.models.speed.bench_train_step`)."""
-    from scapo.models.speed import bench_train_step
+    """Clouds/s of one training step per stage (:func:`scapo.models.scapo_speed.bench_train_step`)."""
+    from scapo.models.scapo_speed import bench_train_step
 
     return bench_train_step(preset, device, iters)
 
 
 def _speed(preset: str = "cpu", device: str | None = None, iters: int = 5, num_points: int = 1024, data=None):
-    from scapo.models.speed import bench_model
+    from scapo.models.scapo_speed import bench_model
 
     return bench_model(preset, device=device, iters=iters, num_points=num_points)
 

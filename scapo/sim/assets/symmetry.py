@@ -1,8 +1,8 @@
 """Symmetric categories: objects that a rigid map takes onto themselves with some parts exchanged.
 
 Two procedural categories declare one (:data:`SYMMETRIES`; ``scapo assets symmetry`` measures every category and
-checks the declarations, :mod:`scapo.data.symmetry`): the basket (exactly) and the laptop, whose base and lid a
-half turn about the hinge's bisector exchanges within what a 1024-point depth cloud resolves (the base is thicker
+checks the declarations, :mod:`scapo.data.symmetry_measure`): the basket (exactly) and the laptop, whose base and
+lid a half turn about the hinge's bisector exchanges within what a 1024-point depth cloud resolves (the base is thicker
 and deeper than the lid, as on real laptops, by less than the clouds' point spacing).
 
 A procedural basket is such an object: turned by 180 deg about its vertical axis it is the same basket,
@@ -51,8 +51,8 @@ class Symmetry:
         center: the point the rotation turns about: "origin" (the rest bbox centre) or "pivot:J" (the rest pivot
             of joint J, whose parent must be the base part; per instance, so one declaration serves a category).
         slack: the tolerance (rest bbox diagonals) within which the map must hold on the posed meshes
-            (:func:`scapo.data.symmetry.declared_symmetry_error`): 0.004 for exact symmetries; larger for one that
-            holds only in a depth cloud, with its reason in ``note``.
+            (:func:`scapo.data.symmetry_measure.declared_symmetry_error`): 0.004 for exact symmetries; larger for one
+            that holds only in a depth cloud, with its reason in ``note``.
         note: why the symmetry is declared (printed by ``scapo assets symmetry``).
     """
 
