@@ -213,6 +213,16 @@ def test_bad_overrides_are_clear_errors_before_anything_is_written(args, fragmen
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.parametrize("method", ["npcs", "eap", "op-align"])
+def test_the_baselines_presets_meet_the_same_checks(method, tmp_path):
+    for kv, fragment in (("lr=inf", "lr"), ("weight_decay=-1", "invalid weight_decay"), ("grad_clip=nan", "grad_clip"),
+                         ("min_lr=-1", "invalid min_lr")):
+        code, _, err = run_cli("train", "--method", method, "--data", PIN, "--preset", "test", "--set", kv, "--out",
+                               tmp_path / "r", "--no-progress")
+        assert code == 2 and fragment in err and "Traceback" not in err, (kv, err)
+        assert not (tmp_path / "r").exists()
+
+
 def test_bad_config_files_are_clear_errors(tmp_path):
     for name, text, fragment in [("a.toml", "epochs = [", "not valid TOML"), ("a.json", "{}", "give a .toml"),
                                  ("b.toml", "epochs = 'x'", "is not a valid int"),

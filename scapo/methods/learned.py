@@ -67,6 +67,12 @@ class LearnedPreset:
     lr_decay_steps: int = 5000
 
     def __post_init__(self):
+        from scapo.config import check_settings
+
+        try:  # every float finite (a subclass's own fields too); the training fields in range
+            check_settings(self, positive=("grad_clip",), non_negative=("min_lr", "weight_decay"))
+        except ValueError as e:
+            raise ConfigError(f"preset {self.name!r}: {e}") from None
         bad = [k for k, ok in {"epochs": self.epochs >= 1, "batch_size": self.batch_size >= 1, "lr": self.lr > 0,
                                 "points": self.points >= 64, "seed": self.seed >= 0,
                                 "max_steps_per_epoch": self.max_steps_per_epoch >= 0,
