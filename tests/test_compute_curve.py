@@ -41,6 +41,8 @@ def test_compute_curve_end_to_end(tmp_path):
 @pytest.mark.parametrize("args,match", [
     (["--methods", "icp"], "not trained"),
     (["--budgets", "0"], "positive"),
+    (["--budgets", "nan"], "positive"),
+    (["--budgets", "1e9"], "at most 10080"),
     (["--budgets", "5,5"], "twice"),
     (["--rungs", "one,paper"], "one rung"),
     (["--rungs", "bogus"], "unknown rung"),

@@ -45,6 +45,8 @@ from scapo.files import atomic_write_text, check_output_dir, write_json
 
 #: The issue's budgets (core-minutes of training per cell, one torch thread).
 COMPUTE_BUDGETS = (5.0, 15.0, 45.0, 120.0)
+#: The largest budget a cell may be given (core-minutes): a week of one core.
+MAX_BUDGET = 7 * 24 * 60.0
 #: The scores drawn against compute (record key, axis label).
 CURVE_PANELS = (("S", "S (%)"), ("R_sym_median", "median R sym (deg)"),
                 ("frame_consistency_sym", "frame consistency sym"))
@@ -64,9 +66,10 @@ def _check(methods, budgets, seeds, rung):
         if not METHODS.get(m).trained:
             raise ConfigError(f"{m!r} is not trained: an accuracy-against-compute curve is for trained methods; give "
                               f"some of {', '.join(LADDER_METHODS)}")
-    bad = [b for b in budgets if not (isinstance(b, (int, float)) and math.isfinite(b) and b > 0)]
+    bad = [b for b in budgets if not (isinstance(b, (int, float)) and math.isfinite(b) and 0 < b <= MAX_BUDGET)]
     if bad:
-        raise ConfigError(f"--budgets must be positive numbers of core-minutes, got {bad}")
+        raise ConfigError(f"--budgets must be positive numbers of core-minutes, at most {MAX_BUDGET:g} (a week of "
+                          f"one core), got {bad}")
     if len(set(budgets)) != len(budgets):
         raise ConfigError(f"--budgets: a budget is given twice: {list(budgets)}")
     if rung not in RUNGS:

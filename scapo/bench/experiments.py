@@ -705,6 +705,8 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
         raise ConfigError(f"unknown bench option(s) {', '.join(unknown)}; known: "
                           f"{', '.join(f.name for f in fields(BenchOptions))}")
     opts = BenchOptions(**options)
+    if opts.archive_predictions and opts.archive is None:
+        raise ConfigError("--archive-predictions keeps predictions in a cells archive: give --archive DIR too")
     data = spec.data or None
     if opts.upright and opts.viewpoints not in (None, "upright"):
         raise ConfigError(f"--upright is --viewpoints upright; it contradicts --viewpoints {opts.viewpoints}")

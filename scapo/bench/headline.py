@@ -136,7 +136,11 @@ def main(argv=None) -> int:
     ap.add_argument("--results", type=Path, default=Path("results"))
     ap.add_argument("--check", action="store_true", help="only say whether the block is current (exit 1 if not)")
     args = ap.parse_args(argv)
-    current = update_readme(args.readme, args.results, check=args.check)
+    try:
+        current = update_readme(args.readme, args.results, check=args.check)
+    except (OSError, ValueError, KeyError, TypeError) as e:  # a missing README, no block, a results file of
+        print(f"scapo: {e}", file=sys.stderr)                  # another shape: one line, what to fix
+        return 2
     print("the headline block is current" if current else
           ("the headline block is stale: run python -m scapo.bench.headline" if args.check else
            f"rewrote the headline block of {args.readme}"))
