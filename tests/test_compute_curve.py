@@ -1,26 +1,25 @@
 """``scapo bench compute``: accuracy against training compute (:mod:`scapo.bench.compute`)."""
 
 import json
-import subprocess
-import sys
 
 import pytest
 
 
-def test_compute_curve_end_to_end(tmp_path):
+def test_compute_curve_end_to_end(tmp_path, capsys):
     """Two budgets of the NPCS-style method at its test preset: each cell trains from scratch with the steps its
     budget buys (more for the larger one), the table and figure are written, and a rerun recomputes nothing;
     ``--data-only`` renders the data and measures the speed first."""
-    cmd = [sys.executable, "-m", "scapo.cli", "bench", "compute", "--category", "laptop", "--rungs", "one",
-           "--methods", "npcs", "--budgets", "0.05,0.2", "--preset", "test", "--instances", "10", "--views", "2",
-           "--train-views", "8", "--work", str(tmp_path / "w"), "--out", str(tmp_path / "o"), "--no-progress"]
-    r0 = subprocess.run([*cmd, "--data-only"], capture_output=True, text=True, timeout=300)
-    assert r0.returncode == 0, r0.stderr
+    from scapo.cli.main import main
+
+    args = ["bench", "compute", "--category", "laptop", "--rungs", "one", "--methods", "npcs", "--budgets", "0.05,0.2",
+            "--preset", "test", "--instances", "10", "--views", "2", "--train-views", "8", "--work", str(tmp_path / "w"),
+            "--out", str(tmp_path / "o"), "--no-progress"]
+    assert main([*args, "--data-only"]) == 0
     assert (tmp_path / "w" / "ladder" / "speed_npcs.json").is_file()  # measured alone, before any cell
     assert not (tmp_path / "w" / "ladder" / "compute").exists() and not (tmp_path / "o").exists()
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    assert "measuring" not in r.stdout
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "measuring" not in capsys.readouterr().out
     name = "accuracy_vs_compute_laptop_one"
     table = json.loads((tmp_path / "o" / f"{name}.json").read_text())
     recs = sorted(table["records"], key=lambda x: x["budget_min"])
@@ -33,8 +32,8 @@ def test_compute_curve_end_to_end(tmp_path):
     assert (tmp_path / "o" / f"{name}.png").stat().st_size > 1000
     md = (tmp_path / "o" / f"{name}.md").read_text()
     assert "core-min" in md and "frame cons. sym" in md and "Provenance" in md
-    r2 = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    assert r2.returncode == 0 and "measuring" not in r2.stdout
+    assert main(args) == 0
+    assert "measuring" not in capsys.readouterr().out
     assert json.loads((tmp_path / "o" / f"{name}.json").read_text())["records"] == table["records"]
 
 
