@@ -207,6 +207,8 @@ def override(settings: Any, values: Mapping[str, Any], what: str = "preset") -> 
         changes[head] = override(sub, sub_values, f"{what} {head}")
     try:
         return dataclasses.replace(settings, **changes)
+    except ConfigError:
+        raise  # the dataclass's own check, which names the preset already
     except (ValueError, TypeError) as e:
         raise ConfigError(f"{what}: {e}") from None
 
