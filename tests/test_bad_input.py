@@ -708,6 +708,19 @@ def test_ranges_and_indices_that_would_mislead_are_refused(laptop_data, tmp_path
 
     assert_clear_error(cli("generate", "--category", "laptop", "--instances", "2", "--views", "1", "--azimuth",
                            "nan,nan", "--out", tmp_path / "d"), "generate", "both ends must be finite")
+    base = ["generate", "--category", "laptop", "--instances", "2", "--views", "1"]
+    for extra, fragment in ((["--width", "100000", "--height", "100000"], "at most 4096 pixels a side"),
+                            (["--num-envs", "0"], "--num-envs must be >= 1"),
+                            (["--backend", "maniskill", "--num-envs", "4"], "ManiSkill")):
+        if "maniskill" in extra and __import__("torch").cuda.is_available():
+            continue  # with a GPU, parallel sub-scenes are legitimate
+        out = tmp_path / f"g{len(extra)}{extra[-1]}"
+        err = assert_clear_error(cli(*base, *extra, "--out", out), "generate", fragment)
+        assert not out.exists(), err  # refused before the folder (config, lock, journal) is touched
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    assert_clear_error(cli("bench", "table1", "--dry-run", "--archive", a_file, "--work", tmp_path / "w"), "bench",
+                       "--archive")
     ds = load(laptop_data, "test")
     for bad in (1.5, "1", True):
         with pytest.raises(TypeError, match="must be an integer"):
