@@ -206,6 +206,12 @@ def test_set_and_config_override_preset_fields_and_are_recorded(tmp_path):
     (["--set", "train_points=100000"], "clouds have 256"),
     (["--seed", "1", "--set", "seed=5"], "given twice"),
     (["--set", "anchors=X"], "anchors must be"),
+    (["--set", "encoder.decoder_hidden=512"], "give two widths"),
+    (["--set", "batch_size=100000"], "no training step would run"),
+    (["--set", "min_lr=1"], "exceeds a stage's learning rate"),
+    (["--set", "refine.lr=nan"], "must be finite numbers"),
+    (["--set", "name="], "needs a name"),
+    (["--set", "template_points=100000"], "lower template_points"),
 ])
 def test_bad_overrides_are_clear_errors_before_anything_is_written(args, fragment, tmp_path):
     code, _, err = run_cli("train", "--data", PIN, "--preset", "test", *args, "--out", tmp_path / "r", "--no-progress")
@@ -216,7 +222,8 @@ def test_bad_overrides_are_clear_errors_before_anything_is_written(args, fragmen
 @pytest.mark.parametrize("method", ["npcs", "eap", "op-align"])
 def test_the_baselines_presets_meet_the_same_checks(method, tmp_path):
     for kv, fragment in (("lr=inf", "lr"), ("weight_decay=-1", "invalid weight_decay"), ("grad_clip=nan", "grad_clip"),
-                         ("min_lr=-1", "invalid min_lr")):
+                         ("min_lr=-1", "invalid min_lr"), ("min_lr=1", "exceeds lr"),
+                         ("batch_size=100000", "no training step would run")):
         code, _, err = run_cli("train", "--method", method, "--data", PIN, "--preset", "test", "--set", kv, "--out",
                                tmp_path / "r", "--no-progress")
         assert code == 2 and fragment in err and "Traceback" not in err, (kv, err)

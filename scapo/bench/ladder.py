@@ -448,8 +448,9 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
     bad = [r for r in rungs if r not in RUNGS]
     if bad:
         raise ConfigError(f"unknown rung(s) {', '.join(bad)}; known: {', '.join(RUNGS)}")
-    if not budget_minutes > 0 or not math.isfinite(budget_minutes):
-        raise ConfigError(f"--budget-minutes must be a positive number, got {budget_minutes}")
+    if not (math.isfinite(budget_minutes) and 0 < budget_minutes <= 7 * 24 * 60):
+        raise ConfigError(f"--budget-minutes must be a positive number of core-minutes, at most 10080 (a week of one "
+                          f"core), got {budget_minutes}")
     if instances < 10:
         raise ConfigError(f"--instances must be >= 10 (a val and a test split of their own), got {instances}")
     if any(s < 0 for s in seeds):

@@ -54,6 +54,8 @@ class RunSpec:
             writes besides the engine's); called once the run folder is checked, only for a run not finished.
         compare: ``compare(identity) -> dict``: the part of an identity that decides whether a checkpoint fits
             (e.g. without inference-only fields); None compares the whole identity.
+        check: ``check(preset, card, training_clouds)``: the method's relations between its preset and the data,
+            raising ConfigError before anything is written (None: the engine's own checks only).
     """
 
     method: str
@@ -62,6 +64,7 @@ class RunSpec:
     identity: Callable[[Any, dict], dict]
     job: Callable[[Any, Path, Path, torch.device, DistContext], TrainJob]
     compare: Callable[[dict], dict] | None = None
+    check: Callable[[Any, dict, int], None] | None = None
 
 
 def check_seed(seed, what: str = "training seed") -> None:
@@ -101,13 +104,16 @@ def run_preset(spec: RunSpec, run: str | Path | None = None, preset=None, overri
     return pc
 
 
-def _training_card(data: str | Path) -> dict:
+def _training_card(data: str | Path, batch_size: int | None = None) -> tuple[dict, int]:
     from scapo.data.dataset import load
 
     train = load(data, "train")
     if len(train) == 0:
         raise DatasetError(f"{data}: the training split is empty; generate a dataset with training instances")
-    return train.card
+    if batch_size is not None and batch_size > len(train):  # the engine drops a last partial batch: no step at all
+        raise ConfigError(f"the batch size {batch_size} exceeds the {len(train)} training clouds of {data}: no "
+                          f"training step would run; set batch_size to {len(train)} or fewer")
+    return train.card, len(train)
 
 
 def train(spec: RunSpec, data: str | Path, run: str | Path, preset=None, *, seed: int | None = None,
@@ -130,7 +136,9 @@ def train(spec: RunSpec, data: str | Path, run: str | Path, preset=None, *, seed
                           f"trained again); give prediction settings to 'scapo predict --run {run} --option "
                           "KEY=VALUE', and train another run (another --out) for other training settings")
     pc = run_preset(spec, run, preset, overrides, seed)
-    card = _training_card(data)
+    card, clouds = _training_card(data, getattr(pc, "batch_size", None))
+    if spec.check is not None:
+        spec.check(pc, card, clouds)
     stored = card.get("num_points")
     wanted = getattr(pc, "train_points", getattr(pc, "points", None))
     if isinstance(stored, int) and isinstance(wanted, int) and wanted > stored:
@@ -149,4 +157,4 @@ def run_is_current(spec: RunSpec, run: str | Path, data: str | Path, preset, see
     Raises:
         UnknownNameError: an unknown preset name."""
     pc = run_preset(spec, None, preset, None, seed)
-    return RunFolder(Path(run), spec.identity(pc, _training_card(data)), spec.compare).is_current()
+    return RunFolder(Path(run), spec.identity(pc, _training_card(data)[0]), spec.compare).is_current()

@@ -73,6 +73,9 @@ class LearnedPreset:
             check_settings(self, positive=("grad_clip",), non_negative=("min_lr", "weight_decay"))
         except ValueError as e:
             raise ConfigError(f"preset {self.name!r}: {e}") from None
+        if self.lr > 0 and self.min_lr > self.lr:
+            raise ConfigError(f"preset {self.name!r}: min_lr {self.min_lr} exceeds lr {self.lr} (the cosine schedule "
+                              "falls from lr to min_lr)")
         bad = [k for k, ok in {"epochs": self.epochs >= 1, "batch_size": self.batch_size >= 1, "lr": self.lr > 0,
                                 "points": self.points >= 64, "seed": self.seed >= 0,
                                 "max_steps_per_epoch": self.max_steps_per_epoch >= 0,

@@ -82,6 +82,11 @@ class TrainConfig:
                                     "template_points": 16, "max_steps_per_epoch": 0, "seed": 0})
         except ValueError as e:
             raise ConfigError(f"preset {self.name!r}: {e}") from None
+        if not self.name:
+            raise ConfigError("a preset needs a name (it is recorded with the run)")
+        if self.min_lr > min(self.lr_stage1, self.lr_stage2):
+            raise ConfigError(f"preset {self.name!r}: min_lr {self.min_lr} exceeds a stage's learning rate (lr_stage1 "
+                              f"{self.lr_stage1}, lr_stage2 {self.lr_stage2}); the cosine schedule falls to min_lr")
         if self.stage1_epochs + self.stage2_epochs < 1:
             raise ConfigError(f"preset {self.name!r}: stage1_epochs + stage2_epochs must be >= 1 (nothing would be "
                               "trained and no checkpoint written)")

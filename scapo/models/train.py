@@ -325,10 +325,25 @@ def _stored_preset(ident: dict) -> TrainConfig | None:
         return None
 
 
+def _check(preset: TrainConfig, card: dict, clouds: int) -> None:
+    """SCAPO's preset against the data, before anything is written: stage 2's template is farthest-point sampled from
+    one canonical training cloud (``part_init``) or from the union of up to 64 (:meth:`ScapoJob._init_template`).
+
+    Raises:
+        ConfigError: more template points than that cloud or union has."""
+    from scapo.errors import ConfigError
+
+    have = preset.train_points * (1 if preset.part_init else min(64, clouds))
+    if preset.stage2_epochs > 0 and preset.template_points > have:
+        raise ConfigError(f"template_points {preset.template_points} exceeds the {have} points stage 2 samples its "
+                          f"template from ({'one' if preset.part_init else min(64, clouds)} training cloud(s) of "
+                          f"{preset.train_points} points); lower template_points")
+
+
 #: SCAPO's description for the engine's run lifecycle (:mod:`scapo.engine.lifecycle`).
 SCAPO_RUN = RunSpec(method="scapo", preset=get_preset, stored_preset=_stored_preset, identity=_run_identity,
                     job=lambda pc, data, run, device, ctx: ScapoJob(pc, data, run, device, ctx).job(),
-                    compare=_training_identity)
+                    compare=_training_identity, check=_check)
 
 
 class Trainer:

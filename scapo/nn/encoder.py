@@ -64,6 +64,9 @@ class EncoderConfig:
 
         check_settings(self, minimum={"k": 2, "code_dim": 1, "decoder_points": 16, "attention_points": 1},
                        positive_tuples=("trans_channels", "rot_channels", "decoder_hidden"))
+        if len(self.decoder_hidden) != 2:
+            raise ValueError(f"invalid decoder_hidden: give two widths (the MLP's and the feature map's), got "
+                             f"{self.decoder_hidden!r}")
         if not 0.0 <= self.residual_deg <= 90.0:
             raise ValueError(f"encoder residual_deg must be in [0, 90], got {self.residual_deg!r}")
         if self.frame not in ("regressed", "principal"):

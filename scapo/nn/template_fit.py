@@ -51,6 +51,11 @@ class RefineConfig:
     the cue, no label is used. An addition to the paper."""
 
     def __post_init__(self):
+        import math
+
+        if not all(math.isfinite(v) for v in (self.lr, self.margin, self.upright_deg)):
+            raise ValueError(f"invalid refinement settings: lr {self.lr}, margin {self.margin} and upright_deg "
+                             f"{self.upright_deg} must be finite numbers")
         if self.steps < 0 or self.lr <= 0 or self.points < 8:
             raise ValueError(f"invalid refinement settings: steps {self.steps} (>= 0), lr {self.lr} (> 0), "
                              f"points {self.points} (>= 8)")
