@@ -739,6 +739,10 @@ def test_predictions_files_and_options_that_would_be_guessed_at_are_refused(smal
     np.savez(tmp_path / "extra.npz", **arrays, extra_thing=np.zeros(3))
     assert_clear_error(cli("evaluate", "--data", small / "lap0", "--pred", tmp_path / "extra.npz"), "evaluate",
                        "holds arrays a scapo predictions file has not (extra_thing)")
+    (tmp_path / "notes.npz").write_text("not an archive")
+    err = assert_clear_error(cli("evaluate", "--data", small / "lap0", "--pred", tmp_path / "notes.npz"), "evaluate",
+                             "is not a predictions file")
+    assert "pickle" not in err and "unsafe" not in err
     assert_clear_error(cli("predict", "--method", "scapo", "--option", "run=somewhere", "--data", small / "lap0",
                            "--out", tmp_path / "q.npz"), "predict", "is given as --run")
     pytest.importorskip("viser")

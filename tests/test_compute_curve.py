@@ -43,6 +43,8 @@ def test_compute_curve_end_to_end(tmp_path, capsys):
     (["--budgets", "nan"], "positive"),
     (["--budgets", "1e9"], "at most 10080"),
     (["--budgets", "5,5"], "twice"),
+    (["--methods", "npcs,npcs"], "twice"),
+    (["--seeds", "0,0"], "twice"),
     (["--rungs", "one,paper"], "one rung"),
     (["--rungs", "bogus"], "unknown rung"),
     (["--methods", "nosuch"], "nosuch"),

@@ -189,6 +189,8 @@ def test_ladder_end_to_end(tmp_path):
     (["--rungs", "one", "--variant", "icp:x:a=1"], "not trained"),
     (["--rungs", "one", "--budget-minutes", "0"], "budget"),
     (["--rungs", "one", "--budget-minutes", "1e9"], "at most 10080"),
+    (["--rungs", "one,one"], "given twice"),
+    (["--rungs", "one", "--methods", "npcs,npcs"], "given twice"),
     (["--rungs", "one", "--variant", "scapo:x:no_such_field=1"], "no_such_field"),
 ])
 def test_ladder_refuses_bad_arguments(tmp_path, capsys, args, match):

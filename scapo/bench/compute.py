@@ -70,8 +70,9 @@ def _check(methods, budgets, seeds, rung):
     if bad:
         raise ConfigError(f"--budgets must be positive numbers of core-minutes, at most {MAX_BUDGET:g} (a week of "
                           f"one core), got {bad}")
-    if len(set(budgets)) != len(budgets):
-        raise ConfigError(f"--budgets: a budget is given twice: {list(budgets)}")
+    for what, values in (("--budgets", budgets), ("--methods", methods), ("--seeds", seeds)):
+        if len(set(values)) != len(values):  # one cell counted twice would pass for two
+            raise ConfigError(f"{what}: a value is given twice: {list(values)}; give each once")
     if rung not in RUNGS:
         raise ConfigError(f"unknown rung {rung!r}; known: {', '.join(RUNGS)}")
     if any(s < 0 for s in seeds):

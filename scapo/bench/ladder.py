@@ -455,6 +455,9 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         raise ConfigError(f"--instances must be >= 10 (a val and a test split of their own), got {instances}")
     if any(s < 0 for s in seeds):
         raise ConfigError(f"training seeds must be >= 0, got {seeds}")
+    for what, values in (("--methods", methods), ("--rungs", rungs), ("--seeds", seeds)):
+        if len(set(values)) != len(values):  # one cell counted twice would pass for two
+            raise ConfigError(f"{what}: a value is given twice: {list(values)}; give each once")
 
     def meta_of() -> dict:
         return {"category": category, "rungs": rungs, "methods": methods, "seeds": seeds, "split": "val",

@@ -218,6 +218,8 @@ class Predictions:
             PredictionError: unreadable file, missing fields, bad shapes or NaN (names the problem).
         """
         path = Path(path)
+        if path.is_file() and not zipfile.is_zipfile(path):  # np.load would read other formats (and advise pickle)
+            raise PredictionError(f"{path} is not a predictions file (an .npz archive written by 'scapo predict')")
         try:
             with np.load(path, allow_pickle=False) as z:
                 arrays = {k: z[k] for k in z.files}
