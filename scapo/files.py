@@ -396,18 +396,21 @@ def check_name(name: str, flag: str = "--name") -> str:
 
 
 def check_own_files(paths, marker: Path, what: str, hint: str) -> None:
-    """Refuse to overwrite files scapo did not write: any of ``paths`` that exists while ``marker`` (the JSON that
-    scapo writes with them, holding its ``provenance``) does not.
+    """Refuse to overwrite files scapo did not write: any of ``paths`` or ``marker`` that exists while ``marker`` (the
+    JSON that scapo writes with them) is not a scapo table (its mark, :func:`output_mark` ``"scapo table"``, or, as
+    tables were written before the mark existed, its ``provenance`` beside its ``results``: a dataset card or a run's
+    identity has neither pair).
 
     Raises:
         OutputError: naming the foreign file and ``hint`` (e.g. another --out or --name)."""
     import json
 
     try:
-        ours = "provenance" in json.loads(Path(marker).read_text())
+        d = json.loads(Path(marker).read_text())
+        ours = isinstance(d, dict) and (d.get(OUTPUT_MARK) == "scapo table" or ("provenance" in d and "results" in d))
     except (OSError, ValueError, TypeError):
         ours = False
-    foreign = [str(p) for p in paths if Path(p).exists() and not ours]
+    foreign = [str(p) for p in (*paths, marker) if Path(p).exists() and not ours]
     if foreign:
-        raise OutputError(f"{foreign[0]} exists and was not written by scapo (no {Path(marker).name} with provenance "
+        raise OutputError(f"{foreign[0]} exists and was not written by scapo (no {Path(marker).name} of a scapo table "
                           f"beside it); {hint}")

@@ -647,6 +647,15 @@ def test_outputs_never_leave_out_or_land_in_a_dataset_or_run_folder(laptop_data,
     assert_clear_error(cli("evaluate", "--data", laptop_data, "--pred", preds, "--out", r, "--name", "run"),
                        "evaluate", "is a scapo run folder")
     assert (r / "run.json").read_bytes() == ident
+    notes = tmp_path / "t" / "notes.json"
+    notes.parent.mkdir(exist_ok=True)
+    notes.write_text('{"provenance": "my notes, not a table"}')
+    assert_clear_error(cli("evaluate", "--data", laptop_data, "--pred", preds, "--out", tmp_path / "t", "--name",
+                           "notes"), "evaluate", "notes.json exists and was not written by scapo")
+    assert notes.read_text() == '{"provenance": "my notes, not a table"}'
+    assert cli("evaluate", "--data", laptop_data, "--pred", preds, "--out", tmp_path / "t", "--name", "mine")[0] == 0
+    assert json.loads((tmp_path / "t" / "mine.json").read_text())["scapo_output"] == "scapo table"
+    assert cli("evaluate", "--data", laptop_data, "--pred", preds, "--out", tmp_path / "t", "--name", "mine")[0] == 0
     assert_clear_error(cli("assets", "symmetry", "--category", "laptop", "--instances", "1", "--views", "1",
                            "--json", data / "card.json"), "assets", "scapo dataset folder")
     mine = tmp_path / "notes.json"
@@ -741,7 +750,7 @@ def test_predictions_files_and_options_that_would_be_guessed_at_are_refused(smal
                        "holds arrays a scapo predictions file has not (extra_thing)")
     (tmp_path / "notes.npz").write_text("not an archive")
     err = assert_clear_error(cli("evaluate", "--data", small / "lap0", "--pred", tmp_path / "notes.npz"), "evaluate",
-                             "is not a predictions file")
+                             "it is not an .npz archive")
     assert "pickle" not in err and "unsafe" not in err
     assert_clear_error(cli("predict", "--method", "scapo", "--option", "run=somewhere", "--data", small / "lap0",
                            "--out", tmp_path / "q.npz"), "predict", "is given as --run")

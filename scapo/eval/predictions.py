@@ -219,7 +219,8 @@ class Predictions:
         """
         path = Path(path)
         if path.is_file() and not zipfile.is_zipfile(path):  # np.load would read other formats (and advise pickle)
-            raise PredictionError(f"{path} is not a predictions file (an .npz archive written by 'scapo predict')")
+            raise PredictionError(f"predictions file {path} cannot be read: it is not an .npz archive (the format "
+                                  "'scapo predict' writes)")
         try:
             with np.load(path, allow_pickle=False) as z:
                 arrays = {k: z[k] for k in z.files}

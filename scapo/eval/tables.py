@@ -35,7 +35,7 @@ import pandas as pd
 
 from scapo.eval.evaluator import EvalResult
 from scapo.eval.metrics import TABLE1_METRICS, MetricInfo
-from scapo.files import atomic_write_text, check_output_dir
+from scapo.files import atomic_write_text, check_output_dir, output_mark
 from scapo.report import latex_escape, markdown_table
 
 #: Category column order of Table 1 in the paper, then the other categories.
@@ -583,7 +583,7 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
             *[" & ".join(latex_escape(c).replace("±", r"$\pm$") for c in r) + r" \\" for r in rob_rows],
             r"\bottomrule", r"\end{tabular}", ""]
     atomic_write_text(paths["tex"], "\n".join(tex))
-    payload = {"provenance": provenance, "self_supervised_ordering": order,
+    payload = {**output_mark("scapo table"), "provenance": provenance, "self_supervised_ordering": order,
                "self_supervised_ordering_refined": order_refined, "pairwise_bootstrap": pairs,
                "results": [{"method": r.method, "category": r.category, "split": r.split,
                             "seed": r.info.get("seed"), "summary": r.summary, "info": r.info} for r in results]}
@@ -729,7 +729,7 @@ def _write_table_files(out_dir, name: str, title: str, long: pd.DataFrame, heade
            *[" & ".join(latex_escape(c).replace("±", r"$\pm$") for c in r) + r" \\" for r in rows],
            r"\bottomrule", r"\end{tabular}", ""]
     atomic_write_text(paths["tex"], "\n".join(tex))
-    payload = {"provenance": provenance, "self_supervised_ordering": order,
+    payload = {**output_mark("scapo table"), "provenance": provenance, "self_supervised_ordering": order,
                "self_supervised_ordering_refined": order_refined, "pairwise_bootstrap": pairs,
                "results": [{"method": r.method, "category": r.category, "split": r.split, "seed": r.info.get("seed"),
                             "summary": r.summary, **({"info": r.info} if with_info else {})} for r in results]}
