@@ -136,6 +136,9 @@ def write_curve(records: Sequence[dict], out: Path, meta: dict, name: str = "acc
             if pts:
                 ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=m)
         ax.set_xscale("log")
+        ticks = sorted({r["budget_min"] for r in flat})
+        ax.set_xticks(ticks, [f"{b:g}" for b in ticks])
+        ax.minorticks_off()
         ax.set_xlabel("training compute (core-minutes)")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
