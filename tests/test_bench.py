@@ -182,9 +182,9 @@ def test_a_lost_work_folder_is_restored_from_the_cells_archive(bench, monkeypatc
                        **SMALL)  # done cells are archived as the bench meets them
     assert _same(first, results)
     kept = archive / "laptop_i10_v2_s0"
-    assert sorted(p.name for p in (kept / "cells").iterdir()) == [
-        "npcs_test_s0.scapo.json", "npcs_test_s0.scapo.parquet", "scapo_test_s0.scapo.json",
-        "scapo_test_s0.scapo.parquet"]
+    assert sorted(p.name for p in (kept / "cells").iterdir()) == sorted(  # scored under each archived protocol
+        f"{m}_test_s0.{p}.{k}" for m in ("npcs", "scapo") for p in ("eap", "op-align", "scapo")
+        for k in ("json", "parquet"))
     assert sorted(p.name for p in (kept / "run_scapo_test_s0").iterdir()) == ["run.json", "timing.json"]
     original = work / "laptop_i10_v2_s0" / "predictions_scapo_test_s0.npz"
     assert not list(kept.glob("predictions_*"))  # their sha256 is in the records
@@ -208,6 +208,9 @@ def test_a_lost_work_folder_is_restored_from_the_cells_archive(bench, monkeypatc
     assert json.loads((tmp_path / "out" / "table1_synthetic_sphere.json").read_text())["provenance"]["cells"] == \
         json.loads((out / "table1_synthetic_sphere.json").read_text())["provenance"]["cells"]
     assert (tmp_path / "out" / "table1_synthetic_sphere.md").is_file()
+    eap = run_table1(["npcs", "scapo"], ["laptop"], work_dir=fresh, out_dir=tmp_path / "out_eap", seeds=[0],
+                     archive=archive, protocol="eap", name="t_eap", **SMALL)  # another protocol: from the archive too
+    assert len(eap) == 2 and (tmp_path / "out_eap" / "t_eap.md").is_file()
     kept_preds = tmp_path / "fresh_kept"
     shutil.copytree(work / "laptop_i10_v2_s0", kept_preds / "laptop_i10_v2_s0",
                     ignore=shutil.ignore_patterns("run_*", "predictions_*", "cells", "stale", "dirty"))

@@ -259,6 +259,11 @@ def data_settings(category: str, data_kwargs: dict | None = None, category_data:
     return {**(data_kwargs or SYNTHETIC_DATA), **(category_data or {}).get(category, {})}
 
 
+#: The protocols every archived cell is scored under when it is archived without its predictions (the tables'
+#: ``--protocol`` rows then come from the archive alone): the SCAPO paper's, OP-Align's and EAP's rules.
+ARCHIVED_PROTOCOLS = ("scapo", "op-align", "eap")
+
+
 def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str,
              workers: int, cache_dir, progress: bool, device: str | None, finished_only: bool = False,
              data_kwargs: dict | None = None, recompute_dirty: bool = False, category_data: dict | None = None,
@@ -269,7 +274,8 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
     where it differs from it only by rounding (:func:`~scapo.bench.archive.reconcile_dataset`), or pinned in the
     archive when none is (:func:`~scapo.bench.archive.archive_dataset`); the archived cells of each dataset are
     restored into the work folder once the dataset exists, and every done cell is archived (its predictions only with
-    ``archive_predictions``). With ``data_only``
+    ``archive_predictions``; without them it is also scored and archived under each of :data:`ARCHIVED_PROTOCOLS`,
+    so that tables under another protocol come from the archive alone). With ``data_only``
     the datasets are generated (reconciled, pinned, their cells restored) and no cell is computed or returned."""
     results, records, hashes, done, missing = [], [], {}, [], []
 
@@ -327,6 +333,14 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
                                           recompute_dirty=recompute_dirty, evaluate_only=finished_only)
         if archive is not None:
             archive_cell(data, c, protocol, archive, predictions=archive_predictions)
+            kept = cell_paths(Path(archive) / data.name, c, protocol)
+            if not archive_predictions and not kept.predictions.with_name(kept.predictions.name + ".xz").is_file():
+                # the predictions stay behind: their scores under the other protocols go to the archive now
+                for other in ARCHIVED_PROTOCOLS:
+                    if (other != protocol and cell_paths(data, c, other).predictions.is_file()
+                            and not cell_paths(Path(archive) / data.name, c, other).record.is_file()):
+                        compute_cell(data, c, other, progress=False, device=device, evaluate_only=True)
+                        archive_cell(data, c, other, archive)
         s = res.summary
         print(f"{'computed' if computed else 'cached  '} {c.category:11s} {c.key:44s} "
               + " ".join(f"{k}={s[k]:.3f}" for k in ("S", "D", "C", "R", "R_median")), flush=True)
