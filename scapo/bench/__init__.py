@@ -6,6 +6,12 @@
   :data:`TABLES` (categories, protocol, data settings, rows), made by :func:`run_table`: their cells, dry-run
   plan, tables and figures.
 - :mod:`scapo.bench.choose`: choices of an option value on the validation split.
+- :mod:`scapo.bench.archive`: the cells archive (records, per-sample metrics, pinned datasets) that outlives a machine.
+- :mod:`scapo.bench.ladder`: the canonical-frame diagnosis ladder; :mod:`scapo.bench.compute`: accuracy against
+  training compute on one of its rungs.
+- :mod:`scapo.bench.perf`: speed (generation, training, inference); :mod:`scapo.bench.demo`: the demo;
+  :mod:`scapo.bench.viz`: figures; :mod:`scapo.bench.viewer`: the browser viewer; :mod:`scapo.bench.headline`: the
+  README's block of headline numbers, generated from ``results/``.
 """
 
 from scapo.bench.cells import Cell, cell_status, compute_cell, evaluator_fingerprint, method_preset
