@@ -12,7 +12,7 @@ def test_compute_curve_end_to_end(tmp_path, capsys):
     from scapo.cli.main import main
 
     args = ["bench", "compute", "--category", "laptop", "--rungs", "one", "--methods", "npcs", "--budgets", "0.05,0.2",
-            "--preset", "test", "--instances", "10", "--views", "2", "--train-views", "8", "--work", str(tmp_path / "w"),
+            "--preset", "test", "--instances", "10", "--views", "1", "--train-views", "4", "--work", str(tmp_path / "w"),
             "--out", str(tmp_path / "o"), "--no-progress"]
     assert main([*args, "--data-only"]) == 0
     assert (tmp_path / "w" / "ladder" / "speed_npcs.json").is_file()  # measured alone, before any cell
