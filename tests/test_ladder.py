@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -200,3 +201,23 @@ def test_ladder_refuses_bad_arguments(tmp_path, capsys, args, match):
     err = capsys.readouterr().err
     assert match in err and "Traceback" not in err
     assert not (tmp_path / "w" / "ladder" / "data").exists()  # refused before any work
+
+
+def test_frame_spread_separates_view_dependence_from_shape_dependence():
+    """``bench/frame_spread.py``: offsets that differ only between instances have no within-instance spread; offsets
+    that differ only between the views of each instance have instance means near the common one."""
+    import importlib.util
+
+    from scipy.spatial.transform import Rotation
+
+    spec = importlib.util.spec_from_file_location("frame_spread", Path(__file__).resolve().parents[1] / "bench" /
+                                                  "frame_spread.py")
+    fs = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fs)
+    inst = np.repeat(np.arange(4), 6)
+    per_instance = Rotation.from_euler("z", np.array([[-30.0], [-10.0], [10.0], [30.0]]), degrees=True).as_matrix()[inst]
+    shape = fs.spread_stats(per_instance, inst)
+    assert shape["median_within_instance_deg"] < 1e-3 and shape["median_instance_means_to_common_deg"] > 9
+    views = Rotation.from_euler("x", np.tile([-20.0, 20.0], 12)[:, None], degrees=True).as_matrix()
+    view = fs.spread_stats(views, inst)
+    assert view["median_within_instance_deg"] == 20.0 and view["median_instance_means_to_common_deg"] < 1e-3

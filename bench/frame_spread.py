@@ -1,0 +1,123 @@
+"""Where a method's object frame spreads: across the views of one instance (the frame depends on what the view shows)
+or across instances (each shape gets its own frame). Reads the val predictions of ``scapo bench ladder`` or
+``scapo bench compute`` cells and their dataset (nothing is trained or predicted again):
+
+    python bench/frame_spread.py --data bench_work/ladder/data/laptop_paper_i60_v8_t16_s1 \\
+        --cell scapo:5=bench_work/ladder/compute/b5/laptop/paper/scapo_s0_predictions.npz ... \\
+        --out results/canonical_ladder/frame_spread
+
+Per cell, from the object-frame offsets ``O = R_gt^T R_pred`` of its val samples (each folded to the declared
+symmetric ground truth closest to the common offset, as the symmetry-aware scores do): the median angle of the
+offsets to their chordal mean (what the frame consistency thresholds at 15 deg), the median angle of each sample to
+its own instance's mean (view dependence) and the median angle of the instances' means to their mean (shape
+dependence), with the number of val instances and samples. Writes ``<out>.{md,json}`` with provenance.
+
+Errors: a missing dataset or predictions file, or a ``--cell`` not of the form ``LABEL=PATH``, end with a ``scapo:``
+message and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script from anywhere in the checkout
+
+
+def mean_rotation(Rs: np.ndarray) -> np.ndarray:
+    """Chordal mean of rotations ``(n, 3, 3)``."""
+    U, _, Vt = np.linalg.svd(Rs.sum(0))
+    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+
+
+def angles(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Angles (deg) between rotations ``A (n, 3, 3)`` and ``B`` (broadcast)."""
+    B = np.broadcast_to(B, A.shape)
+    return np.degrees(np.arccos(np.clip((np.einsum("nij,nij->n", A, B) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def spread(data: Path, predictions: Path) -> dict:
+    """The spread statistics of one cell's val predictions (see the module docstring)."""
+    from scapo.data import load
+    from scapo.eval import Predictions
+    from scapo.eval.evaluator import declared_rotations
+
+    val = load(data, "val")
+    gt = val.arrays(["T_cam_obj"])["T_cam_obj"]
+    keys = {k: i for i, k in enumerate(val.keys())}
+    p = Predictions.load(predictions)
+    rows = [i for i in range(len(p)) if str(p.split[i]) == "val"]
+    inst = np.array([int(p.instance_id[i]) for i in rows])
+    order = np.array([keys[(int(p.instance_id[i]), int(p.view_id[i]))] for i in rows])
+    O = np.einsum("nji,njk->nik", gt[order][:, :3, :3], p.T_cam_obj[rows][:, :3, :3].astype(np.float64))
+    M = mean_rotation(O)
+    sym = declared_rotations(val.card)
+    if len(sym) > 1:  # each sample against the declared symmetric ground truth that fits the common offset best
+        cands = np.stack([np.einsum("ij,njk->nik", S, O) for S in sym])
+        d = np.stack([angles(c, M) for c in cands])
+        O = cands[d.argmin(0), np.arange(len(O))]
+        M = mean_rotation(O)
+    return spread_stats(O, inst)
+
+
+def spread_stats(O: np.ndarray, inst: np.ndarray) -> dict:
+    """The statistics of offsets ``O (n, 3, 3)`` of samples of instances ``inst (n,)`` (see the module docstring)."""
+    M = mean_rotation(O)
+    within, means = [], []
+    for i in np.unique(inst):
+        Mi = mean_rotation(O[inst == i])
+        means.append(Mi)
+        within += list(angles(O[inst == i], Mi))
+    means = np.stack(means)
+    return {"median_to_common_deg": round(float(np.median(angles(O, M))), 1),
+            "median_within_instance_deg": round(float(np.median(within)), 1),
+            "median_instance_means_to_common_deg": round(float(np.median(angles(means, mean_rotation(means)))), 1),
+            "instances": int(len(means)), "samples": int(len(O))}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", type=Path, required=True, help="the cells' dataset folder (its val split is read)")
+    ap.add_argument("--cell", action="append", default=[], help="LABEL=PREDICTIONS.npz (repeat)")
+    ap.add_argument("--out", type=Path, required=True, help="output stem: writes <out>.md and <out>.json")
+    args = ap.parse_args(argv)
+    from scapo.errors import ScapoError
+    from scapo.files import atomic_write_text, write_json
+    from scapo.provenance import provenance
+
+    try:
+        cells = []
+        for c in args.cell:
+            label, eq, path = c.partition("=")
+            if not eq or not label or not path:
+                raise ScapoError(f"--cell {c!r} is not LABEL=PREDICTIONS.npz")
+            cells.append((label, Path(path)))
+        if not cells:
+            raise ScapoError("give at least one --cell LABEL=PREDICTIONS.npz")
+        rows = {label: spread(args.data, path) for label, path in cells}
+    except (ScapoError, OSError, KeyError) as e:
+        print(f"scapo: {e}", file=sys.stderr)
+        return 2
+    prov = provenance(command="bench/frame_spread.py", dataset=args.data.name,
+                      cells={label: str(path) for label, path in cells})
+    md = ["# Where the object frame spreads (val)", "",
+          "Median angles (deg) of the val samples' object-frame offsets (folded to the declared symmetric ground "
+          "truth): to their common mean; to their own instance's mean (views of one object: view dependence); and of "
+          "the instances' means to their common mean (shape dependence).", "",
+          "| cell | to common | within instance | instance means | instances | samples |", "|---|---|---|---|---|---|"]
+    md += [f"| {k} | {v['median_to_common_deg']} | {v['median_within_instance_deg']} | "
+           f"{v['median_instance_means_to_common_deg']} | {v['instances']} | {v['samples']} |" for k, v in rows.items()]
+    md += ["", f"Provenance: commit {prov.get('commit')}, dataset `{args.data.name}`; written by "
+           "`bench/frame_spread.py`.", ""]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(args.out.with_suffix(".md"), "\n".join(md))
+    write_json(args.out.with_suffix(".json"), {"cells": rows, "provenance": prov})
+    print("\n".join(md))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
