@@ -312,3 +312,37 @@ def test_vn_leaky_relu_is_the_papers_clipped_projection():
     ref = 0.2 * p + 0.8 * torch.where(dot >= 0, p, proj)
     torch.testing.assert_close(_leaky(p, d, 0.2), ref, rtol=1e-12, atol=1e-12)
     assert (dot < 0).any() and (dot >= 0).any()
+
+
+def test_the_crop_of_aug_consist_keeps_the_points_beyond_a_plane():
+    """``losses.aug_crop``: the re-sampled copy is a half-space crop (another part of the object in view), not a
+    uniform subset: on points along a line, the kept ones are one end of it; in 3-D, a plane separates kept and
+    dropped points; and the loss with the crop runs and back-propagates through a SCAPO model."""
+    from scapo.losses.scapo_losses import augmentation_consistency_loss, crop_indices
+
+    line = torch.zeros(3, 100, 3, dtype=D)
+    line[..., 0] = torch.arange(100, dtype=D)
+    idx = crop_indices(line, 30, torch.Generator().manual_seed(0))
+    for row in idx.sort(dim=1).values.tolist():
+        assert row in (list(range(30)), list(range(70, 100)))
+    g = torch.Generator().manual_seed(1)
+    X = torch.randn(4, 200, 3, dtype=D, generator=g)
+    keep = crop_indices(X, 120, torch.Generator().manual_seed(2))
+    dirs = torch.randn(4, 3, generator=torch.Generator().manual_seed(2), dtype=D)  # the directions it drew
+    for b in range(4):  # a plane normal to the cloud's direction separates kept and dropped points
+        mask = torch.zeros(200, dtype=torch.bool)
+        mask[keep[b]] = True
+        p = ((X[b] - X[b].mean(0)) * dirs[b]).sum(-1)
+        assert float(p[mask].min()) >= float(p[~mask].max())
+    from scapo.models.presets import PRESETS
+    from scapo.models.scapo_model import SCAPOModel
+    from scapo.models.train import model_config
+
+    card = {"part_names": ["a", "b"], "joint_type": [0], "joint_parts": [[0, 1]]}
+    torch.manual_seed(0)
+    model = SCAPOModel(model_config(card, PRESETS.get("test")))
+    Xf = torch.randn(4, 128, 3)
+    s1 = model.stage1(Xf)
+    loss = augmentation_consistency_loss(model, Xf, s1, crop=True)
+    loss.backward()
+    assert torch.isfinite(loss) and any(p.grad is not None for p in model.parameters())

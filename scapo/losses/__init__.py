@@ -45,6 +45,11 @@ class LossConfig:
     align_in_stage2: bool = False
     """Keep the cross-instance alignment during stage 2. Off: it holds the whole-object frame and, on
     a laptop, tilts the learned hinge axis (see results/cpu_preset_history.md)."""
+    aug_crop: bool = False
+    """``L_aug_consist``'s re-sampled copy is a half-space crop of the cloud (the points beyond a random plane, the same
+    ``keep`` fraction) instead of a uniform random subset, so that the frame must not depend on which part of the object
+    a view shows (:func:`~scapo.losses.scapo_losses.augmentation_consistency_loss`; an addition to the paper for
+    partial views, from the ladder's finding that the frame spreads across one object's views; off by default)."""
     rec_one_sided: bool = False
     """Stage 1's ``L_rec`` from the input to the reconstruction only (:func:`reconstruction_loss`; an addition to the
     paper for partial views, Li et al.'s partial setting; preset part ``one-sided``)."""
@@ -109,7 +114,8 @@ def stage1_terms(model, X: torch.Tensor, s1: Stage1Output, cfg: LossConfig | Non
     terms = {
         "rec": reconstruction_loss(X, s1.X_rec, one_sided=cfg is not None and cfg.rec_one_sided),
         "ortho": orthonormality_loss(s1.enc.R_raw),
-        "aug_consist": augmentation_consistency_loss(model, X, s1, max_batch=max(2, X.shape[0] // 2)),
+        "aug_consist": augmentation_consistency_loss(model, X, s1, max_batch=max(2, X.shape[0] // 2),
+                                                     crop=cfg is not None and cfg.aug_crop),
         "can_consist": canonical_consistency_loss(model, s1.S_dec[: max(2, X.shape[0] // 2)]),
     }
     if align:

@@ -41,11 +41,13 @@ def orthonormality_loss(R_raw: torch.Tensor) -> torch.Tensor:
 
 
 def augmentation_consistency_loss(model, X: torch.Tensor, s1: Stage1Output, keep: float = 0.75,
-                                  max_batch: int | None = None) -> torch.Tensor:
+                                  max_batch: int | None = None, crop: bool = False) -> torch.Tensor:
     """``L_aug_consist``: a re-sampled (a random ``keep`` fraction of the points), randomly rotated
     and translated copy ``X' = Q X_sub + u`` must give the same canonical shape and the
     correspondingly moved pose: ``CD(S, S') + ||R' - Q R||^2 + ||t' - (Q t + u)||^2``.
-    ``max_batch`` limits the term to the first clouds of the batch (cost)."""
+    ``max_batch`` limits the term to the first clouds of the batch (cost). ``crop``: the subset is the ``keep``
+    fraction of points farthest along a random direction (a half-space crop: another part of the object in view,
+    :func:`crop_indices`) instead of a uniform random subset."""
     if max_batch is not None and max_batch < X.shape[0]:
         enc = s1.enc
         s1 = Stage1Output(EncoderOutput(enc.t[:max_batch], enc.R_raw[:max_batch], enc.R[:max_batch],
@@ -54,7 +56,7 @@ def augmentation_consistency_loss(model, X: torch.Tensor, s1: Stage1Output, keep
         X = X[:max_batch]
     B, N, _ = X.shape
     n = max(16, int(keep * N))
-    idx = torch.rand(B, N, device=X.device).argsort(dim=1)[:, :n]
+    idx = crop_indices(X, n) if crop else torch.rand(B, N, device=X.device).argsort(dim=1)[:, :n]
     sub = X.gather(1, idx.unsqueeze(-1).expand(B, n, 3))
     Q = random_rotation(B, X.dtype).to(X.device)
     u = 0.2 * torch.randn(B, 3, dtype=X.dtype, device=X.device)
@@ -65,6 +67,16 @@ def augmentation_consistency_loss(model, X: torch.Tensor, s1: Stage1Output, keep
     loss = loss + ((ea.R_raw - Q @ e.R_raw) ** 2).sum((1, 2))
     loss = loss + ((ea.t - ((Q @ e.t.unsqueeze(-1)).squeeze(-1) + u)) ** 2).sum(-1)
     return loss.mean()
+
+
+def crop_indices(X: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    """Indices ``(B, n)`` int64 of a half-space crop of each cloud ``X (B, N, 3)``: its ``n`` points farthest along a
+    random unit direction (uniform on the sphere, drawn per cloud), i.e. the points beyond a plane."""
+    B, N, _ = X.shape
+    d = torch.randn(B, 3, generator=generator, dtype=X.dtype).to(X.device)
+    d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    along = ((X - X.mean(1, keepdim=True)) * d[:, None]).sum(-1)  # (B, N)
+    return along.argsort(dim=1, descending=True)[:, :n]
 
 
 def cross_instance_alignment_loss(X: torch.Tensor, t: torch.Tensor, R: torch.Tensor, points: int = 96,
