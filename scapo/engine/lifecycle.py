@@ -19,6 +19,7 @@ engine's loop reads the stages' epochs from the job: one pass downward.
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +30,7 @@ import torch
 from scapo.engine.distributed import DistContext
 from scapo.engine.loop import TrainJob, train_run
 from scapo.engine.runs import RunFolder, read_run_json, resolve_device
-from scapo.errors import ConfigError, DatasetError
+from scapo.errors import ConfigError, DatasetError, warn_few_instances
 
 #: The preset of a new run when none is given (a resumed run keeps its own).
 DEFAULT_PRESET = "cpu"
@@ -104,16 +105,20 @@ def run_preset(spec: RunSpec, run: str | Path | None = None, preset=None, overri
     return pc
 
 
-def _training_card(data: str | Path, batch_size: int | None = None) -> tuple[dict, int]:
+def _training_card(data: str | Path, batch_size: int | None = None) -> tuple[dict, int, int]:
+    """The training split's card, clouds and instances, after the checks every trained method needs."""
     from scapo.data.dataset import load
 
     train = load(data, "train")
     if len(train) == 0:
         raise DatasetError(f"{data}: the training split is empty; generate a dataset with training instances")
+    if not train.card.get("joint_type"):
+        raise ConfigError(f"{data} is a dataset of {train.card.get('category')!r}, which has no movable joint: the "
+                          "trained methods estimate articulated poses (parts and joints); use an articulated object")
     if batch_size is not None and batch_size > len(train):  # the engine drops a last partial batch: no step at all
         raise ConfigError(f"the batch size {batch_size} exceeds the {len(train)} training clouds of {data}: no "
                           f"training step would run; set batch_size to {len(train)} or fewer")
-    return train.card, len(train)
+    return train.card, len(train), train.num_instances
 
 
 def train(spec: RunSpec, data: str | Path, run: str | Path, preset=None, *, seed: int | None = None,
@@ -136,7 +141,9 @@ def train(spec: RunSpec, data: str | Path, run: str | Path, preset=None, *, seed
                           f"trained again); give prediction settings to 'scapo predict --run {run} --option "
                           "KEY=VALUE', and train another run (another --out) for other training settings")
     pc = run_preset(spec, run, preset, overrides, seed)
-    card, clouds = _training_card(data, getattr(pc, "batch_size", None))
+    card, clouds, instances = _training_card(data, getattr(pc, "batch_size", None))
+    if os.environ.get("RANK", "0") == "0":  # under torchrun, rank 0 speaks for the run
+        warn_few_instances(instances, "train", data, "a model trained on it and its scores")
     if spec.check is not None:
         spec.check(pc, card, clouds)
     stored = card.get("num_points")

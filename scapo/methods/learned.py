@@ -234,13 +234,6 @@ def learned_job(spec: LearnedSpec, pc, train: ArticulationDataset, dev: torch.de
                     desc=f"train {spec.method} {train.card['category']} ({pc.name})")
 
 
-def run_is_current(spec: LearnedSpec, run: str | Path, data: str | Path, preset: str, seed: int | None = None) -> bool:
-    """Whether ``run`` holds the run ``train_learned(spec, data, run, preset, seed=seed)`` would start
-    now (same ``run.json`` identity: method, the registered preset's fields today, dataset, structure);
-    False without a readable ``run.json`` or when the preset's fields changed since (stale results)."""
-    return lifecycle.run_is_current(run_spec(spec), run, data, preset, seed)
-
-
 # ---------------------------------------------------------------------------------------------- predict
 @dataclass(frozen=True)
 class LearnedOptions:
@@ -444,13 +437,9 @@ def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, need
     def factory(**options) -> LearnedMethod:
         return LearnedMethod(spec, supervision, needs_alignment, options_cls(**options))
 
-    def current(run, data, preset, seed=None) -> bool:
-        return run_is_current(spec, run, data, preset, seed)
-
     register_method(spec.method, options=options_cls, display=display, supervision=supervision,
                     needs_alignment=needs_alignment, summary=summary, run_spec=lambda: run_spec(spec),
-                    presets=tuple(spec.presets.names()), run_is_current=current,
-                    preset=lambda name: resolve_preset(spec, name),
+                    presets=tuple(spec.presets.names()), preset=lambda name: resolve_preset(spec, name),
                     speed=lambda **kw: learned_speed(spec, **kw), refinable=refinable,
                     train_speed=lambda preset, device, iters: learned_train_speed(spec, preset, device, iters))(factory)
     factory.spec = spec

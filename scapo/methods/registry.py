@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import time
 import types
 import typing
@@ -73,7 +72,8 @@ class MethodEntry:
             from ``run`` with the prediction ``options`` (a dict) would use now; its predictions record them as
             ``info["inference"]``, so that
             predictions made under other settings are recognised as stale (``scapo.bench``).
-        run_is_current: for trained methods, ``run_is_current(run, data, preset, seed) -> bool``: the run
+        run_is_current: for trained methods (derived from ``run_spec`` when not given:
+            :func:`scapo.engine.lifecycle.run_is_current`), ``run_is_current(run, data, preset, seed) -> bool``: the run
             folder holds the run ``train(data, run, preset, seed=seed)`` would start now (False when
             the preset's training fields changed since), so the bench never reports a stale run.
         preset: for trained methods, ``preset(name) -> preset object``: a registered preset or a variant of one
@@ -147,6 +147,12 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
         raise ValueError(f"method {name!r}: options must be a dataclass, got {options!r}")
     if set(supervision) != set(SUPERVISION_KEYS):
         raise ValueError(f"method {name!r}: supervision must have exactly the keys {SUPERVISION_KEYS}")
+
+    if run_spec is not None and run_is_current is None:  # the engine's one check, for every trained method
+        def run_is_current(run, data, preset, seed=None):
+            from scapo.engine import lifecycle
+
+            return lifecycle.run_is_current(run_spec(), run, data, preset, seed)
 
     def deco(factory):
         METHODS.add(name, MethodEntry(name, factory, options, display, dict(supervision), needs_alignment, summary,
@@ -341,8 +347,8 @@ def train_method(name: str, data: str | Path, run: str | Path, preset=None, prog
 
     Raises:
         UnknownNameError: unknown method or preset. ConfigError: a method that is not trained (its
-        ``fit`` is all it needs), a dataset of a category without a movable joint, a bad override or seed.
-        Otherwise as the engine's :func:`~scapo.engine.lifecycle.train`.
+        ``fit`` is all it needs). Otherwise as the engine's :func:`~scapo.engine.lifecycle.train` (which also
+        refuses a dataset of a category without a movable joint, a bad override or seed).
     """
     entry = METHODS.get(name)
     if entry.run_spec is None:
@@ -351,12 +357,5 @@ def train_method(name: str, data: str | Path, run: str | Path, preset=None, prog
                           f"methods: {', '.join(trained)}")
     from scapo.engine import lifecycle
 
-    lifecycle.check_seed(seed)  # before the dataset is read; the engine checks the resolved preset's seed too
-    train = load(data, "train")
-    if not train.card.get("joint_type"):
-        raise ConfigError(f"{data} is a dataset of {train.card.get('category')!r}, which has no movable joint: the "
-                          "trained methods estimate articulated poses (parts and joints); use an articulated object")
-    if os.environ.get("RANK", "0") == "0":  # under torchrun, rank 0 speaks for the run
-        warn_few_instances(train.num_instances, "train", data, "a model trained on it and its scores")
     return lifecycle.train(entry.run_spec(), data, run, preset, seed=seed, overrides=overrides, device=device,
                            progress=progress)

@@ -171,12 +171,6 @@ def inference_settings(run, options: dict | None = None) -> dict:
     return dataclasses.asdict(rc)
 
 
-def _run_is_current(run, data, preset, seed=None) -> bool:
-    from scapo.models.train import run_is_current
-
-    return run_is_current(run, data, preset, seed)
-
-
 def _run_spec():
     from scapo.models.train import SCAPO_RUN
 
@@ -200,7 +194,7 @@ def _speed(preset: str = "cpu", device: str | None = None, iters: int = 5, num_p
                  needs_alignment=True, summary="self-supervised SE(3)-equivariant skinning (the paper's method)",
                  run_spec=_run_spec, presets=tuple(PRESETS.names()),
                  variants={"scapo-no-refine": "SCAPO (ours, no refinement)"},
-                 inference=inference_settings, run_is_current=_run_is_current, preset=get_preset,
+                 inference=inference_settings, preset=get_preset,
                  ablations=ABLATIONS, speed=_speed, one_pass={"refine_steps": 0}, refinable=True,
                  train_speed=_train_speed)
 def make_scapo(**options) -> SCAPOMethod:

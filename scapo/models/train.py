@@ -21,7 +21,6 @@ import torch
 from scapo.data.dataset import load
 from scapo.engine import CloudSet, FitConfig, Stage, TrainJob, lifecycle
 from scapo.engine.lifecycle import RunSpec
-from scapo.engine.runs import read_run_json
 from scapo.errors import DatasetError
 from scapo.files import write_json
 from scapo.losses import LossConfig, stage1_terms, stage2_terms, weighted_total
@@ -375,12 +374,6 @@ class Trainer:
                                device=self.device, progress=self.progress)
 
 
-def run_preset(run: str | Path) -> TrainConfig | None:
-    """The preset a run folder was started with (from its ``run.json``), or None when there is none."""
-    ident = read_run_json(run)
-    return _stored_preset(ident) if isinstance(ident, dict) else None
-
-
 def train(data: str | Path, run: str | Path, preset: str | TrainConfig | None = None, progress: bool = True,
           device: str | None = None, seed: int | None = None, overrides: dict | None = None) -> Path:
     """Train (or resume) SCAPO with the engine's run lifecycle (:func:`scapo.engine.lifecycle.train`, which says how
@@ -394,11 +387,4 @@ def train(data: str | Path, run: str | Path, preset: str | TrainConfig | None = 
                            progress=progress)
 
 
-def run_is_current(run: str | Path, data: str | Path, preset: str, seed: int | None = None) -> bool:
-    """Whether the run folder ``run`` was started as ``train(data, run, preset, seed=seed)`` would start it now
-    (:func:`scapo.engine.lifecycle.run_is_current`). Raises UnknownNameError for an unknown preset."""
-    return lifecycle.run_is_current(SCAPO_RUN, run, data, preset, seed)
-
-
-__all__ = ["SCAPO_RUN", "ScapoJob", "Trainer", "TrainingClouds", "model_config", "preset_from_dict", "run_is_current",
-           "run_preset", "train"]
+__all__ = ["SCAPO_RUN", "ScapoJob", "Trainer", "TrainingClouds", "model_config", "preset_from_dict", "train"]
