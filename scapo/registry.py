@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterator
 from typing import Generic, NamedTuple, TypeVar
 
@@ -86,7 +87,11 @@ class PresetName(NamedTuple):
     Attributes:
         base: the registered preset. mods: the parts after it, in order.
         supervision: ``"S"``, ``"J"`` or ``"SJ"`` when a part names a supervised setting, else None.
-        disabled: the ``TERM`` of every ``no-TERM`` part. rest: the parts that are neither.
+        disabled: the ``TERM`` of every ``no-TERM`` part. rest: the parts that are none of these.
+        schedule: the training schedule a part ``epochs-A`` (``epochs-A-B``: stage 1 and stage 2 of a two-stage
+            method) or ``iterations-N`` sets (:func:`apply_schedule`), as ``{"epochs": (A, ...)}`` /
+            ``{"iterations": (N,)}``; empty without one. ``scapo bench table1 --budget-minutes`` names its cells'
+            presets so (the epochs that fill the budget), so the table says the schedule each row trained with.
     """
 
     base: str
@@ -94,6 +99,7 @@ class PresetName(NamedTuple):
     supervision: str | None
     disabled: tuple[str, ...]
     rest: tuple[str, ...]
+    schedule: dict = {}
 
 
 def parse_preset(name: str) -> PresetName:
@@ -103,8 +109,59 @@ def parse_preset(name: str) -> PresetName:
     base, *mods = str(name).split("/")
     sup = [m.upper() for m in mods if m.upper() in SUPERVISIONS]
     off = tuple(m[3:] for m in mods if m.startswith("no-"))
-    rest = tuple(m for m in mods if m.upper() not in SUPERVISIONS and not m.startswith("no-"))
-    return PresetName(base, tuple(mods), sup[-1] if sup else None, off, rest)
+    schedule, rest = {}, []
+    for m in mods:
+        if m.upper() in SUPERVISIONS or m.startswith("no-"):
+            continue
+        hit = _SCHEDULE.fullmatch(m)
+        if hit:
+            schedule[hit.group(1)] = tuple(int(v) for v in hit.group(2).split("-"))
+        else:
+            rest.append(m)
+    return PresetName(base, tuple(mods), sup[-1] if sup else None, off, tuple(rest), schedule)
+
+
+_SCHEDULE = re.compile(r"(epochs|iterations)-([0-9]{1,7}(?:-[0-9]{1,7})?)")
+
+
+def schedule_part(values: dict) -> str:
+    """The preset-name part (:func:`parse_preset`) that sets a schedule: ``{"stage1_epochs": 15, "stage2_epochs":
+    13}`` -> ``"epochs-15-13"``, ``{"epochs": 47}`` -> ``"epochs-47"``, ``{"iterations": 400}`` ->
+    ``"iterations-400"`` (the keys :func:`scapo.bench.perf.training_budget` gives)."""
+    if "stage1_epochs" in values:
+        return f"epochs-{int(values['stage1_epochs'])}-{int(values['stage2_epochs'])}"
+    if "iterations" in values and "epochs" not in values:
+        return f"iterations-{int(values['iterations'])}"
+    return f"epochs-{int(values['epochs'])}"
+
+
+def apply_schedule(preset, parsed: PresetName, name: str):
+    """``preset`` (a frozen dataclass) with the schedule of ``parsed`` (:attr:`PresetName.schedule`): ``epochs-A``
+    sets ``epochs`` (a one-stage preset), ``epochs-A-B`` ``stage1_epochs`` and ``stage2_epochs`` (a two-stage one),
+    ``iterations-N`` ``iterations``; ``name`` (the full preset name) becomes its ``name``.
+
+    Raises:
+        UnknownNameError: a schedule the preset has no fields for, or a value < 1."""
+    import dataclasses
+
+    from scapo.errors import UnknownNameError
+
+    fields = {}
+    for key, vals in parsed.schedule.items():
+        if min(vals) < 1:
+            raise UnknownNameError(f"preset {name!r}: {key}-{'-'.join(map(str, vals))} must count at least 1")
+        if key == "iterations" and len(vals) == 1 and hasattr(preset, "iterations"):
+            fields["iterations"] = vals[0]
+        elif key == "epochs" and len(vals) == 2 and hasattr(preset, "stage2_epochs"):
+            fields.update(stage1_epochs=vals[0], stage2_epochs=vals[1])
+        elif key == "epochs" and len(vals) == 1 and hasattr(preset, "epochs"):
+            fields["epochs"] = vals[0]
+        else:
+            two = hasattr(preset, "stage2_epochs")
+            raise UnknownNameError(f"preset {name!r}: '{key}-{'-'.join(map(str, vals))}' does not fit this method's "
+                                   f"schedule; it takes " + ("epochs-STAGE1-STAGE2" if two else "epochs-N")
+                                   + (" or iterations-N" if hasattr(preset, "iterations") else ""))
+    return dataclasses.replace(preset, name=str(name), **fields) if fields else preset
 
 
 def split_supervision_label(label: str) -> tuple[str, str] | None:

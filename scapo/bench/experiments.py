@@ -446,10 +446,73 @@ def _writer(write_table, name, out_dir, figures, work_dir, instances, views, dat
     return write
 
 
+def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, instances: int, views: int,
+                 data_seed: int, data_kwargs: Mapping | None = None, measure: bool = True) -> tuple[list[Cell], dict]:
+    """The cells with the equal training budget (``scapo bench table1 --budget-minutes``): every trained cell's
+    preset gets the schedule part (:func:`scapo.registry.schedule_part`, e.g. ``cpu/epochs-15-13``) whose epochs fill
+    ``budget_minutes`` of one CPU core on its category's dataset, from the method's clouds/s measured once on that
+    dataset through the engine (:func:`scapo.bench.perf.bench_train_data` and
+    :func:`scapo.bench.perf.training_budget`, as ``scapo bench ladder`` and ``scapo bench compute`` make theirs;
+    ``<work>/speeds/<dataset>_<method>_<preset>.json``, measured with the torch threads this process has: run it
+    as the cells will run, one thread per core). The datasets must exist (the bench generates them first).
+
+    Returns:
+        The cells (fitted ones unchanged) and ``{category: {preset of the cell: schedule part}}`` for the table's
+        provenance.
+
+    Raises:
+        ConfigError: ``budget_minutes`` not in (0, 45 * 16]; with ``measure=False`` (``--finished-only``, ``--dry-run``)
+        a speed not measured yet.
+    """
+    import json
+
+    from scapo.bench.perf import bench_train_data, training_budget
+    from scapo.config import override
+    from scapo.files import write_json
+    from scapo.registry import schedule_part
+
+    if not (math.isfinite(budget_minutes) and 0 < budget_minutes <= 720):
+        raise ConfigError(f"--budget-minutes must be a positive number of core-minutes per training run, at most 720, "
+                          f"got {budget_minutes}")
+    out, schedules = [], {}
+    for c in cells:
+        if not c.trained:
+            out.append(c)
+            continue
+        data = dataset_dir(work_dir, c.category, instances, views, data_seed, data_kwargs)
+        path = Path(work_dir) / "speeds" / f"{data.name}_{c.method}_{c.preset.replace('/', '+')}.json"
+        if not path.is_file():
+            if not measure:
+                raise ConfigError(f"--budget-minutes: the training speed of {c.method} ({c.preset}) on {data.name} is "
+                                  f"not measured yet ({path}); run the bench without --finished-only / --dry-run")
+            base = METHODS.get(c.method).preset(c.preset)
+            clouds = len(load(data, "train"))
+            steps = max(2, min(10, clouds // base.batch_size))
+            print(f"scapo bench: measuring the training speed of {c.method} ({c.preset}) on {data.name}", flush=True)
+            write_json(path, bench_train_data(data, [c.method], preset=c.preset, steps=steps,
+                                              work=Path(work_dir) / "speeds" / "runs" / data.name))
+        rows = json.loads(path.read_text())
+        clouds = int(rows[0]["train_clouds"])
+        row = training_budget(rows, budget_minutes, clouds)[0]
+        base = METHODS.get(c.method).preset(c.preset)
+        if "budget_min" in row:
+            values = ({"stage1_epochs": row["stage1_epochs_for_budget"],
+                       "stage2_epochs": row["stage2_epochs_for_budget"]}
+                      if hasattr(base, "stage2_epochs") else {"epochs": row["stage1_epochs_for_budget"]})
+        else:  # a preset of a fixed number of iterations: the iterations that fill the budget
+            sec = max(budget_minutes * 60 - float(row.get("fixed_s", 0.0)), 1.0)
+            values = {"iterations": max(1, int(sec * row["stage1_clouds_per_s"] / row["batch_size"]))}
+        override(base, values, f"{c.method} preset")  # a schedule this preset takes
+        part = schedule_part(values)
+        schedules.setdefault(c.category, {})[f"{c.method} {c.preset}"] = part
+        out.append(replace(c, preset=f"{c.preset}/{part}"))
+    return out, schedules
+
+
 def _bench(title, cells, methods, categories, write, instances, views, data_seed, work_dir, out_dir, preset, protocol,
            workers, cache_dir, dry_run, progress, device, finished_only, data_kwargs=None, recompute_dirty=False,
            category_data=None, allow_dirty=False, allow_mixed_commits=False, archive=None, data_only=False,
-           archive_predictions=False):
+           archive_predictions=False, budget_minutes=None):
     """What both tables do: check names and outputs, list the cells (dry run) or compute them, and
     ``write(results, done cells, provenance) -> paths`` into ``out_dir`` (one clean commit for every cell unless
     allowed: :func:`check_commits`)."""
@@ -464,6 +527,12 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
         for folder, what in ((work_dir, "--work"), (archive, "--archive"), (out_dir, "--out")):
             if folder is not None and any(p.exists() and not p.is_dir() for p in (Path(folder), *Path(folder).parents)):
                 raise ConfigError(f"{what} {folder} is (or is inside) a file, not a folder; give a folder")
+        if budget_minutes is not None:
+            try:
+                cells, _ = budget_cells(cells, budget_minutes, work_dir, instances, views, data_seed, data_kwargs,
+                                        measure=False)
+            except ConfigError as exc:
+                print(f"(the budget's schedules are not known yet: {exc})")
         rows = plan(cells, work_dir, instances, views, data_seed, protocol, recompute_dirty, archive, data_kwargs)
         print_plan(rows)
         return rows
@@ -474,6 +543,15 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
         raise ConfigError(f"this checkout has uncommitted changes (commit {here}): cells computed or scored now could "
                           "not be traced to a commit; commit first (or run the bench from a worktree of a commit: git "
                           "worktree add), or pass --allow-dirty")
+    schedules = None
+    if budget_minutes is not None:  # the datasets first: the schedules come from speeds measured on them
+        if not finished_only:
+            _compute(cells, work_dir, instances, views, data_seed, protocol, workers, cache_dir, progress, device,
+                     False, data_kwargs, False, category_data, archive, True, archive_predictions)
+        cells, schedules = budget_cells(cells, budget_minutes, work_dir, instances, views, data_seed, data_kwargs,
+                                        measure=not finished_only)
+        if data_only:
+            return []
     results, records, hashes, done, missing = _compute(cells, work_dir, instances, views, data_seed, protocol,
                                                        workers, cache_dir, progress, device, finished_only,
                                                        data_kwargs, recompute_dirty, category_data, archive,
@@ -485,6 +563,9 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
                            random_rotation=bool(kw.get("random_rotation", False)),
                            viewpoints=viewpoints_of(kw),
                            train_views=int(kw.get("train_views") or 0))
+        if schedules is not None:
+            prov["training_budget"] = {"core_minutes_per_run": budget_minutes, "schedules": schedules,
+                                       "speeds": f"{work_dir}/speeds/"}
         for p in write(results, done, prov):
             print(f"wrote {p}")
     return results
@@ -679,6 +760,10 @@ class BenchOptions:
     (the default: they are most of an archive's size, and reproducible from the commit, the dataset and the seed) a
     restored cell is scored and tabled from its record and per-sample metrics; a cell whose record the evaluator no
     longer accepts is then computed again, and the tables' per-category figures of predictions are left out."""
+    budget_minutes: float | None = None
+    """The equal training budget (:func:`budget_cells`): every trained cell trains for the epochs that fill this many
+    core-minutes of one CPU core on its dataset (its preset named ``<preset>/epochs-...``); None: the presets' own
+    schedules."""
     data_only: bool = False
     """Generate the datasets (with ``archive``: reconcile, pin, restore their cells) and compute no cell; writes
     no table. Prepares a work folder whose cells are computed by another checkout (a clean worktree of the commit)."""
@@ -773,7 +858,7 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
                   opts.work_dir, opts.out_dir, opts.preset, opts.protocol or spec.protocol, opts.workers,
                   opts.cache_dir, opts.dry_run, opts.progress, opts.device, opts.finished_only, data,
                   opts.recompute_dirty, spec.category_data or None, opts.allow_dirty, opts.allow_mixed_commits,
-                  opts.archive, opts.data_only, opts.archive_predictions)
+                  opts.archive, opts.data_only, opts.archive_predictions, opts.budget_minutes)
 
 
 def run_table1(methods: Sequence[str], categories: Sequence[str] = TABLE1_CATEGORIES, **options):

@@ -22,7 +22,10 @@ frame consistency (:func:`frame_consistency`), S, D, mean and median part rotati
 symmetry-aware, and the evaluator's training-split alignment inlier ratio.
 
 A cell (rung x method x seed) is resumable: its record ``<work>/<category>/<rung>/<method>_s<seed>.json`` is written
-last, and a finished cell is never recomputed.
+last, and a finished cell is never recomputed. With ``device`` (``scapo bench ladder --device cuda``, e.g. with the
+``paper`` presets on a GPU: ``--preset paper --device cuda``) the budget is minutes of that device, its speeds are
+measured there (:func:`speed_file`) and its cells live in ``<work>/<category>/<rung>/<preset>_<device>/``: the
+datasets are shared, the CPU ladder's cells are not touched.
 """
 
 from __future__ import annotations
@@ -130,9 +133,28 @@ def rung_config(category: str, rung: str, instances: int, views: int, train_view
                        val_fraction=0.1, cropped="reject", **RUNGS[rung])
 
 
-def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float, preset: str, work: Path) -> dict:
-    """Per trained method, its ``preset`` with the epochs (iterations) that fill ``budget_minutes`` of one core on
-    ``data``'s training split, from speeds measured once (``<work>/speed_<method>.json``, reused)."""
+def speed_file(work: Path, method: str, preset: str = "cpu", device: str | None = None) -> Path:
+    """Where the ladder keeps ``method``'s measured training speed: ``<work>/speed_<method>.json`` for the ``cpu``
+    preset on the CPU (the tables' budget), ``speed_<method>_<preset>_<device>.json`` otherwise."""
+    if preset == "cpu" and device in (None, "cpu"):
+        return work / f"speed_{method}.json"
+    return work / f"speed_{method}_{preset.replace('/', '+')}_{(device or 'cpu').replace(':', '')}.json"
+
+
+def cells_dir(work: Path, category: str, rung: str, preset: str = "cpu", device: str | None = None) -> Path:
+    """A rung's cells (records, predictions, runs): ``<work>/<category>/<rung>`` for the ``cpu`` preset on the CPU,
+    ``<work>/<category>/<rung>/<preset>_<device>`` otherwise, so that a GPU ladder shares the datasets only."""
+    base = work / category / rung
+    if preset == "cpu" and device in (None, "cpu"):
+        return base
+    return base / f"{preset.replace('/', '+')}_{(device or 'cpu').replace(':', '')}"
+
+
+def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float, preset: str, work: Path,
+                      device: str | None = None) -> dict:
+    """Per trained method, its ``preset`` with the epochs (iterations) that fill ``budget_minutes`` of one core
+    (of ``device``, e.g. ``cuda``, when given) on ``data``'s training split, from speeds measured once
+    (:func:`speed_file`, reused)."""
     from scapo.bench.perf import bench_train_data, training_budget
     from scapo.config import override
     from scapo.data import load
@@ -142,12 +164,13 @@ def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float,
     clouds = len(load(data, "train"))
     rows = []
     for m in trained:  # one file per method, so that ladders of other methods can share the work folder
-        speed_file = work / f"speed_{m}.json"
-        if not speed_file.is_file():
+        path = speed_file(work, m, preset, device)
+        if not path.is_file():
             print(f"scapo bench ladder: measuring the training speed of {m} on {data.name}", flush=True)
             steps = max(2, min(10, clouds // METHODS.get(m).preset(preset).batch_size))
-            write_json(speed_file, bench_train_data(data, [m], preset=preset, steps=steps, work=work / "speed_runs"))
-        rows += json.loads(speed_file.read_text())
+            runs = work / "speed_runs" if path.name == f"speed_{m}.json" else work / f"speed_runs_{path.stem[6:]}"
+            write_json(path, bench_train_data(data, [m], preset=preset, steps=steps, work=runs, device=device))
+        rows += json.loads(path.read_text())
     out = {}
     for r in training_budget([r for r in rows if r["method"] in trained], budget_minutes, clouds):
         base = METHODS.get(r["method"]).preset(preset)
@@ -255,7 +278,7 @@ def _upgrade(rec_path: Path, data: Path, method: str, preset) -> dict:
 
 
 def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: int, preset, values: dict,
-          protocol: str, label: str | None = None) -> dict:
+          protocol: str, label: str | None = None, preset_name: str = "cpu", device: str | None = None) -> dict:
     """Train (trained methods), predict and score one cell on the val split; returns (and writes) its record."""
     from scapo.eval import evaluate
     from scapo.methods import METHODS, run_method, train_method
@@ -263,7 +286,7 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
 
     name = method if label is None else f"{method}:{label}"
     key = name.replace(":", "--")
-    cells = work / category / rung  # a cell's record, predictions and run
+    cells = cells_dir(work, category, rung, preset_name, device)  # a cell's record, predictions and run
     rec_path = cells / f"{key}_s{seed}.json"
     if rec_path.is_file():
         return _upgrade(rec_path, data, method, preset)
@@ -275,12 +298,14 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
         import torch
 
         threads = torch.get_num_threads()
-        train_method(method, data, run, preset, progress=False, seed=seed)
+        train_method(method, data, run, preset, progress=False, seed=seed, device=device)
         timing = json.loads((run / "timing.json").read_text())
         wall["train_s"] = float(timing["seconds"])
         wall["train_steps"] = timing.get("steps")
     t1 = time.perf_counter()
     opts = {"run": run, **CELL_OPTIONS.get(method, {})} if METHODS.get(method).trained else {}
+    if device is not None and METHODS.get(method).trained:
+        opts["device"] = device
     preds_path = cells / f"{key}_s{seed}_predictions.npz"
     preds = run_method(method, data, preds_path, progress=False, **opts)
     wall["predict_s"] = round(time.perf_counter() - t1, 1)
@@ -298,11 +323,17 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
         "R": s.get("R"), "R_median": s.get("R_median"), "R_sym": s.get("R_sym"), "R_sym_median": s.get("R_sym_median"),
         "R_over90": s.get("R_over90"), "R_sym_over90": s.get("R_sym_over90"),
         "wall": {**wall, "cell_s": round(time.perf_counter() - t0, 1)}, "torch_threads": threads,
-        "provenance": provenance(),
+        "provenance": provenance(torch_device=device), "device": device or "cpu",
     }
     rec = json.loads(json.dumps(rec, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
     write_json(rec_path, rec)
     return rec
+
+
+def _unit(meta: dict) -> str:
+    """The budget's unit: core-minutes (one torch thread of a CPU core) or minutes of the torch device."""
+    dev = str(meta.get("device") or "cpu")
+    return "core-minutes" if dev == "cpu" else f"minutes of the {dev} device"
 
 
 def _fmt(v, nd: int = 1) -> str:
@@ -357,9 +388,9 @@ def write_ladder(records: Sequence[dict], out: Path, name: str, meta: dict) -> l
         summary.append([m, *cells, broken or f"none (all >= {BREAK:g})"])
     md = [f"# Canonical-frame ladder: {meta['category']} ({meta['split']} split)", "",
           "Rungs: " + "; ".join(f"**{k}**: {RUNG_LABELS[k]}" for k in meta["rungs"]) + ".", "",
-          f"Equal training compute: {meta['budget_minutes']} core-minutes per trained cell (epochs from the measured "
-          f"clouds/s, `speed_<method>.json`). One-pass predictions. Frame consistency: share of val samples whose "
-          "object-frame "
+          f"Equal training compute: {meta['budget_minutes']} {_unit(meta)} per trained cell (epochs from the "
+          f"measured clouds/s, `speed_<method>*.json`). One-pass predictions. Frame consistency: share of val "
+          "samples whose object-frame "
           f"offset is within {CONSISTENCY_DEG:g} deg of the common one (1 = one canonical frame), strict and against "
           "the category's declared symmetric ground truths (sym; e.g. a laptop's base/lid exchange); the alignment "
           "inlier ratio is the evaluator's, on the training split, per part (the frame consistency the tables "
@@ -397,7 +428,7 @@ def _write_finished(work: Path, category: str, rungs, methods, parsed, seeds, ou
         for m, label in names:
             key = (m if label is None else f"{m}:{label}").replace(":", "--")
             for s in seeds:
-                path = work / category / r / f"{key}_s{s}.json"
+                path = cells_dir(work, category, r, meta["preset"], meta.get("device")) / f"{key}_s{s}.json"
                 if path.is_file():
                     preset = None
                     if METHODS.get(m).trained:
@@ -421,7 +452,7 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
                budget_minutes: float = 5.0, instances: int = 60, views: int = 8, train_views: int = 16,
                data_seed: int = 1, preset: str = "cpu", protocol: str = "scapo", workers: int = 1,
                command: str = "scapo bench ladder", dry_run: bool = False, data_only: bool = False,
-               variants: Sequence[str] = (), finished_only: bool = False) -> list[Path]:
+               variants: Sequence[str] = (), finished_only: bool = False, device: str | None = None) -> list[Path]:
     """Run (or resume) the ladder for ``category``: generate each rung's dataset, train every method with the same
     budget, predict one-pass, score on val, write ``<out>/ladder_<category>.{md,json,csv}``.
 
@@ -463,7 +494,7 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         return {"category": category, "rungs": rungs, "methods": methods, "seeds": seeds, "split": "val",
                 "budget_minutes": budget_minutes, "instances": instances, "views": views, "train_views": train_views,
                 "data_seed": data_seed, "preset": preset, "protocol": protocol, "command": command,
-                "variants": list(variants)}
+                "variants": list(variants), "device": device or "cpu"}
 
     parsed = [parse_variant(v) for v in variants]
     from scapo.config import override
@@ -478,7 +509,7 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
     check_output_dir(out, "ladder output folder")
     cfgs = {r: rung_config(category, r, instances, views, train_views, data_seed) for r in rungs}
     print(f"scapo bench ladder: {category}, rungs {', '.join(rungs)}; methods {', '.join(methods)}; seeds "
-          f"{seeds}; {budget_minutes} core-minutes per trained cell", flush=True)
+          f"{seeds}; {budget_minutes} {_unit({'device': device})} per trained cell", flush=True)
     if dry_run:
         for r in rungs:
             for m in methods:
@@ -496,7 +527,8 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         return []
     ref = rung_dir(work, category, "paper" if "paper" in rungs else rungs[0], instances, views, train_views, data_seed)
     meta = meta_of()
-    presets = _training_presets(sorted(set(methods) | {m for m, _, _ in parsed}), ref, budget_minutes, preset, work)
+    presets = _training_presets(sorted(set(methods) | {m for m, _, _ in parsed}), ref, budget_minutes, preset, work,
+                                device)
     records = []
     for r in rungs:
         data = rung_dir(work, category, r, instances, views, train_views, data_seed)
@@ -504,7 +536,7 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
             for s in seeds:
                 pc, values = presets.get(m, (None, {}))
                 t0 = time.perf_counter()
-                rec = _cell(data, work, category, r, m, s, pc, values, protocol)
+                rec = _cell(data, work, category, r, m, s, pc, values, protocol, preset_name=preset, device=device)
                 print(f"  {r:9s} {m:9s} seed {s}: frame consistency {_fmt(rec['frame_consistency'], 2)}, S "
                       f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "
                       f"{_fmt(rec['R_sym_median'])} ({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -516,7 +548,8 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
             pv = override(pc, sets, f"{m} preset (--variant {label})")
             for s in seeds:
                 t0 = time.perf_counter()
-                rec = _cell(data, work, category, r, m, s, pv, {**values, **sets}, protocol, label=label)
+                rec = _cell(data, work, category, r, m, s, pv, {**values, **sets}, protocol, label=label,
+                            preset_name=preset, device=device)
                 print(f"  {r:9s} {m}:{label} seed {s}: frame consistency {_fmt(rec['frame_consistency'], 2)}, S "
                       f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "
                       f"{_fmt(rec['R_sym_median'])} ({time.perf_counter() - t0:.0f} s)", flush=True)

@@ -168,7 +168,7 @@ def compare_train(rows: list[dict], baseline: str | Path) -> tuple[list[dict], d
 
 
 def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps: int = 20,
-                     work: str | Path | None = None) -> list[dict]:
+                     work: str | Path | None = None, device: str | None = None) -> list[dict]:
     """Training speed on a real dataset through the engine, as a table cell trains (``scapo bench perf --what train
     --data DATASET``): each trained method's ``preset`` trains for two epochs of ``steps`` steps per stage on the
     training split in a fresh run folder under ``work`` (default: a temporary folder), and the engine's record of
@@ -177,7 +177,9 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
     (``stage<k>_epoch_s``: checkpoint, loss plot), and the run's one-time seconds (``fixed_s``: stage starts such
     as SCAPO's stage-2 initialisation, the extras after the last epoch, the rest of the session), with the preset's
     schedule, for :func:`training_budget`. Needs ``steps * batch_size`` training clouds. Measure as the cells run
-    (one torch thread per core, the other core busy with the other chain).
+    (one torch thread per core, the other core busy with the other chain). ``device`` (default: the preset's, the
+    CPU for the ``cpu`` presets) trains on that torch device (e.g. ``cuda``): its clouds/s there, for a budget in
+    minutes of that device.
 
     Raises:
         UnknownNameError: an unknown method or preset. ConfigError: a method that is not trained, ``steps < 2``,
@@ -211,7 +213,7 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
         values = {"max_steps_per_epoch": steps}
         values.update({"stage1_epochs": 2, "stage2_epochs": 2} if two else {"epochs": 2, "iterations": 0})
         run = root / f"{m}_{preset.replace('/', '-')}"
-        train_method(m, data, run, override(base, values, f"{m} preset"), progress=False)
+        train_method(m, data, run, override(base, values, f"{m} preset"), progress=False, device=device)
         timing = json.loads((run / "timing.json").read_text())
         row = {"method": m, "preset": preset, "batch_size": batch,
                "points": getattr(base, "train_points", getattr(base, "points", None))}
@@ -225,7 +227,8 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
         else:
             row.update(stage1_epochs=base.epochs, iterations=base.iterations)
         row.update(max_steps_per_epoch=base.max_steps_per_epoch, fixed_s=round(fixed, 1), train_clouds=clouds,
-                   data=str(data), device="cpu", threads=torch.get_num_threads())
+                   data=str(data), device=timing.get("device") or device or "cpu",
+                   threads=torch.get_num_threads())
         rows.append(row)
     return rows
 

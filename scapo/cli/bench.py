@@ -74,7 +74,8 @@ def cmd_bench_ladder(args) -> int:
                        instances=args.instances or 60, views=args.views or 8,
                        train_views=16 if args.train_views is None else args.train_views, data_seed=args.seed,
                        preset=args.preset, workers=max(args.workers), command=cmd, dry_run=args.dry_run,
-                       data_only=args.data_only, variants=args.variant, finished_only=args.finished_only)
+                       data_only=args.data_only, variants=args.variant, finished_only=args.finished_only,
+                       device=args.device)
     for p in paths:
         print(f"wrote {p}")
     return 0
@@ -211,7 +212,8 @@ def cmd_bench_table(args) -> int:
               device=args.device, finished_only=args.finished_only, recompute_dirty=args.recompute_dirty,
               allow_dirty=args.allow_dirty, allow_mixed_commits=args.allow_mixed_commits,
               sj=not args.no_sj, upright=args.upright, archive=args.archive, data_only=args.data_only,
-              archive_predictions=args.archive_predictions, viewpoints=args.viewpoints, train_views=args.train_views)
+              archive_predictions=args.archive_predictions, viewpoints=args.viewpoints, train_views=args.train_views,
+              budget_minutes=args.budget_minutes, refine_rows=not args.no_refine_rows)
     return 0
 
 
@@ -261,7 +263,11 @@ def add_parsers(sub) -> None:
                     "(maniskill), generation and evaluation time against dataset size (growth)")
     sp.add_argument("--budget-minutes", type=float, default=None, help="perf --what train: the training budget per "
                     "cell in minutes (one torch thread); adds each preset's planned minutes and the epochs per stage "
-                    "that fill the budget")
+                    "that fill the budget. table1, table3: every trained cell trains for the epochs that fill this "
+                    "many core-minutes (speeds measured once per dataset and method; run the cells one torch thread "
+                    "per core); its preset is named PRESET/epochs-... . ladder: per trained cell (default 5)")
+    sp.add_argument("--no-refine-rows", action="store_true", help="table1, table2: one-pass rows only (no "
+                    "METHOD+refine rows)")
     sp.add_argument("--budgets", type=floats, default=None, help="compute: training budgets in core-minutes per "
                     "cell (default 5,15,45,120); accuracy against training compute on one ladder rung (--rungs, "
                     "default paper), val split, --methods scapo,op-align,eap,npcs by default, one --seeds seed; "
@@ -278,7 +284,8 @@ def add_parsers(sub) -> None:
                     "method's per-category preset PRESET-CATEGORY is used where it has one)")
     sp.add_argument("--method", default=None, help="perf --what model: time this method's inference (default: "
                     "SCAPO training and inference; icp also needs --data)")
-    sp.add_argument("--device", default=None, help="perf --what model, table1, table3: cpu | cuda")
+    sp.add_argument("--device", default=None, help="perf --what model, table1, table3, ladder: cpu | cuda "
+                    "(ladder: its budget is then minutes of that device)")
     sp.add_argument("--category", default="laptop", help="perf: category")
     sp.add_argument("--categories", type=names, default=None,
                     help="table1: default laptop,safe,eyeglasses,oven,washer; table3: default laptop,eyeglasses")

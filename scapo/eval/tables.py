@@ -513,6 +513,19 @@ def viewpoints_title(provenance: dict) -> str:
             "upright": ", objects upright: the rotation diagnostic, not the paper's setting"}.get(vp, "")
 
 
+def budget_note(provenance: dict) -> list[str]:
+    """The markdown lines that state a table's equal training budget (``scapo bench table1 --budget-minutes``: the
+    provenance's ``training_budget``), or none."""
+    tb = provenance.get("training_budget") if isinstance(provenance, dict) else None
+    if not tb:
+        return []
+    per = "; ".join(f"{cat}: " + ", ".join(f"{k} {v}" for k, v in sched.items())
+                    for cat, sched in tb.get("schedules", {}).items())
+    return [f"Equal training budget: {tb.get('core_minutes_per_run')} core-minutes of one CPU core per training run "
+            f"for every trained method (epochs from each method's clouds/s measured on the dataset; schedules: {per}).",
+            ""]
+
+
 def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, provenance: dict, name: str = "table1",
                  include_paper: bool = True, markdown_only: bool = False, describe: Describe | None = None):
     """Write Table 1 (CSV, Markdown, LaTeX, JSON) into ``out_dir``; returns the paths (with
@@ -553,7 +566,7 @@ def write_table1(results: Sequence[EvalResult], out_dir: str | Path | None, prov
     order, order_refined, order_md = orderings(results, describe, display)
 
     title = f"Table 1 (synthetic{viewpoints_title(provenance)})"
-    md = [f"# {title}: {', '.join(cats[:-1])}", "", *partial,
+    md = [f"# {title}: {', '.join(cats[:-1])}", "", *partial, *budget_note(provenance),
           markdown_table(header, md_rows, ["l", "l", "c", "c", "c", *["r"] * len(cats)]), "", legend, "",
           "## Medians and rates", "", markdown_table(rob_header, rob_rows, ["l", "l", *["r"] * len(ROBUST_METRICS)]),
           "", rob_legend, "", *order_md, *pairwise_markdown(pairs, display),

@@ -35,7 +35,7 @@ from scapo.engine.lifecycle import RunSpec
 from scapo.engine.runs import read_checkpoint, resolve_device
 from scapo.errors import ConfigError, TrainingError
 from scapo.eval.predictions import Predictions
-from scapo.registry import Registry, parse_preset
+from scapo.registry import Registry, apply_schedule, parse_preset
 
 
 @dataclass(frozen=True)
@@ -135,7 +135,8 @@ ADDED_FIELDS = {"supervision": "", "sup_weight": 1.0, "part_npcs": False}
 def resolve_preset(spec: LearnedSpec, preset):
     """A preset object from a name of ``spec.presets`` or ``"BASE/sj"`` (``/s``, ``/j``): the semi-supervised
     setting of the paper's Table 2 (:mod:`scapo.losses.supervised`) for methods whose preset has a
-    ``supervision`` field; its ``name`` is the full string (:func:`scapo.registry.parse_preset`).
+    ``supervision`` field; its ``name`` is the full string (:func:`scapo.registry.parse_preset`). A part
+    ``epochs-N`` (``iterations-N``) sets the schedule (:func:`scapo.registry.apply_schedule`).
 
     Raises:
         UnknownNameError: unknown base preset, or a suffix this method does not take."""
@@ -147,8 +148,11 @@ def resolve_preset(spec: LearnedSpec, preset):
     pc = spec.presets.get(name.base)
     if not name.mods:
         return pc
+    pc = apply_schedule(pc, name, preset)  # epochs-N / iterations-N (a budget's schedule)
+    if len(name.mods) == len(name.schedule):
+        return pc
     sup = name.supervision
-    if len(name.mods) != 1 or sup is None or not hasattr(pc, "supervision"):
+    if len(name.mods) != len(name.schedule) + 1 or sup is None or not hasattr(pc, "supervision"):
         raise UnknownNameError(f"unknown {spec.method} preset {preset!r}: "
                                + ("its presets take a suffix /sj, /s or /j (training with segmentation and / or joint "
                                   "labels)" if hasattr(pc, "supervision") else "it takes no suffix (no supervised "

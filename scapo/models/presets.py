@@ -8,7 +8,7 @@ from scapo.errors import ConfigError
 from scapo.losses import LossConfig
 from scapo.models.refine import RefineConfig
 from scapo.nn.encoder import EncoderConfig
-from scapo.registry import Registry, parse_preset
+from scapo.registry import Registry, apply_schedule, parse_preset
 
 
 @dataclass(frozen=True)
@@ -165,7 +165,8 @@ def get_preset(name: str) -> TrainConfig:
     trains with those labels (``TrainConfig.supervision``, the paper's Table 2 setting), e.g. ``cpu/sj``; a
     part ``seg-gaussian`` takes ``L_seg``'s targets from Gaussian parts (``LossConfig.seg_labels``); a part
     ``principal`` (``no-principal``) reads stage 1's frame from principal axes with a hypothesis set
-    (:data:`PRINCIPAL_ON`), or the paper's regressed frame.
+    (:data:`PRINCIPAL_ON`), or the paper's regressed frame; a part ``epochs-A-B`` trains stage 1 for A epochs and
+    stage 2 for B (:func:`scapo.registry.apply_schedule`; ``scapo bench table1 --budget-minutes``).
 
     Raises:
         UnknownNameError: an unknown base preset or regulariser (the message lists the known ones).
@@ -177,6 +178,7 @@ def get_preset(name: str) -> TrainConfig:
     cfg = PRESETS.get(parsed.base)
     if not parsed.mods:
         return cfg
+    cfg = apply_schedule(cfg, parsed, name)  # epochs-A-B: the two stages' epochs (a budget's schedule)
     disabled = list(cfg.losses.disabled)
     off = {}
     seg_labels = cfg.losses.seg_labels
