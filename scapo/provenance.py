@@ -25,7 +25,9 @@ def package_version() -> str:
 @lru_cache(maxsize=1)
 def git_commit() -> str:
     """``<sha>`` of the source checkout, ``<sha>-dirty`` with uncommitted changes, or, for an installed package
-    that is not a git checkout (a wheel), ``v<version>`` (the released code it names; not dirty).
+    that is not a git checkout (a wheel), ``v<version>`` (the released code it names; not dirty); for a copy of a
+    checkout without its ``.git`` (e.g. sent to a GPU machine), ``<sha>-copy`` where ``SCAPO_SOURCE_COMMIT`` states
+    the commit it was copied from (40 hex digits; the caller vouches for it).
 
     Taken once per process, at the first call; every ``scapo`` command calls it as it starts (:func:`scapo.cli.
     main.main`), so a long bench records the commit of the code it loaded, not the state of the checkout
@@ -33,6 +35,9 @@ def git_commit() -> str:
     """
     root = Path(__file__).resolve().parents[1]
     if not (root / ".git").exists():  # an installed copy (perhaps in a venv inside some other repository)
+        stated = os.environ.get("SCAPO_SOURCE_COMMIT", "").strip().lower()
+        if len(stated) == 40 and all(ch in "0123456789abcdef" for ch in stated):
+            return f"{stated}-copy"  # a copy of a checkout without its .git (a remote machine): the caller states it
         return f"v{package_version()}"
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,

@@ -246,7 +246,7 @@ def resampling_stability(method, points: np.ndarray, n: int, seed: int = 0) -> n
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-def _stability(run: Path, data: Path, method: str, preset, limit: int = 64) -> float:
+def _stability(run: Path, data: Path, method: str, preset, limit: int = 64, device: str | None = None) -> float:
     """Median :func:`resampling_stability` of a run on the first ``limit`` val clouds at its training density, with
     the cell's prediction options (:data:`CELL_OPTIONS`: one-pass)."""
     from scapo.data import load
@@ -254,7 +254,8 @@ def _stability(run: Path, data: Path, method: str, preset, limit: int = 64) -> f
 
     pts = load(data, "val").arrays(["points"])["points"][:limit]
     n = int(getattr(preset, "train_points", getattr(preset, "points", 256)))
-    return float(np.median(resampling_stability(load_run(run, **CELL_OPTIONS.get(method, {})), pts, n)))
+    return float(np.median(resampling_stability(load_run(run, device=device, **CELL_OPTIONS.get(method, {})), pts,
+                                                n)))
 
 
 def _upgrade(rec_path: Path, data: Path, method: str, preset) -> dict:
@@ -309,7 +310,7 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
     preds_path = cells / f"{key}_s{seed}_predictions.npz"
     preds = run_method(method, data, preds_path, progress=False, **opts)
     wall["predict_s"] = round(time.perf_counter() - t1, 1)
-    stability = _stability(run, data, method, preset) if METHODS.get(method).trained else None
+    stability = _stability(run, data, method, preset, device=device) if METHODS.get(method).trained else None
     res = evaluate(data, preds, split="val")
     consistency, consistency_sym = _consistency(data, preds)
     s = res.summary
