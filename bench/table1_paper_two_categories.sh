@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Table 1 in the paper's viewpoints on laptop and eyeglasses (issue 52): every method (ICP, NPCS-style, EAP-style,
+# OP-Align-style, SCAPO), 150 instances (30 test) x 8 views, 64 views per training instance, training seeds 0,1,2,
+# one-pass rows only, every training run at the equal budget of BUDGET core-minutes of one CPU core (epochs from each
+# method's clouds/s measured once per dataset: `scapo bench table1 --budget-minutes`). On a 2-core machine: the
+# datasets first, then two chains side by side (one torch thread each; the speeds are measured as the chains start,
+# with the other core busy), then the table from every finished cell. Resumable; run it from a clean worktree of the
+# commit the table records (SCAPO= its scapo, PYTHONPATH= the worktree).
+#   BUDGET=5 WORK=bench_work/table1_paper bash bench/table1_paper_two_categories.sh
+#   FINISH=1 bash bench/table1_paper_two_categories.sh        # the table of the finished cells, into results/
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+scapo="${SCAPO:-.venv/bin/scapo}"
+work="${WORK:-bench_work/table1_paper}"
+common=(bench table1 --viewpoints paper --categories laptop,eyeglasses --seeds 0,1,2 --budget-minutes "${BUDGET:-5}"
+        --no-refine-rows --work "$work" --name table1_paper_two_categories --no-progress)
+if [ -n "${FINISH:-}" ]; then
+  exec "$scapo" "${common[@]}" --finished-only --out "${OUT:-results}"
+fi
+OMP_NUM_THREADS=1 "$scapo" "${common[@]}" --data-only --workers 2
+mkdir -p "$work"
+OMP_NUM_THREADS=1 "$scapo" "${common[@]}" --out "$work/out_a" --methods "${CHAIN_A:-scapo,op-align}" \
+  > "$work/chain_a.log" 2>&1 &
+a=$!
+sleep 5
+OMP_NUM_THREADS=1 "$scapo" "${common[@]}" --out "$work/out_b" --methods "${CHAIN_B:-npcs,eap,icp}" \
+  > "$work/chain_b.log" 2>&1 &
+b=$!
+wait $a $b
+"$scapo" "${common[@]}" --finished-only --out "${OUT:-results}"

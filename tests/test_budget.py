@@ -1,0 +1,91 @@
+"""The equal training budget of the tables (``scapo bench table1 --budget-minutes``) and the schedule part of the
+preset grammar it names its cells' presets with."""
+
+import json
+
+import pytest
+
+from scapo.errors import ConfigError, UnknownNameError
+
+
+def test_schedule_part_of_a_preset_name():
+    """``epochs-A-B`` sets a two-stage preset's stages, ``epochs-N`` a one-stage one's epochs; a schedule the method
+    has no fields for, or a count of 0, is refused; the name round-trips through ``schedule_part``."""
+    from scapo.methods import METHODS
+    from scapo.registry import parse_preset, schedule_part
+
+    parsed = parse_preset("cpu/sj/epochs-3-2")
+    assert parsed.schedule == {"epochs": (3, 2)} and parsed.rest == () and parsed.supervision == "SJ"
+    scapo = METHODS.get("scapo").preset("cpu/epochs-3-2")
+    assert (scapo.stage1_epochs, scapo.stage2_epochs, scapo.name) == (3, 2, "cpu/epochs-3-2")
+    assert METHODS.get("scapo").preset("cpu/no-shape_var/epochs-4-1").losses.disabled == ("shape_var",)
+    npcs = METHODS.get("npcs").preset("cpu/epochs-7")
+    assert npcs.epochs == 7 and npcs.name == "cpu/epochs-7"
+    assert METHODS.get("op-align").preset("cpu/sj/epochs-5").supervision == "SJ"
+    with pytest.raises(UnknownNameError, match="epochs-N"):
+        METHODS.get("op-align").preset("cpu/epochs-7-3")
+    with pytest.raises(UnknownNameError, match="epochs-STAGE1-STAGE2"):
+        METHODS.get("scapo").preset("cpu/epochs-7")
+    with pytest.raises(UnknownNameError, match="at least 1"):
+        METHODS.get("npcs").preset("cpu/epochs-0")
+    assert schedule_part({"stage1_epochs": 15, "stage2_epochs": 13}) == "epochs-15-13"
+    assert schedule_part({"epochs": 47}) == "epochs-47" and schedule_part({"iterations": 400}) == "iterations-400"
+
+
+def _speed(work, data_name, method, row):
+    path = work / "speeds" / f"{data_name}_{method}_cpu.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps([row]))
+
+
+def test_budget_cells_fill_the_budget_from_the_measured_speed(tmp_path):
+    """Hand-built speeds (16 clouds/s at batch 16: one step a second; 160 training clouds: 10 steps an epoch): NPCS's
+    10 epochs take 100 s, so 1 core-minute buys 6; SCAPO's 10 + 10 take 200 s, so 3 + 3. A fitted method is left
+    alone; without a measured speed and measuring off, a clear refusal."""
+    from scapo.bench.cells import Cell
+    from scapo.bench.experiments import budget_cells, dataset_dir
+
+    kw = {"viewpoints": "paper", "train_views": 4}
+    name = dataset_dir(tmp_path, "laptop", 10, 2, 0, kw).name
+    base = {"batch_size": 16, "fixed_s": 0.0, "train_clouds": 160, "max_steps_per_epoch": 0, "stage1_epoch_s": 0.0,
+            "stage1_clouds_per_s": 16.0}
+    _speed(tmp_path, name, "npcs", {**base, "method": "npcs", "stage1_epochs": 10, "iterations": 0})
+    _speed(tmp_path, name, "scapo", {**base, "method": "scapo", "stage1_epochs": 10, "stage2_epochs": 10,
+                                     "stage2_clouds_per_s": 16.0, "stage2_epoch_s": 0.0})
+    cells = [Cell("npcs", "laptop", 0, "cpu"), Cell("scapo", "laptop", 1, "cpu"), Cell("icp", "laptop")]
+    out, schedules = budget_cells(cells, 1.0, tmp_path, 10, 2, 0, kw, measure=False)
+    assert [c.preset for c in out] == ["cpu/epochs-6", "cpu/epochs-3-3", None]
+    assert schedules == {"laptop": {"npcs cpu": "epochs-6", "scapo cpu": "epochs-3-3"}}
+    assert out[1].key == "scapo_cpu+epochs-3-3_s1"
+    with pytest.raises(ConfigError, match="not measured yet"):
+        budget_cells([Cell("eap", "laptop", 0, "cpu")], 1.0, tmp_path, 10, 2, 0, kw, measure=False)
+    with pytest.raises(ConfigError, match="budget-minutes"):
+        budget_cells(cells, 0.0, tmp_path, 10, 2, 0, kw, measure=False)
+
+
+def test_ladder_on_a_device_keeps_its_cells_and_speeds_apart(tmp_path):
+    """The CPU ladder's files keep their names; another preset or a device gets its own speed file and cell folder."""
+    from scapo.bench.ladder import cells_dir, speed_file
+
+    assert speed_file(tmp_path, "scapo").name == "speed_scapo.json"
+    assert speed_file(tmp_path, "scapo", "paper", "cuda").name == "speed_scapo_paper_cuda.json"
+    assert speed_file(tmp_path, "npcs", "test").name == "speed_npcs_test_cpu.json"
+    assert cells_dir(tmp_path, "laptop", "paper") == tmp_path / "laptop" / "paper"
+    assert cells_dir(tmp_path, "laptop", "paper", "paper", "cuda:0") == tmp_path / "laptop" / "paper" / "paper_cuda0"
+
+
+def test_source_commit_of_a_copy_without_git(tmp_path, monkeypatch):
+    """A copy of a checkout without ``.git`` names the commit the caller states (``<sha>-copy``), a malformed one
+    is ignored."""
+    import scapo.provenance as prov
+
+    monkeypatch.setattr(prov, "__file__", str(tmp_path / "scapo" / "provenance.py"))
+    prov.git_commit.cache_clear()
+    try:
+        monkeypatch.setenv("SCAPO_SOURCE_COMMIT", "ab" * 20)
+        assert prov.git_commit() == "ab" * 20 + "-copy"
+        prov.git_commit.cache_clear()
+        monkeypatch.setenv("SCAPO_SOURCE_COMMIT", "not-a-sha")
+        assert prov.git_commit().startswith("v")
+    finally:
+        prov.git_commit.cache_clear()
