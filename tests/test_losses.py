@@ -346,3 +346,49 @@ def test_the_crop_of_aug_consist_keeps_the_points_beyond_a_plane():
     loss = augmentation_consistency_loss(model, Xf, s1, crop=True)
     loss.backward()
     assert torch.isfinite(loss) and any(p.grad is not None for p in model.parameters())
+
+
+def test_cross_view_loss_hand_built():
+    """``L_view`` on one box seen in two views, each a half of its surface: with each view's true pose the canonical
+    points of one lie on the other's decoded (whole) shape, so the loss is ~0 though each view shows another half;
+    a wrong pose for one view (a quarter turn) makes it large; views at different scales are compared in metres."""
+    from types import SimpleNamespace
+
+    from scapo.losses.scapo_losses import cross_view_loss
+    from scapo.ops.groups import random_rotation
+
+    g = torch.Generator().manual_seed(0)
+    box = torch.rand(2000, 3, generator=g) - 0.5
+    box[torch.arange(2000), torch.randint(3, (2000,), generator=g)] = 0.5 * torch.sign(torch.randn(2000, generator=g))
+    box = box * torch.tensor([0.4, 0.2, 0.1])  # metres, canonical frame
+    half_a, half_b = box[box[:, 0] > -0.05][:256], box[box[:, 0] < 0.05][:256]  # mostly different halves
+    R = random_rotation(2, generator=g).float()
+    t_m = torch.tensor([[0.1, 0.0, 1.5], [-0.2, 0.1, 1.8]])
+    views = torch.stack([half_a @ R[0].T + t_m[0], half_b @ R[1].T + t_m[1]])  # camera frame, metres
+    scale = torch.tensor([0.5, 0.8])  # the two views' normalisations differ
+    X = views / scale[:, None, None]
+    S = torch.stack([box[::4] / scale[0], box[::4] / scale[1]])  # each view's whole decoded shape, its own units
+    s1 = SimpleNamespace(enc=SimpleNamespace(R=R, t=t_m / scale[:, None]), S_dec=S)
+    right = float(cross_view_loss(X, scale, s1, pairs=1))
+    quarter = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    s1_wrong = SimpleNamespace(enc=SimpleNamespace(R=torch.stack([R[0], R[1] @ quarter]), t=t_m / scale[:, None]),
+                               S_dec=S)
+    wrong = float(cross_view_loss(X, scale, s1_wrong, pairs=1))
+    assert right < 2e-3 and wrong > 20 * right
+    with pytest.raises(ValueError, match="pairs"):
+        cross_view_loss(X, scale, s1, pairs=2)
+
+
+def test_paired_clouds_partner_is_another_view_of_the_instance():
+    """The partner of a sample is always another view of its instance (itself only for a single-view instance)."""
+    from scapo.models.train import PairedClouds
+
+    pc = object.__new__(PairedClouds)
+    pc.instance = torch.tensor([3, 7, 3, 3, 9, 7])
+    pc.generator = torch.Generator().manual_seed(0)
+    pc.index_instances()
+    for _ in range(20):
+        for i in range(6):
+            j = pc.partner(i)
+            assert int(pc.instance[j]) == int(pc.instance[i]) and (j != i or i == 4)
+    assert {pc.partner(0) for _ in range(40)} == {2, 3}

@@ -14,6 +14,7 @@ from scapo.losses.scapo_losses import (
     consensus_rotation_loss,
     cross_instance_alignment_loss,
     cross_space_loss,
+    cross_view_loss,
     cycle_loss,
     dir_align_loss,
     gaussian_part_labels,
@@ -50,6 +51,10 @@ class LossConfig:
     ``keep`` fraction) instead of a uniform random subset, so that the frame must not depend on which part of the object
     a view shows (:func:`~scapo.losses.scapo_losses.augmentation_consistency_loss`; an addition to the paper for
     partial views, from the ladder's finding that the frame spreads across one object's views; off by default)."""
+    view_consist: float = 0.0
+    """Weight of ``L_view`` (:func:`~scapo.losses.scapo_losses.cross_view_loss`): two views of one training instance
+    must agree on its canonical frame; batches are then made of pairs of views of one instance (which views share an
+    object is the cue; an addition to the paper for partial views, 0 switches it off)."""
     rec_one_sided: bool = False
     """Stage 1's ``L_rec`` from the input to the reconstruction only (:func:`reconstruction_loss`; an addition to the
     paper for partial views, Li et al.'s partial setting; preset part ``one-sided``)."""
@@ -106,11 +111,12 @@ class LossConfig:
         return 0.0 if name in self.disabled else float(getattr(self, name))
 
 
-def stage1_terms(model, X: torch.Tensor, s1: Stage1Output, cfg: LossConfig | None = None, align: bool = True
-                 ) -> dict[str, torch.Tensor]:
+def stage1_terms(model, X: torch.Tensor, s1: Stage1Output, cfg: LossConfig | None = None, align: bool = True,
+                 scale: torch.Tensor | None = None, pairs: int = 0) -> dict[str, torch.Tensor]:
     """Unweighted stage-1 loss terms (the two consistency terms use half of the batch, for speed).
     ``align`` False leaves out the cross-instance alignment term; ``consensus`` is computed when
-    ``cfg`` gives it a positive weight."""
+    ``cfg`` gives it a positive weight; ``view_consist`` when it has a positive weight and the batch holds ``pairs``
+    pairs of views of one instance (``scale (B,)``: the clouds' normalisation; :func:`cross_view_loss`)."""
     terms = {
         "rec": reconstruction_loss(X, s1.X_rec, one_sided=cfg is not None and cfg.rec_one_sided),
         "ortho": orthonormality_loss(s1.enc.R_raw),
@@ -120,6 +126,8 @@ def stage1_terms(model, X: torch.Tensor, s1: Stage1Output, cfg: LossConfig | Non
     }
     if align:
         terms["align"] = cross_instance_alignment_loss(X, s1.enc.t, s1.enc.R)
+    if cfg is not None and cfg.weight("view_consist") > 0 and pairs > 0:
+        terms["view_consist"] = cross_view_loss(X, scale, s1, pairs)
     if cfg is not None and cfg.weight("consensus") > 0:
         enc = s1.enc
         terms["consensus"], _ = consensus_rotation_loss(X, enc.t, enc.R_raw, enc.R,
@@ -175,7 +183,7 @@ def weighted_total(terms: dict[str, torch.Tensor], cfg: LossConfig, stage: int) 
     total = 0.0
     for name, value in terms.items():
         w = cfg.weight(name)
-        if stage == 2 and name in ("rec", "ortho", "aug_consist", "can_consist", "align", "consensus"):
+        if stage == 2 and name in ("rec", "ortho", "aug_consist", "can_consist", "align", "consensus", "view_consist"):
             w *= cfg.stage1_in_stage2
         total = total + w * value
     return total

@@ -34,6 +34,38 @@ def reconstruction_loss(X: torch.Tensor, X_rec: torch.Tensor, one_sided: bool = 
     return chamfer_distance(X, X_rec).mean()
 
 
+def cross_view_loss(X: torch.Tensor, scale: torch.Tensor, s1: Stage1Output, pairs: int) -> torch.Tensor:
+    """``L_view``: two views of one object must agree on its canonical frame (an addition to the paper, switch
+    ``LossConfig.view_consist``; the ladder's finding that SCAPO's frame spreads more across the views of one object
+    than across objects, ``results/canonical_ladder/frame_spread.md``). The batch holds ``pairs`` pairs: cloud ``i``
+    and cloud ``i + pairs`` (``i < pairs``) are views of one training instance (which views share an object is the
+    only cue; their relative pose is not given). Each view's points, brought into the canonical frame by its own
+    predicted pose, must lie on the other view's decoded canonical shape: the one-sided Chamfer distance from
+    ``R_b^T (X_b - t_b)`` (in metres ``s_b R_b^T (X_b - t_b)``, rescaled to ``a``'s normalised units) to ``S_dec_a``,
+    both ways, mean over pairs. One-sided: the other view's reconstruction is the whole shape, of which this view
+    shows a part.
+
+    Args:
+        X: ``(2 P + E, N, 3)`` normalised clouds (``SCAPOModel.normalize``: metres / ``scale``); the first ``2 P``
+            are the pairs. scale: ``(2 P + E,)`` their normalisation (metres). s1: the stage-1 output of ``X``.
+        pairs: ``P >= 1``.
+
+    Returns:
+        A scalar (normalised units squared).
+
+    Raises:
+        ValueError: ``pairs`` < 1 or more than the batch holds."""
+    if pairs < 1 or 2 * pairs > X.shape[0]:
+        raise ValueError(f"cross_view_loss needs 1 <= pairs <= batch / 2, got {pairs} for a batch of {X.shape[0]}")
+    R, t, S = s1.enc.R, s1.enc.t, s1.S_dec
+    canon = (X - t[:, None]) @ R  # R^T (x - t) as rows: (B, N, 3), each in its own normalised units
+    a, b = slice(0, pairs), slice(pairs, 2 * pairs)
+    ratio = scale[b] / scale[a]  # b's units -> a's units
+    b_in_a = canon[b] * ratio[:, None, None]
+    a_in_b = canon[a] / ratio[:, None, None]
+    return 0.5 * (nearest_sq_dist(b_in_a, S[a]).mean() + nearest_sq_dist(a_in_b, S[b]).mean())
+
+
 def orthonormality_loss(R_raw: torch.Tensor) -> torch.Tensor:
     """``L_ortho = ||R R^T - I||_F^2`` of the raw equivariant rotation estimate ``(B, 3, 3)``."""
     eye = torch.eye(3, dtype=R_raw.dtype, device=R_raw.device)

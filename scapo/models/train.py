@@ -31,14 +31,14 @@ from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.nn.encoder import EncoderConfig
 
 #: the log's loss-term columns of each stage, in order (stage 2 also logs stage 1's)
-STAGE1_TERMS = ("rec", "ortho", "aug_consist", "can_consist", "align", "consensus", "cycle")
+STAGE1_TERMS = ("rec", "ortho", "aug_consist", "can_consist", "align", "consensus", "view_consist", "cycle")
 STAGE2_TERMS = ("recon", "kp_seg", "seg", "shape_var", "dir_align", "joint_prox", "joint_boundary", "sup_seg",
                 "sup_joint")
 
 
 def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict | None = None,
-               scale: torch.Tensor | None = None, sup_weight: float = 1.0) -> tuple[dict[str, torch.Tensor],
-                                                                                   torch.Tensor]:
+               scale: torch.Tensor | None = None, sup_weight: float = 1.0, pairs: int = 0
+               ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
     """One forward pass of a training step on normalised clouds ``X (B, N, 3)``: the unweighted loss
     terms of ``stage`` (1: stage-1 terms; 2: stage-1 and stage-2 terms) and their weighted total
     under ``losses`` (a :class:`~scapo.losses.LossConfig`).
@@ -46,9 +46,11 @@ def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict
     ``sup``: in the semi-supervised setting (:mod:`scapo.losses.supervised`), the batch's labels:
     ``part_label (B, N)`` and / or ``joint_axis``, ``joint_pivot (B, J, 3)`` (camera frame, metres;
     ``scale (B,)`` is the normalisation of ``X``); stage 2 then adds ``sup_seg`` (NLL of the skinning
-    weights) and ``sup_joint`` (the camera-frame joints), weighted by ``sup_weight``."""
+    weights) and ``sup_joint`` (the camera-frame joints), weighted by ``sup_weight``. ``pairs``: the first
+    ``2 pairs`` clouds are pairs of views of one instance (cloud ``i`` and ``i + pairs``) for ``L_view``
+    (``LossConfig.view_consist``; ``scale`` needed)."""
     out = model(X, stage=stage)
-    terms = stage1_terms(model, X, out, losses, align=stage == 1 or losses.align_in_stage2)
+    terms = stage1_terms(model, X, out, losses, align=stage == 1 or losses.align_in_stage2, scale=scale, pairs=pairs)
     if stage == 2:
         terms.update(stage2_terms(model, X, out, losses))
     total = weighted_total(terms, losses, stage)
@@ -88,6 +90,43 @@ class TrainingClouds(CloudSet):
         arrays = ds.arrays(["points", *fields])
         super().__init__({"points": torch.from_numpy(arrays["points"]).float(),
                           **{k: torch.from_numpy(arrays[k]) for k in fields}}, points)
+        self.instance = torch.tensor([k[0] for k in ds.keys()], dtype=torch.long)
+
+
+class PairedClouds(TrainingClouds):
+    """:class:`TrainingClouds` whose sample ``i`` also holds ``pair_points (n, 3)``: a random subset of another
+    view of the same training instance (itself where the instance has one view), drawn from :attr:`generator`
+    (else torch's global RNG): the pairs of ``L_view`` (``LossConfig.view_consist``)."""
+
+    def __init__(self, data: str | Path, points: int, supervision: str = ""):
+        super().__init__(data, points, supervision)
+        self.index_instances()
+
+    def index_instances(self) -> None:
+        """Group the samples by :attr:`instance` ``(M,)`` (for :meth:`partner`)."""
+        order = torch.argsort(self.instance, stable=True)
+        uniq, counts = torch.unique_consecutive(self.instance[order], return_counts=True)
+        starts = torch.cumsum(counts, 0) - counts
+        slot = torch.searchsorted(uniq, self.instance)
+        self._order, self._start, self._count = order, starts[slot], counts[slot]
+
+    def partner(self, i: int) -> int:
+        """A random other sample of ``i``'s instance (``i`` where it has no other)."""
+        n, start = int(self._count[i]), int(self._start[i])
+        if n < 2:
+            return i
+        views = self._order[start:start + n]
+        r = int(torch.randint(n - 1, (1,), generator=self.generator))
+        own = int((views == i).nonzero()[0])
+        return int(views[r + (r >= own)])
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        item = super().__getitem__(i)
+        j = self.partner(i)
+        N = self.tensors["points"].shape[1]
+        idx = torch.randperm(N, generator=self.generator)[: self.points]
+        item["pair_points"] = self.tensors["points"][j, idx]
+        return item
 
 
 def labelled_centroids(K: torch.Tensor, template: torch.Tensor, template_labels: torch.Tensor | None,
@@ -122,7 +161,7 @@ INFERENCE_FIELDS = ("refine",)
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": ""}
 #: the same for fields added to the preset's LossConfig
-LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False}
+LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0}
 #: the same for fields added to the preset's EncoderConfig
 ENCODER_ADDED_FIELDS = {"frame": "regressed", "residual_deg": 0.0}
 
@@ -187,7 +226,8 @@ class ScapoJob:
         """The engine's :class:`~scapo.engine.TrainJob`: both stages, their epochs and learning rates from the
         preset."""
         pc = self.preset
-        data = TrainingClouds(self.data, pc.train_points, pc.supervision)
+        data = (PairedClouds if pc.losses.view_consist > 0 else TrainingClouds)(self.data, pc.train_points,
+                                                                                 pc.supervision)
         stages = [Stage(index=1, epochs=pc.stage1_epochs, lr=pc.lr_stage1, params=lambda: self._params(1),
                         losses=lambda batch, progress: self._losses(1, batch), terms=STAGE1_TERMS),
                   Stage(index=2, epochs=pc.stage2_epochs, lr=pc.lr_stage2, params=lambda: self._params(2),
@@ -203,9 +243,13 @@ class ScapoJob:
 
     def _losses(self, stage: int, batch: dict) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         pc = self.preset
-        sup = {k: v for k, v in batch.items() if k != "points"}  # semi-supervised: the labels come along
-        X, scale = SCAPOModel.normalize(batch["points"])
-        return loss_terms(self.model, X, stage, pc.losses, sup, scale, pc.sup_weight)
+        sup = {k: v for k, v in batch.items() if k not in ("points", "pair_points")}  # semi-supervised: labels
+        points, pairs = batch["points"], 0
+        if "pair_points" in batch:  # L_view: the batch's clouds, then their partner views (cloud i, i + B)
+            pairs = points.shape[0]
+            points = torch.cat([points, batch["pair_points"]])
+        X, scale = SCAPOModel.normalize(points)
+        return loss_terms(self.model, X, stage, pc.losses, sup, scale, pc.sup_weight, pairs=pairs)
 
     def _params(self, stage: int):
         if stage == 1:
@@ -332,6 +376,9 @@ def _check(preset: TrainConfig, card: dict, clouds: int) -> None:
         ConfigError: more template points than that cloud or union has."""
     from scapo.errors import ConfigError
 
+    if preset.losses.view_consist > 0 and preset.supervision:
+        raise ConfigError("losses.view_consist (pairs of views) and a supervised setting cannot be combined yet: the "
+                          "labels cover the first view of each pair only; train one of them")
     have = preset.train_points * (1 if preset.part_init else min(64, clouds))
     if preset.stage2_epochs > 0 and preset.template_points > have:
         raise ConfigError(f"template_points {preset.template_points} exceeds the {have} points stage 2 samples its "
