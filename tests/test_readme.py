@@ -27,3 +27,22 @@ def test_headline_block_is_rewritten_and_refused_without_markers(tmp_path):
     readme.write_text("# no block\n")
     with pytest.raises(ValueError, match="no headline block"):
         update_readme(readme, ROOT / "results")
+
+
+def test_headline_of_table1_paper_two_categories(tmp_path):
+    """The paper-viewpoint Table 1 block: per method the mean over categories and seeds, the budget stated."""
+    import json
+
+    from scapo.bench.headline import _table1_paper
+
+    assert _table1_paper(tmp_path) == []
+    summary = {"S": 80.0, "D": 5.0, "R_median": 10.0, "R_sym_median": 8.0}
+    rows = [{"method": "scapo", "category": c, "split": "test", "seed": s,
+             "summary": {**summary, "S": 70.0 + 10 * s}, "info": {"alignment_inlier_ratio": [0.5, 0.7]}}
+            for c in ("laptop", "eyeglasses") for s in (0, 1)]
+    prov = {"training_seeds": {"scapo": [0, 1]}, "commits": ["abcdef0123"],
+            "training_budget": {"core_minutes_per_run": 5.0}}
+    (tmp_path / "table1_paper_two_categories.json").write_text(json.dumps({"results": rows, "provenance": prov}))
+    text = "\n".join(_table1_paper(tmp_path))
+    assert "5 core-minutes" in text and "abcdef0" in text
+    assert "| SCAPO | 75.0 | 5.0 | 10.0 | 8.0 | 0.60 |" in text

@@ -7,6 +7,9 @@ is read from a results JSON written by a project command (its provenance is in t
 - Table 1 on the whole sphere (``results/table1_synthetic_sphere.json``, ``scapo bench table1 --viewpoints
   sphere``): per method the mean over its categories and training seeds of S, D, mean R, mean symmetry-aware R, and
   the paper's own row (``scapo/eval/reference/paper_table1.csv``, its mean column);
+- Table 1 in the paper's viewpoints on laptop and eyeglasses (``results/table1_paper_two_categories.json``, ``scapo
+  bench table1 --viewpoints paper --budget-minutes``), when it exists: per method the mean over categories and seeds
+  of S, D, median R strict and symmetry-aware, and the alignment inlier ratio;
 - the canonical-frame ladder's paper-regime rung on laptop (``results/canonical_ladder/ladder_laptop.json``, val):
   per method (default rows) the symmetry-aware frame consistency, S and median symmetry-aware R, mean over seeds;
 - accuracy against training compute (``results/accuracy_vs_compute.json``, val), when it exists: S and frame
@@ -68,6 +71,34 @@ def _table1(results: Path) -> list[str]:
     return out
 
 
+def _table1_paper(results: Path) -> list[str]:
+    path = results / "table1_paper_two_categories.json"
+    if not path.is_file():
+        return []
+    t = json.loads(path.read_text())
+    rows = [r for r in t["results"] if r.get("split", "test") == "test"]
+    cats = sorted({r["category"] for r in rows})
+    prov = t["provenance"]
+    seeds = sorted({s for v in prov.get("training_seeds", {}).values() for s in v})
+    budget = prov.get("training_budget", {}).get("core_minutes_per_run")
+    out = ["", f"**Table 1 in the paper's viewpoints** (`results/table1_paper_two_categories.md`; test split, "
+           f"{', '.join(cats)}, training seeds {', '.join(map(str, seeds))}, one-pass rows"
+           + (f", {budget:g} core-minutes of training per run" if budget else "") + "; commit "
+           f"{', '.join(c[:7] for c in prov.get('commits', []))}). Frame consistency: the evaluator's alignment "
+           "inlier ratio (1 = one canonical frame; self-supervised rows).", "",
+           "| method | S % | D deg | median R deg | median R sym deg | frame consistency |",
+           "|---|---|---|---|---|---|"]
+    for m in ORDER:
+        mine = [r for r in rows if r["method"] == m]
+        if mine:
+            s = [r["summary"] for r in mine]
+            inl = _mean(x for r in mine for x in (r.get("info", {}).get("alignment_inlier_ratio") or []))
+            out.append(f"| {NAMES[m]} | {_f(_mean(x['S'] for x in s))} | {_f(_mean(x['D'] for x in s))} | "
+                       f"{_f(_mean(x['R_median'] for x in s))} | {_f(_mean(x.get('R_sym_median') for x in s))} | "
+                       f"{_f(inl, 2)} |")
+    return out
+
+
 def _ladder(results: Path) -> list[str]:
     path = results / "canonical_ladder" / "ladder_laptop.json"
     if not path.is_file():
@@ -108,7 +139,7 @@ def _compute(results: Path) -> list[str]:
 def headline(results: str | Path = "results") -> str:
     """The block's text (without its markers) from the results folder ``results``."""
     results = Path(results)
-    return "\n".join([*_table1(results), *_ladder(results), *_compute(results)])
+    return "\n".join([*_table1(results), *_table1_paper(results), *_ladder(results), *_compute(results)])
 
 
 def update_readme(readme: str | Path = "README.md", results: str | Path = "results", check: bool = False) -> bool:
