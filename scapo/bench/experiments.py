@@ -450,8 +450,11 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
                  data_seed: int, data_kwargs: Mapping | None = None, measure: bool = True) -> tuple[list[Cell], dict]:
     """The cells with the equal training budget (``scapo bench table1 --budget-minutes``): every trained cell's
     preset gets the schedule part (:func:`scapo.registry.schedule_part`, e.g. ``cpu/epochs-15-13``) whose epochs fill
-    ``budget_minutes`` of one CPU core on its category's dataset, from the method's clouds/s measured once on that
-    dataset through the engine (:func:`scapo.bench.perf.bench_train_data` and
+    ``budget_minutes`` of one CPU core on its category's dataset (the optimisation: its steps and their epochs'
+    overhead; one-time costs, such as EAP-style's joint estimation over the whole training split after training, 6-7
+    minutes on 6,720 clouds, are not charged: :func:`scapo.bench.perf.training_budget` with ``charge_fixed=False``),
+    from the method's clouds/s measured once on that dataset through the engine
+    (:func:`scapo.bench.perf.bench_train_data` and
     :func:`scapo.bench.perf.training_budget`, as ``scapo bench ladder`` and ``scapo bench compute`` make theirs;
     ``<work>/speeds/<dataset>_<method>_<preset>.json``, measured with the torch threads this process has: run it
     as the cells will run, one thread per core). The datasets must exist (the bench generates them first).
@@ -493,15 +496,14 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
                                               work=Path(work_dir) / "speeds" / "runs" / data.name))
         rows = json.loads(path.read_text())
         clouds = int(rows[0]["train_clouds"])
-        row = training_budget(rows, budget_minutes, clouds)[0]
+        row = training_budget(rows, budget_minutes, clouds, charge_fixed=False)[0]
         base = METHODS.get(c.method).preset(c.preset)
         if "budget_min" in row:
             values = ({"stage1_epochs": row["stage1_epochs_for_budget"],
                        "stage2_epochs": row["stage2_epochs_for_budget"]}
                       if hasattr(base, "stage2_epochs") else {"epochs": row["stage1_epochs_for_budget"]})
         else:  # a preset of a fixed number of iterations: the iterations that fill the budget
-            sec = max(budget_minutes * 60 - float(row.get("fixed_s", 0.0)), 1.0)
-            values = {"iterations": max(1, int(sec * row["stage1_clouds_per_s"] / row["batch_size"]))}
+            values = {"iterations": max(1, int(budget_minutes * 60 * row["stage1_clouds_per_s"] / row["batch_size"]))}
         override(base, values, f"{c.method} preset")  # a schedule this preset takes
         part = schedule_part(values)
         schedules.setdefault(c.category, {})[f"{c.method} {c.preset}"] = part

@@ -233,7 +233,7 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
     return rows
 
 
-def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list[dict]:
+def training_budget(rows: list[dict], minutes: float, train_clouds: int, charge_fixed: bool = True) -> list[dict]:
     """The tables' equal training budget from measured speeds (every method gets the same core-minutes): for each
     ``--what train`` row (its clouds/s per stage and its preset's schedule: ``stage<k>_epochs``,
     ``max_steps_per_epoch``, ``iterations``), the wall time of a training run on ``train_clouds`` clouds at that
@@ -241,7 +241,10 @@ def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list
     capped by ``max_steps_per_epoch``; each step at the measured clouds/s) and the epochs per stage that fill
     ``minutes`` (``stage<k>_epochs_for_budget``: every stage scaled by the same factor, at least 1).
     A row's ``stage<k>_epoch_s`` and ``fixed_s`` (from :func:`bench_train_data`: the seconds each epoch adds
-    around its steps, and the run's one-time seconds) are added: the epochs fill the budget less the fixed cost.
+    around its steps, and the run's one-time seconds) are added: the epochs fill the budget less the fixed cost
+    (``charge_fixed``; False: the budget buys the optimisation alone, its steps and their epochs' overhead, and the
+    one-time seconds, e.g. EAP-style's joint estimation over the whole training split after training, are not
+    charged: on a large training split they can exceed a small budget and leave a method one epoch).
     The tables' cells run one torch thread per core, so measure with one thread. Rows without a schedule pass
     unchanged.
 
@@ -263,7 +266,7 @@ def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list
             per_epoch = min(per_epoch, r["max_steps_per_epoch"])
         sec_per_epoch = {k: per_epoch * r["batch_size"] / r[f"stage{k}_clouds_per_s"] + r.get(f"stage{k}_epoch_s", 0.0)
                          for k in stages}
-        fixed = float(r.get("fixed_s", 0.0))
+        fixed = float(r.get("fixed_s", 0.0)) if charge_fixed else 0.0
         if r.get("iterations"):  # one stage of a fixed step count
             sec = r["iterations"] * r["batch_size"] / r["stage1_clouds_per_s"]
         else:

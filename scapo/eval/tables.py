@@ -521,8 +521,9 @@ def budget_note(provenance: dict) -> list[str]:
         return []
     per = "; ".join(f"{cat}: " + ", ".join(f"{k} {v}" for k, v in sched.items())
                     for cat, sched in tb.get("schedules", {}).items())
-    return [f"Equal training budget: {tb.get('core_minutes_per_run')} core-minutes of one CPU core per training run "
-            f"for every trained method (epochs from each method's clouds/s measured on the dataset; schedules: {per}).",
+    return [f"Equal training budget: {tb.get('core_minutes_per_run')} core-minutes of one CPU core of optimisation "
+            "per training run for every trained method (epochs from each method's clouds/s measured on the dataset; "
+            f"one-time costs after training, such as EAP-style's joint estimation, not charged; schedules: {per}).",
             ""]
 
 
