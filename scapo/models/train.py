@@ -31,7 +31,7 @@ from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.nn.encoder import EncoderConfig
 
 #: the log's loss-term columns of each stage, in order (stage 2 also logs stage 1's)
-STAGE1_TERMS = ("rec", "ortho", "aug_consist", "can_consist", "align", "consensus", "view_consist", "cycle")
+STAGE1_TERMS = ("rec", "ortho", "aug_consist", "can_consist", "align", "consensus", "cycle")
 STAGE2_TERMS = ("recon", "kp_seg", "seg", "shape_var", "dir_align", "joint_prox", "joint_boundary", "sup_seg",
                 "sup_joint")
 
@@ -228,10 +228,11 @@ class ScapoJob:
         pc = self.preset
         data = (PairedClouds if pc.losses.view_consist > 0 else TrainingClouds)(self.data, pc.train_points,
                                                                                  pc.supervision)
+        view = ("view_consist",) if pc.losses.view_consist > 0 else ()  # logged only where on (older logs' columns)
         stages = [Stage(index=1, epochs=pc.stage1_epochs, lr=pc.lr_stage1, params=lambda: self._params(1),
-                        losses=lambda batch, progress: self._losses(1, batch), terms=STAGE1_TERMS),
+                        losses=lambda batch, progress: self._losses(1, batch), terms=STAGE1_TERMS + view),
                   Stage(index=2, epochs=pc.stage2_epochs, lr=pc.lr_stage2, params=lambda: self._params(2),
-                        losses=lambda batch, progress: self._losses(2, batch), terms=STAGE2_TERMS,
+                        losses=lambda batch, progress: self._losses(2, batch), terms=STAGE2_TERMS + view,
                         on_start=lambda: self._init_template(data))]
         cfg = FitConfig(batch_size=pc.batch_size, weight_decay=pc.weight_decay, min_lr=pc.min_lr,
                         grad_clip=pc.grad_clip, max_steps_per_epoch=pc.max_steps_per_epoch, seed=pc.seed,
