@@ -469,7 +469,7 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
     """
     import json
 
-    from scapo.bench.perf import bench_train_data, training_budget
+    from scapo.bench.perf import bench_train_data, budget_schedule, training_budget
     from scapo.config import override
     from scapo.files import write_json
     from scapo.registry import schedule_part
@@ -477,7 +477,7 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
     if not (math.isfinite(budget_minutes) and 0 < budget_minutes <= 720):
         raise ConfigError(f"--budget-minutes must be a positive number of core-minutes per training run, at most 720, "
                           f"got {budget_minutes}")
-    out, schedules = [], {}
+    out, schedules, speeds = [], {}, {}
     for c in cells:
         if not c.trained:
             out.append(c)
@@ -494,16 +494,11 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
             print(f"scapo bench: measuring the training speed of {c.method} ({c.preset}) on {data.name}", flush=True)
             write_json(path, bench_train_data(data, [c.method], preset=c.preset, steps=steps,
                                               work=Path(work_dir) / "speeds" / "runs" / data.name))
-        rows = json.loads(path.read_text())
-        clouds = int(rows[0]["train_clouds"])
-        row = training_budget(rows, budget_minutes, clouds, charge_fixed=False)[0]
+        if path not in speeds:  # one read per dataset and method (the seeds share it)
+            rows = json.loads(path.read_text())
+            speeds[path] = training_budget(rows, budget_minutes, int(rows[0]["train_clouds"]), charge_fixed=False)[0]
         base = METHODS.get(c.method).preset(c.preset)
-        if "budget_min" in row:
-            values = ({"stage1_epochs": row["stage1_epochs_for_budget"],
-                       "stage2_epochs": row["stage2_epochs_for_budget"]}
-                      if hasattr(base, "stage2_epochs") else {"epochs": row["stage1_epochs_for_budget"]})
-        else:  # a preset of a fixed number of iterations: the iterations that fill the budget
-            values = {"iterations": max(1, int(budget_minutes * 60 * row["stage1_clouds_per_s"] / row["batch_size"]))}
+        values = budget_schedule(speeds[path], base, budget_minutes, charge_fixed=False)
         override(base, values, f"{c.method} preset")  # a schedule this preset takes
         part = schedule_part(values)
         schedules.setdefault(c.category, {})[f"{c.method} {c.preset}"] = part

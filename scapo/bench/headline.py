@@ -48,17 +48,25 @@ def _paper_row(method: str) -> dict:
         return {r["metric"]: float(r["mean"]) for r in csv.DictReader(f) if r["method"] == method}
 
 
-def _table1(results: Path) -> list[str]:
-    path = results / "table1_synthetic_sphere.json"
+def _table(path: Path):
+    """A table JSON's test rows, categories, training seeds and provenance, or None where it is not there."""
     if not path.is_file():
-        return []
+        return None
     t = json.loads(path.read_text())
     rows = [r for r in t["results"] if r.get("split", "test") == "test"]
-    cats = sorted({r["category"] for r in rows})
-    seeds = sorted({s for v in t["provenance"].get("training_seeds", {}).values() for s in v})
+    prov = t["provenance"]
+    seeds = sorted({s for v in prov.get("training_seeds", {}).values() for s in v})
+    return rows, sorted({r["category"] for r in rows}), seeds, prov
+
+
+def _table1(results: Path) -> list[str]:
+    table = _table(results / "table1_synthetic_sphere.json")
+    if table is None:
+        return []
+    rows, cats, seeds, prov = table
     out = [f"**Table 1, whole sphere** (`results/table1_synthetic_sphere.md`; test split, {len(cats)} categories, "
            f"training seeds {', '.join(map(str, seeds))}, one-pass rows; commit "
-           f"{', '.join(c[:7] for c in t['provenance'].get('commits', []))}). A uniformly random rotation has a mean "
+           f"{', '.join(c[:7] for c in prov.get('commits', []))}). A uniformly random rotation has a mean "
            "R of 126.5 deg.", "",
            "| method | S % | D deg | R deg | R sym deg |", "|---|---|---|---|---|"]
     for m in ORDER:
@@ -72,14 +80,10 @@ def _table1(results: Path) -> list[str]:
 
 
 def _table1_paper(results: Path) -> list[str]:
-    path = results / "table1_paper_two_categories.json"
-    if not path.is_file():
+    table = _table(results / "table1_paper_two_categories.json")
+    if table is None:
         return []
-    t = json.loads(path.read_text())
-    rows = [r for r in t["results"] if r.get("split", "test") == "test"]
-    cats = sorted({r["category"] for r in rows})
-    prov = t["provenance"]
-    seeds = sorted({s for v in prov.get("training_seeds", {}).values() for s in v})
+    rows, cats, seeds, prov = table
     budget = prov.get("training_budget", {}).get("core_minutes_per_run")
     out = ["", f"**Table 1 in the paper's viewpoints** (`results/table1_paper_two_categories.md`; test split, "
            f"{', '.join(cats)}, training seeds {', '.join(map(str, seeds))}, one-pass rows"

@@ -155,7 +155,7 @@ def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float,
     """Per trained method, its ``preset`` with the epochs (iterations) that fill ``budget_minutes`` of one core
     (of ``device``, e.g. ``cuda``, when given) on ``data``'s training split, from speeds measured once
     (:func:`speed_file`, reused)."""
-    from scapo.bench.perf import bench_train_data, training_budget
+    from scapo.bench.perf import bench_train_data, budget_schedule, training_budget
     from scapo.config import override
     from scapo.data import load
     from scapo.methods import METHODS
@@ -174,12 +174,7 @@ def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float,
     out = {}
     for r in training_budget([r for r in rows if r["method"] in trained], budget_minutes, clouds):
         base = METHODS.get(r["method"]).preset(preset)
-        if "budget_min" in r:
-            values = ({"stage1_epochs": r["stage1_epochs_for_budget"], "stage2_epochs": r["stage2_epochs_for_budget"]}
-                      if hasattr(base, "stage2_epochs") else {"epochs": r["stage1_epochs_for_budget"]})
-        else:  # a preset of a fixed number of iterations: the iterations that fill the budget
-            sec = max(budget_minutes * 60 - float(r.get("fixed_s", 0.0)), 1.0)
-            values = {"iterations": max(1, int(sec * r["stage1_clouds_per_s"] / r["batch_size"]))}
+        values = budget_schedule(r, base, budget_minutes)
         out[r["method"]] = (override(base, values, f"{r['method']} preset"), values)
     return out
 

@@ -281,6 +281,19 @@ def training_budget(rows: list[dict], minutes: float, train_clouds: int, charge_
     return out
 
 
+def budget_schedule(row: dict, preset, minutes: float, charge_fixed: bool = True) -> dict:
+    """The preset fields that fill the budget, from a :func:`training_budget` row: ``stage1_epochs`` and
+    ``stage2_epochs`` (a two-stage ``preset``), ``epochs`` (one stage), or ``iterations`` (a preset of a fixed number
+    of iterations: the iterations ``minutes`` buy at the measured clouds/s, less the row's one-time seconds with
+    ``charge_fixed``)."""
+    if "budget_min" in row:
+        if hasattr(preset, "stage2_epochs"):
+            return {"stage1_epochs": row["stage1_epochs_for_budget"], "stage2_epochs": row["stage2_epochs_for_budget"]}
+        return {"epochs": row["stage1_epochs_for_budget"]}
+    sec = max(minutes * 60 - (float(row.get("fixed_s", 0.0)) if charge_fixed else 0.0), 1.0)
+    return {"iterations": max(1, int(sec * row["stage1_clouds_per_s"] / row["batch_size"]))}
+
+
 def bench_icp(data: str | Path, limit: int = 0) -> list[dict]:
     """ICP's two searches (``ICPConfig.search``: "exhaustive", the reference, and "batched") on the same test
     clouds of ``data`` in one run: ms per cloud, the speed-up over the reference, and what each gets under the
