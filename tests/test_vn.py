@@ -129,3 +129,44 @@ def test_encoder_is_se3_equivariant(dtype):
     assert (b.R_raw - Q @ a.R_raw).abs().max() / float(a.R_raw.abs().max()) < tol
     assert (b.R - Q @ a.R).abs().max() < tol * 10
     assert (b.code - a.code).abs().max() / float(a.code.abs().max()) < tol
+
+
+@pytest.mark.parametrize("cls,C,batchnorm", [(VNLinearLeakyReLU, 3, True), (VNLinearLeakyReLU, 2, False),
+                                              (VNTLinearLeakyReLU, 2, True), (VNTLinearLeakyReLU, 3, False)])
+def test_edge_pool_is_the_layer_then_the_mean_with_the_same_gradients(monkeypatch, cls, C, batchnorm):
+    """The scalar form of an edge layer (``edge_pool``: Gram-matrix quadratic forms, one batched product over the
+    neighbours) computes ``vn_mean_pool(layer(edges))`` exactly: outputs, input and weight gradients, batch
+    statistics in training and running statistics in eval, in float64."""
+    import scapo.nn.vn as vn
+
+    monkeypatch.setattr(vn, "FUSED_EDGE_MIN", 0)  # the scalar form even for this small layer
+    torch.manual_seed(0)
+    layer = cls(C, 6, batchnorm=batchnorm).double()
+    ref = cls(C, 6, batchnorm=batchnorm).double()
+    ref.load_state_dict(layer.state_dict())
+    edges = torch.randn(3, C, 3, 11, 5, dtype=torch.float64)
+    edges[:, 0] = edges[:, 0, :, :, :1]  # as in DGCNN: one input is the centre point, the same for every neighbour
+    for train in (True, False):
+        layer.train(train), ref.train(train)
+        e1, e2 = edges.clone().requires_grad_(), edges.clone().requires_grad_()
+        a, b = layer.edge_pool(e1), vn_mean_pool(ref(e2))
+        assert a.shape == (3, 6, 3, 11)
+        assert torch.allclose(a, b, atol=1e-12)
+        ga = torch.autograd.grad((a * torch.cos(a)).sum(), [e1, *layer.parameters()])
+        gb = torch.autograd.grad((b * torch.cos(b)).sum(), [e2, *ref.parameters()])
+        assert all(torch.allclose(x, y, atol=1e-10) for x, y in zip(ga, gb))
+    for name, buf in layer.named_buffers():  # the same running statistics after the training pass
+        assert torch.allclose(buf.double(), dict(ref.named_buffers())[name].double())
+
+
+def test_edge_pool_is_equivariant_and_checks_its_input(monkeypatch):
+    import scapo.nn.vn as vn
+
+    monkeypatch.setattr(vn, "FUSED_EDGE_MIN", 0)
+    torch.manual_seed(1)
+    rot, trans = _prepare(VNLinearLeakyReLU(3, 4), torch.float64), _prepare(VNTLinearLeakyReLU(2, 4), torch.float64)
+    edges = torch.randn(2, 3, 3, 9, 4, dtype=torch.float64)
+    assert equivariance_error(rot.edge_pool, edges) < TOL[torch.float64]
+    assert equivariance_error(trans.edge_pool, edges[:, :2], translate=True) < TOL[torch.float64]
+    with pytest.raises(ValueError, match=r"edges \(B, 3, 3, N, k\)"):
+        rot.edge_pool(edges[:, :2])

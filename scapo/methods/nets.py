@@ -74,13 +74,13 @@ class VNPointEncoder(nn.Module):
         self.inv = VNInvariant(channels)
 
     def forward(self, X: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        from scapo.nn.vn import gather_neighbours, knn_indices, vn_mean_pool
+        from scapo.nn.vn import gather_neighbours, knn_indices
 
         c = X.mean(1, keepdim=True)
         x = (X - c).transpose(1, 2).unsqueeze(1)  # (B, 1, 3, N)
         nb = gather_neighbours(x, knn_indices(X, self.k))  # (B, 1, 3, N, k)
         e = torch.cat([nb - x.unsqueeze(-1), x.unsqueeze(-1).expand_as(nb)], 1)  # (B, 2, 3, N, k)
-        f = vn_mean_pool(self.edge(e))  # (B, C, 3, N)
+        f = self.edge.edge_pool(e)  # (B, C, 3, N): vn_mean_pool(self.edge(e)), computed without (B, C, 3, N, k)
         f = self.point(torch.cat([f, f.mean(-1, keepdim=True).expand_as(f)], 1))
         inv, _ = self.inv(f)  # (B, C, 3, N)
         return f, inv.flatten(1, 2).transpose(1, 2)

@@ -23,7 +23,6 @@ from scapo.nn.vn import (
     VNTLinearLeakyReLU,
     gather_neighbours,
     knn_indices,
-    vn_mean_pool,
 )
 from scapo.ops.so3 import rotation_from_6d, rotation_from_rotvec
 
@@ -130,7 +129,7 @@ class SE3Encoder(nn.Module):
         idx = knn_indices(points, self.cfg.k)  # translation/rotation invariant, shared by both branches
         x = points.transpose(1, 2).unsqueeze(1)  # (B, 1, 3, N)
         nb = gather_neighbours(x, idx)  # (B, 1, 3, N, k)
-        f = vn_mean_pool(self.t_edge(torch.cat([x.unsqueeze(-1).expand_as(nb), nb], dim=1)))
+        f = self.t_edge.edge_pool(torch.cat([x.unsqueeze(-1).expand_as(nb), nb], dim=1))  # vn_mean_pool(t_edge(.))
         for layer in self.t_layers:
             f = layer(f)
         t = self.t_out(f.mean(-1, keepdim=True)).reshape(B, 3)
@@ -138,7 +137,7 @@ class SE3Encoder(nn.Module):
         nbc = nb - t.reshape(B, 1, 3, 1, 1)
         xe = xc.unsqueeze(-1).expand_as(nbc)
         edge = torch.cat([nbc - xe, xe, torch.cross(nbc, xe, dim=2)], dim=1)  # (B, 3, 3, N, k)
-        g = vn_mean_pool(self.r_edge(edge))
+        g = self.r_edge.edge_pool(edge)  # = vn_mean_pool(self.r_edge(edge)), without (B, C, 3, N, k) tensors
         for layer in self.r_layers:
             g = layer(g)
         # invariant per-point scores (norms of the VN features) -> attention-weighted points: equivariant

@@ -26,6 +26,13 @@ from scapo.ops.so3 import rotation_from_6d
 
 EPS = 1e-6
 
+#: ``edge_pool`` computes on per-edge scalars (its faster form) when ``out_channels * k`` is at least this; below, the
+#: layer's own forward and a mean are faster (the per-point batched matrix products are too small to pay for
+#: themselves). Measured on one CPU thread (``scapo bench perf --what train``, ``results/perf/train_edge_pool.md``):
+#: SCAPO's ``cpu`` preset (16 x 8 and 8 x 8) is 1.2x slower in the scalar form, NPCS-style's and EAP-style's ``cpu``
+#: presets (32 x 10) are 1.1-1.4x faster, SCAPO's ``paper`` preset (32 x 16, 16 x 16) faster.
+FUSED_EDGE_MIN = 256
+
 
 def _mix(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     """Channel mixing ``(O, C) x (B, C, 3, *S) -> (B, O, 3, *S)``."""
@@ -96,13 +103,24 @@ class VNBatchNorm(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         norm = (x * x).sum(2).add(EPS * EPS).sqrt()  # (B, C, *S); faster than .norm on the middle dim
+        return x * self.scale(norm).unsqueeze(2)  # one full-size multiply by BN(|v|) / |v|
+
+    def scale(self, norm: torch.Tensor, channel_dim: int = 1) -> torch.Tensor:
+        """The factor ``BN(|v|) / |v|`` that multiplies each vector, from the vectors' norms ``norm``
+        (``sqrt(|v|^2 + EPS^2)``), of shape ``(B, C, *S)`` or, with ``channel_dim=-1``, ``(B, *S, C)`` (the same
+        shape out); batch statistics per channel over the batch and ``*S`` (over the global batch in a
+        data-parallel run)."""
+        if channel_dim == -1 and not (self.training and _distributed()):
+            return self.bn(norm.reshape(-1, norm.shape[-1])).reshape(norm.shape) / norm  # rows: same statistics
+        if channel_dim == -1:
+            return self.scale(norm.movedim(-1, 1)).movedim(1, -1)
         B, C = norm.shape[:2]
         flat = norm.reshape(B, C, -1)
         if self.training and _distributed():
             normed = self._synced(flat)
         else:
             normed = self.bn(flat)
-        return x * (normed.reshape(norm.shape) / norm).unsqueeze(2)  # one full-size multiply by BN(|v|) / |v|
+        return normed.reshape(norm.shape) / norm
 
     def _synced(self, flat: torch.Tensor) -> torch.Tensor:
         """Batch norm with statistics over the global batch of a data-parallel run (scapo.nn.sync); the
@@ -139,6 +157,69 @@ class VNLinearLeakyReLU(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return _leaky(self.bn(self.linear(x)), self.direction(x), self.slope)
+
+    def edge_pool(self, edges: torch.Tensor) -> torch.Tensor:
+        """``vn_mean_pool(self(edges))`` for edge features ``edges (B, C, 3, N, k)`` (the first layer of a
+        VN-DGCNN, averaged over the ``k`` neighbours) -> ``(B, C_out, 3, N)``: the same function (same batch
+        statistics, same gradients up to rounding) computed without the ``(B, C_out, 3, N, k)`` tensors.
+
+        Every output vector of an edge is a combination of that edge's ``C`` input vectors ``e_c``:
+        ``p_o = sum_c W_oc e_c`` (linear), ``d_o = sum_c U_oc e_c`` (direction), and after the batch norm and the
+        leaky ReLU ``y_o = s_o p_o + b_o d_o``, with the per-edge scalars ``s_o = BN(|p_o|) / |p_o|`` and
+        ``b_o = (slope - 1) min(<s_o p_o, d_o>, 0) / (|d_o|^2 + EPS)``. The norms and inner products are quadratic
+        forms of the edge's Gram matrix ``<e_c, e_c'>`` (:func:`_edge_forms`) and the mean over neighbours is
+        ``sum_c W_oc mean_k(s_o e_c) + U_oc mean_k(b_o e_c)`` (:func:`_neighbour_sum`), so the large tensors are
+        ``(B, N, k, C_out)`` scalars instead of ``(B, C_out, 3, N, k)`` vectors: 2.7x faster forward at the
+        ``paper`` preset's SCAPO edge layer (32 clouds of 1024 points, k 16); smaller layers (``C_out * k`` under
+        :data:`FUSED_EDGE_MIN`) take the plain path, which is faster there. Norms from the Gram matrix round
+        differently (relative ~1e-7 of ``(sum |W| |e|)^2`` in float32); they are clamped at zero before ``EPS^2``.
+
+        Raises:
+            ValueError: ``edges`` not of shape ``(B, C, 3, N, k)`` with this layer's ``C``."""
+        W, U = self.linear.weight, self.direction.weight  # (O, C)
+        vec = _edge_basis(edges, W.shape[1])  # (B, N, k, C, 3)
+        if W.shape[0] * edges.shape[-1] < FUSED_EDGE_MIN:
+            return vn_mean_pool(self(edges))
+        pp, pd, dd = _edge_forms(vec, [(W, W), (W, U), (U, U)])  # (B, N, k, O) each
+        s = self.bn.scale(_norm(pp), channel_dim=-1) if isinstance(self.bn, VNBatchNorm) else torch.ones_like(pp)
+        b = (self.slope - 1) * (s * pd).clamp(max=0.0) / (dd + EPS)
+        return (_neighbour_sum(s, vec, W) + _neighbour_sum(b, vec, U)) * (1.0 / edges.shape[-1])
+
+
+def _edge_basis(edges: torch.Tensor, channels: int) -> torch.Tensor:
+    """Edge features ``(B, C, 3, N, k)`` as per-edge rows of vectors ``(B, N, k, C, 3)`` (a view).
+
+    Raises:
+        ValueError: ``edges`` not of shape ``(B, channels, 3, N, k)``."""
+    if edges.dim() != 5 or edges.shape[1] != channels or edges.shape[2] != 3:
+        raise ValueError(f"edge_pool needs edges (B, {channels}, 3, N, k), got {tuple(edges.shape)}")
+    return edges.permute(0, 3, 4, 1, 2)
+
+
+def _edge_forms(vec: torch.Tensor, pairs: list[tuple[torch.Tensor, torch.Tensor]]) -> tuple[torch.Tensor, ...]:
+    """Per edge and output channel, the inner products ``<sum_d A_od f_d, sum_d B_od f_d>`` of combinations of
+    the edge's vectors ``vec (B, N, k, D, 3)`` (``f_d``), one ``(B, N, k, O)`` tensor per pair ``(A, B)`` of
+    ``(O, D)`` weights: quadratic forms of the edge's Gram matrix, all pairs in one matrix product."""
+    B, N, k, D, _ = vec.shape
+    O = pairs[0][0].shape[0]
+    gram = (vec[..., :, None, :] * vec[..., None, :, :]).sum(-1).reshape(B, N, k, D * D)  # (a bmm is slower)
+    forms = torch.cat([a[:, :, None] * b[:, None, :] for a, b in pairs]).reshape(len(pairs) * O, D * D)
+    return (gram @ forms.T).split(O, dim=-1)
+
+
+def _neighbour_sum(coef: torch.Tensor, vec: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """``sum_k sum_d weight_od coef_o f_d`` ``(B, O, 3, N)`` for per-edge scalars ``coef (B, N, k, O)``, the edges'
+    vectors ``vec (B, N, k, D, 3)`` and weights ``weight (O, D)``: one batched matrix product over the neighbours
+    (``coef^T f``, ``(O, k) x (k, 3 D)`` per point), then the channel mixing on the ``k``-times smaller result."""
+    B, N, k, D, _ = vec.shape
+    summed = (coef.transpose(-1, -2) @ vec.reshape(B, N, k, D * 3)).reshape(B, N, -1, D, 3)
+    return torch.einsum("bnodj,od->bojn", summed, weight)
+
+
+def _norm(sq: torch.Tensor) -> torch.Tensor:
+    """``sqrt(max(sq, 0) + EPS^2)``: the vector norm of :class:`VNBatchNorm` from a squared norm that may round
+    below zero."""
+    return sq.clamp_min(0.0).add(EPS * EPS).sqrt()
 
 
 class VNMaxPool(nn.Module):
@@ -193,6 +274,37 @@ class VNTLinearLeakyReLU(nn.Module):
         p = self.bn(self.linear(x))
         o = self.origin(x)
         return _leaky(p - o, self.direction(x) - o, self.slope) + o
+
+    def edge_pool(self, edges: torch.Tensor) -> torch.Tensor:
+        """``vn_mean_pool(self(edges))`` for edge features ``edges (B, C, 3, N, k)`` (SCAPO's translation branch's
+        first layer, averaged over the ``k`` neighbours) -> ``(B, C_out, 3, N)``: the same function computed on
+        ``(B, N, k, C_out)`` scalars, as :meth:`VNLinearLeakyReLU.edge_pool` does.
+
+        With ``e_c`` an edge's inputs, ``ebar_c`` their mean over the point's neighbours and ``et_c = e_c - ebar_c``:
+        the batch norm (about the neighbours' mean) gives ``p'_o = s_o q_o + m_o`` with ``q_o = sum_c W_oc et_c``,
+        ``m_o = sum_c W_oc ebar_c`` and ``s_o = BN(|q_o|) / |q_o|`` (1 without batch norm); with the origin
+        ``o = sum_c V_c e_c`` and the direction ``b_o = sum_c (U_oc - V_c) e_c``, the output is
+        ``p'_o + c_o b_o``, ``c_o = (slope - 1) min(<p'_o - o, b_o>, 0) / (|b_o|^2 + EPS)``. All inner products
+        are quadratic forms in the ``2 C`` vectors ``(et, ebar)`` of each edge, and the mean over neighbours is
+        ``sum_c W_oc mean_k(s_o et_c) + m_o + sum_c (U_oc - V_c) mean_k(c_o e_c)``.
+
+        Raises:
+            ValueError: ``edges`` not of shape ``(B, C, 3, N, k)`` with this layer's ``C``."""
+        W, U, V = self.linear.weight, self.direction.weight, self.origin.weight  # (O, C), (O, C), (1, C)
+        C = W.shape[1]
+        vec = _edge_basis(edges, C)  # (B, N, k, C, 3)
+        if W.shape[0] * edges.shape[-1] < FUSED_EDGE_MIN:
+            return vn_mean_pool(self(edges))
+        mean = vec.mean(2, keepdim=True)  # (B, N, 1, C, 3)
+        basis = torch.cat([vec - mean, mean.expand_as(vec)], dim=3)  # (B, N, k, 2 C, 3): (et, ebar)
+        zero, Vo = torch.zeros_like(W), V.expand_as(W)
+        q, mo, b = torch.cat([W, zero], 1), torch.cat([-Vo, W - Vo], 1), torch.cat([U - Vo, U - Vo], 1)
+        qq, qb, mob, bb = _edge_forms(basis, [(q, q), (q, b), (mo, b), (b, b)])
+        s = self.bn.bn.scale(_norm(qq), channel_dim=-1) if isinstance(self.bn, VNTBatchNorm) else torch.ones_like(qq)
+        c = (self.slope - 1) * (s * qb + mob).clamp(max=0.0) / (bb + EPS)
+        k = edges.shape[-1]
+        m = torch.einsum("bncj,oc->bojn", mean[:, :, 0], W)  # (B, O, 3, N)
+        return (_neighbour_sum(s, basis[:, :, :, :C], W) + _neighbour_sum(c, vec, U - Vo)) * (1.0 / k) + m
 
 
 class VNTMaxPool(nn.Module):
