@@ -28,9 +28,9 @@ EPS = 1e-6
 
 #: ``edge_pool`` computes on per-edge scalars (its faster form) when ``out_channels * k`` is at least this; below, the
 #: layer's own forward and a mean are faster (the per-point batched matrix products are too small to pay for
-#: themselves). Measured on one CPU thread (``scapo bench perf --what train``, ``results/perf/train_edge_pool.md``):
+#: themselves). Measured on one CPU thread (``scapo bench perf --what train``, ``results/perf/train_edge_pool/``):
 #: SCAPO's ``cpu`` preset (16 x 8 and 8 x 8) is 1.2x slower in the scalar form, NPCS-style's and EAP-style's ``cpu``
-#: presets (32 x 10) are 1.1-1.4x faster, SCAPO's ``paper`` preset (32 x 16, 16 x 16) faster.
+#: presets (32 x 10) 1.06x and 1.33x faster, the ``paper`` presets 1.3-1.75x.
 FUSED_EDGE_MIN = 256
 
 
