@@ -10,7 +10,15 @@ Per cell, from the object-frame offsets ``O = R_gt^T R_pred`` of its val samples
 symmetric ground truth closest to the common offset, as the symmetry-aware scores do): the median angle of the
 offsets to their chordal mean (what the frame consistency thresholds at 15 deg), the median angle of each sample to
 its own instance's mean (view dependence) and the median angle of the instances' means to their mean (shape
-dependence), with the number of val instances and samples. Writes ``<out>.{md,json}`` with provenance.
+dependence), with the number of val instances and samples.
+
+The centre (issue 52's hypothesis that the visible points' mean moves the translation estimate with the viewpoint):
+per sample, the predicted object origin ``c = R_gt^T (t_pred - t_gt)`` and the visible points' mean
+``v = R_gt^T (mean(points) - t_gt)``, both in the true object frame (mm), minus their instance's mean over its views;
+the median norm of each (how far the predicted centre and the visible mean move between views of one object), the
+least-squares slope of the predicted centre's move on the visible mean's (1: the centre follows what is in view; 0:
+it does not), and the rank correlation of a view's frame deviation from its instance's mean frame with its centre's
+move (do the views whose centre moves also lose the frame?). Writes ``<out>.{md,json}`` with provenance.
 
 Errors: a missing dataset or predictions file, or a ``--cell`` not of the form ``LABEL=PATH``, end with a ``scapo:``
 message and exit status 2.
@@ -46,7 +54,8 @@ def spread(data: Path, predictions: Path) -> dict:
     from scapo.eval.evaluator import declared_rotations
 
     val = load(data, "val")
-    gt = val.arrays(["T_cam_obj"])["T_cam_obj"]
+    arrays = val.arrays(["T_cam_obj", "points"])
+    gt = arrays["T_cam_obj"]
     keys = {k: i for i, k in enumerate(val.keys())}
     p = Predictions.load(predictions)
     rows = [i for i in range(len(p)) if str(p.split[i]) == "val"]
@@ -60,7 +69,28 @@ def spread(data: Path, predictions: Path) -> dict:
         d = np.stack([angles(c, M) for c in cands])
         O = cands[d.argmin(0), np.arange(len(O))]
         M = mean_rotation(O)
-    return spread_stats(O, inst)
+    Rg, tg = gt[order][:, :3, :3], gt[order][:, :3, 3]
+    centre = np.einsum("nji,nj->ni", Rg, p.T_cam_obj[rows][:, :3, 3].astype(np.float64) - tg)
+    visible = np.einsum("nji,nj->ni", Rg, arrays["points"][order].astype(np.float64).mean(1) - tg)
+    return {**spread_stats(O, inst), **centre_stats(O, centre, visible, inst)}
+
+
+def centre_stats(O: np.ndarray, centre: np.ndarray, visible: np.ndarray, inst: np.ndarray) -> dict:
+    """The centre statistics (see the module docstring) of offsets ``O (n, 3, 3)``, predicted centres and visible
+    means ``(n, 3)`` in the true object frame (metres), of samples of instances ``inst (n,)``."""
+    from scipy.stats import spearmanr
+
+    dc, dv, dev = np.zeros_like(centre), np.zeros_like(visible), np.zeros(len(O))
+    for i in np.unique(inst):
+        m = inst == i
+        dc[m], dv[m] = centre[m] - centre[m].mean(0), visible[m] - visible[m].mean(0)
+        dev[m] = angles(O[m], mean_rotation(O[m]))
+    slope = float((dc * dv).sum() / max((dv * dv).sum(), 1e-18))
+    moved = np.linalg.norm(dc, axis=1)
+    rho = spearmanr(dev, moved).statistic if len(O) > 2 and moved.std() > 0 and dev.std() > 0 else float("nan")
+    return {"median_centre_move_mm": round(1000 * float(np.median(moved)), 1),
+            "median_visible_move_mm": round(1000 * float(np.median(np.linalg.norm(dv, axis=1))), 1),
+            "centre_on_visible_slope": round(slope, 2), "frame_vs_centre_rank_corr": round(float(rho), 2)}
 
 
 def spread_stats(O: np.ndarray, inst: np.ndarray) -> dict:
@@ -107,9 +137,16 @@ def main(argv=None) -> int:
           "Median angles (deg) of the val samples' object-frame offsets (folded to the declared symmetric ground "
           "truth): to their common mean; to their own instance's mean (views of one object: view dependence); and of "
           "the instances' means to their common mean (shape dependence).", "",
-          "| cell | to common | within instance | instance means | instances | samples |", "|---|---|---|---|---|---|"]
+          "Centre: how far (median, mm) the predicted object origin and the visible points' mean move between the "
+          "views of one object (in the true object frame), the slope of the first on the second (1: the centre follows "
+          "the visible points), and the rank correlation of a view's frame deviation with its centre's move.", "",
+          "| cell | to common | within instance | instance means | centre move mm | visible-mean move mm | "
+          "centre-on-visible slope | frame-vs-centre corr | instances | samples |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
     md += [f"| {k} | {v['median_to_common_deg']} | {v['median_within_instance_deg']} | "
-           f"{v['median_instance_means_to_common_deg']} | {v['instances']} | {v['samples']} |" for k, v in rows.items()]
+           f"{v['median_instance_means_to_common_deg']} | {v['median_centre_move_mm']} | "
+           f"{v['median_visible_move_mm']} | {v['centre_on_visible_slope']} | {v['frame_vs_centre_rank_corr']} | "
+           f"{v['instances']} | {v['samples']} |" for k, v in rows.items()]
     md += ["", f"Provenance: commit {prov.get('commit')}, dataset `{args.data.name}`; written by "
            "`bench/frame_spread.py`.", ""]
     args.out.parent.mkdir(parents=True, exist_ok=True)

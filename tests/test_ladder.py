@@ -221,3 +221,10 @@ def test_frame_spread_separates_view_dependence_from_shape_dependence():
     views = Rotation.from_euler("x", np.tile([-20.0, 20.0], 12)[:, None], degrees=True).as_matrix()
     view = fs.spread_stats(views, inst)
     assert view["median_within_instance_deg"] == 20.0 and view["median_instance_means_to_common_deg"] < 1e-3
+    # the centre: a predicted centre that moves with half the visible mean's move, and frames that deviate where it does
+    rng = np.random.default_rng(0)
+    visible = rng.normal(size=(24, 3)) * 0.02
+    cs = fs.centre_stats(np.broadcast_to(np.eye(3), (24, 3, 3)).copy(), 0.5 * visible + 0.1, visible, inst)
+    assert abs(cs["centre_on_visible_slope"] - 0.5) < 1e-9
+    still = fs.centre_stats(views, np.full((24, 3), 0.1), visible, inst)  # a fixed centre: no move, slope 0
+    assert still["median_centre_move_mm"] == 0.0 and still["centre_on_visible_slope"] == 0.0
