@@ -496,6 +496,11 @@ def test_perf_train_times_every_trained_methods_step_and_refuses_icp(tmp_path, c
         compare_train([row], tmp_path / "nothing.json")
     assert main(["bench", "perf", "--what", "model", "--baseline", str(tmp_path / "train_test_npcs.json")]) != 0
     assert "--baseline and --budget-minutes go with" in capsys.readouterr().err
+    assert main(["bench", "perf", "--what", "model", "--iters", "3"]) == 2  # only --what train takes --iters
+    assert "--iters goes with 'bench perf --what train' without --data" in capsys.readouterr().err
+    assert main(["bench", "perf", "--what", "train", "--iters", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "error: --iters must be >= 1, got 0" in err and "Traceback" not in err
 
 
 def _two_part_object(rng):

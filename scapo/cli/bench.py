@@ -129,6 +129,11 @@ def cmd_bench(args) -> int:
     if (args.baseline or args.budget_minutes is not None) and args.target != "train":
         raise ConfigError("--baseline and --budget-minutes go with 'bench perf --what train'; leave them out for "
                           f"--what {args.target}")
+    if args.iters is not None and (args.target != "train" or args.data is not None):
+        raise ConfigError("--iters goes with 'bench perf --what train' without --data (timed steps on box clouds); "
+                          "with --data the timed run is set by --steps")
+    if args.iters is not None and args.iters < 1:
+        raise ConfigError(f"--iters must be >= 1, got {args.iters}")
     extra_prov: dict = {}
     if args.target == "growth":
         from scapo.bench.perf import bench_growth
@@ -164,10 +169,8 @@ def cmd_bench(args) -> int:
                                     steps=args.steps)
             name = f"train_{args.preset}_{Path(args.data).name}" + (f"_{args.method}" if args.method else "")
         else:
-            if args.iters < 1:
-                raise ConfigError(f"--iters must be >= 1, got {args.iters}")
             rows = bench_train([args.method] if args.method else None, args.preset, device=args.device,
-                               iters=args.iters)
+                               iters=args.iters or 5)
             name = f"train_{args.preset}" + (f"_{args.method}" if args.method else "")
         if args.budget_minutes is not None:
             from scapo.bench.perf import training_budget
@@ -279,8 +282,8 @@ def add_parsers(sub) -> None:
     sp.add_argument("--train-clouds", type=int, default=None, help="perf --what train --budget-minutes: training "
                     "clouds of a cell (default: the --data training split, else 840: the tables' 150 instances x 8 "
                     "views, 105 training instances)")
-    sp.add_argument("--iters", type=int, default=5, help="perf --what train (without --data): timed optimiser "
-                    "steps per method and stage after a warm-up; the median is reported (more: less noise)")
+    sp.add_argument("--iters", type=int, default=None, help="perf --what train (without --data): timed optimiser "
+                    "steps per method and stage after a warm-up, default 5; the median is reported (more: less noise)")
     sp.add_argument("--steps", type=int, default=20, help="perf --what train --data: steps per epoch of the timed "
                     "two-epoch run (per stage)")
     sp.add_argument("--baseline", default=None, help="perf --what train: an earlier run's .json (e.g. at another "
