@@ -25,6 +25,7 @@ from scapo.losses.scapo_losses import (
     reconstruction_loss,
     seg_loss,
     shape_var_loss,
+    template_loss,
 )
 from scapo.nn.outputs import SCAPOOutput, Stage1Output
 from scapo.ops.chamfer import chamfer_distance, pairwise_sq_dist
@@ -55,6 +56,11 @@ class LossConfig:
     """Weight of ``L_view`` (:func:`~scapo.losses.scapo_losses.cross_view_loss`): two views of one training instance
     must agree on its canonical frame; batches are then made of pairs of views of one instance (which views share an
     object is the cue; an addition to the paper for partial views, 0 switches it off)."""
+    template: float = 0.0
+    """Weight of ``L_template`` in stage 1 (:func:`~scapo.losses.scapo_losses.template_loss`): every decoded canonical
+    shape is pulled to one learnable category template in metres (``SCAPOModel.template_s1``), from the first step, so
+    that a persistent shape, not each view's own decoding, decides the frame (an addition to the paper, issue 52's
+    hypothesis that stage 2's template arrives after the frame is fixed; 0 switches it off)."""
     rec_one_sided: bool = False
     """Stage 1's ``L_rec`` from the input to the reconstruction only (:func:`reconstruction_loss`; an addition to the
     paper for partial views, Li et al.'s partial setting; preset part ``one-sided``)."""
@@ -126,6 +132,10 @@ def stage1_terms(model, X: torch.Tensor, s1: Stage1Output, cfg: LossConfig | Non
     }
     if align:
         terms["align"] = cross_instance_alignment_loss(X, s1.enc.t, s1.enc.R)
+    if cfg is not None and cfg.weight("template") > 0:
+        if scale is None:
+            raise ValueError("stage1_terms: L_template needs the clouds' scale (B,)")
+        terms["template"] = template_loss(s1.S_dec, scale, model.template_s1)
     if cfg is not None and cfg.weight("view_consist") > 0 and pairs > 0:
         terms["view_consist"] = cross_view_loss(X, scale, s1, pairs)
     if cfg is not None and cfg.weight("consensus") > 0:
@@ -183,7 +193,8 @@ def weighted_total(terms: dict[str, torch.Tensor], cfg: LossConfig, stage: int) 
     total = 0.0
     for name, value in terms.items():
         w = cfg.weight(name)
-        if stage == 2 and name in ("rec", "ortho", "aug_consist", "can_consist", "align", "consensus", "view_consist"):
+        if stage == 2 and name in ("rec", "ortho", "aug_consist", "can_consist", "align", "consensus", "view_consist",
+                                   "template"):
             w *= cfg.stage1_in_stage2
         total = total + w * value
     return total

@@ -66,6 +66,28 @@ def cross_view_loss(X: torch.Tensor, scale: torch.Tensor, s1: Stage1Output, pair
     return 0.5 * (nearest_sq_dist(b_in_a, S[a]).mean() + nearest_sq_dist(a_in_b, S[b]).mean())
 
 
+def template_loss(S_dec: torch.Tensor, scale: torch.Tensor, template: torch.Tensor) -> torch.Tensor:
+    """``L_template``: the Chamfer distance between each decoded canonical shape and one shared category template (an
+    addition to the paper, switch ``LossConfig.template``). The template is in metres (the clouds' normalised units
+    differ from view to view: ``scale`` is each partial view's own 2 x RMS radius), so it is brought into each view's
+    units as ``template / scale_b`` and the distance is in those units, as ``L_rec``'s.
+
+    Args:
+        S_dec: ``(B, M, 3)`` decoded canonical shapes, normalised units. scale: ``(B,)`` metres per unit.
+        template: ``(K, 3)`` metres.
+
+    Returns:
+        A scalar (normalised units squared).
+
+    Raises:
+        ValueError: shapes that do not match."""
+    if S_dec.dim() != 3 or template.dim() != 2 or scale.shape != S_dec.shape[:1]:
+        raise ValueError(f"template_loss needs S_dec (B, M, 3), scale (B,), template (K, 3); got "
+                         f"{tuple(S_dec.shape)}, {tuple(scale.shape)}, {tuple(template.shape)}")
+    T = template.unsqueeze(0) / scale[:, None, None]
+    return chamfer_distance(S_dec, T).mean()
+
+
 def orthonormality_loss(R_raw: torch.Tensor) -> torch.Tensor:
     """``L_ortho = ||R R^T - I||_F^2`` of the raw equivariant rotation estimate ``(B, 3, 3)``."""
     eye = torch.eye(3, dtype=R_raw.dtype, device=R_raw.device)

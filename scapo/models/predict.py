@@ -25,7 +25,7 @@ def _model_config(d: dict) -> ModelConfig:
                        joint_parts=tuple(tuple(p) for p in d["joint_parts"]), encoder=enc,
                        template_points=d["template_points"], gamma=d["gamma"], joint_widths=tuple(d["joint_widths"]),
                        head_width=d["head_width"], root_motion=d.get("root_motion", False),
-                       anchors=d.get("anchors", ""))
+                       anchors=d.get("anchors", ""), stage1_template=d.get("stage1_template", False))
 
 
 #: Points per cloud that :meth:`Predictor.predict` accepts: below ``MIN_POINTS`` the encoder's k-nearest-

@@ -73,6 +73,12 @@ class ModelConfig:
     discrete orientation is not pulled towards it by the gradient (EPN-style anchors with a minimum over hypotheses
     as in OP-Align's ``models/art_so3net_pn.py`` around lines 259-275 and Li et al.'s equi-pose)."""
 
+    stage1_template: bool = False
+    """A learnable category template in metres for stage 1 (``template_s1 (M, 3)``, an addition to the paper): the
+    decoded shapes of every training view are pulled to it (``LossConfig.template``,
+    :func:`scapo.losses.scapo_losses.template_loss`), so that one persistent shape, not each view's own decoding,
+    decides the frame the encoder registers to. Set by the trainer when ``LossConfig.template > 0``."""
+
     def __post_init__(self):
         if self.anchors not in ("", "T", "O", "I"):
             raise ValueError(f"anchors must be '', 'T', 'O' or 'I', got {self.anchors!r}")
@@ -170,6 +176,9 @@ class SCAPOModel(nn.Module):
         # trainer at the start of stage 2 when TrainConfig.branch_flip is on
         self.register_buffer("branch", torch.zeros(3, 3))
         self.register_buffer("branch_flip", torch.eye(3))
+        if cfg.stage1_template:  # own generator: the other parameters' initialisation is unchanged
+            g1 = torch.Generator().manual_seed(1)
+            self.template_s1 = nn.Parameter(0.1 * torch.randn(cfg.template_points, 3, generator=g1))
         if cfg.anchors:
             from scapo.ops.groups import rotation_group
 

@@ -152,7 +152,7 @@ def model_config(card: dict, preset: TrainConfig) -> ModelConfig:
     return ModelConfig(num_parts=len(card["part_names"]), joint_types=tuple(card["joint_type"]),
                        joint_parts=tuple(tuple(p) for p in card["joint_parts"]), encoder=preset.encoder,
                        template_points=preset.template_points, gamma=preset.gamma, root_motion=preset.root_motion,
-                       anchors=preset.anchors)
+                       anchors=preset.anchors, stage1_template=preset.losses.template > 0)
 
 
 #: preset fields that only affect inference; a checkpoint is not refused when they differ
@@ -161,7 +161,8 @@ INFERENCE_FIELDS = ("refine",)
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": ""}
 #: the same for fields added to the preset's LossConfig
-LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0}
+LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
+                     "template": 0.0}
 #: the same for fields added to the preset's EncoderConfig
 ENCODER_ADDED_FIELDS = {"frame": "regressed", "residual_deg": 0.0}
 
@@ -229,6 +230,7 @@ class ScapoJob:
         data = (PairedClouds if pc.losses.view_consist > 0 else TrainingClouds)(self.data, pc.train_points,
                                                                                  pc.supervision)
         view = ("view_consist",) if pc.losses.view_consist > 0 else ()  # logged only where on (older logs' columns)
+        view += ("template",) if pc.losses.template > 0 else ()
         stages = [Stage(index=1, epochs=pc.stage1_epochs, lr=pc.lr_stage1, params=lambda: self._params(1),
                         losses=lambda batch, progress: self._losses(1, batch), terms=STAGE1_TERMS + view),
                   Stage(index=2, epochs=pc.stage2_epochs, lr=pc.lr_stage2, params=lambda: self._params(2),
@@ -254,7 +256,8 @@ class ScapoJob:
 
     def _params(self, stage: int):
         if stage == 1:
-            return [*self.model.encoder.parameters(), *self.model.decoder.parameters()]
+            extra = [self.model.template_s1] if self.mcfg.stage1_template else []
+            return [*self.model.encoder.parameters(), *self.model.decoder.parameters(), *extra]
         return list(self.model.parameters())
 
     @torch.no_grad()
