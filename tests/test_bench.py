@@ -394,6 +394,12 @@ def test_cells_and_their_errors():
     assert [c.label for c in t3] == ["scapo", "scapo-no-shape_var", "scapo-no-dir_align", "scapo-no-joint_prox",
                                      "scapo-no-joint_boundary"]
     assert t3[1].preset == "cpu/no-shape_var" and t3[1].key == "scapo-no-shape_var_cpu+no-shape_var_s0"
+    parts = table1_cells(["icp", "scapo"], ["laptop"], "cpu", [0, 1], refine_rows=False, parts=["scapo/principal"])
+    assert [(c.label, c.preset) for c in parts[3:]] == [("scapo-principal", "cpu/principal")] * 2
+    for bad, msg in (("scapo", "METHOD/PART"), ("icp/principal", "not trained"), ("npcs/principal", "not among"),
+                     ("scapo/nope", "nope")):
+        with pytest.raises((ConfigError, UnknownNameError), match=msg):
+            table1_cells(["icp", "scapo"], ["laptop"], "cpu", [0], parts=[bad])
     assert parse_category_seeds(["safe=0", "laptop=0,1,2"]) == {"safe": [0], "laptop": [0, 1, 2]}
     for bad in ("safe", "safe=", "=0", "safe=a", "safe=-1"):
         with pytest.raises(ConfigError, match="CATEGORY=SEED"):

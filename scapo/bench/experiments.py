@@ -95,18 +95,36 @@ def parse_category_seeds(specs: Sequence[str]) -> dict[str, list[int]]:
 
 
 def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str, seeds: Sequence[int],
-                 category_seeds: dict[str, list[int]] | None = None, refine_rows: bool = True) -> list[Cell]:
+                 category_seeds: dict[str, list[int]] | None = None, refine_rows: bool = True,
+                 parts: Sequence[str] = ()) -> list[Cell]:
     """Every cell of Table 1: per category, per method, per training seed of a trained method
     (``category_seeds[cat]`` overrides ``seeds`` for that category). Every row is a one-pass prediction: a method
     with a test-time refinement of its own (its entry's ``one_pass`` options) predicts without it, and with
     ``refine_rows`` every method with a whole-object model (``MethodEntry.refinable``) gets the method-independent
     refinement (:mod:`scapo.methods.refine`) of the same run's one-pass prediction as a row of its own, labelled
-    ``<method>+refine`` (equal treatment: no row gets a test-time search another lacks).
+    ``<method>+refine`` (equal treatment: no row gets a test-time search another lacks). ``parts``: extra rows
+    ``METHOD/PART`` (e.g. ``scapo/principal``): that trained method, one of ``methods``, trained with its preset
+    ``<preset>/PART`` (a preset part the method's registry knows, e.g. :func:`scapo.models.presets.get_preset`'s
+    ``principal``) on the same seeds, one-pass, labelled ``<method>-<PART>`` (an addition's own ablation row, at the
+    same budget as every row).
 
     Raises:
-        UnknownNameError: unknown method. ConfigError: a preset a trained method does not have, a
-        category in ``category_seeds`` that is not in ``categories``, or no seeds.
+        UnknownNameError: unknown method or preset part. ConfigError: a preset a trained method does not have, a
+        category in ``category_seeds`` that is not in ``categories``, no seeds, or a part of a method that is not
+        among ``methods``, not trained, or given twice.
     """
+    extra_rows = []
+    for text in parts:
+        m, slash, part = str(text).partition("/")
+        if not slash or not m or not part or "/" in part:
+            raise ConfigError(f"--part {text!r}: write METHOD/PART, e.g. scapo/principal")
+        if m not in methods:
+            raise ConfigError(f"--part {text}: {m!r} is not among the table's methods ({', '.join(methods)})")
+        if not METHODS.get(m).trained:
+            raise ConfigError(f"--part {text}: {m} is not trained; a part changes a training preset")
+        if (m, part) in extra_rows:
+            raise ConfigError(f"--part {text} is given twice; give each once")
+        extra_rows.append((m, part))
     category_seeds = dict(category_seeds or {})
     extra = set(category_seeds) - set(categories)
     if extra:
@@ -131,6 +149,9 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
             if entry.refinable and refine_rows:  # the method-independent refinement, its own row
                 cells += [Cell(m, cat, s, p, label=f"{m}+refine", run_label=m, options=one + (("refine", True),))
                           for s in cat_seeds]
+            for part in (part for mm, part in extra_rows if mm == m):
+                entry.preset(f"{p}/{part}")  # an unknown part is refused before any work
+                cells += [Cell(m, cat, s, f"{p}/{part}", label=f"{m}-{part}", options=one) for s in cat_seeds]
     return cells
 
 
@@ -691,7 +712,7 @@ class TableSpec:
         if self.sj_methods:
             return table2_cells(methods, categories, opts.preset, seeds, per, opts.sj, self.sj_methods,
                                 opts.refine_rows)
-        return table1_cells(methods, categories, opts.preset, seeds, per, opts.refine_rows)
+        return table1_cells(methods, categories, opts.preset, seeds, per, opts.refine_rows, opts.parts)
 
 
 @dataclass(frozen=True)
@@ -736,6 +757,9 @@ class BenchOptions:
     refuses the others."""
     train_views: int | None = None
     """Views per training instance (None: ``PAPER_TRAIN_VIEWS`` for the paper's viewpoints, ``views`` otherwise)."""
+    parts: Sequence[str] = ()
+    """Table 1: extra rows ``METHOD/PART`` (:func:`table1_cells`), e.g. ``scapo/principal``: the method trained with
+    its preset's part ``PART``, labelled ``<method>-<PART>``."""
     refine_rows: bool = True
     """Tables 1 and 2: a ``<method>+refine`` row (:mod:`scapo.methods.refine`) beside the one-pass row of every
     method with a whole-object model (``MethodEntry.refinable``)."""
@@ -835,6 +859,8 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
         twice = sorted({n for n in names if names.count(n) > 1})
         if twice:
             raise ConfigError(f"{what} names {', '.join(map(str, twice))} more than once; give each once")
+    if opts.parts and spec.key != "table1":
+        raise ConfigError(f"--part adds rows to bench table1; bench {spec.key} takes none")
     name = opts.name or spec.name
     cells = spec.cells(methods, categories, opts)
     if opts.progress or opts.dry_run:  # the data setting, said wherever the bench prints
