@@ -8,18 +8,21 @@
 # commit the table records (SCAPO= its scapo, PYTHONPATH= the worktree).
 #   BUDGET=5 WORK=bench_work/table1_paper bash bench/table1_paper_two_categories.sh
 #   FINISH=1 bash bench/table1_paper_two_categories.sh        # the table of the finished cells, into results/
+#   PARTS="scapo/principal" ...                               # extra rows (bench table1 --part), in chain A
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 scapo="${SCAPO:-.venv/bin/scapo}"
 work="${WORK:-bench_work/table1_paper}"
 common=(bench table1 --viewpoints paper --categories laptop,eyeglasses --seeds 0,1,2 --budget-minutes "${BUDGET:-5}"
         --no-refine-rows --work "$work" --name table1_paper_two_categories --no-progress)
+parts=()
+for p in ${PARTS:-}; do parts+=(--part "$p"); done
 if [ -n "${FINISH:-}" ]; then
-  exec "$scapo" "${common[@]}" --finished-only --out "${OUT:-results}"
+  exec "$scapo" "${common[@]}" "${parts[@]}" --finished-only --out "${OUT:-results}"
 fi
 OMP_NUM_THREADS=1 "$scapo" "${common[@]}" --data-only --workers 2
 mkdir -p "$work"
-OMP_NUM_THREADS=1 "$scapo" "${common[@]}" --out "$work/out_a" --methods "${CHAIN_A:-scapo,op-align}" \
+OMP_NUM_THREADS=1 "$scapo" "${common[@]}" --out "$work/out_a" --methods "${CHAIN_A:-scapo,op-align}" "${parts[@]}" \
   > "$work/chain_a.log" 2>&1 &
 a=$!
 sleep 5
@@ -27,4 +30,4 @@ OMP_NUM_THREADS=1 "$scapo" "${common[@]}" --out "$work/out_b" --methods "${CHAIN
   > "$work/chain_b.log" 2>&1 &
 b=$!
 wait $a $b
-"$scapo" "${common[@]}" --finished-only --out "${OUT:-results}"
+"$scapo" "${common[@]}" "${parts[@]}" --finished-only --out "${OUT:-results}"
