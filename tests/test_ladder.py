@@ -228,3 +228,10 @@ def test_frame_spread_separates_view_dependence_from_shape_dependence():
     assert abs(cs["centre_on_visible_slope"] - 0.5) < 1e-9
     still = fs.centre_stats(views, np.full((24, 3), 0.1), visible, inst)  # a fixed centre: no move, slope 0
     assert still["median_centre_move_mm"] == 0.0 and still["centre_on_visible_slope"] == 0.0
+    # the state: frames that turn about the joint axis (object z) by 0.5 x the joint state, plus a turn about x that
+    # the state does not explain
+    state = np.radians(rng.uniform(-60, 60, 24))
+    turn = Rotation.from_euler("zx", np.c_[0.5 * np.degrees(state), rng.normal(0, 5, 24)], degrees=True).as_matrix()
+    st = fs.state_stats(turn, np.tile([0.0, 0.0, 2.0], (24, 1)), state)
+    assert abs(st["about_joint_on_state_slope"] - 0.5) < 0.05 and st["about_joint_state_r2"] > 0.95
+    assert abs(fs.state_stats(views, np.tile([0.0, 0.0, 1.0], (24, 1)), state)["about_joint_on_state_slope"]) < 1e-6
