@@ -190,8 +190,8 @@ def main(argv=None) -> int:
             if not eq or not label or not path:
                 raise ScapoError(f"--cell {c!r} is not LABEL=PREDICTIONS.npz")
             cells.append((label, Path(path)))
-        if not cells:
-            raise ScapoError("give at least one --cell LABEL=PREDICTIONS.npz")
+        if not cells and not args.principal_reference:
+            raise ScapoError("give at least one --cell LABEL=PREDICTIONS.npz (or --principal-reference)")
         rows = {label: spread(args.data, path) for label, path in cells}
         if args.principal_reference:
             rows["principal axes, best of 24 (reference)"] = principal_reference(args.data)
