@@ -5,6 +5,7 @@ hand-built case."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import pytest
 import torch
@@ -138,3 +139,44 @@ def test_the_principal_preset_part():
     assert get_preset("cpu").encoder == off.encoder
     with pytest.raises(UnknownNameError):
         get_preset("cpu/principle")
+
+
+def test_the_weighted_principal_frame_picks_the_weighted_part_and_passes_gradient():
+    """Hand-built: a flat base slab and a lid slab at 60 deg. Uniform weights give the whole cloud's principal frame;
+    weights on the base alone give the base's frame (its normal, z, is the least-variance axis), whatever the lid
+    does; the gradient reaches the weights and is finite; a cloud with equal variances gets none."""
+    g = torch.Generator().manual_seed(7)
+    base = torch.rand(1, 200, 3, generator=g) * torch.tensor([1.0, 0.6, 0.02])
+    lid = torch.rand(1, 200, 3, generator=g) * torch.tensor([1.0, 0.6, 0.02])
+    c, s = math.cos(math.radians(60)), math.sin(math.radians(60))
+    lid = lid @ torch.tensor([[1.0, 0, 0], [0, c, s], [0, -s, c]])  # about x, the hinge
+    X = torch.cat([base, lid], 1).double()
+    uniform = torch.full((1, 400), 1 / 400, dtype=torch.double)
+    assert torch.allclose(principal_frame(X, uniform), principal_frame(X), atol=1e-9)
+    on_base = torch.cat([torch.full((1, 200), 1 / 200), torch.zeros(1, 200)], 1).double()
+    R = principal_frame(X, on_base)
+    assert torch.allclose(R, principal_frame(X[:, :200]), atol=1e-9)
+    assert abs(float(R[0, 2, 2])) > 0.999  # the base's normal is the third axis
+    logits = torch.zeros(1, 400, dtype=torch.double, requires_grad=True)
+    principal_frame(X, logits.softmax(1))[..., 2].sum().backward()
+    assert logits.grad is not None and torch.isfinite(logits.grad).all() and logits.grad.abs().max() > 0
+    ball = torch.randn(1, 4000, 3, generator=g).double()  # near-equal variances: no gradient, no NaN
+    sym = torch.cat([ball, -ball], 1)
+    sym = sym / sym.norm(dim=-1, keepdim=True)
+    w = torch.zeros(1, 8000, dtype=torch.double, requires_grad=True)
+    principal_frame(sym, w.softmax(1), min_gap=0.5).sum().backward()
+    assert torch.equal(w.grad, torch.zeros_like(w))
+
+
+def test_a_weighted_encoder_keeps_its_frame_under_rotation():
+    enc_cfg = dataclasses.replace(SMALL, frame="weighted")
+    model = SCAPOModel(ModelConfig(num_parts=2, joint_types=(0,), joint_parts=((0, 1),), encoder=enc_cfg,
+                                   template_points=32, anchors="O")).eval()
+    with torch.no_grad():  # scores that are not uniform
+        model.encoder.frame_scores.weight.normal_(0, 1.0, generator=torch.Generator().manual_seed(1))
+    X = _skewed_cloud(128).repeat(2, 1, 1)
+    Q = random_rotation(2, torch.float32, torch.Generator().manual_seed(8))
+    with torch.no_grad():
+        e1, e2 = model.encoder(X), model.encoder(X @ Q.transpose(1, 2) + torch.tensor([0.2, 0.0, -0.4]))
+    assert torch.allclose(Q @ e1.R, e2.R, atol=1e-3)
+    assert not torch.allclose(e1.R, principal_frame(X), atol=1e-3)  # the weights moved it

@@ -51,7 +51,13 @@ class EncoderConfig:
     shape with a two-fold rotation symmetry (a laptop's base and lid exchanged by a half-turn about the bisector of
     its opening) forces every pooled equivariant vector onto the symmetry axis, so the regressed frame's turn about
     that axis is decided by sampling noise (``scapo bench ladder``'s resampling column); principal axes stay defined
-    up to signs and order, which a hypothesis set (``ModelConfig.anchors = "O"``) resolves."""
+    up to signs and order, which a hypothesis set (``ModelConfig.anchors = "O"``) resolves. "weighted" (an addition
+    to the paper): the principal axes of the cloud under learned per-point weights (a softmax over the points of an
+    invariant score of each point's rotation-branch features, zero-initialised so that training starts from the
+    "principal" frame; the gradient reaches the scores through the eigenvectors). The axes of the whole cloud turn
+    with the joint state and with what a view shows; weights can single out what does not (e.g. the base part).
+    Like "principal", a second-moment frame is defined under a two-fold symmetry, where a pooled equivariant vector
+    is not."""
 
     residual_deg: float = 0.0
     """With ``frame="principal"``: a learned turn of the principal frame, at most this many degrees about each axis
@@ -68,8 +74,8 @@ class EncoderConfig:
                              f"{self.decoder_hidden!r}")
         if not 0.0 <= self.residual_deg <= 90.0:
             raise ValueError(f"encoder residual_deg must be in [0, 90], got {self.residual_deg!r}")
-        if self.frame not in ("regressed", "principal"):
-            raise ValueError(f"encoder frame must be 'regressed' or 'principal', got {self.frame!r}")
+        if self.frame not in ("regressed", "principal", "weighted"):
+            raise ValueError(f"encoder frame must be 'regressed', 'principal' or 'weighted', got {self.frame!r}")
 
 
 @dataclass
@@ -83,22 +89,41 @@ class EncoderOutput:
     code: torch.Tensor
 
 
-def principal_frame(points: torch.Tensor) -> torch.Tensor:
+def principal_frame(points: torch.Tensor, weights: torch.Tensor | None = None, min_gap: float = 1e-3) -> torch.Tensor:
     """Rotations ``(B, 3, 3)`` (columns: the principal axes of ``points (B, N, 3)`` about their centroid, largest
     variance first) with equivariant signs: each of the first two axes points to the side of positive third moment
     of the points' coordinates along it, the third completes a right-handed frame. ``R(Q X + u) = Q R(X)`` for
     every rotation ``Q`` and translation ``u`` where the variances and third moments are distinct from zero and each
     other; otherwise the order or signs are ambiguous (a hypothesis set over the 24 signed permutations resolves
-    them). No gradient (the axes of equal variances have none that is finite)."""
+    them).
+
+    ``weights (B, N)`` (non-negative, summing to 1 over the points; ``EncoderConfig.frame="weighted"``): the weighted
+    centroid, covariance and third moments instead, with the gradient reaching the weights (and the points) through
+    the eigenvectors, except for a cloud whose eigenvalues are closer than ``min_gap`` times the largest (there the
+    eigenvectors' derivative, ``1 / (lambda_i - lambda_j)``, is unbounded, and that cloud's frame gets no gradient).
+    Without weights: no gradient (the axes of equal variances have none that is finite)."""
+    if weights is None:
+        with torch.no_grad():
+            xc = points - points.mean(1, keepdim=True)
+            cov = xc.transpose(1, 2) @ xc / points.shape[1]
+            _, vec = torch.linalg.eigh(cov.double())  # ascending
+            vec = vec.flip(-1).to(points.dtype)  # (B, 3, 3) columns, largest first
+            sign = torch.where(((xc @ vec) ** 3).mean(1) >= 0, 1.0, -1.0).to(points.dtype)  # (B, 3)
+            e1, e2 = vec[..., 0] * sign[:, :1], vec[..., 1] * sign[:, 1:2]
+            return torch.stack([e1, e2, torch.cross(e1, e2, dim=-1)], dim=-1)
+    w = weights.unsqueeze(-1)  # (B, N, 1)
+    xc = points - (w * points).sum(1, keepdim=True)
+    cov = ((w * xc).transpose(1, 2) @ xc).double()
     with torch.no_grad():
-        xc = points - points.mean(1, keepdim=True)
-        cov = xc.transpose(1, 2) @ xc / points.shape[1]
-        _, vec = torch.linalg.eigh(cov.double())  # ascending
-        vec = vec.flip(-1).to(points.dtype)  # (B, 3, 3) columns, largest first
-        proj = xc @ vec  # (B, N, 3)
-        sign = torch.where((proj ** 3).mean(1) >= 0, 1.0, -1.0).to(points.dtype)  # (B, 3)
-        e1, e2 = vec[..., 0] * sign[:, :1], vec[..., 1] * sign[:, 1:2]
-        return torch.stack([e1, e2, torch.cross(e1, e2, dim=-1)], dim=-1)
+        lam = torch.linalg.eigvalsh(cov)  # ascending
+        gap = torch.minimum(lam[:, 1] - lam[:, 0], lam[:, 2] - lam[:, 1]) / lam[:, 2].abs().clamp_min(1e-30)
+    cov = torch.where((gap > min_gap)[:, None, None], cov, cov.detach())
+    _, vec = torch.linalg.eigh(cov)  # ascending
+    vec = vec.flip(-1).to(points.dtype)  # (B, 3, 3) columns, largest first
+    with torch.no_grad():
+        sign = torch.where((w * (xc @ vec) ** 3).sum(1) >= 0, 1.0, -1.0).to(points.dtype)  # (B, 3)
+    e1, e2 = vec[..., 0] * sign[:, :1], vec[..., 1] * sign[:, 1:2]
+    return torch.stack([e1, e2, torch.cross(e1, e2, dim=-1)], dim=-1)
 
 
 class SE3Encoder(nn.Module):
@@ -123,6 +148,10 @@ class SE3Encoder(nn.Module):
             self.frame_residual = nn.Linear(cfg.code_dim, 3)
             nn.init.zeros_(self.frame_residual.weight)
             nn.init.zeros_(self.frame_residual.bias)
+        if cfg.frame == "weighted":  # per-point frame scores from invariant features; zero: uniform weights at start
+            self.frame_scores = nn.Linear(c_r[-1], 1)
+            nn.init.zeros_(self.frame_scores.weight)
+            nn.init.zeros_(self.frame_scores.bias)
 
     def forward(self, points: torch.Tensor) -> EncoderOutput:
         B, N, _ = points.shape
@@ -151,6 +180,8 @@ class SE3Encoder(nn.Module):
         R_raw = v.transpose(1, 2)  # columns are the vectors
         if self.cfg.frame == "principal":
             R = R_raw = principal_frame(points)
+        elif self.cfg.frame == "weighted":
+            R = R_raw = principal_frame(points, self.frame_scores(norms.transpose(1, 2)).squeeze(-1).softmax(dim=1))
         else:
             R = rotation_from_6d(v[:, 0], v[:, 1])
         inv = torch.einsum("bci,bij->bcj", pooled, R)  # coordinates in the frame R: invariant
