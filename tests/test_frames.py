@@ -180,3 +180,69 @@ def test_a_weighted_encoder_keeps_its_frame_under_rotation():
         e1, e2 = model.encoder(X), model.encoder(X @ Q.transpose(1, 2) + torch.tensor([0.2, 0.0, -0.4]))
     assert torch.allclose(Q @ e1.R, e2.R, atol=1e-3)
     assert not torch.allclose(e1.R, principal_frame(X), atol=1e-3)  # the weights moved it
+
+
+def _slabs(n, hinge_deg, g):
+    """A base slab (x 1.0, y 0.6, z 0.02 m) and a lid of the same size turned about the x axis (the hinge)."""
+    base = torch.rand(n, 3, generator=g).double() * torch.tensor([1.0, 0.6, 0.02]).double()
+    lid = torch.rand(n, 3, generator=g).double() * torch.tensor([0.9, 0.5, 0.02]).double()
+    c, s = math.cos(math.radians(hinge_deg)), math.sin(math.radians(hinge_deg))
+    return torch.cat([base, lid @ torch.tensor([[1.0, 0, 0], [0, c, s], [0, -s, c]]).double()]).numpy()
+
+
+def test_the_base_frame_snap_recovers_one_frame_from_noisy_ones():
+    """Hand-built: 40 two-slab objects at hinge angles 40-140 deg under random rotations; a 'network' whose base
+    rotation is the true one times a fixed canonical offset times up to 25 deg of noise. The fitted offset agrees with
+    every view, and after the snap every base rotation is the true one times one constant to within the axes' sampling noise; the part
+    poses keep their relative pose; a view with no base points keeps its frame."""
+    import numpy as np
+
+    from scapo.models.base_frame import fit_base_offset, snap_to_base
+    from scapo.ops.so3 import rotation_from_rotvec
+
+    g = torch.Generator().manual_seed(3)
+    V = 40
+    Q = random_rotation(V, torch.float64, g).numpy()
+    pts = np.stack([_slabs(1000, 40 + 100 * i / V, g) for i in range(V)]) @ Q.transpose(0, 2, 1)
+    pts = pts + np.random.default_rng(0).normal(size=(V, 1, 3))
+    label = np.tile(np.r_[np.zeros(1000, int), np.ones(1000, int)], (V, 1))
+    off = rotation_from_rotvec(torch.tensor([[0.3, -0.5, 0.2]]).double())[0].numpy()
+    noise = rotation_from_rotvec(0.44 * (torch.rand(V, 3, generator=g).double() - 0.5)).numpy()  # <= 22 deg
+    R0 = Q @ off @ noise
+    pose = np.tile(np.eye(4), (V, 2, 1, 1))
+    pose[:, 0, :3, :3] = R0
+    pose[:, 1, :3, :3] = R0 @ rotation_from_rotvec(torch.tensor([[0.7, 0.0, 0.0]]).double())[0].numpy()
+    pose[:, :, :3, 3] = pts.mean(1)[:, None]
+    out = {"part_label": label, "part_pose": pose, "T_cam_obj": pose[:, 0].copy(),
+           "joint_axis": pose[:, 0, :3, 0][:, None], "joint_pivot": pts.mean(1)[:, None]}
+    from scapo.models.base_frame import base_axes
+
+    E, _, ok = base_axes(pts, label)
+    assert ok.all()
+    O, share = fit_base_offset(R0, E)
+    assert share > 0.4  # the views within 15 deg: the network's noise
+    G = rotation_group("O")  # the slabs' axes are the object's up to a signed permutation: O is off^T up to one
+    assert min(np.degrees(np.arccos(np.clip((np.trace(off @ O @ Gk) - 1) / 2, -1, 1))) for Gk in G) < 5.0
+    snapped = snap_to_base(pts, out, O)
+    rel = np.einsum("vji,vjk->vik", Q, snapped["part_pose"][:, 0, :3, :3])  # Q^T R_new: one constant
+    ang = np.degrees(np.arccos(np.clip((np.einsum("ij,vij->v", rel[0], rel) - 1) / 2, -1, 1)))
+    assert ang.max() < 5.0  # two views: twice the sampling noise of the slab's in-plane axes (noise was 22 deg)
+    before = np.linalg.inv(pose[:, 0]) @ pose[:, 1]
+    after = np.linalg.inv(snapped["part_pose"][:, 0]) @ snapped["part_pose"][:, 1]
+    assert np.allclose(before, after, atol=1e-9)
+    assert np.allclose(snapped["T_cam_obj"], snapped["part_pose"][:, 0])
+    assert (snapped["base_snap_deg"] > 0.5).mean() > 0.5  # the noise was removed, not absent
+    out["part_label"] = np.ones_like(label)  # no base points: nothing moves
+    kept = snap_to_base(pts, out, O)
+    assert np.allclose(kept["part_pose"], pose) and (kept["base_snap_deg"] == 0).all()
+
+
+def test_the_base_frame_option_is_checked():
+    from scapo.errors import ConfigError
+    from scapo.methods.scapo import SCAPOMethod, SCAPOOptions
+
+    with pytest.raises(ConfigError, match="base_frame"):
+        SCAPOOptions(run="r", base_frame="pca")
+    m = SCAPOMethod(SCAPOOptions(run="r", base_frame="principal"))
+    with pytest.raises(ConfigError, match="fit"):  # no offset fitted on a training split
+        m._base_frame(None, {})

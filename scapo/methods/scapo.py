@@ -36,9 +36,15 @@ class SCAPOOptions(LearnedOptions):
     refine_upright_deg: float | None = None
     """Cone of the refinement's upright prior in degrees (default: the run's preset; 0 turns it off;
     :class:`~scapo.models.refine.RefineConfig`); its direction is fitted on the training split."""
+    base_frame: str = ""
+    """"principal": snap each prediction's frame to the principal axes of the points it labels as the base part,
+    through an offset fitted on the training split (:mod:`scapo.models.base_frame`, an addition to the paper; a
+    one-pass inference step on the method's own segmentation, no ground truth); "" (default): the network's frame."""
 
     def __post_init__(self):
         super().__post_init__()
+        if self.base_frame not in ("", "principal"):
+            raise ConfigError(f"base_frame must be '' (off) or 'principal', got {self.base_frame!r}")
         if self.refine_steps is not None and self.refine_steps < 0:
             raise ConfigError(f"refine_steps must be >= 0, got {self.refine_steps}")
         if self.refine and self.refine_steps:
@@ -60,6 +66,9 @@ class SCAPOMethod:
         self.run = Path(self.options.run)
         self.label = str(self.options.label or ("scapo+refine" if self.options.refine else "scapo"))
         self.predictor: Predictor | None = None
+        self.base_offset: np.ndarray | None = None
+        """``(3, 3)`` the fitted base-axes offset (``base_frame``, :func:`~scapo.models.base_frame.fit_base_offset`)."""
+        self.base_support = float("nan")
 
     def fit(self, train: ArticulationDataset) -> None:
         """Load the run and check that it was trained on this dataset's category and kinematic structure.
@@ -76,6 +85,37 @@ class SCAPOMethod:
         rc = self.predictor.refine
         if rc.steps > 0 and rc.starts == "octahedral" and rc.upright_deg > 0:
             self.predictor.fit_upright(train.arrays(["points"])["points"])
+        if self.options.base_frame:
+            self.fit_base_frame(train.arrays(["points"])["points"])
+
+    def fit_base_frame(self, points, max_views: int = 512) -> tuple[np.ndarray, float]:
+        """Fit the base-axes offset (``base_frame``) on training clouds ``(M, N, 3)`` (camera frame, metres; no
+        labels) from the network's predictions of up to ``max_views`` evenly spaced clouds. Returns (``O (3, 3)``, the
+        share of those views that agree with it within 15 deg).
+
+        Raises:
+            ConfigError: not loaded. InputError: the network labels no training view's points as the base.
+        """
+        from scapo.models.base_frame import base_axes, fit_base_offset
+
+        if self.predictor is None:
+            raise ConfigError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
+        pts = np.asarray(points)
+        pts = pts[np.unique(np.linspace(0, len(pts) - 1, min(len(pts), int(max_views))).round().astype(int))]
+        o = self.predictor.predict(pts, self.options.batch_size, False)
+        E, _, ok = base_axes(pts, o["part_label"])
+        self.base_offset, self.base_support = fit_base_offset(np.asarray(o["part_pose"])[ok, 0, :3, :3], E[ok])
+        return self.base_offset, self.base_support
+
+    def _base_frame(self, points, o: dict) -> dict:
+        if not self.options.base_frame:
+            return o
+        if self.base_offset is None:
+            raise ConfigError("base_frame=principal needs its offset fitted on a training split first: fit(train) "
+                              "or fit_base_frame(points)")
+        from scapo.models.base_frame import snap_to_base
+
+        return snap_to_base(np.asarray(points), o, self.base_offset)
 
     def load(self) -> SCAPOMethod:
         """Load the run (:meth:`Predictor.load <scapo.models.predict.Predictor.load>`; no dataset needed, so the
@@ -111,12 +151,13 @@ class SCAPOMethod:
         """:meth:`Predictor.predict <scapo.models.predict.Predictor.predict>` on clouds ``(B, N, 3)`` (metres)."""
         if self.predictor is None:
             raise ConfigError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
-        return self.predictor.predict(points, self.options.batch_size, self.options.progress)
+        return self._base_frame(points, self.predictor.predict(points, self.options.batch_size, self.options.progress))
 
     def predict(self, dataset: ArticulationDataset) -> Predictions:
         a = dataset.arrays(["points"])
         t0 = time.perf_counter()
-        o = self.predictor.predict(a["points"], self.options.batch_size, self.options.progress)
+        o = self._base_frame(a["points"], self.predictor.predict(a["points"], self.options.batch_size,
+                                                                  self.options.progress))
         mc = self.predictor.model.cfg
         extra = {}
         if self.options.refine:
@@ -145,7 +186,11 @@ class SCAPOMethod:
                   "upright": None if self.predictor.upright is None else
                   np.round(self.predictor.upright.cpu().double().numpy(), 6).tolist(),
                   "upright_support": self.predictor.upright_support,
-                  "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2), **extra},
+                  "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2), **extra,
+                  **({"base_frame": {"offset": np.round(self.base_offset, 6).tolist(),
+                                     "train_support": round(self.base_support, 4),
+                                     "snap_deg_median": round(float(np.median(o["base_snap_deg"])), 2)}}
+                     if self.options.base_frame else {})},
         )
 
 

@@ -1,0 +1,160 @@
+"""The canonical frame read from the base part's principal axes (an addition to the paper, issue 52).
+
+SCAPO's stage-1 frame is a function of the whole cloud. The principal axes of the whole cloud turn with the joint state
+and with what a view shows; those of the base part alone do not: with the ground-truth base points, the base's
+principal axes put 0.98 (laptop, paper viewpoints) and 1.00 (eyeglasses) of the ladder's val views within 15 deg of
+one frame, against 0.54 and 0.46 for the whole cloud (``results/canonical_ladder/README.md``, "The base part's
+axes"). This module snaps a prediction's frame to the principal axes of the points the prediction itself labels as
+the base, through a fixed offset fitted on the training split, and turns every part pose and joint with it:
+
+1. :func:`base_axes`: per view, the principal axes ``E (3, 3)`` of the predicted base points
+   (:func:`scapo.nn.encoder.principal_frame`: order by variance, signs by third moments; ambiguous up to the 24
+   signed permutations ``G_k``, the rotation group "O").
+2. :func:`fit_base_offset`: on training views, the offset ``O`` with ``R_base O = E G_k`` for most views (the base
+   axes in canonical coordinates), by consensus over the views (no labels).
+3. :func:`snap_to_base`: per test view, ``k`` = the signed permutation with ``E G_k`` nearest the network's
+   ``R_base O``; the base rotation becomes ``E G_k O^T``; the correction ``Delta`` (a rotation about the base
+   points' centroid) is applied to every part pose, ``T_cam_obj``, the joint axes and pivots. Joint states and labels
+   are unchanged.
+
+It needs no ground truth: the base is the network's own segmentation (part slot 0). A view with fewer than
+``min_points`` base points keeps its frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from scapo.errors import InputError
+
+
+def _group() -> np.ndarray:
+    from scapo.ops.groups import rotation_group
+
+    return np.asarray(rotation_group("O"), dtype=np.float64)  # (24, 3, 3)
+
+
+def _angle(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Angles (deg) between rotations ``A (..., 3, 3)`` and ``B (..., 3, 3)``."""
+    c = (np.einsum("...ij,...ij->...", A, B) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16) -> tuple[np.ndarray, np.ndarray,
+                                                                                          np.ndarray]:
+    """Principal axes of each view's predicted base points.
+
+    Args:
+        points: ``(V, N, 3)`` camera-frame clouds (metres). part_label: ``(V, N)`` int predicted part per point (0 is
+            the base). min_points: fewest base points for axes.
+
+    Returns:
+        ``E (V, 3, 3)`` float64 rotations (columns: the axes, largest variance first, camera frame; identity where
+        there are too few points), ``centroid (V, 3)`` float64 (m) of the base points, ``ok (V,)`` bool.
+
+    Raises:
+        InputError: shapes that do not match, or non-finite points.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    part_label = np.asarray(part_label)
+    if points.ndim != 3 or points.shape[-1] != 3 or part_label.shape != points.shape[:2]:
+        raise InputError(f"scapo: base_axes needs points (V, N, 3) and part_label (V, N), got {points.shape} and "
+                         f"{part_label.shape}")
+    if not np.isfinite(points).all():
+        raise InputError("scapo: base_axes got NaN or infinite points; drop them before predicting")
+    mask = part_label == 0
+    count = mask.sum(1)
+    ok = count >= max(int(min_points), 4)
+    w = np.where(ok[:, None], mask, True).astype(np.float64)
+    w /= w.sum(1, keepdims=True)
+    with torch.no_grad():
+        E = principal_frame_np(points, w)
+    E[~ok] = np.eye(3)
+    centroid = np.einsum("vn,vni->vi", w, points)
+    return E, centroid, ok
+
+
+def principal_frame_np(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """:func:`scapo.nn.encoder.principal_frame` on float64 arrays ``(V, N, 3)`` with weights ``(V, N)`` (summing to
+    1): ``(V, 3, 3)`` float64."""
+    from scapo.nn.encoder import principal_frame
+
+    return principal_frame(torch.from_numpy(points), torch.from_numpy(weights)).numpy()
+
+
+def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,
+                    candidates: int = 64) -> tuple[np.ndarray, float]:
+    """The offset ``O (3, 3)`` from the canonical base frame to the base's principal axes that most training views
+    share: ``R_base_i O ~ E_i G_k`` for some signed permutation ``G_k`` of each view.
+
+    Each view's offset ``M_i = R_base_i^T E_i`` is known up to ``G_k`` on the right. For each of up to
+    ``candidates`` evenly spaced views as reference, every ``M_i`` takes the ``G_k`` nearest the reference; the
+    reference with the most views within ``inlier_deg`` wins, and ``O`` is the chordal mean of those views.
+
+    Args:
+        R_base: ``(V, 3, 3)`` the network's base rotations (canonical -> camera). E: ``(V, 3, 3)`` the base axes
+            (:func:`base_axes`), only views with axes.
+
+    Returns:
+        ``O (3, 3)`` float64 rotation and the share of views within ``inlier_deg`` of it.
+
+    Raises:
+        InputError: no views, or shapes that differ.
+    """
+    R_base, E = np.asarray(R_base, dtype=np.float64), np.asarray(E, dtype=np.float64)
+    if R_base.shape != E.shape or R_base.ndim != 3 or len(R_base) == 0:
+        raise InputError(f"scapo: fit_base_offset needs two (V, 3, 3) arrays with V > 0, got {R_base.shape} and "
+                         f"{E.shape}; is part 0 (the base) predicted on the training views?")
+    G = _group()
+    M = np.einsum("vji,vjk->vik", R_base, E)  # R^T E
+    MG = np.einsum("vij,gjk->vgik", M, G)  # (V, 24, 3, 3)
+    best = (-1, None)
+    for r in np.unique(np.linspace(0, len(M) - 1, min(candidates, len(M))).round().astype(int)):
+        d = _angle(MG, M[r][None, None])
+        aligned = MG[np.arange(len(M)), d.argmin(1)]
+        inl = d.min(1) < inlier_deg
+        if inl.sum() > best[0]:
+            best = (int(inl.sum()), aligned[inl])
+    U, _, Vt = np.linalg.svd(best[1].sum(0))
+    O = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    share = float((_angle(MG, O[None, None]).min(1) < inlier_deg).mean())
+    return O, share
+
+
+def snap_to_base(points: np.ndarray, out: dict, offset: np.ndarray, min_points: int = 16) -> dict:
+    """Turn each view's prediction so that its base rotation is its base points' principal axes ``E G_k O^T``.
+
+    Args:
+        points: ``(V, N, 3)`` camera-frame clouds (metres), the ones predicted on. out: the prediction (numpy arrays,
+            :meth:`scapo.models.predict.Predictor.predict`): ``part_label (V, N)``, ``part_pose (V, P, 4, 4)``,
+            ``T_cam_obj (V, 4, 4)``, ``joint_axis (V, J, 3)``, ``joint_pivot (V, J, 3)`` (camera frame, m). offset:
+            ``O (3, 3)`` (:func:`fit_base_offset`).
+
+    Returns:
+        A copy of ``out`` with those five fields turned and ``base_snap_deg (V,)`` float64, the correction's angle
+        per view (0 where the view has fewer than ``min_points`` base points and keeps its frame).
+    """
+    E, c, ok = base_axes(points, out["part_label"], min_points)
+    G = _group()
+    pose = np.asarray(out["part_pose"], dtype=np.float64)
+    R0 = pose[:, 0, :3, :3]
+    target = R0 @ np.asarray(offset, dtype=np.float64)  # where the network puts the base axes
+    EG = np.einsum("vij,gjk->vgik", E, G)
+    k = _angle(EG, target[:, None]).argmin(1)
+    R_new = EG[np.arange(len(E)), k] @ np.asarray(offset, dtype=np.float64).T
+    delta = np.einsum("vij,vkj->vik", R_new, R0)  # R_new R0^T
+    delta[~ok] = np.eye(3)
+    D = np.tile(np.eye(4), (len(E), 1, 1))
+    D[:, :3, :3] = delta
+    D[:, :3, 3] = c - np.einsum("vij,vj->vi", delta, c)
+    res = dict(out)
+    res["part_pose"] = (D[:, None] @ pose).astype(np.asarray(out["part_pose"]).dtype)
+    res["T_cam_obj"] = (D @ np.asarray(out["T_cam_obj"], dtype=np.float64)).astype(np.asarray(out["T_cam_obj"]).dtype)
+    axis = np.asarray(out["joint_axis"], dtype=np.float64)
+    pivot = np.asarray(out["joint_pivot"], dtype=np.float64)
+    res["joint_axis"] = np.einsum("vij,vkj->vki", delta, axis).astype(np.asarray(out["joint_axis"]).dtype)
+    res["joint_pivot"] = (np.einsum("vij,vkj->vki", delta, pivot - c[:, None]) + c[:, None]).astype(
+        np.asarray(out["joint_pivot"]).dtype)
+    res["base_snap_deg"] = np.where(ok, _angle(delta, np.eye(3)[None]), 0.0)
+    return res
