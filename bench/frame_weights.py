@@ -83,7 +83,9 @@ def main(argv=None) -> int:
                      f"{np.median(r['part_weight'][:, p]):.3f} / {np.median(r['part_share'][:, p]):.3f} |")
     print("\n".join(lines))
     if a.out:
-        Path(a.out).write_text(json.dumps({
+        from scapo.provenance import provenance
+
+        Path(a.out).write_text(json.dumps({"provenance": provenance(),
             "command": "python bench/frame_weights.py " + " ".join(sys.argv[1:] if argv is None else argv),
             "identity": r["identity"], "ess": r["ess"].tolist(), "part_weight": r["part_weight"].tolist(),
             "part_share": r["part_share"].tolist(), "instance_id": np.asarray(r["instance_id"]).tolist(),
