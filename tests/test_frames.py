@@ -194,7 +194,7 @@ def test_the_base_frame_snap_recovers_one_frame_from_noisy_ones():
     """Hand-built: 40 two-slab objects at hinge angles 40-140 deg under random rotations; a 'network' whose base
     rotation is the true one times a fixed canonical offset times up to 25 deg of noise. The fitted offset agrees with
     every view, and after the snap every base rotation is the true one times one constant to within the axes' sampling noise; the part
-    poses keep their relative pose; a view with no base points keeps its frame."""
+    poses keep their relative rotation, translations and joints are kept; a view with no base points keeps its frame."""
     import numpy as np
 
     from scapo.models.base_frame import fit_base_offset, snap_to_base
@@ -227,10 +227,13 @@ def test_the_base_frame_snap_recovers_one_frame_from_noisy_ones():
     rel = np.einsum("vji,vjk->vik", Q, snapped["part_pose"][:, 0, :3, :3])  # Q^T R_new: one constant
     ang = np.degrees(np.arccos(np.clip((np.einsum("ij,vij->v", rel[0], rel) - 1) / 2, -1, 1)))
     assert ang.max() < 5.0  # two views: twice the sampling noise of the slab's in-plane axes (noise was 22 deg)
-    before = np.linalg.inv(pose[:, 0]) @ pose[:, 1]
-    after = np.linalg.inv(snapped["part_pose"][:, 0]) @ snapped["part_pose"][:, 1]
-    assert np.allclose(before, after, atol=1e-9)
+    before = np.einsum("vji,vjk->vik", pose[:, 0, :3, :3], pose[:, 1, :3, :3])
+    after = np.einsum("vji,vjk->vik", snapped["part_pose"][:, 0, :3, :3], snapped["part_pose"][:, 1, :3, :3])
+    assert np.allclose(before, after, atol=1e-9)  # the parts' relative rotation is kept
     assert np.allclose(snapped["T_cam_obj"], snapped["part_pose"][:, 0])
+    assert np.allclose(snapped["part_pose"][..., :3, 3], pose[..., :3, 3])  # camera-frame estimates are kept
+    assert np.array_equal(snapped["joint_axis"], out["joint_axis"]) and np.array_equal(snapped["joint_pivot"],
+                                                                                        out["joint_pivot"])
     assert (snapped["base_snap_deg"] > 0.5).mean() > 0.5  # the noise was removed, not absent
     out["part_label"] = np.ones_like(label)  # no base points: nothing moves
     kept = snap_to_base(pts, out, O)
