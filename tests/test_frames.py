@@ -192,9 +192,10 @@ def _slabs(n, hinge_deg, g):
 
 def test_the_base_frame_snap_recovers_one_frame_from_noisy_ones():
     """Hand-built: 40 two-slab objects at hinge angles 40-140 deg under random rotations; a 'network' whose base
-    rotation is the true one times a fixed canonical offset times up to 25 deg of noise. The fitted offset agrees with
-    every view, and after the snap every base rotation is the true one times one constant to within the axes' sampling noise; the part
-    poses keep their relative rotation, translations and joints are kept; a view with no base points keeps its frame."""
+    rotation is the true one times a fixed canonical offset times up to 22 deg of noise. The fitted offset is the
+    canonical offset's (up to the slabs' signed axes); after the snap every base rotation is the true one times one
+    constant, within the axes' sampling noise; the parts keep their relative rotation, translations and joints are
+    kept; a view with no base points keeps its frame."""
     import numpy as np
 
     from scapo.models.base_frame import fit_base_offset, snap_to_base
