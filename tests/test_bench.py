@@ -400,6 +400,14 @@ def test_cells_and_their_errors():
                      ("scapo/nope", "nope")):
         with pytest.raises((ConfigError, UnknownNameError), match=msg):
             table1_cells(["icp", "scapo"], ["laptop"], "cpu", [0], parts=[bad])
+    rows = table1_cells(["icp", "scapo"], ["laptop"], "cpu", [0, 1], refine_rows=False,
+                        option_rows=["scapo:base-frame:base_frame=principal"])
+    assert [(c.label, c.run_key, dict(c.options)) for c in rows[3:]] == [
+        ("scapo-base-frame", f"scapo_cpu_s{s}", {"base_frame": "principal", "refine_steps": 0}) for s in (0, 1)]
+    for bad, msg in (("scapo:x", "METHOD:LABEL"), ("icp:x:a=1", "not trained"), ("npcs:x:a=1", "not among"),
+                     ("scapo:x:nope=1", "unknown option")):
+        with pytest.raises(ConfigError, match=msg):
+            table1_cells(["icp", "scapo"], ["laptop"], "cpu", [0], option_rows=[bad])
     assert parse_category_seeds(["safe=0", "laptop=0,1,2"]) == {"safe": [0], "laptop": [0, 1, 2]}
     for bad in ("safe", "safe=", "=0", "safe=a", "safe=-1"):
         with pytest.raises(ConfigError, match="CATEGORY=SEED"):

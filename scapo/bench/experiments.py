@@ -96,7 +96,7 @@ def parse_category_seeds(specs: Sequence[str]) -> dict[str, list[int]]:
 
 def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str, seeds: Sequence[int],
                  category_seeds: dict[str, list[int]] | None = None, refine_rows: bool = True,
-                 parts: Sequence[str] = ()) -> list[Cell]:
+                 parts: Sequence[str] = (), option_rows: Sequence[str] = ()) -> list[Cell]:
     """Every cell of Table 1: per category, per method, per training seed of a trained method
     (``category_seeds[cat]`` overrides ``seeds`` for that category). Every row is a one-pass prediction: a method
     with a test-time refinement of its own (its entry's ``one_pass`` options) predicts without it, and with
@@ -106,12 +106,15 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
     ``METHOD/PART`` (e.g. ``scapo/principal``): that trained method, one of ``methods``, trained with its preset
     ``<preset>/PART`` (a preset part the method's registry knows, e.g. :func:`scapo.models.presets.get_preset`'s
     ``principal``) on the same seeds, one-pass, labelled ``<method>-<PART>`` (an addition's own ablation row, at the
-    same budget as every row).
+    same budget as every row). ``option_rows``: extra rows ``METHOD:LABEL:KEY=VALUE[,KEY=VALUE...]`` (e.g.
+    ``scapo:base-frame:base_frame=principal``): the same trained runs as the method's one-pass row, predicted with
+    those prediction options (``scapo predict --option`` keys) added, labelled ``<method>-<LABEL>`` (an inference
+    addition's own ablation row: no training, the runs are shared).
 
     Raises:
         UnknownNameError: unknown method or preset part. ConfigError: a preset a trained method does not have, a
-        category in ``category_seeds`` that is not in ``categories``, no seeds, or a part of a method that is not
-        among ``methods``, not trained, or given twice.
+        category in ``category_seeds`` that is not in ``categories``, no seeds, a part or option row of a method that
+        is not among ``methods``, not trained, or given twice, or an option row with an unknown or invalid option.
     """
     extra_rows = []
     for text in parts:
@@ -125,6 +128,25 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
         if (m, part) in extra_rows:
             raise ConfigError(f"--part {text} is given twice; give each once")
         extra_rows.append((m, part))
+    option_extra = []
+    for text in option_rows:
+        from scapo.config import parse_assignments
+        from scapo.methods import validate_options
+
+        m, _, rest = str(text).partition(":")
+        label, _, sets = rest.partition(":")
+        if not m or not label or not sets or not all(c.isalnum() or c in "_-." for c in label):
+            raise ConfigError(f"--option-row {text!r}: write METHOD:LABEL:KEY=VALUE[,KEY=VALUE...] with LABEL a plain "
+                              "name, e.g. scapo:base-frame:base_frame=principal")
+        if m not in methods:
+            raise ConfigError(f"--option-row {text}: {m!r} is not among the table's methods ({', '.join(methods)})")
+        if not METHODS.get(m).trained:
+            raise ConfigError(f"--option-row {text}: {m} is not trained; an option row shares a trained method's runs")
+        if any(mm == m and lab == label for mm, lab, _ in option_extra):
+            raise ConfigError(f"--option-row {m}:{label} is given twice; give each once")
+        values = parse_assignments(sets.split(","), "--option-row")
+        validate_options(m, values)  # an unknown option or a bad value is refused before any work
+        option_extra.append((m, label, tuple(values.items())))
     category_seeds = dict(category_seeds or {})
     extra = set(category_seeds) - set(categories)
     if extra:
@@ -152,6 +174,9 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
             for part in (part for mm, part in extra_rows if mm == m):
                 entry.preset(f"{p}/{part}")  # an unknown part is refused before any work
                 cells += [Cell(m, cat, s, f"{p}/{part}", label=f"{m}-{part}", options=one) for s in cat_seeds]
+            for label, values in ((lab, v) for mm, lab, v in option_extra if mm == m):
+                opts = tuple({**dict(one), **dict(values)}.items())
+                cells += [Cell(m, cat, s, p, label=f"{m}-{label}", run_label=m, options=opts) for s in cat_seeds]
     return cells
 
 
@@ -712,7 +737,8 @@ class TableSpec:
         if self.sj_methods:
             return table2_cells(methods, categories, opts.preset, seeds, per, opts.sj, self.sj_methods,
                                 opts.refine_rows)
-        return table1_cells(methods, categories, opts.preset, seeds, per, opts.refine_rows, opts.parts)
+        return table1_cells(methods, categories, opts.preset, seeds, per, opts.refine_rows, opts.parts,
+                            opts.option_rows)
 
 
 @dataclass(frozen=True)
@@ -760,6 +786,10 @@ class BenchOptions:
     parts: Sequence[str] = ()
     """Table 1: extra rows ``METHOD/PART`` (:func:`table1_cells`), e.g. ``scapo/principal``: the method trained with
     its preset's part ``PART``, labelled ``<method>-<PART>``."""
+    option_rows: Sequence[str] = ()
+    """Table 1: extra rows ``METHOD:LABEL:KEY=VALUE[,...]`` (:func:`table1_cells`), e.g.
+    ``scapo:base-frame:base_frame=principal``: the method's own runs predicted with those options, labelled
+    ``<method>-<LABEL>``."""
     refine_rows: bool = True
     """Tables 1 and 2: a ``<method>+refine`` row (:mod:`scapo.methods.refine`) beside the one-pass row of every
     method with a whole-object model (``MethodEntry.refinable``)."""
@@ -861,6 +891,8 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
             raise ConfigError(f"{what} names {', '.join(map(str, twice))} more than once; give each once")
     if opts.parts and spec.key != "table1":
         raise ConfigError(f"--part adds rows to bench table1; bench {spec.key} takes none")
+    if opts.option_rows and spec.key != "table1":
+        raise ConfigError(f"--option-row adds rows to bench table1; bench {spec.key} takes none")
     name = opts.name or spec.name
     cells = spec.cells(methods, categories, opts)
     if opts.progress or opts.dry_run:  # the data setting, said wherever the bench prints

@@ -219,7 +219,8 @@ def cmd_bench_table(args) -> int:
               allow_dirty=args.allow_dirty, allow_mixed_commits=args.allow_mixed_commits,
               sj=not args.no_sj, upright=args.upright, archive=args.archive, data_only=args.data_only,
               archive_predictions=args.archive_predictions, viewpoints=args.viewpoints, train_views=args.train_views,
-              budget_minutes=args.budget_minutes, refine_rows=not args.no_refine_rows, parts=args.part)
+              budget_minutes=args.budget_minutes, refine_rows=not args.no_refine_rows, parts=args.part,
+              option_rows=args.option_row)
     return 0
 
 
@@ -251,6 +252,10 @@ def add_parsers(sub) -> None:
     sp.add_argument("--part", action="append", default=[], metavar="METHOD/PART",
                     help="table1: an extra row of trained METHOD with its preset's part PART (preset <preset>/PART, "
                     "e.g. scapo/principal), labelled METHOD-PART, same seeds and budget; repeatable")
+    sp.add_argument("--option-row", action="append", default=[], metavar="METHOD:LABEL:KEY=VALUE[,KEY=VALUE]",
+                    help="table1: an extra row of trained METHOD's own runs predicted with these prediction options "
+                    "(scapo predict --option keys, e.g. scapo:base-frame:base_frame=principal), labelled "
+                    "METHOD-LABEL; no training; repeatable")
     sp.add_argument("--no-sj", action="store_true", help="table2: leave out the semi-supervised (SJ) rows")
     sp.add_argument("--data", type=Path, action="append", default=[], help="choose: the dataset (its val split is "
                     "used); repeat to choose one value for several datasets (mean of their scores); perf --what "
