@@ -28,31 +28,15 @@ from pathlib import Path
 import numpy as np
 
 
-def _angle(A, B):
-    c = (np.einsum("...ij,...ij->...", A, B) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
-
-
 def axes_consistency(R_gt: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0) -> tuple[float, float]:
-    """Share of views (and median angle, deg) whose axes ``E (V, 3, 3)``, in the true object frame (``R_gt^T E``) and
-    turned by the signed permutation nearest the best reference view's, lie within ``inlier_deg`` of their chordal
-    mean."""
-    from scapo.ops.groups import rotation_group
+    """Share of views (and their median angle, deg) whose axes ``E (V, 3, 3)``, in the true object frame, agree with
+    one frame within ``inlier_deg`` after each view's best signed permutation
+    (:func:`scapo.models.base_frame.fit_base_offset` with the true rotations ``R_gt (V, 3, 3)`` as the "network",
+    every view tried as the reference)."""
+    from scapo.models.base_frame import fit_base_offset
 
-    G = np.asarray(rotation_group("O"), dtype=np.float64)
-    M = np.einsum("vji,vjk->vik", R_gt, E)
-    MG = np.einsum("vij,gjk->vgik", M, G)
-    best = (-1.0, 0.0)
-    for r in range(len(M)):
-        d = _angle(MG, M[r][None, None])
-        aligned = MG[np.arange(len(M)), d.argmin(1)]
-        U, _, Vt = np.linalg.svd(aligned.sum(0))
-        mean = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-        a = _angle(aligned, mean[None])
-        share = float((a < inlier_deg).mean())
-        if share > best[0]:
-            best = (share, float(np.median(a)))
-    return best
+    _, share, angle = fit_base_offset(R_gt, E, inlier_deg, candidates=len(E))
+    return share, float(np.median(angle))
 
 
 def _as_network(net_label: np.ndarray, gt_label: np.ndarray) -> np.ndarray:
@@ -115,7 +99,7 @@ def main(argv=None) -> int:
                       "gt-as-network": (_as_network(ot["part_label"], A["part_label"]),
                                         _as_network(ov["part_label"], B["part_label"]))}[src]
             E, _, ok = base_axes(A["points"], lt)
-            O, support = fit_base_offset(np.asarray(ot["part_pose"])[ok, 0, :3, :3], E[ok])
+            O, support, _ = fit_base_offset(np.asarray(ot["part_pose"])[ok, 0, :3, :3], E[ok])
             sv = snap_to_base(B["points"], {**ov, "part_label": lv}, O)
             after = frame_consistency(sv["T_cam_obj"], B["T_cam_obj"], symmetries=sym)
             rows.append({"run": label, "run_path": run, "base_points": src, "support": support,

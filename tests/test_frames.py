@@ -220,7 +220,7 @@ def test_the_base_frame_snap_recovers_one_frame_from_noisy_ones():
 
     E, _, ok = base_axes(pts, label)
     assert ok.all()
-    O, share = fit_base_offset(R0, E)
+    O, share, _ = fit_base_offset(R0, E)
     assert share > 0.4  # the views within 15 deg: the network's noise
     G = rotation_group("O")  # the slabs' axes are the object's up to a signed permutation: O is off^T up to one
     assert min(np.degrees(np.arccos(np.clip((np.trace(off @ O @ Gk) - 1) / 2, -1, 1))) for Gk in G) < 5.0

@@ -104,7 +104,8 @@ class SCAPOMethod:
         pts = pts[np.unique(np.linspace(0, len(pts) - 1, min(len(pts), int(max_views))).round().astype(int))]
         o = self.predictor.predict(pts, self.options.batch_size, False)
         E, _, ok = base_axes(pts, o["part_label"])
-        self.base_offset, self.base_support = fit_base_offset(np.asarray(o["part_pose"])[ok, 0, :3, :3], E[ok])
+        self.base_offset, self.base_support, _ = fit_base_offset(np.asarray(o["part_pose"])[ok, 0, :3, :3],
+                                                                 E[ok])
         return self.base_offset, self.base_support
 
     def _base_frame(self, points, o: dict) -> dict:

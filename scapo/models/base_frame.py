@@ -39,9 +39,11 @@ def _group() -> np.ndarray:
 
 
 def _angle(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """Angles (deg) between rotations ``A (..., 3, 3)`` and ``B (..., 3, 3)``."""
-    c = (np.einsum("...ij,...ij->...", A, B) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+    """Angles (deg) between rotations ``A (..., 3, 3)`` and ``B (..., 3, 3)`` (the evaluator's geodesic angle)."""
+    from scapo.eval.metrics import rotation_error_deg
+
+    A, B = np.broadcast_arrays(np.asarray(A, dtype=np.float64), np.asarray(B, dtype=np.float64))
+    return rotation_error_deg(A, B)
 
 
 def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16) -> tuple[np.ndarray, np.ndarray,
@@ -87,7 +89,7 @@ def principal_frame_np(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 
 def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,
-                    candidates: int = 64) -> tuple[np.ndarray, float]:
+                    candidates: int = 64) -> tuple[np.ndarray, float, np.ndarray]:
     """The offset ``O (3, 3)`` from the canonical base frame to the base's principal axes that most training views
     share: ``R_base_i O ~ E_i G_k`` for some signed permutation ``G_k`` of each view.
 
@@ -100,7 +102,8 @@ def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,
             (:func:`base_axes`), only views with axes.
 
     Returns:
-        ``O (3, 3)`` float64 rotation and the share of views within ``inlier_deg`` of it.
+        ``O (3, 3)`` float64 rotation, the share of views within ``inlier_deg`` of it, and each view's angle to it
+        ``(V,)`` (deg, after its best signed permutation).
 
     Raises:
         InputError: no views, or shapes that differ.
@@ -121,8 +124,8 @@ def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,
             best = (int(inl.sum()), aligned[inl])
     U, _, Vt = np.linalg.svd(best[1].sum(0))
     O = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-    share = float((_angle(MG, O[None, None]).min(1) < inlier_deg).mean())
-    return O, share
+    angle = _angle(MG, O[None, None]).min(1)
+    return O, float((angle < inlier_deg).mean()), angle
 
 
 def snap_to_base(points: np.ndarray, out: dict, offset: np.ndarray, min_points: int = 16) -> dict:
