@@ -1,4 +1,4 @@
-"""Would the base part's principal axes give one canonical frame? (issue 52; :mod:`scapo.models.base_frame`)
+"""Would the base part's principal axes give one canonical frame? (issue 52; :mod:`scapo.methods.base_frame`)
 
 Two measurements on a ladder rung's dataset and trained SCAPO runs (nothing is trained):
 
@@ -31,9 +31,9 @@ import numpy as np
 def axes_consistency(R_gt: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0) -> tuple[float, float]:
     """Share of views (and their median angle, deg) whose axes ``E (V, 3, 3)``, in the true object frame, agree with
     one frame within ``inlier_deg`` after each view's best signed permutation
-    (:func:`scapo.models.base_frame.fit_base_offset` with the true rotations ``R_gt (V, 3, 3)`` as the "network",
+    (:func:`scapo.methods.base_frame.fit_base_offset` with the true rotations ``R_gt (V, 3, 3)`` as the "network",
     every view tried as the reference)."""
-    from scapo.models.base_frame import fit_base_offset
+    from scapo.methods.base_frame import fit_base_offset
 
     _, share, angle = fit_base_offset(R_gt, E, inlier_deg, candidates=len(E))
     return share, float(np.median(angle))
@@ -55,7 +55,7 @@ def main(argv=None) -> int:
     from scapo.data import load
     from scapo.eval.evaluator import declared_rotations
     from scapo.methods import load_run
-    from scapo.models.base_frame import base_axes, fit_base_offset, snap_to_base
+    from scapo.methods.base_frame import base_axes, fit_base_offset, snap_to_base
     from scapo.provenance import provenance
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

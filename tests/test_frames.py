@@ -198,7 +198,7 @@ def test_the_base_frame_snap_recovers_one_frame_from_noisy_ones():
     kept; a view with no base points keeps its frame."""
     import numpy as np
 
-    from scapo.models.base_frame import fit_base_offset, snap_to_base
+    from scapo.methods.base_frame import fit_base_offset, snap_to_base
     from scapo.ops.so3 import rotation_from_rotvec
 
     g = torch.Generator().manual_seed(3)
@@ -216,7 +216,7 @@ def test_the_base_frame_snap_recovers_one_frame_from_noisy_ones():
     pose[:, :, :3, 3] = pts.mean(1)[:, None]
     out = {"part_label": label, "part_pose": pose, "T_cam_obj": pose[:, 0].copy(),
            "joint_axis": pose[:, 0, :3, 0][:, None], "joint_pivot": pts.mean(1)[:, None]}
-    from scapo.models.base_frame import base_axes
+    from scapo.methods.base_frame import base_axes
 
     E, _, ok = base_axes(pts, label)
     assert ok.all()

@@ -38,7 +38,7 @@ class SCAPOOptions(LearnedOptions):
     :class:`~scapo.models.refine.RefineConfig`); its direction is fitted on the training split."""
     base_frame: str = ""
     """"principal": snap each prediction's frame to the principal axes of the points it labels as the base part,
-    through an offset fitted on the training split (:mod:`scapo.models.base_frame`, an addition to the paper; a
+    through an offset fitted on the training split (:mod:`scapo.methods.base_frame`, an addition to the paper; a
     one-pass inference step on the method's own segmentation, no ground truth); "" (default): the network's frame."""
 
     def __post_init__(self):
@@ -67,7 +67,7 @@ class SCAPOMethod:
         self.label = str(self.options.label or ("scapo+refine" if self.options.refine else "scapo"))
         self.predictor: Predictor | None = None
         self.base_offset: np.ndarray | None = None
-        """``(3, 3)`` the fitted base-axes offset (``base_frame``, :func:`~scapo.models.base_frame.fit_base_offset`)."""
+        """``(3, 3)`` the fitted base-axes offset (``base_frame``, :func:`.base_frame.fit_base_offset`)."""
         self.base_support = float("nan")
 
     def fit(self, train: ArticulationDataset) -> None:
@@ -96,7 +96,7 @@ class SCAPOMethod:
         Raises:
             ConfigError: not loaded. InputError: the network labels no training view's points as the base.
         """
-        from scapo.models.base_frame import base_axes, fit_base_offset
+        from scapo.methods.base_frame import base_axes, fit_base_offset
 
         if self.predictor is None:
             raise ConfigError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
@@ -114,7 +114,7 @@ class SCAPOMethod:
         if self.base_offset is None:
             raise ConfigError("base_frame=principal needs its offset fitted on a training split first: fit(train) "
                               "or fit_base_frame(points)")
-        from scapo.models.base_frame import snap_to_base
+        from scapo.methods.base_frame import snap_to_base
 
         return snap_to_base(np.asarray(points), o, self.base_offset)
 
