@@ -80,7 +80,7 @@ def main(argv=None) -> int:
     ref = {}
     for name, lab in (("whole object", np.where(B["part_label"] >= 0, 0, 1)), ("base part (0)", B["part_label"]),
                       ("child part (1)", np.where(B["part_label"] == 1, 0, 1))):
-        E, _, ok = base_axes(B["points"], lab)
+        E, ok = base_axes(B["points"], lab)
         ref[name] = axes_consistency(R_gt[ok], E[ok])
         lines.append(f"| {name} | {ref[name][0]:.2f} | {ref[name][1]:.1f} |")
     lines += ["", "Snap of each run's one-pass prediction (symmetry-aware object-frame consistency on val; `network` "
@@ -98,7 +98,7 @@ def main(argv=None) -> int:
                       "gt": (A["part_label"], B["part_label"]),
                       "gt-as-network": (_as_network(ot["part_label"], A["part_label"]),
                                         _as_network(ov["part_label"], B["part_label"]))}[src]
-            E, _, ok = base_axes(A["points"], lt)
+            E, ok = base_axes(A["points"], lt)
             O, support, _ = fit_base_offset(np.asarray(ot["part_pose"])[ok, 0, :3, :3], E[ok])
             sv = snap_to_base(B["points"], {**ov, "part_label": lv}, O)
             after = frame_consistency(sv["T_cam_obj"], B["T_cam_obj"], symmetries=sym)

@@ -218,7 +218,7 @@ def test_the_base_frame_snap_recovers_one_frame_from_noisy_ones():
            "joint_axis": pose[:, 0, :3, 0][:, None], "joint_pivot": pts.mean(1)[:, None]}
     from scapo.methods.base_frame import base_axes
 
-    E, _, ok = base_axes(pts, label)
+    E, ok = base_axes(pts, label)
     assert ok.all()
     O, share, _ = fit_base_offset(R0, E)
     assert share > 0.4  # the views within 15 deg: the network's noise

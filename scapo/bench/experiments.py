@@ -130,21 +130,16 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
         extra_rows.append((m, part))
     option_extra = []
     for text in option_rows:
-        from scapo.config import parse_assignments
+        from scapo.bench.ladder import parse_variant
         from scapo.methods import validate_options
 
-        m, _, rest = str(text).partition(":")
-        label, _, sets = rest.partition(":")
-        if not m or not label or not sets or not all(c.isalnum() or c in "_-." for c in label):
-            raise ConfigError(f"--option-row {text!r}: write METHOD:LABEL:KEY=VALUE[,KEY=VALUE...] with LABEL a plain "
-                              "name, e.g. scapo:base-frame:base_frame=principal")
+        m, label, values = parse_variant(text, "--option-row", "scapo:base-frame:base_frame=principal")
         if m not in methods:
             raise ConfigError(f"--option-row {text}: {m!r} is not among the table's methods ({', '.join(methods)})")
         if not METHODS.get(m).trained:
             raise ConfigError(f"--option-row {text}: {m} is not trained; an option row shares a trained method's runs")
         if any(mm == m and lab == label for mm, lab, _ in option_extra):
             raise ConfigError(f"--option-row {m}:{label} is given twice; give each once")
-        values = parse_assignments(sets.split(","), "--option-row")
         validate_options(m, values)  # an unknown option or a bad value is refused before any work
         option_extra.append((m, label, tuple(values.items())))
     category_seeds = dict(category_seeds or {})

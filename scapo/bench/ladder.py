@@ -179,10 +179,12 @@ def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float,
     return out
 
 
-def parse_variant(text: str) -> tuple[str, str, dict[str, str]]:
+def parse_variant(text: str, flag: str = "--variant",
+                  example: str = "scapo:consensus:losses.consensus=1") -> tuple[str, str, dict[str, str]]:
     """``"scapo:consensus:losses.consensus=1,losses.align=0"`` -> ``("scapo", "consensus", {...})``: a trained
     method's preset with fields replaced (the ``--set`` keys of ``scapo train``), a row of its own named
-    ``METHOD:LABEL``, at the same budget as the method's default row.
+    ``METHOD:LABEL``, at the same budget as the method's default row. ``flag`` and ``example`` name the option in
+    the messages (``bench table1 --option-row`` parses its rows the same way).
 
     Raises:
         ConfigError: not of the form ``METHOD:LABEL:KEY=VALUE[,KEY=VALUE...]``, or a label that is not a plain name."""
@@ -191,9 +193,9 @@ def parse_variant(text: str) -> tuple[str, str, dict[str, str]]:
     method, _, rest = str(text).partition(":")
     label, _, sets = rest.partition(":")
     if not method or not label or not sets or not all(c.isalnum() or c in "_-." for c in label):
-        raise ConfigError(f"--variant {text!r}: write METHOD:LABEL:KEY=VALUE[,KEY=VALUE...] with LABEL a plain name "
-                          "(letters, digits, '_', '-', '.'), e.g. scapo:consensus:losses.consensus=1")
-    return method, label, parse_assignments(sets.split(","), "--variant")
+        raise ConfigError(f"{flag} {text!r}: write METHOD:LABEL:KEY=VALUE[,KEY=VALUE...] with LABEL a plain name "
+                          f"(letters, digits, '_', '-', '.'), e.g. {example}")
+    return method, label, parse_assignments(sets.split(","), flag)
 
 
 def _consistency(data: Path, preds) -> tuple[float, float]:

@@ -46,8 +46,7 @@ def _angle(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return rotation_error_deg(A, B)
 
 
-def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16) -> tuple[np.ndarray, np.ndarray,
-                                                                                          np.ndarray]:
+def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16) -> tuple[np.ndarray, np.ndarray]:
     """Principal axes of each view's predicted base points.
 
     Args:
@@ -56,7 +55,7 @@ def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16) 
 
     Returns:
         ``E (V, 3, 3)`` float64 rotations (columns: the axes, largest variance first, camera frame; identity where
-        there are too few points), ``centroid (V, 3)`` float64 (m) of the base points, ``ok (V,)`` bool.
+        there are too few points) and ``ok (V,)`` bool.
 
     Raises:
         InputError: shapes that do not match, or non-finite points.
@@ -73,19 +72,12 @@ def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16) 
     ok = count >= max(int(min_points), 4)
     w = np.where(ok[:, None], mask, True).astype(np.float64)
     w /= w.sum(1, keepdims=True)
-    with torch.no_grad():
-        E = principal_frame_np(points, w)
-    E[~ok] = np.eye(3)
-    centroid = np.einsum("vn,vni->vi", w, points)
-    return E, centroid, ok
-
-
-def principal_frame_np(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """:func:`scapo.nn.encoder.principal_frame` on float64 arrays ``(V, N, 3)`` with weights ``(V, N)`` (summing to
-    1): ``(V, 3, 3)`` float64."""
     from scapo.nn.encoder import principal_frame
 
-    return principal_frame(torch.from_numpy(points), torch.from_numpy(weights)).numpy()
+    with torch.no_grad():
+        E = principal_frame(torch.from_numpy(points), torch.from_numpy(w)).numpy()
+    E[~ok] = np.eye(3)
+    return E, ok
 
 
 def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,
@@ -142,7 +134,7 @@ def snap_to_base(points: np.ndarray, out: dict, offset: np.ndarray, min_points: 
         labels kept) and ``base_snap_deg (V,)`` float64, the correction's angle per view (0 where the view has fewer
         than ``min_points`` base points and keeps its frame).
     """
-    E, _, ok = base_axes(points, out["part_label"], min_points)
+    E, ok = base_axes(points, out["part_label"], min_points)
     G = _group()
     pose = np.asarray(out["part_pose"], dtype=np.float64)
     R0 = pose[:, 0, :3, :3]

@@ -103,7 +103,7 @@ class SCAPOMethod:
         pts = np.asarray(points)
         pts = pts[np.unique(np.linspace(0, len(pts) - 1, min(len(pts), int(max_views))).round().astype(int))]
         o = self.predictor.predict(pts, self.options.batch_size, False)
-        E, _, ok = base_axes(pts, o["part_label"])
+        E, ok = base_axes(pts, o["part_label"])
         self.base_offset, self.base_support, _ = fit_base_offset(np.asarray(o["part_pose"])[ok, 0, :3, :3],
                                                                  E[ok])
         return self.base_offset, self.base_support

@@ -105,12 +105,7 @@ def principal_frame(points: torch.Tensor, weights: torch.Tensor | None = None, m
     if weights is None:
         with torch.no_grad():
             xc = points - points.mean(1, keepdim=True)
-            cov = xc.transpose(1, 2) @ xc / points.shape[1]
-            _, vec = torch.linalg.eigh(cov.double())  # ascending
-            vec = vec.flip(-1).to(points.dtype)  # (B, 3, 3) columns, largest first
-            sign = torch.where(((xc @ vec) ** 3).mean(1) >= 0, 1.0, -1.0).to(points.dtype)  # (B, 3)
-            e1, e2 = vec[..., 0] * sign[:, :1], vec[..., 1] * sign[:, 1:2]
-            return torch.stack([e1, e2, torch.cross(e1, e2, dim=-1)], dim=-1)
+            return _axes_frame(xc, (xc.transpose(1, 2) @ xc / points.shape[1]).double(), lambda p: (p ** 3).mean(1))
     w = weights.unsqueeze(-1)  # (B, N, 1)
     xc = points - (w * points).sum(1, keepdim=True)
     cov = ((w * xc).transpose(1, 2) @ xc).double()
@@ -118,10 +113,17 @@ def principal_frame(points: torch.Tensor, weights: torch.Tensor | None = None, m
         lam = torch.linalg.eigvalsh(cov)  # ascending
         gap = torch.minimum(lam[:, 1] - lam[:, 0], lam[:, 2] - lam[:, 1]) / lam[:, 2].abs().clamp_min(1e-30)
     cov = torch.where((gap > min_gap)[:, None, None], cov, cov.detach())
+    return _axes_frame(xc, cov, lambda p: (w * p ** 3).sum(1))
+
+
+def _axes_frame(xc: torch.Tensor, cov: torch.Tensor, third_moment) -> torch.Tensor:
+    """:func:`principal_frame` from centred points ``xc (B, N, 3)`` and their covariance ``cov (B, 3, 3)`` (float64):
+    eigenvectors, largest variance first, the first two signed by ``third_moment(projections (B, N, 3)) -> (B, 3)``
+    (no gradient through the signs), the third completing a right-handed frame."""
     _, vec = torch.linalg.eigh(cov)  # ascending
-    vec = vec.flip(-1).to(points.dtype)  # (B, 3, 3) columns, largest first
+    vec = vec.flip(-1).to(xc.dtype)  # (B, 3, 3) columns, largest first
     with torch.no_grad():
-        sign = torch.where((w * (xc @ vec) ** 3).sum(1) >= 0, 1.0, -1.0).to(points.dtype)  # (B, 3)
+        sign = torch.where(third_moment(xc @ vec) >= 0, 1.0, -1.0).to(xc.dtype)  # (B, 3)
     e1, e2 = vec[..., 0] * sign[:, :1], vec[..., 1] * sign[:, 1:2]
     return torch.stack([e1, e2, torch.cross(e1, e2, dim=-1)], dim=-1)
 
