@@ -36,8 +36,7 @@ def frame_weights(run: str, data: str, split: str = "val", points: int = 256, se
     pred = Predictor.load(run, refine_steps=0)
     enc = pred.model.encoder
     if enc.cfg.frame != "weighted":
-        raise SystemExit(f"frame_weights: {run} has encoder.frame={enc.cfg.frame!r}; give a run with "
-                         "encoder.frame=weighted")
+        raise SystemExit(f"scapo: {run} has encoder.frame={enc.cfg.frame!r}; give a run with encoder.frame=weighted")
     ds = load(data, split)
     arr = ds.arrays()
     rng = np.random.default_rng(seed)
@@ -72,7 +71,14 @@ def main(argv=None) -> int:
     ap.add_argument("--points", type=int, default=256, help="points per view (the run's training density)")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
-    r = frame_weights(a.run, a.data, a.split, a.points)
+    from scapo.errors import ScapoError
+
+    try:
+        r = frame_weights(a.run, a.data, a.split, a.points)
+    except ScapoError as e:  # a missing run or dataset: the message, no traceback
+        msg = str(e)
+        print(msg if msg.startswith("scapo:") else f"scapo: {msg}", file=sys.stderr)
+        return 2
     P = r["part_weight"].shape[1]
     lines = [f"# Frame weights of {a.run} on {a.split} of {a.data} ({len(r['ess'])} views, {a.points} points)", "",
              "| statistic | value |", "|:--|--:|",
