@@ -11,7 +11,9 @@ Two measurements on a ladder rung's dataset and trained SCAPO runs (nothing is t
    method rows: ``gt`` (the true base points) and ``gt-as-network`` (the true part that holds most of the network's
    part-0 points: the true segmentation with the network's choice of which part is its base). Symmetry-aware object-
    frame consistency on val before and after, as ``scapo bench ladder`` computes it, with the offset's support on
-   the training views.
+   the training views. Each source is scored with the base in slot 0 and, where it differs, in the slot
+   ``base_slot=auto`` chooses on the training views (:func:`scapo.methods.base_frame.choose_base_slot`; for
+   ``gt-as-network``, the true part holding most of that slot's points is the base).
 
     python bench/base_frame_snap.py --data DATA --run LABEL=RUN [--run ...] --out results/canonical_ladder/base_snap
 
@@ -39,15 +41,21 @@ def axes_consistency(R_gt: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0) 
     return share, float(np.median(angle))
 
 
-def _as_network(net_label: np.ndarray, gt_label: np.ndarray) -> np.ndarray:
-    """The true segmentation, with the true part holding most of the network's part-0 points called part 0."""
+def _as_network(net_label: np.ndarray, gt_label: np.ndarray, slot: int = 0) -> np.ndarray:
+    """The true segmentation, with the true part holding most of the network's slot-``slot`` points called part 0
+    (every other true part 1, background -1)."""
     out = np.full_like(gt_label, -1)
     for v in range(len(gt_label)):
         g = gt_label[v]
-        sel = (net_label[v] == 0) & (g >= 0)
+        sel = (net_label[v] == slot) & (g >= 0)
         base = int(np.bincount(g[sel]).argmax()) if sel.any() else 0
         out[v] = np.where(g == base, 0, np.where(g >= 0, 1, -1))
     return out
+
+
+def _as_slot(label: np.ndarray, slot: int) -> np.ndarray:
+    """Labels with the base as 0 and the rest as 1 (-1 background) renumbered so that the base is ``slot``."""
+    return np.where(label == 0, slot, np.where(label >= 0, 1 if slot == 0 else 0, -1))
 
 
 def main(argv=None) -> int:
@@ -55,7 +63,7 @@ def main(argv=None) -> int:
     from scapo.data import load
     from scapo.eval.evaluator import declared_rotations
     from scapo.methods import load_run
-    from scapo.methods.base_frame import base_axes, fit_base_offset, snap_to_base
+    from scapo.methods.base_frame import base_axes, choose_base_slot, fit_base_offset, snap_to_base
     from scapo.provenance import provenance
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -85,29 +93,36 @@ def main(argv=None) -> int:
         lines.append(f"| {name} | {ref[name][0]:.2f} | {ref[name][1]:.1f} |")
     lines += ["", "Snap of each run's one-pass prediction (symmetry-aware object-frame consistency on val; `network` "
               "is the method, `gt` and `gt-as-network` are diagnoses with ground-truth base points):", "",
-              "| run | base points | offset support (train) | frame cons. sym before | after | median snap deg |",
-              "|:--|:--|--:|--:|--:|--:|"]
+              "| run | base points | base slot | offset support (train) | frame cons. sym before | after | "
+              "median snap deg |", "|:--|:--|:--|--:|--:|--:|--:|"]
     rows = []
     for spec in a.run:
         label, _, run = spec.partition("=")
         m = load_run(run, refine_steps=0)
         ot, ov = m.predict_points(A["points"]), m.predict_points(B["points"])
         before = frame_consistency(np.asarray(ov["T_cam_obj"]), B["T_cam_obj"], symmetries=sym)
+        auto, disp = choose_base_slot(np.asarray(ot["part_pose"]))
+        slots = [0] + ([auto] if auto != 0 else [])
         for src in ("network", "gt", "gt-as-network"):
-            lt, lv = {"network": (ot["part_label"], ov["part_label"]),
-                      "gt": (A["part_label"], B["part_label"]),
-                      "gt-as-network": (_as_network(ot["part_label"], A["part_label"]),
-                                        _as_network(ov["part_label"], B["part_label"]))}[src]
-            E, ok = base_axes(A["points"], lt)
-            O, support, _ = fit_base_offset(np.asarray(ot["part_pose"])[ok, 0, :3, :3], E[ok])
-            sv = snap_to_base(B["points"], {**ov, "part_label": lv}, O)
-            after = frame_consistency(sv["T_cam_obj"], B["T_cam_obj"], symmetries=sym)
-            rows.append({"run": label, "run_path": run, "base_points": src, "support": support,
-                         "before": before, "after": after, "snap_deg_median": float(np.median(sv["base_snap_deg"])),
-                         "identity": {k: m.predictor.identity.get(k) for k in ("dataset_hash", "category")}})
-            lines.append(f"| {label} | {src} | {support:.2f} | {before:.2f} | {after:.2f} | "
-                         f"{np.median(sv['base_snap_deg']):.1f} |")
-            print(lines[-1], flush=True)
+            for slot in slots:
+                # the base's points as slot `slot` of the labels; the network's pose of `slot` is the reference
+                lt, lv = {"network": (ot["part_label"], ov["part_label"]),
+                          "gt": (_as_slot(A["part_label"].clip(-1, 1), slot),
+                                 _as_slot(B["part_label"].clip(-1, 1), slot)),
+                          "gt-as-network": (_as_slot(_as_network(ot["part_label"], A["part_label"], slot), slot),
+                                            _as_slot(_as_network(ov["part_label"], B["part_label"], slot), slot))}[src]
+                E, ok = base_axes(A["points"], lt, slot=slot)
+                O, support, _ = fit_base_offset(np.asarray(ot["part_pose"])[ok, slot, :3, :3], E[ok])
+                sv = snap_to_base(B["points"], {**ov, "part_label": lv}, O, slot=slot)
+                after = frame_consistency(sv["T_cam_obj"], B["T_cam_obj"], symmetries=sym)
+                tag = f"{slot}" + (" (auto)" if slot == auto else "")
+                rows.append({"run": label, "run_path": run, "base_points": src, "slot": slot, "auto_slot": auto,
+                             "dispersion": disp.round(4).tolist(), "support": support, "before": before,
+                             "after": after, "snap_deg_median": float(np.median(sv["base_snap_deg"])),
+                             "identity": {k: m.predictor.identity.get(k) for k in ("dataset_hash", "category")}})
+                lines.append(f"| {label} | {src} | {tag} | {support:.2f} | {before:.2f} | {after:.2f} | "
+                             f"{np.median(sv['base_snap_deg']):.1f} |")
+                print(lines[-1], flush=True)
     cmd = "python bench/base_frame_snap.py " + " ".join(sys.argv[1:] if argv is None else argv)
     lines += ["", f"Written by `{cmd}`."]
     out = Path(a.out)

@@ -247,6 +247,48 @@ def test_the_base_frame_option_is_checked():
 
     with pytest.raises(ConfigError, match="base_frame"):
         SCAPOOptions(run="r", base_frame="pca")
+    with pytest.raises(ConfigError, match="base_slot"):
+        SCAPOOptions(run="r", base_frame="principal", base_slot="lid")
+    with pytest.raises(ConfigError, match="base_slot"):  # a slot choice without the snap does nothing: refused
+        SCAPOOptions(run="r", base_slot="auto")
     m = SCAPOMethod(SCAPOOptions(run="r", base_frame="principal"))
     with pytest.raises(ConfigError, match="fit"):  # no offset fitted on a training split
         m._base_frame(None, {})
+
+
+def test_the_base_slot_is_the_part_whose_rotations_spread_least():
+    """Hand-built: two-slab objects seen from within 25 deg of one viewpoint, hinge 40-140 deg, and a 'network' that
+    learned its frame on the lid (slot 0 is the lid, slot 1 the base). choose_base_slot picks slot 1 (the base turns
+    only with the viewpoint); the snap on slot 1 gives frames that are the true base rotation times one constant, and
+    T_cam_obj is slot 1's pose. Bad shapes are refused with a scapo: message."""
+    import numpy as np
+
+    from scapo.errors import InputError
+    from scapo.methods.base_frame import base_axes, choose_base_slot, fit_base_offset, snap_to_base
+    from scapo.ops.so3 import rotation_from_rotvec
+
+    g = torch.Generator().manual_seed(5)
+    V = 40
+    Q = rotation_from_rotvec(0.87 * (torch.rand(V, 3, generator=g).double() - 0.5)).numpy()  # within 25 deg
+    hinge = 40 + 100 * np.arange(V) / V
+    pts = np.stack([_slabs(800, h, g) for h in hinge]) @ Q.transpose(0, 2, 1)
+    label = np.tile(np.r_[np.ones(800, int), np.zeros(800, int)], (V, 1))  # base points are the network's slot 1
+    turn = np.stack([rotation_from_rotvec(torch.tensor([[np.radians(h), 0.0, 0.0]]).double())[0].numpy()
+                     for h in hinge])
+    off = rotation_from_rotvec(torch.tensor([[0.3, -0.5, 0.2]]).double())[0].numpy()
+    pose = np.tile(np.eye(4), (V, 2, 1, 1))
+    pose[:, 1, :3, :3] = Q @ off  # the base, in the network's slot 1
+    pose[:, 0, :3, :3] = Q @ turn @ off  # the lid: viewpoint and hinge
+    slot, disp = choose_base_slot(pose)
+    assert slot == 1 and disp[1] < disp[0]
+    E, ok = base_axes(pts, label, slot=slot)
+    O, share, _ = fit_base_offset(pose[ok, slot, :3, :3], E[ok])
+    assert share > 0.9
+    out = {"part_label": label, "part_pose": pose, "T_cam_obj": pose[:, 0].copy()}
+    snapped = snap_to_base(pts, out, O, slot=slot)
+    assert np.allclose(snapped["T_cam_obj"], snapped["part_pose"][:, 1])
+    rel = np.einsum("vji,vjk->vik", Q, snapped["T_cam_obj"][:, :3, :3])  # Q^T R: one constant
+    ang = np.degrees(np.arccos(np.clip((np.einsum("ij,vij->v", rel[0], rel) - 1) / 2, -1, 1)))
+    assert ang.max() < 5.0
+    with pytest.raises(InputError, match="scapo:"):
+        choose_base_slot(np.zeros((0, 2, 4, 4)))

@@ -20,8 +20,13 @@ the base, through a fixed offset fitted on the training split, and turns every p
    measured to raise D on val, 4.8 -> 7.0 deg on the laptop 45-core-minute run: the network's camera-frame axis
    does not share the frame's error.)
 
-It needs no ground truth: the base is the network's own segmentation (part slot 0). A view with fewer than
-``min_points`` base points keeps its frame.
+It needs no ground truth: the base is the network's own segmentation, part slot 0 by default. The network's slot 0
+need not be the physical base: a run can learn its frame on the child part (the laptop's lid: seed 1 of the 45-core-
+minute ladder cell labels the lid part 0 in 0.75 of the training views). :func:`choose_base_slot` (``base_slot=auto``)
+takes instead the slot whose predicted camera-frame rotations vary least over the training views: the base turns
+only with the viewpoint, every other part also with its joint states. The snapped frame is then that slot's pose.
+
+A view with fewer than ``min_points`` base points keeps its frame.
 """
 
 from __future__ import annotations
@@ -46,12 +51,43 @@ def _angle(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return rotation_error_deg(A, B)
 
 
-def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16) -> tuple[np.ndarray, np.ndarray]:
+def rotation_dispersion(R: np.ndarray) -> float:
+    """How much rotations ``R (V, 3, 3)`` spread: 1 minus the mean singular value of their mean matrix (0 when all
+    are equal, near 1 under uniform SO(3); the chordal dispersion)."""
+    R = np.asarray(R, dtype=np.float64)
+    return float(1.0 - np.linalg.svd(R.mean(0), compute_uv=False).mean())
+
+
+def choose_base_slot(part_pose: np.ndarray) -> tuple[int, np.ndarray]:
+    """The part slot that acts as the base over a set of training views, with no labels: the slot whose camera-frame
+    rotations spread least (:func:`rotation_dispersion`). A base turns only with the viewpoint; a part on a joint also
+    turns with the joint's state, so its rotations spread more. Under uniform SO(3) viewpoints every slot spreads
+    alike (near 1) and the choice carries no information: it needs a viewpoint regime narrower than the sphere.
+
+    Args:
+        part_pose: ``(V, P, 4, 4)`` predicted part poses (canonical -> camera) of training views.
+
+    Returns:
+        The slot (int) and each slot's dispersion ``(P,)`` float64.
+
+    Raises:
+        InputError: not a ``(V, P, 4, 4)`` array with V > 0.
+    """
+    pose = np.asarray(part_pose, dtype=np.float64)
+    if pose.ndim != 4 or pose.shape[-2:] != (4, 4) or len(pose) == 0:
+        raise InputError(f"scapo: choose_base_slot needs part poses (V, P, 4, 4) with V > 0, got {pose.shape}")
+    disp = np.array([rotation_dispersion(pose[:, p, :3, :3]) for p in range(pose.shape[1])])
+    return int(disp.argmin()), disp
+
+
+def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16,
+              slot: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Principal axes of each view's predicted base points.
 
     Args:
-        points: ``(V, N, 3)`` camera-frame clouds (metres). part_label: ``(V, N)`` int predicted part per point (0 is
-            the base). min_points: fewest base points for axes.
+        points: ``(V, N, 3)`` camera-frame clouds (metres). part_label: ``(V, N)`` int predicted part per point.
+            min_points: fewest base points for axes. slot: the part slot taken as the base (0 by default,
+            :func:`choose_base_slot`).
 
     Returns:
         ``E (V, 3, 3)`` float64 rotations (columns: the axes, largest variance first, camera frame; identity where
@@ -67,7 +103,7 @@ def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16) 
                          f"{part_label.shape}")
     if not np.isfinite(points).all():
         raise InputError("scapo: base_axes got NaN or infinite points; drop them before predicting")
-    mask = part_label == 0
+    mask = part_label == int(slot)
     count = mask.sum(1)
     ok = count >= max(int(min_points), 4)
     w = np.where(ok[:, None], mask, True).astype(np.float64)
@@ -120,24 +156,26 @@ def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,
     return O, float((angle < inlier_deg).mean()), angle
 
 
-def snap_to_base(points: np.ndarray, out: dict, offset: np.ndarray, min_points: int = 16) -> dict:
+def snap_to_base(points: np.ndarray, out: dict, offset: np.ndarray, min_points: int = 16, slot: int = 0) -> dict:
     """Turn each view's prediction so that its base rotation is its base points' principal axes ``E G_k O^T``.
 
     Args:
         points: ``(V, N, 3)`` camera-frame clouds (metres), the ones predicted on. out: the prediction (numpy arrays,
             :meth:`scapo.models.predict.Predictor.predict`): ``part_label (V, N)``, ``part_pose (V, P, 4, 4)``,
             ``T_cam_obj (V, 4, 4)`` (camera frame, m). offset:
-            ``O (3, 3)`` (:func:`fit_base_offset`).
+            ``O (3, 3)`` (:func:`fit_base_offset`, fitted with the same ``slot``). slot: the part slot taken as the
+            base (:func:`choose_base_slot`).
 
     Returns:
         A copy of ``out`` with the rotations of ``part_pose`` and ``T_cam_obj`` turned (translations, joints and
-        labels kept) and ``base_snap_deg (V,)`` float64, the correction's angle per view (0 where the view has fewer
+        labels kept; with ``slot`` other than 0, ``T_cam_obj`` becomes that slot's turned pose) and
+        ``base_snap_deg (V,)`` float64, the correction's angle per view (0 where the view has fewer
         than ``min_points`` base points and keeps its frame).
     """
-    E, ok = base_axes(points, out["part_label"], min_points)
+    E, ok = base_axes(points, out["part_label"], min_points, slot)
     G = _group()
     pose = np.asarray(out["part_pose"], dtype=np.float64)
-    R0 = pose[:, 0, :3, :3]
+    R0 = pose[:, int(slot), :3, :3]
     target = R0 @ np.asarray(offset, dtype=np.float64)  # where the network puts the base axes
     EG = np.einsum("vij,gjk->vgik", E, G)
     k = _angle(EG, target[:, None]).argmin(1)
@@ -150,6 +188,8 @@ def snap_to_base(points: np.ndarray, out: dict, offset: np.ndarray, min_points: 
     res["part_pose"] = pose_new.astype(np.asarray(out["part_pose"]).dtype)
     T = np.asarray(out["T_cam_obj"], dtype=np.float64).copy()
     T[:, :3, :3] = np.einsum("vij,vjk->vik", delta, T[:, :3, :3])
+    if int(slot) != 0:  # the frame is the base slot's pose
+        T = pose_new[:, int(slot)].copy()
     res["T_cam_obj"] = T.astype(np.asarray(out["T_cam_obj"]).dtype)
     res["base_snap_deg"] = np.where(ok, _angle(delta, np.eye(3)[None]), 0.0)
     return res

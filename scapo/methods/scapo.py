@@ -40,11 +40,19 @@ class SCAPOOptions(LearnedOptions):
     """"principal": snap each prediction's frame to the principal axes of the points it labels as the base part,
     through an offset fitted on the training split (:mod:`scapo.methods.base_frame`, an addition to the paper; a
     one-pass inference step on the method's own segmentation, no ground truth); "" (default): the network's frame."""
+    base_slot: str = "0"
+    """The part slot ``base_frame`` takes as the base: "0" (default; the model's base slot), another slot number, or
+    "auto": the slot whose predicted rotations spread least over the training views
+    (:func:`scapo.methods.base_frame.choose_base_slot`; the snapped frame is then that slot's pose)."""
 
     def __post_init__(self):
         super().__post_init__()
         if self.base_frame not in ("", "principal"):
             raise ConfigError(f"base_frame must be '' (off) or 'principal', got {self.base_frame!r}")
+        if str(self.base_slot) != "auto" and not str(self.base_slot).isdigit():
+            raise ConfigError(f"base_slot must be a part slot number or 'auto', got {self.base_slot!r}")
+        if str(self.base_slot) != "0" and not self.base_frame:
+            raise ConfigError(f"base_slot={self.base_slot} applies to base_frame=principal; give both")
         if self.refine_steps is not None and self.refine_steps < 0:
             raise ConfigError(f"refine_steps must be >= 0, got {self.refine_steps}")
         if self.refine and self.refine_steps:
@@ -69,6 +77,9 @@ class SCAPOMethod:
         self.base_offset: np.ndarray | None = None
         """``(3, 3)`` the fitted base-axes offset (``base_frame``, :func:`.base_frame.fit_base_offset`)."""
         self.base_support = float("nan")
+        self.base_slot = 0
+        """The part slot taken as the base (``base_slot``; chosen on the training split when "auto")."""
+        self.base_dispersion: np.ndarray | None = None
 
     def fit(self, train: ArticulationDataset) -> None:
         """Load the run and check that it was trained on this dataset's category and kinematic structure.
@@ -90,22 +101,29 @@ class SCAPOMethod:
 
     def fit_base_frame(self, points, max_views: int = 512) -> tuple[np.ndarray, float]:
         """Fit the base-axes offset (``base_frame``) on training clouds ``(M, N, 3)`` (camera frame, metres; no
-        labels) from the network's predictions of up to ``max_views`` evenly spaced clouds. Returns (``O (3, 3)``, the
-        share of those views that agree with it within 15 deg).
+        labels) from the network's predictions of up to ``max_views`` evenly spaced clouds, after choosing the base
+        slot (``base_slot``). Returns (``O (3, 3)``, the share of those views that agree with it within 15 deg).
 
         Raises:
-            ConfigError: not loaded. InputError: the network labels no training view's points as the base.
+            ConfigError: not loaded, or a base slot the model does not have. InputError: the network labels no
+            training view's points as the base.
         """
-        from scapo.methods.base_frame import base_axes, fit_base_offset
+        from scapo.methods.base_frame import base_axes, choose_base_slot, fit_base_offset
 
         if self.predictor is None:
             raise ConfigError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
         pts = np.asarray(points)
         pts = pts[np.unique(np.linspace(0, len(pts) - 1, min(len(pts), int(max_views))).round().astype(int))]
         o = self.predictor.predict(pts, self.options.batch_size, False)
-        E, ok = base_axes(pts, o["part_label"])
-        self.base_offset, self.base_support, _ = fit_base_offset(np.asarray(o["part_pose"])[ok, 0, :3, :3],
-                                                                 E[ok])
+        pose = np.asarray(o["part_pose"])
+        slot, self.base_dispersion = choose_base_slot(pose)
+        if str(self.options.base_slot) != "auto":
+            slot = int(self.options.base_slot)
+            if slot >= pose.shape[1]:
+                raise ConfigError(f"base_slot={slot}: the model has part slots 0-{pose.shape[1] - 1}")
+        self.base_slot = slot
+        E, ok = base_axes(pts, o["part_label"], slot=slot)
+        self.base_offset, self.base_support, _ = fit_base_offset(pose[ok, slot, :3, :3], E[ok])
         return self.base_offset, self.base_support
 
     def _base_frame(self, points, o: dict) -> dict:
@@ -116,7 +134,7 @@ class SCAPOMethod:
                               "or fit_base_frame(points)")
         from scapo.methods.base_frame import snap_to_base
 
-        return snap_to_base(np.asarray(points), o, self.base_offset)
+        return snap_to_base(np.asarray(points), o, self.base_offset, slot=self.base_slot)
 
     def load(self) -> SCAPOMethod:
         """Load the run (:meth:`Predictor.load <scapo.models.predict.Predictor.load>`; no dataset needed, so the
@@ -190,6 +208,8 @@ class SCAPOMethod:
                   "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2), **extra,
                   **({"base_frame": {"offset": np.round(self.base_offset, 6).tolist(),
                                      "train_support": round(self.base_support, 4),
+                                     "slot": self.base_slot, "slot_option": str(self.options.base_slot),
+                                     "dispersion": np.round(self.base_dispersion, 4).tolist(),
                                      "snap_deg_median": round(float(np.median(o["base_snap_deg"])), 2)}}
                      if self.options.base_frame else {})},
         )
