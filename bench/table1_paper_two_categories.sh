@@ -9,6 +9,8 @@
 #   BUDGET=5 WORK=bench_work/table1_paper bash bench/table1_paper_two_categories.sh
 #   FINISH=1 bash bench/table1_paper_two_categories.sh        # the table of the finished cells, into results/
 #   PARTS="scapo/principal" ...                               # extra rows (bench table1 --part), in chain A
+#   OPTION_ROWS="scapo:base-auto:base_frame=principal,base_slot=auto" ...  # rows of the same runs predicted with
+#                                                             # options (bench table1 --option-row; no training)
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 scapo="${SCAPO:-.venv/bin/scapo}"
@@ -17,6 +19,7 @@ common=(bench table1 --viewpoints paper --categories laptop,eyeglasses --seeds 0
         --no-refine-rows --work "$work" --name table1_paper_two_categories --no-progress)
 parts=()
 for p in ${PARTS:-}; do parts+=(--part "$p"); done
+for r in ${OPTION_ROWS:-}; do parts+=(--option-row "$r"); done
 if [ -n "${FINISH:-}" ]; then
   exec "$scapo" "${common[@]}" "${parts[@]}" --finished-only --out "${OUT:-results}"
 fi
