@@ -53,6 +53,12 @@ def _as_network(net_label: np.ndarray, gt_label: np.ndarray, slot: int = 0) -> n
     return out
 
 
+def _majority(in_slot: np.ndarray, gt: np.ndarray) -> int:
+    """The true part (>= 0) holding most of one view's points where ``in_slot (N,)`` bool; -1 if none."""
+    sel = in_slot & (gt >= 0)
+    return int(np.bincount(gt[sel]).argmax()) if sel.any() else -1
+
+
 def _as_slot(label: np.ndarray, slot: int) -> np.ndarray:
     """Labels with the base as 0 and the rest as 1 (-1 background) renumbered so that the base is ``slot``."""
     return np.where(label == 0, slot, np.where(label >= 0, 1 if slot == 0 else 0, -1))
@@ -63,7 +69,7 @@ def main(argv=None) -> int:
     from scapo.data import load
     from scapo.eval.evaluator import declared_rotations
     from scapo.methods import load_run
-    from scapo.methods.base_frame import base_axes, choose_base_slot, fit_base_offset, snap_to_base
+    from scapo.methods.base_frame import base_axes, choose_base_slot, fit_base_offset, rotation_dispersion, snap_to_base
     from scapo.provenance import provenance
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -95,13 +101,17 @@ def main(argv=None) -> int:
               "is the method, `gt` and `gt-as-network` are diagnoses with ground-truth base points):", "",
               "| run | base points | base slot | offset support (train) | frame cons. sym before | after | "
               "median snap deg |", "|:--|:--|:--|--:|--:|--:|--:|"]
-    rows = []
+    rows, slots_lines = [], []
     for spec in a.run:
         label, _, run = spec.partition("=")
         m = load_run(run, refine_steps=0)
         ot, ov = m.predict_points(A["points"]), m.predict_points(B["points"])
         before = frame_consistency(np.asarray(ov["T_cam_obj"]), B["T_cam_obj"], symmetries=sym)
         auto, disp = choose_base_slot(np.asarray(ot["part_pose"]))
+        is_base = [float(np.mean([_majority(n, g) == 0 for n, g in zip(ot["part_label"] == s, A["part_label"])]))
+                   for s in range(len(disp))]
+        slots_lines.append(f"| {label} | {' / '.join(f'{d:.3f}' for d in disp)} | {auto} | "
+                           f"{' / '.join(f'{b:.2f}' for b in is_base)} |")
         slots = [0] + ([auto] if auto != 0 else [])
         for src in ("network", "gt", "gt-as-network"):
             for slot in slots:
@@ -124,6 +134,13 @@ def main(argv=None) -> int:
                              f"{np.median(sv['base_snap_deg']):.1f} |")
                 print(lines[-1], flush=True)
     cmd = "python bench/base_frame_snap.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    lines += ["", "Which slot is the base (`base_slot=auto`): the spread of each slot's predicted rotations over the "
+              "training views (:func:`scapo.methods.base_frame.choose_base_slot`; 0 = one rotation), the slot it "
+              "chooses, and, as a diagnosis with ground truth, the share of training views where each slot's points "
+              "are mostly the true base (true base rotations spread "
+              f"{rotation_dispersion(np.asarray(A['T_cam_obj'])[:, :3, :3]):.3f}):", "",
+              "| run | spread per slot | chosen slot | slot is the true base (train views) |", "|:--|:--|--:|:--|",
+              *slots_lines]
     lines += ["", f"Written by `{cmd}`."]
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
