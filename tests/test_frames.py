@@ -290,5 +290,8 @@ def test_the_base_slot_is_the_part_whose_rotations_spread_least():
     rel = np.einsum("vji,vjk->vik", Q, snapped["T_cam_obj"][:, :3, :3])  # Q^T R: one constant
     ang = np.degrees(np.arccos(np.clip((np.einsum("ij,vij->v", rel[0], rel) - 1) / 2, -1, 1)))
     assert ang.max() < 5.0
+    sphere = pose.copy()  # viewpoints from the whole sphere: no slot spreads less, slot 0 is kept
+    sphere[:, :, :3, :3] = np.einsum("vij,vpjk->vpik", random_rotation(V, torch.float64, g).numpy(), pose[:, :, :3, :3])
+    assert choose_base_slot(sphere)[0] == 0
     with pytest.raises(InputError, match="scapo:"):
         choose_base_slot(np.zeros((0, 2, 4, 4)))

@@ -58,17 +58,21 @@ def rotation_dispersion(R: np.ndarray) -> float:
     return float(1.0 - np.linalg.svd(R.mean(0), compute_uv=False).mean())
 
 
-def choose_base_slot(part_pose: np.ndarray) -> tuple[int, np.ndarray]:
+def choose_base_slot(part_pose: np.ndarray, level: float = 0.95, resamples: int = 200,
+                     seed: int = 0) -> tuple[int, np.ndarray]:
     """The part slot that acts as the base over a set of training views, with no labels: the slot whose camera-frame
     rotations spread least (:func:`rotation_dispersion`). A base turns only with the viewpoint; a part on a joint also
     turns with the joint's state, so its rotations spread more. Under uniform SO(3) viewpoints every slot spreads
-    alike (near 1) and the choice carries no information: it needs a viewpoint regime narrower than the sphere.
+    alike (near 1) and the choice carries no information, so another slot replaces slot 0 only when it spreads least
+    in at least ``level`` of ``resamples`` bootstrap resamples of the views (seeded: the same poses give the same
+    slot).
 
     Args:
         part_pose: ``(V, P, 4, 4)`` predicted part poses (canonical -> camera) of training views.
+        level: the bootstrap share a slot other than 0 needs. resamples, seed: the bootstrap's size and seed.
 
     Returns:
-        The slot (int) and each slot's dispersion ``(P,)`` float64.
+        The slot (int) and each slot's dispersion ``(P,)`` float64 on all views.
 
     Raises:
         InputError: not a ``(V, P, 4, 4)`` array with V > 0.
@@ -76,8 +80,17 @@ def choose_base_slot(part_pose: np.ndarray) -> tuple[int, np.ndarray]:
     pose = np.asarray(part_pose, dtype=np.float64)
     if pose.ndim != 4 or pose.shape[-2:] != (4, 4) or len(pose) == 0:
         raise InputError(f"scapo: choose_base_slot needs part poses (V, P, 4, 4) with V > 0, got {pose.shape}")
-    disp = np.array([rotation_dispersion(pose[:, p, :3, :3]) for p in range(pose.shape[1])])
-    return int(disp.argmin()), disp
+    R = pose[..., :3, :3]
+    disp = np.array([rotation_dispersion(R[:, p]) for p in range(R.shape[1])])
+    slot = int(disp.argmin())
+    if slot != 0:
+        rng = np.random.default_rng(seed)
+        wins = 0
+        for _ in range(int(resamples)):
+            idx = rng.integers(0, len(R), len(R))
+            wins += int(np.argmin([rotation_dispersion(R[idx, p]) for p in range(R.shape[1])]) == slot)
+        slot = slot if wins >= level * resamples else 0
+    return slot, disp
 
 
 def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16,
