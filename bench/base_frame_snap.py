@@ -44,13 +44,8 @@ def axes_consistency(R_gt: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0) 
 def _as_network(net_label: np.ndarray, gt_label: np.ndarray, slot: int = 0) -> np.ndarray:
     """The true segmentation, with the true part holding most of the network's slot-``slot`` points called part 0
     (every other true part 1, background -1)."""
-    out = np.full_like(gt_label, -1)
-    for v in range(len(gt_label)):
-        g = gt_label[v]
-        sel = (net_label[v] == slot) & (g >= 0)
-        base = int(np.bincount(g[sel]).argmax()) if sel.any() else 0
-        out[v] = np.where(g == base, 0, np.where(g >= 0, 1, -1))
-    return out
+    base = np.array([max(_majority(n == slot, g), 0) for n, g in zip(net_label, gt_label)])
+    return np.where(gt_label == base[:, None], 0, np.where(gt_label >= 0, 1, -1))
 
 
 def _majority(in_slot: np.ndarray, gt: np.ndarray) -> int:
@@ -62,6 +57,15 @@ def _majority(in_slot: np.ndarray, gt: np.ndarray) -> int:
 def _as_slot(label: np.ndarray, slot: int) -> np.ndarray:
     """Labels with the base as 0 and the rest as 1 (-1 background) renumbered so that the base is ``slot``."""
     return np.where(label == 0, slot, np.where(label >= 0, 1 if slot == 0 else 0, -1))
+
+
+def _base_labels(src: str, pred: dict, gt: dict, slot: int) -> np.ndarray:
+    """The labels whose slot ``slot`` is the base, from source ``src``: the network's own, the true segmentation
+    (``gt``) or the true one with the network's choice of base (``gt-as-network``)."""
+    if src == "network":
+        return pred["part_label"]
+    base = gt["part_label"].clip(-1, 1) if src == "gt" else _as_network(pred["part_label"], gt["part_label"], slot)
+    return _as_slot(base, slot)
 
 
 def main(argv=None) -> int:
@@ -116,11 +120,7 @@ def main(argv=None) -> int:
         for src in ("network", "gt", "gt-as-network"):
             for slot in slots:
                 # the base's points as slot `slot` of the labels; the network's pose of `slot` is the reference
-                lt, lv = {"network": (ot["part_label"], ov["part_label"]),
-                          "gt": (_as_slot(A["part_label"].clip(-1, 1), slot),
-                                 _as_slot(B["part_label"].clip(-1, 1), slot)),
-                          "gt-as-network": (_as_slot(_as_network(ot["part_label"], A["part_label"], slot), slot),
-                                            _as_slot(_as_network(ov["part_label"], B["part_label"], slot), slot))}[src]
+                lt, lv = _base_labels(src, ot, A, slot), _base_labels(src, ov, B, slot)
                 E, ok = base_axes(A["points"], lt, slot=slot)
                 O, support, _ = fit_base_offset(np.asarray(ot["part_pose"])[ok, slot, :3, :3], E[ok])
                 sv = snap_to_base(B["points"], {**ov, "part_label": lv}, O, slot=slot)
