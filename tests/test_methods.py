@@ -88,6 +88,21 @@ def test_every_refinable_method_predicts_with_the_test_time_refinement(name, lap
         assert math.isfinite(res.summary[k]), (name, k)
 
 
+@pytest.mark.parametrize("name", ["scapo", "npcs"])
+def test_a_trained_method_predicts_with_the_hinge_resplit(name, laptop_data, trained_runs, tmp_path):
+    plain = run_method(name, laptop_data, tmp_path / "a.npz", run=trained_runs[name])
+    preds = run_method(name, laptop_data, tmp_path / "p.npz", run=trained_runs[name], hinge=True)
+    assert preds.method == f"{name}+hinge" and 0 <= preds.info["hinge"]["changed_share_mean"] <= 1
+    keep = plain.part_label != preds.part_label  # only the joint's two parts trade points
+    jp = plain.joint_parts[0, 0]
+    assert np.isin(plain.part_label[keep], jp).all() and np.isin(preds.part_label[keep], jp).all()
+    move = preds.joint_pivot - plain.joint_pivot  # the pivot moves normal to the joint axis only
+    a = plain.joint_axis / np.linalg.norm(plain.joint_axis, axis=-1, keepdims=True)
+    assert np.abs((move * a).sum(-1)).max() < 1e-5
+    assert np.allclose(preds.part_pose, plain.part_pose) and np.allclose(preds.joint_axis, plain.joint_axis)
+    assert math.isfinite(evaluate(laptop_data, tmp_path / "p.npz").summary["S"])
+
+
 def test_eap_template_posed_by_its_part_poses_is_its_own_reconstruction():
     from scapo.methods import eap
     from scapo.methods.learned import normalize_clouds

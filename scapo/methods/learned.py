@@ -258,10 +258,19 @@ class LearnedOptions:
     """Fit the method's own whole-object model to each view after its one-pass prediction
     (:mod:`scapo.methods.refine`, ``scapo predict --refine``); the label becomes ``<method>+refine``. Only for
     methods with a canonical shape or template (``scapo list``)."""
+    hinge: bool = False
+    """Re-fit each view's part split and pivot about every revolute joint from the method's own one-pass prediction
+    (:mod:`scapo.methods.hinge`, an addition to the paper offered to every trained method); the label gets
+    ``+hinge``. Applied to the one-pass output, before ``refine`` when both are given."""
 
     def __post_init__(self):
         if self.batch_size < 1:
             raise ConfigError(f"batch_size must be >= 1, got {self.batch_size}")
+
+
+def post_suffix(options) -> str:
+    """The label suffix of the prediction steps ``options`` turn on: ``+refine`` and/or ``+hinge``."""
+    return ("+refine" if options.refine else "") + ("+hinge" if getattr(options, "hinge", False) else "")
 
 
 def check_run_fits(run: Path, ident: dict, data: ArticulationDataset, cross_category: bool, todo: str) -> None:
@@ -309,7 +318,7 @@ class LearnedMethod:
             raise ConfigError(f"the {spec.method} method needs a trained run: --run RUN (a folder written by "
                               f"'scapo train --method {spec.method}')")
         self.run = Path(options.run)
-        self.label = options.label or (f"{spec.method}+refine" if options.refine else spec.method)
+        self.label = options.label or (spec.method + post_suffix(options))
         self.net = None
 
     def fit(self, train: ArticulationDataset) -> None:
@@ -356,7 +365,7 @@ class LearnedMethod:
 
             self.supervision = supervision_marks(sup)
             if not o.label:
-                self.label = f"{self.spec.method}-{sup.lower()}" + ("+refine" if o.refine else "")
+                self.label = f"{self.spec.method}-{sup.lower()}" + post_suffix(o)
         if o.refine and self.spec.method not in refinable_methods():
             raise ConfigError(f"method {self.spec.method!r} has no canonical shape or template for the test-time "
                               f"refinement; --refine applies to: {', '.join(refinable_methods())}")
@@ -400,12 +409,17 @@ class LearnedMethod:
             outs.append(self.net.infer(X.to(self.device)))
         o = {k: np.concatenate([d[k] for d in outs]) for k in outs[0]} if outs else {}
         info = {}
+        if self.options.hinge:
+            from scapo.methods.hinge import hinge_info, hinge_prediction
+
+            o = hinge_prediction(a["points"], o, self.identity["joint_type"], self.identity["joint_parts"])
+            info["hinge"] = hinge_info(o)
         if self.options.refine:
             from scapo.methods.refine import refine_info, refine_prediction
 
             o = refine_prediction(a["points"], o, o["template"], o["template_label"], self.identity["joint_type"],
                                   self.identity["joint_parts"], batch_size=self.options.batch_size)
-            info = refine_info(o)
+            info.update(refine_info(o))
         seconds = time.perf_counter() - t0
         jt = np.array(self.identity["joint_type"], dtype=np.int64)
         jp = np.array(self.identity["joint_parts"], dtype=np.int64).reshape(-1, 2)

@@ -17,7 +17,7 @@ from scapo.data.dataset import ArticulationDataset
 from scapo.errors import ConfigError
 from scapo.eval.predictions import Predictions
 from scapo.losses.supervised import supervision_marks
-from scapo.methods.learned import LearnedOptions, check_run_fits
+from scapo.methods.learned import LearnedOptions, check_run_fits, post_suffix
 from scapo.methods.registry import register_method
 from scapo.models.predict import Predictor
 from scapo.models.presets import ABLATIONS, PRESETS, get_preset
@@ -72,7 +72,7 @@ class SCAPOMethod:
         if self.options.run is None:
             raise ConfigError("the scapo method needs a trained run: --run RUN (a folder written by 'scapo train')")
         self.run = Path(self.options.run)
-        self.label = str(self.options.label or ("scapo+refine" if self.options.refine else "scapo"))
+        self.label = str(self.options.label or ("scapo" + post_suffix(self.options)))
         self.predictor: Predictor | None = None
         self.base_offset: np.ndarray | None = None
         """``(3, 3)`` the fitted base-axes offset (``base_frame``, :func:`.base_frame.fit_base_offset`)."""
@@ -114,7 +114,7 @@ class SCAPOMethod:
             raise ConfigError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
         pts = np.asarray(points)
         pts = pts[np.unique(np.linspace(0, len(pts) - 1, min(len(pts), int(max_views))).round().astype(int))]
-        o = self.predictor.predict(pts, self.options.batch_size, False)
+        o = self._one_pass(pts, False)
         pose = np.asarray(o["part_pose"])
         slot, self.base_dispersion = choose_base_slot(pose)
         if str(self.options.base_slot) != "auto":
@@ -125,6 +125,17 @@ class SCAPOMethod:
         E, ok = base_axes(pts, o["part_label"], slot=slot)
         self.base_offset, self.base_support, _ = fit_base_offset(pose[ok, slot, :3, :3], E[ok])
         return self.base_offset, self.base_support
+
+    def _one_pass(self, points, progress: bool) -> dict:
+        """The network's prediction for ``points (B, N, 3)``, re-split about its hinges with ``hinge``
+        (:mod:`scapo.methods.hinge`; before the base-axes snap, which reads the base's points)."""
+        o = self.predictor.predict(points, self.options.batch_size, progress)
+        if self.options.hinge:
+            from scapo.methods.hinge import hinge_prediction
+
+            mc = self.predictor.model.cfg
+            o = hinge_prediction(np.asarray(points), o, mc.joint_types, mc.joint_parts)
+        return o
 
     def _base_frame(self, points, o: dict) -> dict:
         if not self.options.base_frame:
@@ -158,7 +169,7 @@ class SCAPOMethod:
         if sup:  # the semi-supervised setting: its marks, and a label of its own unless one was given
             self.supervision = supervision_marks(sup)
             if not self.options.label:
-                self.label = f"scapo-{sup.lower()}" + ("+refine" if self.options.refine else "")
+                self.label = f"scapo-{sup.lower()}" + post_suffix(self.options)
         return self
 
     @property
@@ -170,13 +181,12 @@ class SCAPOMethod:
         """:meth:`Predictor.predict <scapo.models.predict.Predictor.predict>` on clouds ``(B, N, 3)`` (metres)."""
         if self.predictor is None:
             raise ConfigError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
-        return self._base_frame(points, self.predictor.predict(points, self.options.batch_size, self.options.progress))
+        return self._base_frame(points, self._one_pass(points, self.options.progress))
 
     def predict(self, dataset: ArticulationDataset) -> Predictions:
         a = dataset.arrays(["points"])
         t0 = time.perf_counter()
-        o = self._base_frame(a["points"], self.predictor.predict(a["points"], self.options.batch_size,
-                                                                  self.options.progress))
+        o = self._base_frame(a["points"], self._one_pass(a["points"], self.options.progress))
         mc = self.predictor.model.cfg
         extra = {}
         if self.options.refine:
@@ -185,6 +195,10 @@ class SCAPOMethod:
             o = refine_prediction(a["points"], o, o["template_rest"], o["template_label"], mc.joint_types,
                                   mc.joint_parts, batch_size=self.options.batch_size)
             extra = refine_info(o)
+        if self.options.hinge:
+            from scapo.methods.hinge import hinge_info
+
+            extra["hinge"] = hinge_info(o)
         seconds = time.perf_counter() - t0
         M = len(a["points"])
         return Predictions(

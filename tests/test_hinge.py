@@ -1,0 +1,75 @@
+"""The two-ray re-split about a revolute joint (scapo.methods.hinge) on hand-built two-slab views."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from scapo.errors import InputError
+from scapo.methods.hinge import hinge_fit, hinge_prediction
+
+
+def _slabs(rng, opening_deg=110.0, n=600):
+    """A laptop-like view: two thin slabs (0.3 m long, 0.2 m along the hinge, 2 mm thick) meeting at a hinge on the
+    z axis through the origin, turned and moved into a camera frame. Returns points, true labels (0 base, 1 lid),
+    the camera-frame pivot and axis, and the in-plane distance of each point to the hinge."""
+    s = rng.uniform(0.0, 0.3, n)
+    z = rng.uniform(0.0, 0.2, n)
+    lab = (np.arange(n) >= n // 2).astype(np.int64)
+    ang = np.where(lab == 1, np.radians(opening_deg), 0.0)
+    pts = np.stack([s * np.cos(ang), s * np.sin(ang), z], 1) + rng.normal(0, 0.002, (n, 3))
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.random(random_state=rng).as_matrix()
+    t = np.array([0.1, -0.05, 1.2])
+    return pts @ R.T + t, lab, t, R[:, 2], s
+
+
+def test_the_hinge_fit_moves_the_split_and_the_pivot_back_to_the_hinge():
+    rng = np.random.default_rng(0)
+    pts, gt, pivot, axis, s = _slabs(rng)
+    lab = gt.copy()
+    lab[(gt == 0) & (s < 0.1)] = 1  # the network's error: base points near the hinge given to the lid
+    piv_bad = pivot + 0.06 * np.cross(axis, [1.0, 0.0, 0.0]) / np.linalg.norm(np.cross(axis, [1.0, 0.0, 0.0]))
+    new, piv = hinge_fit(pts, lab, piv_bad, axis, 0, 1)
+    assert (lab == gt).mean() < 0.9
+    assert (new == gt).mean() > 0.98  # only points within a few mm of the hinge may stay ambiguous
+    w = piv - pivot
+    assert np.linalg.norm(w - (w @ axis) * axis) < 0.01  # on the hinge line to 1 cm
+    assert abs((piv - piv_bad) @ axis) < 1e-9  # moved in the plane normal to the axis only
+
+
+def test_the_hinge_fit_leaves_other_parts_and_thin_parts_alone():
+    rng = np.random.default_rng(1)
+    pts, gt, pivot, axis, _ = _slabs(rng)
+    lab = gt.copy()
+    lab[:20] = 2  # a third part: never relabelled
+    new, _ = hinge_fit(pts, lab, pivot, axis, 0, 1)
+    assert (new[:20] == 2).all()
+    few = gt.copy()
+    few[gt == 1] = 0
+    few[np.flatnonzero(gt == 1)[:5]] = 1  # the child has 5 points: no fit, nothing changes
+    new, piv = hinge_fit(pts, few, pivot + 0.05, axis, 0, 1)
+    assert (new == few).all() and np.allclose(piv, pivot + 0.05)
+
+
+def test_the_hinge_prediction_skips_prismatic_joints_and_checks_its_input():
+    rng = np.random.default_rng(2)
+    pts, gt, pivot, axis, s = _slabs(rng)
+    lab = gt.copy()
+    lab[(gt == 0) & (s < 0.1)] = 1
+    out = {"part_label": np.stack([lab, lab]), "joint_axis": np.tile(axis, (2, 1, 1)),
+           "joint_pivot": np.tile(pivot + 0.03 * axis + 0.04 * np.cross(axis, [0, 0, 1.0]), (2, 1, 1)), "other": 7}
+    res = hinge_prediction(np.stack([pts, pts]), out, [0], [[0, 1]])
+    assert (res["part_label"] == gt).mean() > 0.98 and res["other"] == 7
+    assert res["hinge_changed"].shape == (2,) and (res["hinge_changed"] > 0.1).all()
+    same = hinge_prediction(np.stack([pts, pts]), out, [1], [[0, 1]])  # a prismatic joint: no hinge to fit
+    assert (same["part_label"] == out["part_label"]).all() and (same["hinge_pivot_move"] == 0).all()
+    with pytest.raises(InputError, match="hinge_prediction needs"):
+        hinge_prediction(pts, out, [0], [[0, 1]])
+    bad = pts.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(InputError, match="finite"):
+        hinge_fit(bad, lab, pivot, axis, 0, 1)
+    with pytest.raises(InputError, match="zero length"):
+        hinge_fit(pts, lab, pivot, np.zeros(3), 0, 1)
