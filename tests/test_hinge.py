@@ -73,3 +73,16 @@ def test_the_hinge_prediction_skips_prismatic_joints_and_checks_its_input():
         hinge_fit(bad, lab, pivot, axis, 0, 1)
     with pytest.raises(InputError, match="zero length"):
         hinge_fit(pts, lab, pivot, np.zeros(3), 0, 1)
+
+
+def test_the_hinge_diagnosis_refuses_missing_inputs(tmp_path, capsys):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "hinge_diagnosis.py"
+    spec = importlib.util.spec_from_file_location("hinge_diagnosis", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.main(["--data", str(tmp_path / "none"), "--pred", f"x={tmp_path / 'p.npz'}", "--out",
+                     str(tmp_path / "o")]) == 2
+    assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()

@@ -2,11 +2,10 @@
 
 A self-supervised segmentation learned from motion is weakest next to a revolute joint: a point near the axis
 moves little whichever part it is given to, so the losses that separate parts by their motion (SCAPO's cycle and
-cross-space terms) barely see it. On the laptop's paper viewpoints (45 core-minutes, val) SCAPO's own labels give a
-fifth to a third of the base points near the hinge to the lid, and its predicted pivot lies a median 0.05-0.14
-bounding-box diagonals from the true hinge line. With the **true** joint, re-splitting the same labels about the
-hinge lifts S from 64-77 % to 94-98 %; with the predicted axis and the true pivot to 76-96 %; with the true axis and
-the predicted pivot only to 72-87 % (``results/canonical_ladder/hinge/``): the pivot is what limits the split.
+cross-space terms) barely see it. On the laptop's paper viewpoints, most of SCAPO's mislabelled points lie within a
+tenth of the bounding-box diagonal of the hinge, and its predicted pivot lies a twentieth to a tenth of the diagonal
+from the true hinge line, while its predicted axis is within a few degrees (``bench/hinge_diagnosis.py``; the
+measurements are in ``results/canonical_ladder/hinge/``).
 
 This step re-estimates the pivot from the points and re-splits them, view by view, from a method's own one-pass
 prediction (its labels, joint axis and pivot; no ground truth, no training):
