@@ -12,7 +12,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from scapo.cli.main import main
-from scapo.errors import ConfigError, TrainingError
+from scapo.errors import ConfigError, PredictionError, TrainingError
 from scapo.eval import evaluate
 from scapo.methods import METHODS, describe, method_of_run, run_method, train_method, validate_options
 from scapo.ops.align import ransac_umeyama
@@ -101,6 +101,13 @@ def test_a_trained_method_predicts_with_the_hinge_resplit(name, laptop_data, tra
     assert np.abs((move * a).sum(-1)).max() < 1e-5
     assert np.allclose(preds.part_pose, plain.part_pose) and np.allclose(preds.joint_axis, plain.joint_axis)
     assert math.isfinite(evaluate(laptop_data, tmp_path / "p.npz").summary["S"])
+    from scapo.methods.hinge import hinge_predictions  # the same step on the file already written
+
+    post = hinge_predictions(laptop_data, tmp_path / "a.npz")
+    assert post.method == f"{name}+hinge" and (post.part_label == preds.part_label).all()
+    assert np.allclose(post.joint_pivot, preds.joint_pivot, atol=1e-5)
+    with pytest.raises(PredictionError, match="already"):
+        hinge_predictions(laptop_data, post)
 
 
 def test_eap_template_posed_by_its_part_poses_is_its_own_reconstruction():

@@ -168,3 +168,59 @@ def hinge_info(result: dict) -> dict:
     return {"iters": HINGE_ITERS, "min_points": HINGE_MIN_POINTS,
             "changed_share_mean": round(float(np.mean(result["hinge_changed"])), 4),
             "pivot_move_m_median": round(float(np.median(move)), 5) if move.size else 0.0}
+
+
+def hinge_predictions(dataset, preds):
+    """The hinge step applied to a predictions file already written (``scapo predict`` output of any method, made
+    without ``hinge``): what ``--option hinge=true`` would have given, without predicting again (the step reads only
+    the prediction and the points). Each sample's joints are its own ``joint_type``/``joint_parts`` rows.
+
+    Args:
+        dataset: the dataset folder (or an opened dataset of any split) the predictions were made on.
+        preds: :class:`~scapo.eval.predictions.Predictions` (or a path to one).
+
+    Returns:
+        New :class:`~scapo.eval.predictions.Predictions`: ``part_label`` and ``joint_pivot`` replaced, the label
+        ``<method>+hinge``, ``info["hinge"]`` (:func:`hinge_info`) and ``info["hinge_source"]`` (the source's label).
+
+    Raises:
+        PredictionError: the predictions are of another dataset (its hash), already hinged, or name samples the
+            dataset lacks. DatasetError: not a dataset.
+    """
+    from scapo.data import load
+    from scapo.data.dataset import ArticulationDataset
+    from scapo.errors import PredictionError
+    from scapo.eval.predictions import Predictions
+
+    p = preds if isinstance(preds, Predictions) else Predictions.load(preds)
+    root = dataset.root if isinstance(dataset, ArticulationDataset) else dataset
+    if "hinge" in p.info:
+        raise PredictionError(f"predictions of {p.method!r} already went through the hinge step")
+    lab, piv = p.part_label.copy(), p.joint_pivot.copy()
+    changed, moves = np.zeros(len(p)), []
+    for split in np.unique(p.split):
+        d = load(root, str(split))
+        if p.dataset_hash and d.card.get("dataset_hash") and p.dataset_hash != d.card.get("dataset_hash"):
+            raise PredictionError(f"predictions of {p.method!r} were made on dataset {p.dataset_hash[:12]}, not on "
+                                  f"{root} ({str(d.card.get('dataset_hash'))[:12]})")
+        a = d.arrays(["points"])  # with the sample keys instance_id, view_id
+        key = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(a["instance_id"], a["view_id"]))}
+        rows = np.flatnonzero(p.split == split)
+        try:
+            src = np.array([key[(int(p.instance_id[r]), int(p.view_id[r]))] for r in rows])
+        except KeyError as e:
+            raise PredictionError(f"predictions of {p.method!r} name sample {e.args[0]} (instance, view), which the "
+                                  f"{split} split of {root} lacks") from None
+        for jt, jp in {(tuple(p.joint_type[r]), tuple(map(tuple, p.joint_parts[r]))) for r in rows}:
+            sub = rows[[tuple(p.joint_type[r]) == jt and tuple(map(tuple, p.joint_parts[r])) == jp for r in rows]]
+            pts = a["points"][src[np.searchsorted(rows, sub)]]
+            o = hinge_prediction(pts, {"part_label": p.part_label[sub], "joint_axis": p.joint_axis[sub],
+                                       "joint_pivot": p.joint_pivot[sub]}, jt, jp)
+            lab[sub], piv[sub], changed[sub] = o["part_label"], o["joint_pivot"], o["hinge_changed"]
+            moves.append(o["hinge_pivot_move"].ravel())
+    info = {**p.info, "hinge": hinge_info({"hinge_changed": changed, "hinge_pivot_move": np.concatenate(moves)
+                                           if moves else np.zeros(0)}), "hinge_source": p.method}
+    kw = {k: getattr(p, k) for k in ("instance_id", "view_id", "split", "part_pose", "joint_parts", "joint_type",
+                                     "joint_axis", "joint_state", "T_cam_obj")}
+    return Predictions(method=f"{p.method}+hinge", part_label=lab, joint_pivot=piv, needs_alignment=p.needs_alignment,
+                       supervision=dict(p.supervision), dataset_hash=p.dataset_hash, info=info, **kw)
