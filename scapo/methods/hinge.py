@@ -25,9 +25,12 @@ prediction (its labels, joint axis and pivot; no ground truth, no training):
    joint whose parent or child has fewer than ``min_points`` points in the view.
 
 What it assumes: parts that are thin in the section normal to their hinge (a box-shaped body beside a door is a
-region, not a segment, and its line can miss the hinge). It reads only what the method predicts, so it is offered to
-every trained method alike (``scapo predict --option hinge=true``; the predictions' label gets ``+hinge`` and
-``info["hinge"]`` records the share of points that changed part and the median pivot move).
+region, not a segment, and its line can miss the hinge), and a predicted axis near the true one (the fit moves the
+pivot, never the axis). It reads only what the method predicts, so it is offered to every trained method alike
+(``scapo predict --option hinge=true``; the predictions' label gets ``+hinge`` and ``info["hinge"]`` records the share
+of points that changed part and the median pivot move; :func:`hinge_predictions` applies it to a predictions file
+already written). It is not free: a method whose split is already right but whose pivot is far off loses (ICP on
+Table 1's laptop views, ``results/table1_paper_hinge_5min/``).
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ import numpy as np
 
 from scapo.errors import InputError
 
-#: Iterations of the line fit and re-split (the split stops changing after 3-5 on the laptop's views).
+#: Iterations of the line fit and re-split (fixed before any measurement, not tuned).
 HINGE_ITERS = 8
 #: A part with fewer points in a view is not fitted (a line through a handful of points means little).
 HINGE_MIN_POINTS = 8
