@@ -11,6 +11,9 @@
 #   PARTS="scapo/principal" ...                               # extra rows (bench table1 --part), in chain A
 #   OPTION_ROWS="scapo:base-auto:base_frame=principal,base_slot=auto" ...  # rows of the same runs predicted with
 #                                                             # options (bench table1 --option-row; no training)
+#   HINGE=1 bash bench/table1_paper_two_categories.sh         # after FINISH: every cell's predictions with and without
+#                                                             # the hinge re-split (bench/hinge_rows.py), scored on test
+#                                                             # into results/table1_paper_hinge_<BUDGET>min/<category>.*
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 scapo="${SCAPO:-.venv/bin/scapo}"
@@ -20,6 +23,17 @@ common=(bench table1 --viewpoints paper --categories laptop,eyeglasses --seeds 0
 parts=()
 for p in ${PARTS:-}; do parts+=(--part "$p"); done
 for r in ${OPTION_ROWS:-}; do parts+=(--option-row "$r"); done
+if [ -n "${HINGE:-}" ]; then
+  out="${OUT:-results}/table1_paper_hinge_${BUDGET:-5}min"
+  for data in "$work"/*_paper; do
+    cat="$(basename "$data")"; cat="${cat%%_*}"
+    preds=("$data"/predictions_*.npz)
+    "${PYTHON:-.venv/bin/python}" bench/hinge_rows.py --data "$data" --pred "${preds[@]}" --out-dir "$work/hinge/$cat"
+    "$scapo" evaluate --data "$data" --pred "${preds[@]}" "$work/hinge/$cat"/*.npz --split test --out "$out" \
+      --name "$cat" --no-progress
+  done
+  exit 0
+fi
 if [ -n "${FINISH:-}" ]; then
   exec "$scapo" "${common[@]}" "${parts[@]}" --finished-only --out "${OUT:-results}"
 fi
