@@ -23,13 +23,14 @@ def main(argv=None) -> int:
     ap.add_argument("--data", required=True)
     ap.add_argument("--pred", nargs="+", required=True)
     ap.add_argument("--out-dir", required=True)
+    ap.add_argument("--axis", action="store_true", help="also the axes from the parts' planes (hinge_axis=true)")
     a = ap.parse_args(argv)
     out = Path(a.out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
         for f in a.pred:
-            dst = out / (Path(f).stem + "+hinge.npz")
-            hinge_predictions(a.data, f).save(dst)
+            dst = out / (Path(f).stem + ("+hinge-axis.npz" if a.axis else "+hinge.npz"))
+            hinge_predictions(a.data, f, axis_from_planes=a.axis).save(dst)
             print(f"wrote {dst}")
     except (ScapoError, OSError) as e:
         print(f"scapo: {e}", file=sys.stderr)

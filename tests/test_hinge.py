@@ -86,3 +86,35 @@ def test_the_hinge_diagnosis_refuses_missing_inputs(tmp_path, capsys):
     assert mod.main(["--data", str(tmp_path / "none"), "--pred", f"x={tmp_path / 'p.npz'}", "--out",
                      str(tmp_path / "o")]) == 2
     assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
+
+
+def test_the_axis_from_the_parts_planes_corrects_a_tilted_axis_and_keeps_it_for_a_bar():
+    from scipy.spatial.transform import Rotation
+
+    from scapo.methods.hinge import plane_axis
+
+    rng = np.random.default_rng(3)
+    pts, gt, pivot, axis, s = _slabs(rng)
+    tilt = Rotation.from_rotvec(np.radians(10.0) * np.cross(axis, [1.0, 0, 0]) / np.linalg.norm(
+        np.cross(axis, [1.0, 0, 0]))).apply(axis)
+    lab = gt.copy()
+    lab[(gt == 0) & (s < 0.1)] = 1
+    out = {"part_label": lab[None], "joint_axis": tilt[None, None], "joint_pivot": pivot[None, None]}
+    res = hinge_prediction(pts[None], out, [0], [[0, 1]], axis_from_planes=True)
+    err = np.degrees(np.arccos(min(1.0, abs(float(res["joint_axis"][0, 0] @ axis)))))
+    assert err < 1.0 and (res["part_label"][0] == gt).mean() > 0.98
+    assert res["joint_axis"][0, 0] @ tilt > 0 and 9.0 < res["hinge_axis_turn"][0, 0] < 11.0
+    bar = pts.copy()  # the child squeezed into a bar along the hinge's normal plane: no plane, the axis is kept
+    child = gt == 1
+    bar[child] = pivot + np.outer(s[child], (pts[child] - pivot).mean(0) / np.linalg.norm((pts[child] - pivot).mean(0)))
+    assert np.allclose(plane_axis(bar, gt, 0, 1, tilt), tilt)
+
+
+def test_the_hinge_axis_option_needs_the_hinge_step():
+    from scapo.errors import ConfigError
+    from scapo.methods.learned import LearnedOptions, post_suffix
+
+    with pytest.raises(ConfigError, match="hinge=true"):
+        LearnedOptions(run="r", hinge_axis=True)
+    assert post_suffix(LearnedOptions(run="r", hinge=True, hinge_axis=True)) == "+hinge-axis"
+    assert post_suffix(LearnedOptions(run="r", hinge=True)) == "+hinge"

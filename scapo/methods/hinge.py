@@ -24,6 +24,11 @@ prediction (its labels, joint axis and pivot; no ground truth, no training):
    kinematic list), each on the labels the previous one left. A prismatic joint is skipped (no hinge), and so is a
    joint whose parent or child has fewer than ``min_points`` points in the view.
 
+5. Optionally (``axis_from_planes``, the option ``hinge_axis=true``): where both parts are planar slabs (a laptop's
+   base and lid), the axis is re-estimated as the line where their planes meet (:func:`plane_axis`, on the re-split
+   points), the fit is repeated about it, and the axis re-estimated once more. A bar-like part (an eyeglasses temple)
+   or near-parallel planes keep the predicted axis.
+
 What it assumes: parts that are thin in the section normal to their hinge (a box-shaped body beside a door is a
 region, not a segment, and its line can miss the hinge), and a predicted axis near the true one (the fit moves the
 pivot, never the axis). It reads only what the method predicts, so it is offered to every trained method alike
@@ -121,8 +126,40 @@ def hinge_fit(points: np.ndarray, part_label: np.ndarray, pivot: np.ndarray, axi
     return new, piv + c @ E
 
 
+def plane_axis(points: np.ndarray, part_label: np.ndarray, parent: int, child: int, axis: np.ndarray,
+               flat: float = 0.05, extent: float = 0.05) -> np.ndarray:
+    """A revolute joint's direction as the line where its two parts' planes meet, when both parts are planar
+    (``axis_from_planes``; an addition to the paper): each part's plane normal is the least-variance direction of its
+    points; a part is planar when its smallest variance is under ``flat`` times its middle one and its middle one over
+    ``extent`` times its largest (a slab, not a bar: an eyeglasses temple is a bar and keeps ``axis``).
+
+    Args:
+        points: ``(N, 3)`` camera frame (metres). part_label: ``(N,)`` slots. parent, child: the joint's slots.
+        axis: ``(3,)`` the current direction, kept when a part is not planar, has fewer than
+            :data:`HINGE_MIN_POINTS` points, or the planes are within ~6 deg of parallel (a laptop open flat or shut).
+
+    Returns:
+        ``(3,)`` unit direction, signed to agree with ``axis``.
+    """
+    ax = np.asarray(axis, dtype=np.float64)
+    normals = []
+    for q in (parent, child):
+        Q = np.asarray(points, dtype=np.float64)[np.asarray(part_label) == q]
+        if len(Q) < HINGE_MIN_POINTS:
+            return ax
+        w, v = np.linalg.eigh(np.cov((Q - Q.mean(0)).T))  # ascending variances
+        if not (w[0] < flat * w[1] and w[1] > extent * w[2]):
+            return ax
+        normals.append(v[:, 0])
+    a = np.cross(normals[0], normals[1])
+    if np.linalg.norm(a) < 0.1:
+        return ax
+    a /= np.linalg.norm(a)
+    return a if a @ ax >= 0 else -a
+
+
 def hinge_prediction(points: np.ndarray, out: dict, joint_type, joint_parts, iters: int = HINGE_ITERS,
-                     min_points: int = HINGE_MIN_POINTS) -> dict:
+                     min_points: int = HINGE_MIN_POINTS, axis_from_planes: bool = False) -> dict:
     """:func:`hinge_fit` for every view and revolute joint of a prediction.
 
     Args:
@@ -131,9 +168,12 @@ def hinge_prediction(points: np.ndarray, out: dict, joint_type, joint_parts, ite
             (camera frame, metres); other entries are passed through.
         joint_type: ``(J,)`` 0 revolute, 1 prismatic (prismatic joints are skipped).
         joint_parts: ``(J, 2)`` (parent slot, child slot) per joint, in the order the joints are fitted.
+        axis_from_planes: after the fit, also re-estimate each revolute axis where its two parts are planar
+            (:func:`plane_axis` on the re-split points), fit again about it, and re-estimate it once more.
 
     Returns:
-        A copy of ``out`` with ``part_label`` and ``joint_pivot`` replaced, and ``hinge_changed (B,)`` (the share of
+        A copy of ``out`` with ``part_label`` and ``joint_pivot`` (and, with ``axis_from_planes``, ``joint_axis``)
+        replaced, and ``hinge_changed (B,)`` (the share of
         each view's points that changed part) and ``hinge_pivot_move (B, J)`` (metres).
 
     Raises:
@@ -150,30 +190,40 @@ def hinge_prediction(points: np.ndarray, out: dict, joint_type, joint_parts, ite
         raise InputError(f"hinge_prediction needs points (B, N, 3), part_label (B, N), joint_axis and joint_pivot "
                          f"(B, J, 3) and J joint types and parts; got {pts.shape}, {lab.shape}, {axis.shape}, "
                          f"{pivot.shape}, {len(jt)} types, {len(jp)} parts")
-    new_lab, new_piv = lab.copy(), pivot.copy()
+    new_lab, new_piv, new_axis = lab.copy(), pivot.copy(), axis.copy()
     for b in range(B):
         for j in range(len(jt)):
             if int(jt[j]) != 0:
                 continue
-            new_lab[b], new_piv[b, j] = hinge_fit(pts[b], new_lab[b], pivot[b, j], axis[b, j], int(jp[j, 0]),
-                                                  int(jp[j, 1]), iters, min_points)
+            pa, ch = int(jp[j, 0]), int(jp[j, 1])
+            new_lab[b], new_piv[b, j] = hinge_fit(pts[b], new_lab[b], pivot[b, j], axis[b, j], pa, ch, iters,
+                                                  min_points)
+            if axis_from_planes:
+                a = plane_axis(pts[b], new_lab[b], pa, ch, axis[b, j])
+                new_lab[b], new_piv[b, j] = hinge_fit(pts[b], new_lab[b], new_piv[b, j], a, pa, ch, iters, min_points)
+                new_axis[b, j] = plane_axis(pts[b], new_lab[b], pa, ch, a)
     res = dict(out)
     res["part_label"] = new_lab
     res["joint_pivot"] = new_piv.astype(np.asarray(out["joint_pivot"]).dtype)
+    res["joint_axis"] = new_axis.astype(np.asarray(out["joint_axis"]).dtype)
     res["hinge_changed"] = (new_lab != lab).mean(1)
     res["hinge_pivot_move"] = np.linalg.norm(new_piv - pivot, axis=-1)
+    res["hinge_axis_turn"] = np.degrees(np.arccos(np.clip((new_axis * axis).sum(-1) / np.maximum(
+        np.linalg.norm(new_axis, axis=-1) * np.linalg.norm(axis, axis=-1), 1e-12), -1.0, 1.0)))
     return res
 
 
 def hinge_info(result: dict) -> dict:
     """What predictions record of the step (their ``info["hinge"]``), from :func:`hinge_prediction`'s output."""
     move = np.asarray(result["hinge_pivot_move"])
+    turn = np.asarray(result.get("hinge_axis_turn", np.zeros(0)))
     return {"iters": HINGE_ITERS, "min_points": HINGE_MIN_POINTS,
+            "axis_turn_deg_median": round(float(np.median(turn)), 3) if turn.size else 0.0,
             "changed_share_mean": round(float(np.mean(result["hinge_changed"])), 4),
             "pivot_move_m_median": round(float(np.median(move)), 5) if move.size else 0.0}
 
 
-def hinge_predictions(dataset, preds):
+def hinge_predictions(dataset, preds, axis_from_planes: bool = False):
     """The hinge step applied to a predictions file already written (``scapo predict`` output of any method, made
     without ``hinge``): what ``--option hinge=true`` would have given, without predicting again (the step reads only
     the prediction and the points). Each sample's joints are its own ``joint_type``/``joint_parts`` rows.
@@ -181,6 +231,7 @@ def hinge_predictions(dataset, preds):
     Args:
         dataset: the dataset folder (or an opened dataset of any split) the predictions were made on.
         preds: :class:`~scapo.eval.predictions.Predictions` (or a path to one).
+        axis_from_planes: also the axes (:func:`hinge_prediction`; the label is then ``<method>+hinge-axis``).
 
     Returns:
         New :class:`~scapo.eval.predictions.Predictions`: ``part_label`` and ``joint_pivot`` replaced, the label
@@ -199,8 +250,8 @@ def hinge_predictions(dataset, preds):
     root = dataset.root if isinstance(dataset, ArticulationDataset) else dataset
     if "hinge" in p.info:
         raise PredictionError(f"predictions of {p.method!r} already went through the hinge step")
-    lab, piv = p.part_label.copy(), p.joint_pivot.copy()
-    changed, moves = np.zeros(len(p)), []
+    lab, piv, axis = p.part_label.copy(), p.joint_pivot.copy(), p.joint_axis.copy()
+    changed, moves, turns = np.zeros(len(p)), [], []
     for split in np.unique(p.split):
         d = load(root, str(split))
         if p.dataset_hash and d.card.get("dataset_hash") and p.dataset_hash != d.card.get("dataset_hash"):
@@ -218,12 +269,17 @@ def hinge_predictions(dataset, preds):
             sub = rows[[tuple(p.joint_type[r]) == jt and tuple(map(tuple, p.joint_parts[r])) == jp for r in rows]]
             pts = a["points"][src[np.searchsorted(rows, sub)]]
             o = hinge_prediction(pts, {"part_label": p.part_label[sub], "joint_axis": p.joint_axis[sub],
-                                       "joint_pivot": p.joint_pivot[sub]}, jt, jp)
-            lab[sub], piv[sub], changed[sub] = o["part_label"], o["joint_pivot"], o["hinge_changed"]
+                                       "joint_pivot": p.joint_pivot[sub]}, jt, jp, axis_from_planes=axis_from_planes)
+            lab[sub], piv[sub], axis[sub], changed[sub] = (o["part_label"], o["joint_pivot"], o["joint_axis"],
+                                                           o["hinge_changed"])
             moves.append(o["hinge_pivot_move"].ravel())
-    info = {**p.info, "hinge": hinge_info({"hinge_changed": changed, "hinge_pivot_move": np.concatenate(moves)
-                                           if moves else np.zeros(0)}), "hinge_source": p.method}
+            turns.append(o["hinge_axis_turn"].ravel())
+    moves, turns = (np.concatenate(x) if x else np.zeros(0) for x in (moves, turns))
+    info = {**p.info, "hinge": {**hinge_info({"hinge_changed": changed, "hinge_pivot_move": moves,
+                                              "hinge_axis_turn": turns}), "axis_from_planes": axis_from_planes},
+            "hinge_source": p.method}
     kw = {k: getattr(p, k) for k in ("instance_id", "view_id", "split", "part_pose", "joint_parts", "joint_type",
-                                     "joint_axis", "joint_state", "T_cam_obj")}
-    return Predictions(method=f"{p.method}+hinge", part_label=lab, joint_pivot=piv, needs_alignment=p.needs_alignment,
+                                     "joint_state", "T_cam_obj")}
+    return Predictions(method=f"{p.method}+hinge" + ("-axis" if axis_from_planes else ""), part_label=lab,
+                       joint_pivot=piv, joint_axis=axis, needs_alignment=p.needs_alignment,
                        supervision=dict(p.supervision), dataset_hash=p.dataset_hash, info=info, **kw)

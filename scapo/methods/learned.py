@@ -262,15 +262,23 @@ class LearnedOptions:
     """Re-fit each view's part split and pivot about every revolute joint from the method's own one-pass prediction
     (:mod:`scapo.methods.hinge`, an addition to the paper offered to every trained method); the label gets
     ``+hinge``. Applied to the one-pass output, before ``refine`` when both are given."""
+    hinge_axis: bool = False
+    """With ``hinge``: also re-estimate each revolute axis as the line where its two parts' planes meet, where both
+    are planar (:func:`scapo.methods.hinge.plane_axis`); the label gets ``+hinge-axis``."""
 
     def __post_init__(self):
         if self.batch_size < 1:
             raise ConfigError(f"batch_size must be >= 1, got {self.batch_size}")
+        if self.hinge_axis and not self.hinge:
+            raise ConfigError("hinge_axis=true re-estimates the axes within the hinge step; give hinge=true too")
 
 
 def post_suffix(options) -> str:
-    """The label suffix of the prediction steps ``options`` turn on: ``+refine`` and/or ``+hinge``."""
-    return ("+refine" if options.refine else "") + ("+hinge" if getattr(options, "hinge", False) else "")
+    """The label suffix of the prediction steps ``options`` turn on: ``+refine`` and/or ``+hinge`` (``+hinge-axis``)."""
+    hinge = ""
+    if getattr(options, "hinge", False):
+        hinge = "+hinge-axis" if getattr(options, "hinge_axis", False) else "+hinge"
+    return ("+refine" if options.refine else "") + hinge
 
 
 def check_run_fits(run: Path, ident: dict, data: ArticulationDataset, cross_category: bool, todo: str) -> None:
@@ -412,8 +420,9 @@ class LearnedMethod:
         if self.options.hinge:
             from scapo.methods.hinge import hinge_info, hinge_prediction
 
-            o = hinge_prediction(a["points"], o, self.identity["joint_type"], self.identity["joint_parts"])
-            info["hinge"] = hinge_info(o)
+            o = hinge_prediction(a["points"], o, self.identity["joint_type"], self.identity["joint_parts"],
+                                 axis_from_planes=self.options.hinge_axis)
+            info["hinge"] = {**hinge_info(o), "axis_from_planes": self.options.hinge_axis}
         if self.options.refine:
             from scapo.methods.refine import refine_info, refine_prediction
 

@@ -134,7 +134,8 @@ class SCAPOMethod:
             from scapo.methods.hinge import hinge_prediction
 
             mc = self.predictor.model.cfg
-            o = hinge_prediction(np.asarray(points), o, mc.joint_types, mc.joint_parts)
+            o = hinge_prediction(np.asarray(points), o, mc.joint_types, mc.joint_parts,
+                                 axis_from_planes=self.options.hinge_axis)
         return o
 
     def _base_frame(self, points, o: dict) -> dict:
@@ -198,7 +199,7 @@ class SCAPOMethod:
         if self.options.hinge:
             from scapo.methods.hinge import hinge_info
 
-            extra["hinge"] = hinge_info(o)
+            extra["hinge"] = {**hinge_info(o), "axis_from_planes": self.options.hinge_axis}
         seconds = time.perf_counter() - t0
         M = len(a["points"])
         return Predictions(
