@@ -12,7 +12,8 @@
 #   OPTION_ROWS="scapo:base-auto:base_frame=principal,base_slot=auto" ...  # rows of the same runs predicted with
 #                                                             # options (bench table1 --option-row; no training)
 #   HINGE=1 bash bench/table1_paper_two_categories.sh         # after FINISH: every cell's predictions with and without
-#                                                             # the hinge re-split (bench/hinge_rows.py), scored on test
+#                                                             # the hinge re-split, and with its axes too (bench/hinge_rows.py
+#                                                             # [--axis]), scored on test
 #                                                             # into results/table1_paper_hinge_<BUDGET>min/<category>.*
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -29,8 +30,10 @@ if [ -n "${HINGE:-}" ]; then
     cat="$(basename "$data")"; cat="${cat%%_*}"
     preds=("$data"/predictions_*.npz)
     "${PYTHON:-.venv/bin/python}" bench/hinge_rows.py --data "$data" --pred "${preds[@]}" --out-dir "$work/hinge/$cat"
-    "$scapo" evaluate --data "$data" --pred "${preds[@]}" "$work/hinge/$cat"/*.npz --split test --out "$out" \
-      --name "$cat" --no-progress
+    "${PYTHON:-.venv/bin/python}" bench/hinge_rows.py --axis --data "$data" --pred "${preds[@]}" \
+      --out-dir "$work/hinge_axis/$cat"
+    "$scapo" evaluate --data "$data" --pred "${preds[@]}" "$work/hinge/$cat"/*.npz "$work/hinge_axis/$cat"/*.npz \
+      --split test --out "$out" --name "$cat" --no-progress
   done
   exit 0
 fi
