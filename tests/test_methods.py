@@ -88,24 +88,27 @@ def test_every_refinable_method_predicts_with_the_test_time_refinement(name, lap
         assert math.isfinite(res.summary[k]), (name, k)
 
 
-@pytest.mark.parametrize("name", ["scapo", "npcs"])
-def test_a_trained_method_predicts_with_the_hinge_resplit(name, laptop_data, trained_runs, tmp_path):
+@pytest.mark.parametrize("name,axis", [("scapo", False), ("npcs", True)])
+def test_a_trained_method_predicts_with_the_hinge_resplit(name, axis, laptop_data, trained_runs, tmp_path):
     plain = run_method(name, laptop_data, tmp_path / "a.npz", run=trained_runs[name])
-    preds = run_method(name, laptop_data, tmp_path / "p.npz", run=trained_runs[name], hinge=True)
-    assert preds.method == f"{name}+hinge" and 0 <= preds.info["hinge"]["changed_share_mean"] <= 1
+    preds = run_method(name, laptop_data, tmp_path / "p.npz", run=trained_runs[name], hinge=True, hinge_axis=axis)
+    suffix = "+hinge-axis" if axis else "+hinge"
+    assert preds.method == name + suffix and 0 <= preds.info["hinge"]["changed_share_mean"] <= 1
     keep = plain.part_label != preds.part_label  # only the joint's two parts trade points
     jp = plain.joint_parts[0, 0]
     assert np.isin(plain.part_label[keep], jp).all() and np.isin(preds.part_label[keep], jp).all()
-    move = preds.joint_pivot - plain.joint_pivot  # the pivot moves normal to the joint axis only
-    a = plain.joint_axis / np.linalg.norm(plain.joint_axis, axis=-1, keepdims=True)
-    assert np.abs((move * a).sum(-1)).max() < 1e-5
-    assert np.allclose(preds.part_pose, plain.part_pose) and np.allclose(preds.joint_axis, plain.joint_axis)
+    if not axis:
+        move = preds.joint_pivot - plain.joint_pivot  # the pivot moves normal to the joint axis only
+        a = plain.joint_axis / np.linalg.norm(plain.joint_axis, axis=-1, keepdims=True)
+        assert np.abs((move * a).sum(-1)).max() < 1e-5 and np.allclose(preds.joint_axis, plain.joint_axis)
+    assert np.allclose(preds.part_pose, plain.part_pose)
     assert math.isfinite(evaluate(laptop_data, tmp_path / "p.npz").summary["S"])
     from scapo.methods.hinge import hinge_predictions  # the same step on the file already written
 
-    post = hinge_predictions(laptop_data, tmp_path / "a.npz")
-    assert post.method == f"{name}+hinge" and (post.part_label == preds.part_label).all()
+    post = hinge_predictions(laptop_data, tmp_path / "a.npz", axis_from_planes=axis)
+    assert post.method == name + suffix and (post.part_label == preds.part_label).all()
     assert np.allclose(post.joint_pivot, preds.joint_pivot, atol=1e-5)
+    assert np.allclose(post.joint_axis, preds.joint_axis, atol=1e-5)
     with pytest.raises(PredictionError, match="already"):
         hinge_predictions(laptop_data, post)
 
