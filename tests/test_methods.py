@@ -102,7 +102,6 @@ def test_a_trained_method_predicts_with_the_hinge_resplit(name, axis, laptop_dat
         a = plain.joint_axis / np.linalg.norm(plain.joint_axis, axis=-1, keepdims=True)
         assert np.abs((move * a).sum(-1)).max() < 1e-5 and np.allclose(preds.joint_axis, plain.joint_axis)
     assert np.allclose(preds.part_pose, plain.part_pose)
-    assert math.isfinite(evaluate(laptop_data, tmp_path / "p.npz").summary["S"])
     from scapo.methods.hinge import hinge_predictions  # the same step on the file already written
 
     post = hinge_predictions(laptop_data, tmp_path / "a.npz", axis_from_planes=axis)
