@@ -156,13 +156,17 @@ def main(argv=None) -> int:
                      f"{e['pivot_line_diag_median'][1]:.3f} |")
     lines += ["", f"Written by `{cmd}`."]
     out = Path(a.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     sha = {label: hashlib.sha256(Path(fn).read_bytes()).hexdigest()[:16] for label, _, fn in preds}
-    out.with_suffix(".json").write_text(json.dumps({
-        "command": cmd, "dataset": str(a.data), "dataset_hash": card.get("dataset_hash"), "split": a.split,
-        "predictions": {label: {"file": fn, "sha256_16": sha[label]} for label, _, fn in preds}, "rows": rows,
-        "provenance": provenance()}, indent=1, default=str))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+        out.with_suffix(".json").write_text(json.dumps({
+            "command": cmd, "dataset": str(a.data), "dataset_hash": card.get("dataset_hash"), "split": a.split,
+            "predictions": {label: {"file": fn, "sha256_16": sha[label]} for label, _, fn in preds}, "rows": rows,
+            "provenance": provenance()}, indent=1, default=str))
+    except OSError as e:
+        print(f"scapo: cannot write {out}.md/.json ({e.strerror}); choose a writable --out", file=sys.stderr)
+        return 2
     print("\n".join(lines))
     return 0
 

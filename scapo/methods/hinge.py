@@ -213,11 +213,12 @@ def hinge_prediction(points: np.ndarray, out: dict, joint_type, joint_parts, ite
     return res
 
 
-def hinge_info(result: dict) -> dict:
-    """What predictions record of the step (their ``info["hinge"]``), from :func:`hinge_prediction`'s output."""
+def hinge_info(result: dict, axis_from_planes: bool = False) -> dict:
+    """What predictions record of the step (their ``info["hinge"]``), from :func:`hinge_prediction`'s output and
+    whether it re-estimated the axes."""
     move = np.asarray(result["hinge_pivot_move"])
     turn = np.asarray(result.get("hinge_axis_turn", np.zeros(0)))
-    return {"iters": HINGE_ITERS, "min_points": HINGE_MIN_POINTS,
+    return {"iters": HINGE_ITERS, "min_points": HINGE_MIN_POINTS, "axis_from_planes": bool(axis_from_planes),
             "axis_turn_deg_median": round(float(np.median(turn)), 3) if turn.size else 0.0,
             "changed_share_mean": round(float(np.mean(result["hinge_changed"])), 4),
             "pivot_move_m_median": round(float(np.median(move)), 5) if move.size else 0.0}
@@ -275,8 +276,8 @@ def hinge_predictions(dataset, preds, axis_from_planes: bool = False):
             moves.append(o["hinge_pivot_move"].ravel())
             turns.append(o["hinge_axis_turn"].ravel())
     moves, turns = (np.concatenate(x) if x else np.zeros(0) for x in (moves, turns))
-    info = {**p.info, "hinge": {**hinge_info({"hinge_changed": changed, "hinge_pivot_move": moves,
-                                              "hinge_axis_turn": turns}), "axis_from_planes": axis_from_planes},
+    info = {**p.info, "hinge": hinge_info({"hinge_changed": changed, "hinge_pivot_move": moves,
+                                           "hinge_axis_turn": turns}, axis_from_planes),
             "hinge_source": p.method}
     kw = {k: getattr(p, k) for k in ("instance_id", "view_id", "split", "part_pose", "joint_parts", "joint_type",
                                      "joint_state", "T_cam_obj")}

@@ -422,7 +422,7 @@ class LearnedMethod:
 
             o = hinge_prediction(a["points"], o, self.identity["joint_type"], self.identity["joint_parts"],
                                  axis_from_planes=self.options.hinge_axis)
-            info["hinge"] = {**hinge_info(o), "axis_from_planes": self.options.hinge_axis}
+            info["hinge"] = hinge_info(o, self.options.hinge_axis)
         if self.options.refine:
             from scapo.methods.refine import refine_info, refine_prediction
 

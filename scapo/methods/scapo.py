@@ -199,7 +199,7 @@ class SCAPOMethod:
         if self.options.hinge:
             from scapo.methods.hinge import hinge_info
 
-            extra["hinge"] = {**hinge_info(o), "axis_from_planes": self.options.hinge_axis}
+            extra["hinge"] = hinge_info(o, self.options.hinge_axis)
         seconds = time.perf_counter() - t0
         M = len(a["points"])
         return Predictions(
