@@ -1,11 +1,13 @@
 """The hinge step (:mod:`scapo.methods.hinge`) applied to predictions files already written, e.g. a table's cells.
 
-    python bench/hinge_rows.py --data DATA --pred PREDICTIONS.npz [...] --out-dir DIR
+    python bench/hinge_rows.py --data DATA --pred PREDICTIONS.npz [...] --out-dir DIR [--axis] [--frames]
 
 Writes ``DIR/<name>+hinge.npz`` for each input (the label ``<method>+hinge``; the source's label in
 ``info["hinge_source"]``), to be scored beside the sources by ``scapo evaluate --pred SOURCES... HINGED...``. The
 step reads only each prediction and the points, so this is what ``scapo predict --option hinge=true`` gives, without
 predicting again: the one-pass predictions keep the commit that made them, and the step's own commit is this one's.
+With ``--frames`` each file then goes through the ``hinge_frames`` step (``<name>+hinge[-axis]+hinge-frames.npz``;
+its offsets are fitted on the file's own training-split predictions, which a self-supervised method's file holds).
 """
 
 from __future__ import annotations
@@ -16,21 +18,35 @@ from pathlib import Path
 
 
 def main(argv=None) -> int:
-    from scapo.errors import ScapoError
-    from scapo.methods.hinge import hinge_predictions
+    from scapo.errors import PredictionError, ScapoError
+    from scapo.eval.predictions import Predictions
+    from scapo.methods.hinge import hinge_frame_predictions, hinge_predictions
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True)
     ap.add_argument("--pred", nargs="+", required=True)
     ap.add_argument("--out-dir", required=True)
     ap.add_argument("--axis", action="store_true", help="also the axes from the parts' planes (hinge_axis=true)")
+    ap.add_argument("--frames", action="store_true",
+                    help="then the part rotations from the hinges (hinge_frames=true; offsets fitted on each file's "
+                         "training split); a file already hinged goes through this step alone")
     a = ap.parse_args(argv)
     out = Path(a.out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
         for f in a.pred:
-            dst = out / (Path(f).stem + ("+hinge-axis.npz" if a.axis else "+hinge.npz"))
-            hinge_predictions(a.data, f, axis_from_planes=a.axis).save(dst)
+            p = Predictions.load(f)
+            stem = Path(f).stem
+            if "hinge" not in p.info:
+                p = hinge_predictions(a.data, p, axis_from_planes=a.axis)
+                stem += "+hinge-axis" if a.axis else "+hinge"
+            elif not a.frames:
+                raise PredictionError(f"{f} already went through the hinge step")
+            if a.frames:
+                p = hinge_frame_predictions(a.data, p)
+                stem += "+hinge-frames"
+            dst = out / (stem + ".npz")
+            p.save(dst)
             print(f"wrote {dst}")
     except (ScapoError, OSError) as e:
         print(f"scapo: {e}", file=sys.stderr)

@@ -118,3 +118,91 @@ def test_the_hinge_axis_option_needs_the_hinge_step():
         LearnedOptions(run="r", hinge_axis=True)
     assert post_suffix(LearnedOptions(run="r", hinge=True, hinge_axis=True)) == "+hinge-axis"
     assert post_suffix(LearnedOptions(run="r", hinge=True)) == "+hinge"
+
+
+def _posed_slabs(rng, opening_deg, n=600):
+    """Two thin slabs meeting at a hinge on the object's z axis (the base along +x, the lid turned by the opening
+    about +z), turned by a random rotation R and moved to t. Returns points, labels, R, t, the lid's object-frame
+    rotation Rz(opening)."""
+    from scipy.spatial.transform import Rotation
+
+    s, z = rng.uniform(0.0, 0.3, n), rng.uniform(0.0, 0.2, n)
+    lab = (np.arange(n) >= n // 2).astype(np.int64)
+    ang = np.where(lab == 1, np.radians(opening_deg), 0.0)
+    pts = np.stack([s * np.cos(ang), s * np.sin(ang), z], 1) + rng.normal(0, 0.002, (n, 3))
+    R = Rotation.random(random_state=rng).as_matrix()
+    t = rng.uniform(-0.2, 0.2, 3) + np.array([0.0, 0.0, 1.2])
+    return pts @ R.T + t, lab, R, t, Rotation.from_euler("z", opening_deg, degrees=True).as_matrix()
+
+
+def _angle_deg(A, B):
+    return float(np.degrees(np.arccos(np.clip((np.trace(A.T @ B) - 1) / 2, -1.0, 1.0))))
+
+
+def test_the_part_axes_are_rigid_with_each_part_whatever_the_view_and_the_axis_sign():
+    from scapo.methods.hinge import part_axes
+
+    rng = np.random.default_rng(1)
+    want = np.stack([[0.0, 0, 1], [1, 0, 0], [0, 1, 0]], 1)  # [a, u, a x u] in the part's own coordinates
+    for view in range(6):
+        opening = rng.uniform(40, 150)
+        pts, lab, R, t, Rlid = _posed_slabs(rng, opening)
+        sign = -1.0 if view % 2 else 1.0  # the predicted axis's sign does not matter: the pair's chirality fixes it
+        out = {"part_label": lab[None], "joint_axis": sign * R[:, 2][None, None], "joint_pivot": t[None, None],
+               "part_pose": np.zeros((1, 2, 4, 4))}
+        E, ok = part_axes(pts[None], out, [0], [[0, 1]])
+        assert ok.all()
+        assert _angle_deg(R.T @ E[0, 0], want) < 2.0, view
+        assert _angle_deg((R @ Rlid).T @ E[0, 1], want) < 2.0, view
+    for opening in (180.0, 1.0):  # open flat or shut: the chirality is undefined and the view keeps its rotations
+        pts, lab, R, t, _ = _posed_slabs(rng, opening)
+        out = {"part_label": lab[None], "joint_axis": R[:, 2][None, None], "joint_pivot": t[None, None],
+               "part_pose": np.zeros((1, 2, 4, 4))}
+        assert not part_axes(pts[None], out, [0], [[0, 1]])[1].any()
+        assert not part_axes(pts[None], out, [1], [[0, 1]])[1].any()  # a prismatic joint gives no axes
+    with pytest.raises(InputError, match="part_axes"):
+        part_axes(pts[None], {**out, "joint_pivot": np.full((1, 1, 3), np.nan)}, [0], [[0, 1]])
+
+
+def test_hinge_frames_give_every_view_the_rotation_most_training_views_agree_on():
+    from scipy.spatial.transform import Rotation
+
+    from scapo.methods.hinge import HingeFrames
+
+    rng = np.random.default_rng(2)
+    Q = Rotation.random(2, random_state=rng).as_matrix()  # the method's canonical part frames, in object terms
+    views = [_posed_slabs(rng, rng.uniform(40, 150), n=300) for _ in range(12)]
+    pts = np.stack([v[0] for v in views])
+    gt = np.stack([np.stack([v[2] @ Q[0], v[2] @ v[4] @ Q[1]]) for v in views])  # (12, 2, 3, 3) truth
+    net = gt.copy()
+    net[8:] = Rotation.random(8, random_state=rng).as_matrix().reshape(4, 2, 3, 3)  # a third of the views scatter
+    pose = np.tile(np.eye(4), (12, 2, 1, 1))
+    pose[..., :3, :3] = net
+    pose[..., :3, 3] = rng.normal(size=(12, 2, 3))
+    out = {"part_label": np.stack([v[1] for v in views]), "part_pose": pose, "T_cam_obj": pose[:, 0].copy(),
+           "joint_axis": np.stack([v[2][:, 2] for v in views])[:, None], "joint_pivot": np.stack([v[3] for v in views])[:, None]}
+    step = HingeFrames([0], [[0, 1]])
+    with pytest.raises(InputError, match="fitted"):
+        step(pts, out)
+    step.fit(pts, out)
+    assert np.allclose(step.support, 8 / 12)
+    res = step(pts, out)
+    for i in range(12):
+        for p in range(2):
+            assert _angle_deg(res["part_pose"][i, p, :3, :3], gt[i, p]) < 2.0, (i, p)
+    assert np.allclose(res["part_pose"][..., :3, 3], pose[..., :3, 3])  # the canonical origins are kept
+    assert np.allclose(res["T_cam_obj"], res["part_pose"][:, 0])  # the object frame turns with the root part
+    assert (res["frame_snap_deg"][8:] > 5).all() and step.info(res)["replaced_share"] == 1.0
+
+
+def test_the_hinge_frames_option_needs_the_hinge_step_and_excludes_the_base_axes_snap():
+    from scapo.errors import ConfigError
+    from scapo.methods.learned import LearnedOptions, post_suffix
+    from scapo.methods.scapo import SCAPOOptions
+
+    with pytest.raises(ConfigError, match="hinge=true"):
+        LearnedOptions(run="r", hinge_frames=True)
+    assert post_suffix(LearnedOptions(run="r", hinge=True, hinge_axis=True, hinge_frames=True)) == \
+        "+hinge-axis+hinge-frames"
+    with pytest.raises(ConfigError, match="give one"):
+        SCAPOOptions(run="r", hinge=True, hinge_frames=True, base_frame="principal")

@@ -112,6 +112,29 @@ def test_a_trained_method_predicts_with_the_hinge_resplit(name, axis, laptop_dat
         hinge_predictions(laptop_data, post)
 
 
+@pytest.mark.parametrize("name", ["scapo", "npcs"])
+def test_a_trained_method_reads_its_part_rotations_from_its_hinges(name, laptop_data, trained_runs, tmp_path):
+    """``hinge_frames=true``: offsets fitted on the training split, then the part rotations from the hinges; for a
+    self-supervised method's file (it holds the training split), ``hinge_frame_predictions`` gives the same."""
+    from scapo.methods.hinge import hinge_frame_predictions
+
+    kw = {"run": trained_runs[name], "hinge": True, "hinge_axis": True}
+    hinged = run_method(name, laptop_data, tmp_path / "h.npz", **kw)
+    preds = run_method(name, laptop_data, tmp_path / "f.npz", hinge_frames=True, **kw)
+    assert preds.method == f"{name}+hinge-axis+hinge-frames" and len(preds.info["hinge_frames"]["support"]) == 2
+    assert (preds.part_label == hinged.part_label).all() and np.allclose(preds.joint_axis, hinged.joint_axis)
+    assert np.allclose(preds.part_pose[..., :3, 3], hinged.part_pose[..., :3, 3])  # only rotations change
+    assert math.isfinite(evaluate(laptop_data, tmp_path / "f.npz").summary["R"])
+    if name == "npcs":  # a supervised method's file holds no training split to fit on
+        with pytest.raises(PredictionError, match="training-split"):
+            hinge_frame_predictions(laptop_data, hinged)
+        return
+    post = hinge_frame_predictions(laptop_data, hinged)
+    assert post.method == preds.method and np.allclose(post.part_pose, preds.part_pose, atol=1e-4)
+    with pytest.raises(PredictionError, match="already"):
+        hinge_frame_predictions(laptop_data, post)
+
+
 def test_eap_template_posed_by_its_part_poses_is_its_own_reconstruction():
     from scapo.methods import eap
     from scapo.methods.learned import normalize_clouds

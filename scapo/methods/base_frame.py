@@ -130,7 +130,7 @@ def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16,
 
 
 def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,
-                    candidates: int = 64) -> tuple[np.ndarray, float, np.ndarray]:
+                    candidates: int = 64, group: np.ndarray | None = None) -> tuple[np.ndarray, float, np.ndarray]:
     """The offset ``O (3, 3)`` from the canonical base frame to the base's principal axes that most training views
     share: ``R_base_i O ~ E_i G_k`` for some signed permutation ``G_k`` of each view.
 
@@ -141,6 +141,8 @@ def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,
     Args:
         R_base: ``(V, 3, 3)`` the network's base rotations (canonical -> camera). E: ``(V, 3, 3)`` the base axes
             (:func:`base_axes`), only views with axes.
+        group: ``(K, 3, 3)`` the rotations ``E`` is known up to (default: the 24 signed permutations; the identity
+            alone for axes with no ambiguity, :func:`scapo.methods.hinge.part_axes`).
 
     Returns:
         ``O (3, 3)`` float64 rotation, the share of views within ``inlier_deg`` of it, and each view's angle to it
@@ -153,7 +155,7 @@ def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,
     if R_base.shape != E.shape or R_base.ndim != 3 or len(R_base) == 0:
         raise InputError(f"scapo: fit_base_offset needs two (V, 3, 3) arrays with V > 0, got {R_base.shape} and "
                          f"{E.shape}; is part 0 (the base) predicted on the training views?")
-    G = _group()
+    G = _group() if group is None else np.asarray(group, dtype=np.float64).reshape(-1, 3, 3)
     M = np.einsum("vji,vjk->vik", R_base, E)  # R^T E
     MG = np.einsum("vij,gjk->vgik", M, G)  # (V, 24, 3, 3)
     best = (-1, None)

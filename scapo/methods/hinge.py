@@ -242,39 +242,25 @@ def hinge_predictions(dataset, preds, axis_from_planes: bool = False):
         PredictionError: the predictions are of another dataset (its hash), already hinged, or name samples the
             dataset lacks. DatasetError: not a dataset.
     """
-    from scapo.data import load
-    from scapo.data.dataset import ArticulationDataset
     from scapo.errors import PredictionError
     from scapo.eval.predictions import Predictions
 
     p = preds if isinstance(preds, Predictions) else Predictions.load(preds)
-    root = dataset.root if isinstance(dataset, ArticulationDataset) else dataset
     if "hinge" in p.info:
         raise PredictionError(f"predictions of {p.method!r} already went through the hinge step")
+    points = _points_of(dataset, p)
     lab, piv, axis = p.part_label.copy(), p.joint_pivot.copy(), p.joint_axis.copy()
     changed, moves, turns = np.zeros(len(p)), [], []
-    for split in np.unique(p.split):
-        d = load(root, str(split))
-        if p.dataset_hash and d.card.get("dataset_hash") and p.dataset_hash != d.card.get("dataset_hash"):
-            raise PredictionError(f"predictions of {p.method!r} were made on dataset {p.dataset_hash[:12]}, not on "
-                                  f"{root} ({str(d.card.get('dataset_hash'))[:12]})")
-        a = d.arrays(["points"])  # with the sample keys instance_id, view_id
-        key = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(a["instance_id"], a["view_id"]))}
-        rows = np.flatnonzero(p.split == split)
-        try:
-            src = np.array([key[(int(p.instance_id[r]), int(p.view_id[r]))] for r in rows])
-        except KeyError as e:
-            raise PredictionError(f"predictions of {p.method!r} name sample {e.args[0]} (instance, view), which the "
-                                  f"{split} split of {root} lacks") from None
-        for jt, jp in {(tuple(p.joint_type[r]), tuple(map(tuple, p.joint_parts[r]))) for r in rows}:
-            sub = rows[[tuple(p.joint_type[r]) == jt and tuple(map(tuple, p.joint_parts[r])) == jp for r in rows]]
-            pts = a["points"][src[np.searchsorted(rows, sub)]]
-            o = hinge_prediction(pts, {"part_label": p.part_label[sub], "joint_axis": p.joint_axis[sub],
-                                       "joint_pivot": p.joint_pivot[sub]}, jt, jp, axis_from_planes=axis_from_planes)
-            lab[sub], piv[sub], axis[sub], changed[sub] = (o["part_label"], o["joint_pivot"], o["joint_axis"],
-                                                           o["hinge_changed"])
-            moves.append(o["hinge_pivot_move"].ravel())
-            turns.append(o["hinge_axis_turn"].ravel())
+    rows = np.arange(len(p))
+    for jt, jp in {(tuple(p.joint_type[r]), tuple(map(tuple, p.joint_parts[r]))) for r in rows}:
+        sub = rows[[tuple(p.joint_type[r]) == jt and tuple(map(tuple, p.joint_parts[r])) == jp for r in rows]]
+        o = hinge_prediction(points[sub], {"part_label": p.part_label[sub], "joint_axis": p.joint_axis[sub],
+                                           "joint_pivot": p.joint_pivot[sub]}, jt, jp,
+                             axis_from_planes=axis_from_planes)
+        lab[sub], piv[sub], axis[sub], changed[sub] = (o["part_label"], o["joint_pivot"], o["joint_axis"],
+                                                       o["hinge_changed"])
+        moves.append(o["hinge_pivot_move"].ravel())
+        turns.append(o["hinge_axis_turn"].ravel())
     moves, turns = (np.concatenate(x) if x else np.zeros(0) for x in (moves, turns))
     info = {**p.info, "hinge": hinge_info({"hinge_changed": changed, "hinge_pivot_move": moves,
                                            "hinge_axis_turn": turns}, axis_from_planes),
@@ -284,3 +270,275 @@ def hinge_predictions(dataset, preds, axis_from_planes: bool = False):
     return Predictions(method=f"{p.method}+hinge" + ("-axis" if axis_from_planes else ""), part_label=lab,
                        joint_pivot=piv, joint_axis=axis, needs_alignment=p.needs_alignment,
                        supervision=dict(p.supervision), dataset_hash=p.dataset_hash, info=info, **kw)
+
+
+# ------------------------------------------------------------------------------------------- part frames
+#: Fewest views a part needs for its offset (:func:`fit_part_frames`); with fewer it keeps the method's rotations.
+FRAME_MIN_VIEWS = 8
+#: A view's hinge chirality is used only when the sine between its two parts' directions exceeds this (~6 deg).
+_FRAME_MIN_SINE = 0.1
+
+
+def _across(Q: np.ndarray, pivot: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """``(3,)`` the direction a part runs away from its hinge, across the axis: the first principal direction of the
+    points' offsets from ``pivot`` with their components along ``axis`` removed, signed towards their mean."""
+    d = Q - pivot
+    d = d - np.outer(d @ axis, axis)
+    m = d.mean(0)
+    _, _, vt = np.linalg.svd(d - m, full_matrices=False)
+    return vt[0] if vt[0] @ m >= 0 else -vt[0]
+
+
+def part_axes(points: np.ndarray, out: dict, joint_type, joint_parts,
+              min_points: int = HINGE_MIN_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """Each part's axes read from its hinge, per view (``hinge_frames``; an addition to the paper, issue 52).
+
+    For a revolute joint with unit axis ``a`` and pivot ``c`` (the prediction's, after :func:`hinge_prediction`), each
+    of its two parts runs away from the hinge along ``u`` (:func:`_across`: the principal direction of its points
+    seen along ``a``, signed from the pivot towards them: a laptop's base towards its front edge, the lid towards its
+    top edge, an eyeglasses temple towards its tip). The sign of ``a`` is fixed by the pair's chirality,
+    ``(u_parent x u_child) . a > 0``, so both signs come from the geometry alone. A part's axes are then
+    ``E = [a, u, a x u]`` (columns, camera frame): rigid with the part, so ``R_p^T E`` is one constant rotation in
+    the part's canonical coordinates for every view where the part and its hinge are found. A part on several
+    joints (an eyeglasses front) takes its first revolute joint in ``joint_parts`` order.
+
+    Args:
+        points: ``(B, N, 3)`` camera frame (metres). out: a prediction with ``part_label (B, N)``,
+            ``joint_axis (B, J, 3)``, ``joint_pivot (B, J, 3)`` and ``part_pose (B, P, 4, 4)`` (for P).
+        joint_type: ``(J,)`` 0 revolute, 1 prismatic (prismatic joints give no axes).
+        joint_parts: ``(J, 2)`` (parent slot, child slot). min_points: fewest points a part needs in a view.
+
+    Returns:
+        ``E (B, P, 3, 3)`` float64 rotations (identity where not found) and ``ok (B, P)`` bool: found (both parts
+        of the joint have ``min_points`` points and their directions are more than ~6 deg from parallel, i.e. the
+        joint is neither shut nor open flat).
+
+    Raises:
+        InputError: mismatched shapes or non-finite points.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    lab = np.asarray(out["part_label"])
+    axis, pivot = np.asarray(out["joint_axis"], np.float64), np.asarray(out["joint_pivot"], np.float64)
+    jt = np.asarray(joint_type).reshape(-1)
+    jp = np.asarray(joint_parts).reshape(-1, 2)
+    B, P = (pts.shape[0] if pts.ndim == 3 else -1), np.asarray(out["part_pose"]).shape[1]
+    if pts.ndim != 3 or lab.shape != pts.shape[:2] or axis.shape != (B, len(jt), 3) or pivot.shape != axis.shape \
+            or len(jp) != len(jt):
+        raise InputError(f"part_axes needs points (B, N, 3), part_label (B, N), joint_axis and joint_pivot (B, J, 3) "
+                         f"and J joint types and parts; got {pts.shape}, {lab.shape}, {axis.shape}, {pivot.shape}, "
+                         f"{len(jt)} types, {len(jp)} parts")
+    if not (np.isfinite(pts).all() and np.isfinite(axis).all() and np.isfinite(pivot).all()):
+        raise InputError("part_axes got NaN or infinite points, axes or pivots; drop them before predicting")
+    E = np.tile(np.eye(3), (B, P, 1, 1))
+    ok = np.zeros((B, P), dtype=bool)
+    for b in range(B):
+        done = set()
+        for j in range(len(jt)):
+            pa, ch = int(jp[j, 0]), int(jp[j, 1])
+            n = np.linalg.norm(axis[b, j])
+            if int(jt[j]) != 0 or n < 1e-9 or {pa, ch} <= done:
+                continue
+            a = axis[b, j] / n
+            Qp, Qc = pts[b][lab[b] == pa], pts[b][lab[b] == ch]
+            if len(Qp) < min_points or len(Qc) < min_points:
+                continue
+            up, uc = _across(Qp, pivot[b, j], a), _across(Qc, pivot[b, j], a)
+            s = float(np.cross(up, uc) @ a)
+            if abs(s) < _FRAME_MIN_SINE:
+                continue
+            a = a if s > 0 else -a
+            for q, u in ((pa, up), (ch, uc)):
+                if q not in done and q < P:
+                    E[b, q] = np.stack([a, u, np.cross(a, u)], axis=1)
+                    ok[b, q] = True
+                    done.add(q)
+    return E, ok
+
+
+def fit_part_frames(part_pose: np.ndarray, E: np.ndarray, ok: np.ndarray,
+                    min_views: int = FRAME_MIN_VIEWS) -> tuple[np.ndarray, np.ndarray]:
+    """Per part, the offset ``O_p`` with ``R_p O_p ~ E_p`` on most training views: where the part's hinge axes
+    (:func:`part_axes`) sit in the method's canonical part frame (by consensus, :func:`scapo.methods.base_frame.
+    fit_base_offset` with no symmetry group; no labels).
+
+    Args:
+        part_pose: ``(V, P, 4, 4)`` the method's part poses of training views. E, ok: :func:`part_axes` of them.
+        min_views: fewest views with axes a part needs.
+
+    Returns:
+        ``O (P, 3, 3)`` float64 (identity for a part with too few views) and ``support (P,)``: the share of the
+        part's views within 15 deg of its offset (0 where not fitted: that part keeps the method's rotations).
+
+    Raises:
+        InputError: shapes that do not match.
+    """
+    from scapo.methods.base_frame import fit_base_offset
+
+    R = np.asarray(part_pose, dtype=np.float64)[..., :3, :3]
+    E, ok = np.asarray(E, dtype=np.float64), np.asarray(ok, dtype=bool)
+    if R.ndim != 4 or E.shape != R.shape or ok.shape != R.shape[:2]:
+        raise InputError(f"fit_part_frames needs part_pose (V, P, 4, 4), E (V, P, 3, 3) and ok (V, P); got "
+                         f"{np.shape(part_pose)}, {E.shape}, {ok.shape}")
+    P = R.shape[1]
+    O, support = np.tile(np.eye(3), (P, 1, 1)), np.zeros(P)
+    for q in range(P):
+        m = ok[:, q]
+        if m.sum() >= max(int(min_views), 1):
+            O[q], support[q], _ = fit_base_offset(R[m, q], E[m, q], group=np.eye(3)[None])
+    return O, support
+
+
+def snap_to_part_axes(out: dict, E: np.ndarray, ok: np.ndarray, offsets: np.ndarray, support: np.ndarray,
+                      root: int = 0) -> dict:
+    """Each part's rotation read from its hinge: ``R_p <- E_p O_p^T`` where the view's axes were found and the
+    part's offset was fitted (``support > 0``); other parts and views keep the method's rotations. Translations
+    (the canonical origins), joints, joint states and labels are kept. ``T_cam_obj`` turns with the ``root`` part's
+    correction (the object frame is the root part's).
+
+    Args:
+        out: a prediction with ``part_pose (B, P, 4, 4)`` and ``T_cam_obj (B, 4, 4)`` (camera frame, metres).
+        E, ok: :func:`part_axes` of its views. offsets, support: :func:`fit_part_frames` (on training views).
+        root: the part never moved by a joint (the kinematic tree's root).
+
+    Returns:
+        A copy of ``out`` with ``part_pose`` and ``T_cam_obj`` turned and ``frame_snap_deg (B, P)`` float64, each
+        part's correction angle (0 where kept).
+    """
+    from scapo.methods.base_frame import _angle
+
+    pose = np.asarray(out["part_pose"], dtype=np.float64)
+    use = np.asarray(ok, dtype=bool) & (np.asarray(support) > 0)[None]
+    R_new = np.where(use[..., None, None], np.einsum("bpij,pkj->bpik", E, offsets), pose[..., :3, :3])
+    delta = np.einsum("bpij,bpkj->bpik", R_new, pose[..., :3, :3])  # R_new R^T
+    res = dict(out)
+    new = pose.copy()
+    new[..., :3, :3] = R_new
+    res["part_pose"] = new.astype(np.asarray(out["part_pose"]).dtype)
+    T = np.asarray(out["T_cam_obj"], dtype=np.float64).copy()
+    T[:, :3, :3] = np.einsum("bij,bjk->bik", delta[:, int(root)], T[:, :3, :3])
+    res["T_cam_obj"] = T.astype(np.asarray(out["T_cam_obj"]).dtype)
+    res["frame_snap_deg"] = np.where(use, _angle(delta, np.eye(3)), 0.0)
+    return res
+
+
+def kinematic_root(joint_parts, num_parts: int) -> int:
+    """The lowest part slot that is no joint's child (0 for a part with no joints)."""
+    children = {int(c) for _, c in np.asarray(joint_parts).reshape(-1, 2)}
+    return next((q for q in range(int(num_parts)) if q not in children), 0)
+
+
+class HingeFrames:
+    """The ``hinge_frames`` step of a trained method: offsets fitted on training views, then each view's part
+    rotations read from its hinges (:func:`part_axes`, :func:`fit_part_frames`, :func:`snap_to_part_axes`). Applied
+    after the hinge step (it reads the re-split labels and pivot). It reads only the method's own prediction and the
+    points: no ground truth, no training.
+
+    Args:
+        joint_type: ``(J,)``; joint_parts: ``(J, 2)`` the method's joints.
+    """
+
+    def __init__(self, joint_type, joint_parts):
+        self.joint_type = np.asarray(joint_type).reshape(-1)
+        self.joint_parts = np.asarray(joint_parts).reshape(-1, 2)
+        self.offsets: np.ndarray | None = None
+        self.support: np.ndarray | None = None
+
+    def fit(self, points: np.ndarray, out: dict) -> HingeFrames:
+        """Fit the offsets on training views ``points (V, N, 3)`` and the method's hinged prediction of them."""
+        E, ok = part_axes(points, out, self.joint_type, self.joint_parts)
+        self.offsets, self.support = fit_part_frames(out["part_pose"], E, ok)
+        return self
+
+    def __call__(self, points: np.ndarray, out: dict) -> dict:
+        """:func:`snap_to_part_axes` on a hinged prediction of ``points (B, N, 3)``.
+
+        Raises:
+            InputError: called before :meth:`fit`, or mismatched shapes.
+        """
+        if self.offsets is None:
+            raise InputError("hinge_frames needs its offsets fitted on a training split first (fit)")
+        E, ok = part_axes(points, out, self.joint_type, self.joint_parts)
+        P = np.asarray(out["part_pose"]).shape[1]
+        return snap_to_part_axes(out, E, ok, self.offsets, self.support, kinematic_root(self.joint_parts, P))
+
+    def info(self, result: dict | None = None) -> dict:
+        """What predictions record (``info["hinge_frames"]``): each part's offset support on the training views and,
+        given a result, the share of part rotations replaced and their median correction (deg)."""
+        d = {"support": np.round(self.support, 4).tolist() if self.support is not None else []}
+        if result is not None:
+            snap = np.asarray(result["frame_snap_deg"])
+            d["replaced_share"] = round(float((snap > 0).mean()), 4) if snap.size else 0.0
+            d["snap_deg_median"] = round(float(np.median(snap[snap > 0])), 2) if (snap > 0).any() else 0.0
+        return d
+
+
+def hinge_frame_predictions(dataset, preds):
+    """The ``hinge_frames`` step applied to a predictions file already written with the hinge step (``+hinge`` or
+    ``+hinge-axis``): offsets fitted on the file's own training-split predictions (a self-supervised method's file
+    holds them), then every sample's part rotations read from its hinges; what ``--option hinge_frames=true`` gives.
+
+    Args:
+        dataset: the dataset folder (or an opened dataset) the predictions were made on.
+        preds: :class:`~scapo.eval.predictions.Predictions` (or a path to one).
+
+    Returns:
+        New :class:`~scapo.eval.predictions.Predictions` with ``part_pose`` and ``T_cam_obj`` turned, the label
+        ``<method>+hinge-frames`` and ``info["hinge_frames"]``.
+
+    Raises:
+        PredictionError: not hinged, already through this step, no training-split samples, another dataset, or
+            samples the dataset lacks; more than one joint structure.
+    """
+    from scapo.errors import PredictionError
+    from scapo.eval.predictions import Predictions
+
+    p = preds if isinstance(preds, Predictions) else Predictions.load(preds)
+    if "hinge" not in p.info:
+        raise PredictionError(f"predictions of {p.method!r} did not go through the hinge step; hinge_frames reads "
+                              "its re-split labels and pivots: run bench/hinge_rows.py on them first")
+    if "hinge_frames" in p.info:
+        raise PredictionError(f"predictions of {p.method!r} already went through the hinge_frames step")
+    if not (p.split == "train").any():
+        raise PredictionError(f"predictions of {p.method!r} hold no training-split samples to fit the hinge frames' "
+                              "offsets on (a supervised method's file has none: predict with --option "
+                              "hinge_frames=true instead)")
+    if len({(tuple(t), tuple(map(tuple, j))) for t, j in zip(p.joint_type, p.joint_parts)}) != 1:
+        raise PredictionError(f"predictions of {p.method!r} mix joint structures; hinge_frames needs one")
+    pts = _points_of(dataset, p)
+    step = HingeFrames(p.joint_type[0], p.joint_parts[0])
+    fields = {k: getattr(p, k) for k in ("part_label", "part_pose", "joint_axis", "joint_pivot", "T_cam_obj")}
+    tr = p.split == "train"
+    step.fit(pts[tr], {k: v[tr] for k, v in fields.items()})
+    o = step(pts, fields)
+    kw = {k: getattr(p, k) for k in ("instance_id", "view_id", "split", "part_label", "joint_parts", "joint_type",
+                                     "joint_axis", "joint_pivot", "joint_state")}
+    return Predictions(method=f"{p.method}+hinge-frames", part_pose=o["part_pose"], T_cam_obj=o["T_cam_obj"],
+                       needs_alignment=p.needs_alignment, supervision=dict(p.supervision),
+                       dataset_hash=p.dataset_hash, info={**p.info, "hinge_frames": step.info(o)}, **kw)
+
+
+def _points_of(dataset, p) -> np.ndarray:
+    """``(M, N, 3)`` the dataset's points of each sample of predictions ``p``, in their order.
+
+    Raises:
+        PredictionError: predictions of another dataset, or samples the dataset lacks."""
+    from scapo.data import load
+    from scapo.data.dataset import ArticulationDataset
+    from scapo.errors import PredictionError
+
+    root = dataset.root if isinstance(dataset, ArticulationDataset) else dataset
+    pts = np.zeros(np.shape(p.part_label) + (3,))
+    for split in np.unique(p.split):
+        d = load(root, str(split))
+        if p.dataset_hash and d.card.get("dataset_hash") and p.dataset_hash != d.card.get("dataset_hash"):
+            raise PredictionError(f"predictions of {p.method!r} were made on dataset {p.dataset_hash[:12]}, not on "
+                                  f"{root} ({str(d.card.get('dataset_hash'))[:12]})")
+        a = d.arrays(["points"])
+        key = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(a["instance_id"], a["view_id"]))}
+        rows = np.flatnonzero(p.split == split)
+        try:
+            pts[rows] = a["points"][[key[(int(p.instance_id[r]), int(p.view_id[r]))] for r in rows]]
+        except KeyError as e:
+            raise PredictionError(f"predictions of {p.method!r} name sample {e.args[0]} (instance, view), which the "
+                                  f"{split} split of {root} lacks") from None
+    return pts

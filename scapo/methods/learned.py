@@ -265,12 +265,18 @@ class LearnedOptions:
     hinge_axis: bool = False
     """With ``hinge``: also re-estimate each revolute axis as the line where its two parts' planes meet, where both
     are planar (:func:`scapo.methods.hinge.plane_axis`); the label gets ``+hinge-axis``."""
+    hinge_frames: bool = False
+    """With ``hinge``: read each part's rotation from its hinge (the axis and the direction the part runs away from
+    it, :func:`scapo.methods.hinge.part_axes`), through per-part offsets fitted on the training split
+    (:class:`scapo.methods.hinge.HingeFrames`); the label gets ``+hinge-frames``."""
 
     def __post_init__(self):
         if self.batch_size < 1:
             raise ConfigError(f"batch_size must be >= 1, got {self.batch_size}")
         if self.hinge_axis and not self.hinge:
             raise ConfigError("hinge_axis=true re-estimates the axes within the hinge step; give hinge=true too")
+        if self.hinge_frames and not self.hinge:
+            raise ConfigError("hinge_frames=true reads the hinge step's split and pivots; give hinge=true too")
 
 
 def post_suffix(options) -> str:
@@ -278,7 +284,15 @@ def post_suffix(options) -> str:
     hinge = ""
     if getattr(options, "hinge", False):
         hinge = "+hinge-axis" if getattr(options, "hinge_axis", False) else "+hinge"
+    if getattr(options, "hinge_frames", False):
+        hinge += "+hinge-frames"
     return ("+refine" if options.refine else "") + hinge
+
+
+def training_views(n: int, most: int = 512) -> np.ndarray:
+    """Indices of up to ``most`` evenly spaced views of ``n`` training views: what a prediction step fitted on the
+    training split (``base_frame``, ``hinge_frames``) reads."""
+    return np.unique(np.linspace(0, n - 1, min(n, int(most))).round().astype(int))
 
 
 def check_run_fits(run: Path, ident: dict, data: ArticulationDataset, cross_category: bool, todo: str) -> None:
@@ -328,12 +342,20 @@ class LearnedMethod:
         self.run = Path(options.run)
         self.label = options.label or (spec.method + post_suffix(options))
         self.net = None
+        self.frames = None
 
     def fit(self, train: ArticulationDataset) -> None:
         """Load the finished run (:meth:`load`) and check it against ``train``'s category and structure."""
         self.load(f"--data {train.root} ")
         check_run_fits(self.run, self.identity, train, self.options.cross_category, f"train a run on this dataset "
                        f"first ('scapo train --method {self.spec.method} --data {train.root} --out RUN')")
+        if self.options.hinge_frames:
+            from scapo.methods.hinge import HingeFrames
+
+            pts = train.arrays(["points"])["points"]
+            pts = pts[training_views(len(pts))]
+            self.frames = HingeFrames(self.identity["joint_type"], self.identity["joint_parts"])
+            self.frames.fit(pts, self._hinged(pts, self._infer(pts)))
 
     def load(self, data_hint: str = "") -> LearnedMethod:
         """Load the finished run (no dataset needed; :func:`scapo.methods.load`); returns self.
@@ -400,29 +422,45 @@ class LearnedMethod:
         return {k: np.concatenate([d[k] for d in outs]) for k in outs[0]}
 
     @torch.no_grad()
+    def _infer(self, points: np.ndarray, progress: str = "") -> dict[str, np.ndarray]:
+        """The network's one-pass outputs for ``points (M, N, 3)`` in batches (a tqdm bar titled ``progress``)."""
+        it = range(0, len(points), self.options.batch_size)
+        if progress:
+            from tqdm import tqdm
+
+            it = tqdm(it, desc=progress, unit="batch")
+        outs = []
+        for i in it:
+            X = torch.from_numpy(np.ascontiguousarray(points[i:i + self.options.batch_size])).float()
+            outs.append(self.net.infer(X.to(self.device)))
+        return {k: np.concatenate([d[k] for d in outs]) for k in outs[0]} if outs else {}
+
+    def _hinged(self, points: np.ndarray, o: dict) -> dict:
+        """The hinge step (:func:`scapo.methods.hinge.hinge_prediction`) on the one-pass outputs ``o``."""
+        from scapo.methods.hinge import hinge_prediction
+
+        return hinge_prediction(points, o, self.identity["joint_type"], self.identity["joint_parts"],
+                                axis_from_planes=self.options.hinge_axis)
+
+    @torch.no_grad()
     def predict(self, dataset: ArticulationDataset) -> Predictions:
         """Predictions for every sample of ``dataset`` (batches of ``batch_size`` clouds, no gradient);
         only the ``points`` are read."""
         a = dataset.arrays(["points"])
         M = len(a["points"])
         t0 = time.perf_counter()
-        outs = []
-        it = range(0, M, self.options.batch_size)
-        if self.options.progress:
-            from tqdm import tqdm
-
-            it = tqdm(it, desc=f"{self.spec.method} {dataset.split}", unit="batch")
-        for i in it:
-            X = torch.from_numpy(np.ascontiguousarray(a["points"][i:i + self.options.batch_size])).float()
-            outs.append(self.net.infer(X.to(self.device)))
-        o = {k: np.concatenate([d[k] for d in outs]) for k in outs[0]} if outs else {}
+        o = self._infer(a["points"], f"{self.spec.method} {dataset.split}" if self.options.progress else "")
         info = {}
         if self.options.hinge:
-            from scapo.methods.hinge import hinge_info, hinge_prediction
+            from scapo.methods.hinge import hinge_info
 
-            o = hinge_prediction(a["points"], o, self.identity["joint_type"], self.identity["joint_parts"],
-                                 axis_from_planes=self.options.hinge_axis)
+            o = self._hinged(a["points"], o)
             info["hinge"] = hinge_info(o, self.options.hinge_axis)
+        if self.options.hinge_frames:
+            if self.frames is None:
+                raise TrainingError("hinge_frames needs its offsets fitted on the training split first: fit(train)")
+            o = self.frames(a["points"], o)
+            info["hinge_frames"] = self.frames.info(o)
         if self.options.refine:
             from scapo.methods.refine import refine_info, refine_prediction
 

@@ -17,7 +17,7 @@ from scapo.data.dataset import ArticulationDataset
 from scapo.errors import ConfigError
 from scapo.eval.predictions import Predictions
 from scapo.losses.supervised import supervision_marks
-from scapo.methods.learned import LearnedOptions, check_run_fits, post_suffix
+from scapo.methods.learned import LearnedOptions, check_run_fits, post_suffix, training_views
 from scapo.methods.registry import register_method
 from scapo.models.predict import Predictor
 from scapo.models.presets import ABLATIONS, PRESETS, get_preset
@@ -51,6 +51,8 @@ class SCAPOOptions(LearnedOptions):
             raise ConfigError(f"base_frame must be '' (off) or 'principal', got {self.base_frame!r}")
         if str(self.base_slot) != "auto" and not str(self.base_slot).isdigit():
             raise ConfigError(f"base_slot must be a part slot number or 'auto', got {self.base_slot!r}")
+        if self.hinge_frames and self.base_frame:
+            raise ConfigError("hinge_frames=true and base_frame=principal both set the part rotations; give one")
         if str(self.base_slot) != "0" and not self.base_frame:
             raise ConfigError(f"base_slot={self.base_slot} applies to base_frame=principal; give both")
         if self.refine_steps is not None and self.refine_steps < 0:
@@ -80,6 +82,8 @@ class SCAPOMethod:
         self.base_slot = 0
         """The part slot taken as the base (``base_slot``; chosen on the training split when "auto")."""
         self.base_dispersion: np.ndarray | None = None
+        self.frames = None
+        """The ``hinge_frames`` step (:class:`scapo.methods.hinge.HingeFrames`), fitted on the training split."""
 
     def fit(self, train: ArticulationDataset) -> None:
         """Load the run and check that it was trained on this dataset's category and kinematic structure.
@@ -98,6 +102,13 @@ class SCAPOMethod:
             self.predictor.fit_upright(train.arrays(["points"])["points"])
         if self.options.base_frame:
             self.fit_base_frame(train.arrays(["points"])["points"])
+        if self.options.hinge_frames:
+            from scapo.methods.hinge import HingeFrames
+
+            pts = train.arrays(["points"])["points"]
+            pts = pts[training_views(len(pts))]
+            mc = self.predictor.model.cfg
+            self.frames = HingeFrames(mc.joint_types, mc.joint_parts).fit(pts, self._one_pass(pts, False))
 
     def fit_base_frame(self, points, max_views: int = 512) -> tuple[np.ndarray, float]:
         """Fit the base-axes offset (``base_frame``) on training clouds ``(M, N, 3)`` (camera frame, metres; no
@@ -113,7 +124,7 @@ class SCAPOMethod:
         if self.predictor is None:
             raise ConfigError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
         pts = np.asarray(points)
-        pts = pts[np.unique(np.linspace(0, len(pts) - 1, min(len(pts), int(max_views))).round().astype(int))]
+        pts = pts[training_views(len(pts), max_views)]
         o = self._one_pass(pts, False)
         pose = np.asarray(o["part_pose"])
         slot, self.base_dispersion = choose_base_slot(pose)
@@ -139,6 +150,11 @@ class SCAPOMethod:
         return o
 
     def _base_frame(self, points, o: dict) -> dict:
+        """The prediction steps on the part rotations: ``hinge_frames`` or ``base_frame`` (at most one is set)."""
+        if self.options.hinge_frames:
+            if self.frames is None:
+                raise ConfigError("hinge_frames=true needs its offsets fitted on a training split first: fit(train)")
+            return self.frames(np.asarray(points), o)
         if not self.options.base_frame:
             return o
         if self.base_offset is None:
@@ -200,6 +216,8 @@ class SCAPOMethod:
             from scapo.methods.hinge import hinge_info
 
             extra["hinge"] = hinge_info(o, self.options.hinge_axis)
+        if self.options.hinge_frames:
+            extra["hinge_frames"] = self.frames.info(o)
         seconds = time.perf_counter() - t0
         M = len(a["points"])
         return Predictions(
