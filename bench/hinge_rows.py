@@ -30,6 +30,9 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", action="store_true",
                     help="then the part rotations from the hinges (hinge_frames=true; offsets fitted on each file's "
                          "training split); a file already hinged goes through this step alone")
+    ap.add_argument("--view-prior", action="store_true",
+                    help="with --frames: each view's root part chosen by the training views' prior "
+                         "(hinge_view_prior=true)")
     a = ap.parse_args(argv)
     out = Path(a.out_dir)
     try:
@@ -43,8 +46,8 @@ def main(argv=None) -> int:
             elif not a.frames:
                 raise PredictionError(f"{f} already went through the hinge step")
             if a.frames:
-                p = hinge_frame_predictions(a.data, p)
-                stem += "+hinge-frames"
+                p = hinge_frame_predictions(a.data, p, view_prior=a.view_prior)
+                stem += "+hinge-frames" + ("+view-prior" if a.view_prior else "")
             dst = out / (stem + ".npz")
             p.save(dst)
             print(f"wrote {dst}")

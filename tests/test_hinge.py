@@ -179,7 +179,10 @@ def test_hinge_frames_give_every_view_the_rotation_most_training_views_agree_on(
     pose = np.tile(np.eye(4), (12, 2, 1, 1))
     pose[..., :3, :3] = net
     pose[..., :3, 3] = rng.normal(size=(12, 2, 3))
-    out = {"part_label": np.stack([v[1] for v in views]), "part_pose": pose, "T_cam_obj": pose[:, 0].copy(),
+    C = Rotation.random(random_state=rng).as_matrix()  # the method's object frame, against its base part's
+    T = pose[:, 0].copy()
+    T[:, :3, :3] = T[:, :3, :3] @ C
+    out = {"part_label": np.stack([v[1] for v in views]), "part_pose": pose, "T_cam_obj": T,
            "joint_axis": np.stack([v[2][:, 2] for v in views])[:, None], "joint_pivot": np.stack([v[3] for v in views])[:, None]}
     step = HingeFrames([0], [[0, 1]])
     with pytest.raises(InputError, match="fitted"):
@@ -191,7 +194,8 @@ def test_hinge_frames_give_every_view_the_rotation_most_training_views_agree_on(
         for p in range(2):
             assert _angle_deg(res["part_pose"][i, p, :3, :3], gt[i, p]) < 2.0, (i, p)
     assert np.allclose(res["part_pose"][..., :3, 3], pose[..., :3, 3])  # the canonical origins are kept
-    assert np.allclose(res["T_cam_obj"], res["part_pose"][:, 0])  # the object frame turns with the root part
+    assert np.allclose(res["T_cam_obj"][:, :3, :3], res["part_pose"][:, 0, :3, :3] @ C)  # rigid with the root
+    assert np.allclose(res["T_cam_obj"][:, :3, 3], T[:, :3, 3])
     assert (res["frame_snap_deg"][8:] > 5).all() and step.info(res)["replaced_share"] == 1.0
 
 
@@ -206,3 +210,44 @@ def test_the_hinge_frames_option_needs_the_hinge_step_and_excludes_the_base_axes
         "+hinge-axis+hinge-frames"
     with pytest.raises(ConfigError, match="give one"):
         SCAPOOptions(run="r", hinge=True, hinge_frames=True, base_frame="principal")
+
+
+def test_the_view_prior_gives_back_the_base_slot_a_view_gave_to_the_lid_and_stays_off_for_the_whole_sphere():
+    from scipy.spatial.transform import Rotation
+
+    from scapo.methods.hinge import HingeFrames
+
+    def views(rng, k, sphere):
+        vs = []
+        for _ in range(k):
+            pts, lab, R, t, Rlid = _posed_slabs(rng, rng.uniform(50, 140), n=300)
+            R2 = Rotation.random(random_state=rng).as_matrix() if sphere else \
+                Rotation.from_rotvec(rng.normal(0, 0.3, 3)).as_matrix()  # the paper's narrow viewpoints
+            vs.append((((pts - t) @ R) @ R2.T + t, lab, R2, t, Rlid))
+        return vs
+
+    def prediction(vs):
+        pose = np.tile(np.eye(4), (len(vs), 2, 1, 1))
+        pose[:, 0, :3, :3] = [v[2] for v in vs]
+        pose[:, 1, :3, :3] = [v[2] @ v[4] for v in vs]
+        return np.stack([v[0] for v in vs]), {
+            "part_label": np.stack([v[1] for v in vs]), "part_pose": pose, "T_cam_obj": pose[:, 0].copy(),
+            "joint_axis": np.stack([v[2][:, 2] for v in vs])[:, None],
+            "joint_pivot": np.stack([v[3] for v in vs])[:, None]}
+
+    rng = np.random.default_rng(3)
+    pts, train = prediction(views(rng, 16, False))
+    step = HingeFrames([0], [[0, 1]], view_prior=True).fit(pts, train)
+    assert step.prior is not None and step.prior_share > 0.7
+    tp, test = prediction(views(rng, 6, False))
+    gt, truth = test["part_label"].copy(), test["part_pose"].copy()
+    test["part_label"][:3] = 1 - gt[:3]  # three views give the base's slot to the lid, and their poses follow
+    test["part_pose"][:3] = truth[:3, ::-1]
+    res = step(tp, test)
+    assert res["frame_swapped"].tolist() == [True] * 3 + [False] * 3 and (res["part_label"] == gt).all()
+    for i in range(6):
+        for p in range(2):
+            assert _angle_deg(res["part_pose"][i, p, :3, :3], truth[i, p, :3, :3]) < 2.0, (i, p)
+    assert not HingeFrames([0], [[0, 1]]).fit(pts, train).view_prior  # off unless asked for
+    sp, sphere = prediction(views(rng, 24, True))
+    assert HingeFrames([0], [[0, 1]], view_prior=True).fit(sp, sphere).prior is None

@@ -120,17 +120,22 @@ def test_a_trained_method_reads_its_part_rotations_from_its_hinges(name, laptop_
 
     kw = {"run": trained_runs[name], "hinge": True, "hinge_axis": True}
     hinged = run_method(name, laptop_data, tmp_path / "h.npz", **kw)
-    preds = run_method(name, laptop_data, tmp_path / "f.npz", hinge_frames=True, **kw)
-    assert preds.method == f"{name}+hinge-axis+hinge-frames" and len(preds.info["hinge_frames"]["support"]) == 2
-    assert (preds.part_label == hinged.part_label).all() and np.allclose(preds.joint_axis, hinged.joint_axis)
+    prior = name == "scapo"  # with the view prior for one of them
+    preds = run_method(name, laptop_data, tmp_path / "f.npz", hinge_frames=True, hinge_view_prior=prior, **kw)
+    assert preds.method == f"{name}+hinge-axis+hinge-frames" + ("+view-prior" if prior else "")
+    assert len(preds.info["hinge_frames"]["support"]) == 2 and ("view_prior" in preds.info["hinge_frames"]) == prior
+    if not prior:
+        assert (preds.part_label == hinged.part_label).all()
+    assert np.allclose(preds.joint_axis, hinged.joint_axis)
     assert np.allclose(preds.part_pose[..., :3, 3], hinged.part_pose[..., :3, 3])  # only rotations change
     assert math.isfinite(evaluate(laptop_data, tmp_path / "f.npz").summary["R"])
     if name == "npcs":  # a supervised method's file holds no training split to fit on
         with pytest.raises(PredictionError, match="training-split"):
             hinge_frame_predictions(laptop_data, hinged)
         return
-    post = hinge_frame_predictions(laptop_data, hinged)
+    post = hinge_frame_predictions(laptop_data, hinged, view_prior=prior)
     assert post.method == preds.method and np.allclose(post.part_pose, preds.part_pose, atol=1e-4)
+    assert (post.part_label == preds.part_label).all()
     with pytest.raises(PredictionError, match="already"):
         hinge_frame_predictions(laptop_data, post)
 

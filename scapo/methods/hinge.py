@@ -389,16 +389,20 @@ def fit_part_frames(part_pose: np.ndarray, E: np.ndarray, ok: np.ndarray,
 
 
 def snap_to_part_axes(out: dict, E: np.ndarray, ok: np.ndarray, offsets: np.ndarray, support: np.ndarray,
-                      root: int = 0) -> dict:
+                      root: int = 0, object_offset: np.ndarray | None = None) -> dict:
     """Each part's rotation read from its hinge: ``R_p <- E_p O_p^T`` where the view's axes were found and the
     part's offset was fitted (``support > 0``); other parts and views keep the method's rotations. Translations
-    (the canonical origins), joints, joint states and labels are kept. ``T_cam_obj`` turns with the ``root`` part's
-    correction (the object frame is the root part's).
+    (the canonical origins), joints, joint states and labels are kept. The object frame is the ``root`` part's:
+    ``T_cam_obj``'s rotation becomes ``R_root C`` with ``C = object_offset`` where the root was snapped (the method's
+    object frame need not be rigid with its root part: SCAPO's comes from the whole cloud), and turns with the root's
+    correction elsewhere.
 
     Args:
         out: a prediction with ``part_pose (B, P, 4, 4)`` and ``T_cam_obj (B, 4, 4)`` (camera frame, metres).
         E, ok: :func:`part_axes` of its views. offsets, support: :func:`fit_part_frames` (on training views).
-        root: the part never moved by a joint (the kinematic tree's root).
+        root: the part never moved by a joint (the kinematic tree's root). object_offset: ``C (3, 3)``, the
+            rotation from the root's canonical frame to the method's object frame most training views share
+            (default: the identity).
 
     Returns:
         A copy of ``out`` with ``part_pose`` and ``T_cam_obj`` turned and ``frame_snap_deg (B, P)`` float64, each
@@ -415,7 +419,9 @@ def snap_to_part_axes(out: dict, E: np.ndarray, ok: np.ndarray, offsets: np.ndar
     new[..., :3, :3] = R_new
     res["part_pose"] = new.astype(np.asarray(out["part_pose"]).dtype)
     T = np.asarray(out["T_cam_obj"], dtype=np.float64).copy()
-    T[:, :3, :3] = np.einsum("bij,bjk->bik", delta[:, int(root)], T[:, :3, :3])
+    C = np.eye(3) if object_offset is None else np.asarray(object_offset, dtype=np.float64)
+    T[:, :3, :3] = np.where(use[:, int(root), None, None], R_new[:, int(root)] @ C,
+                            np.einsum("bij,bjk->bik", delta[:, int(root)], T[:, :3, :3]))
     res["T_cam_obj"] = T.astype(np.asarray(out["T_cam_obj"]).dtype)
     res["frame_snap_deg"] = np.where(use, _angle(delta, np.eye(3)), 0.0)
     return res
@@ -427,27 +433,94 @@ def kinematic_root(joint_parts, num_parts: int) -> int:
     return next((q for q in range(int(num_parts)) if q not in children), 0)
 
 
+#: ``view_prior``: the training views' root axes must lie within this angle (deg) of their consensus ...
+PRIOR_DEG = 45.0
+#: ... in at least this share of the views, or the prior is not used (views from the whole sphere spread too far).
+PRIOR_SHARE = 0.5
+
+
+def _swap_pair(label: np.ndarray, a: int, b: int) -> np.ndarray:
+    out = label.copy()
+    out[label == a], out[label == b] = b, a
+    return out
+
+
 class HingeFrames:
     """The ``hinge_frames`` step of a trained method: offsets fitted on training views, then each view's part
     rotations read from its hinges (:func:`part_axes`, :func:`fit_part_frames`, :func:`snap_to_part_axes`). Applied
     after the hinge step (it reads the re-split labels and pivot). It reads only the method's own prediction and the
     points: no ground truth, no training.
 
+    With ``view_prior`` (the option ``hinge_view_prior=true``), each view also chooses which of its root joint's two
+    parts is the root: a laptop's base and lid are exchanged by a half-turn about the bisector of the opening, and a
+    network can give the base's slot to the lid in a whole view, turning every part by 180 deg (the views are the same
+    across training seeds: ``results/canonical_ladder/hinge/``). The root's camera-frame axes ``E_root`` of the
+    training views (as the method labels them) have a consensus ``M`` when the views come from a limited range of
+    viewpoints (the paper's); a view takes the exchanged split when its exchanged ``E_root`` lies nearer ``M`` than
+    its own. The prior is used only when at least :data:`PRIOR_SHARE` of the training views lie within
+    :data:`PRIOR_DEG` of ``M`` (not under views from the whole sphere), like the refinement's upright prior it is a
+    viewpoint prior fitted on the training split, with no labels.
+
     Args:
-        joint_type: ``(J,)``; joint_parts: ``(J, 2)`` the method's joints.
+        joint_type: ``(J,)``; joint_parts: ``(J, 2)`` the method's joints. view_prior: see above.
     """
 
-    def __init__(self, joint_type, joint_parts):
+    def __init__(self, joint_type, joint_parts, view_prior: bool = False):
         self.joint_type = np.asarray(joint_type).reshape(-1)
         self.joint_parts = np.asarray(joint_parts).reshape(-1, 2)
+        self.view_prior = bool(view_prior)
+        self.prior: np.ndarray | None = None
+        """``(3, 3)`` the consensus of the training views' root axes (camera frame); None when not used."""
+        self.prior_share = float("nan")
         self.offsets: np.ndarray | None = None
         self.support: np.ndarray | None = None
+        self.object_offset = np.eye(3)
 
     def fit(self, points: np.ndarray, out: dict) -> HingeFrames:
-        """Fit the offsets on training views ``points (V, N, 3)`` and the method's hinged prediction of them."""
+        """Fit the offsets on training views ``points (V, N, 3)`` and the method's hinged prediction of them: each
+        part's (:func:`fit_part_frames`) and the object frame's to the root part's (the consensus of
+        ``R_root^T R_obj``, :func:`scapo.methods.base_frame.fit_base_offset`)."""
+        from scapo.methods.base_frame import fit_base_offset
+
         E, ok = part_axes(points, out, self.joint_type, self.joint_parts)
         self.offsets, self.support = fit_part_frames(out["part_pose"], E, ok)
+        pose = np.asarray(out["part_pose"], dtype=np.float64)
+        root = kinematic_root(self.joint_parts, pose.shape[1])
+        T = np.asarray(out["T_cam_obj"], dtype=np.float64)[:, :3, :3]
+        if len(T):
+            self.object_offset = fit_base_offset(pose[:, root, :3, :3], T, group=np.eye(3)[None])[0]
+        if self.view_prior and ok[:, root].sum() >= FRAME_MIN_VIEWS:
+            Er = E[ok[:, root], root]
+            M, _, angle = fit_base_offset(np.tile(np.eye(3), (len(Er), 1, 1)), Er, group=np.eye(3)[None])
+            self.prior_share = float((angle < PRIOR_DEG).mean())
+            self.prior = M if self.prior_share >= PRIOR_SHARE else None
         return self
+
+    def _root_pair(self) -> tuple[int, int] | None:
+        P = int(self.joint_parts.max()) + 1 if self.joint_parts.size else 1
+        root = kinematic_root(self.joint_parts, P)
+        for (pa, ch), t in zip(self.joint_parts, self.joint_type):
+            if int(t) == 0 and root in (int(pa), int(ch)):
+                return int(pa), int(ch)
+        return None
+
+    def _choose_root(self, points: np.ndarray, out: dict, E: np.ndarray, ok: np.ndarray):
+        """The ``view_prior`` step: per view, the split (as predicted or with the root joint's two parts exchanged)
+        whose root axes lie nearer the prior. Returns (out, E, ok, swapped (B,) bool)."""
+        from scapo.methods.base_frame import _angle
+
+        B = len(ok)
+        pair = self._root_pair()
+        if self.prior is None or pair is None:
+            return out, E, ok, np.zeros(B, dtype=bool)
+        lab = np.asarray(out["part_label"])
+        other = _swap_pair(lab, *pair)
+        E2, ok2 = part_axes(points, {**out, "part_label": other}, self.joint_type, self.joint_parts)
+        root = kinematic_root(self.joint_parts, E.shape[1])
+        swap = ok[:, root] & ok2[:, root] & (_angle(E2[:, root], self.prior) < _angle(E[:, root], self.prior))
+        res = dict(out)
+        res["part_label"] = np.where(swap[:, None], other, lab).astype(lab.dtype)
+        return (res, np.where(swap[:, None, None, None], E2, E), np.where(swap[:, None], ok2, ok), swap)
 
     def __call__(self, points: np.ndarray, out: dict) -> dict:
         """:func:`snap_to_part_axes` on a hinged prediction of ``points (B, N, 3)``.
@@ -458,8 +531,12 @@ class HingeFrames:
         if self.offsets is None:
             raise InputError("hinge_frames needs its offsets fitted on a training split first (fit)")
         E, ok = part_axes(points, out, self.joint_type, self.joint_parts)
+        out, E, ok, swapped = self._choose_root(points, out, E, ok)
         P = np.asarray(out["part_pose"]).shape[1]
-        return snap_to_part_axes(out, E, ok, self.offsets, self.support, kinematic_root(self.joint_parts, P))
+        res = snap_to_part_axes(out, E, ok, self.offsets, self.support, kinematic_root(self.joint_parts, P),
+                                self.object_offset)
+        res["frame_swapped"] = swapped
+        return res
 
     def info(self, result: dict | None = None) -> dict:
         """What predictions record (``info["hinge_frames"]``): each part's offset support on the training views and,
@@ -469,10 +546,14 @@ class HingeFrames:
             snap = np.asarray(result["frame_snap_deg"])
             d["replaced_share"] = round(float((snap > 0).mean()), 4) if snap.size else 0.0
             d["snap_deg_median"] = round(float(np.median(snap[snap > 0])), 2) if (snap > 0).any() else 0.0
+        if self.view_prior:
+            d["view_prior"] = {"used": self.prior is not None, "train_share": round(self.prior_share, 4)}
+            if result is not None and "frame_swapped" in result:
+                d["view_prior"]["swapped_share"] = round(float(np.mean(result["frame_swapped"])), 4)
         return d
 
 
-def hinge_frame_predictions(dataset, preds):
+def hinge_frame_predictions(dataset, preds, view_prior: bool = False):
     """The ``hinge_frames`` step applied to a predictions file already written with the hinge step (``+hinge`` or
     ``+hinge-axis``): offsets fitted on the file's own training-split predictions (a self-supervised method's file
     holds them), then every sample's part rotations read from its hinges; what ``--option hinge_frames=true`` gives.
@@ -480,10 +561,12 @@ def hinge_frame_predictions(dataset, preds):
     Args:
         dataset: the dataset folder (or an opened dataset) the predictions were made on.
         preds: :class:`~scapo.eval.predictions.Predictions` (or a path to one).
+        view_prior: also choose each view's root part by the training views' prior (:class:`HingeFrames`).
 
     Returns:
-        New :class:`~scapo.eval.predictions.Predictions` with ``part_pose`` and ``T_cam_obj`` turned, the label
-        ``<method>+hinge-frames`` and ``info["hinge_frames"]``.
+        New :class:`~scapo.eval.predictions.Predictions` with ``part_pose`` and ``T_cam_obj`` turned (and, with
+        ``view_prior``, ``part_label`` exchanged in the views that take the other split), the label
+        ``<method>+hinge-frames`` (``+view-prior``) and ``info["hinge_frames"]``.
 
     Raises:
         PredictionError: not hinged, already through this step, no training-split samples, another dataset, or
@@ -505,14 +588,15 @@ def hinge_frame_predictions(dataset, preds):
     if len({(tuple(t), tuple(map(tuple, j))) for t, j in zip(p.joint_type, p.joint_parts)}) != 1:
         raise PredictionError(f"predictions of {p.method!r} mix joint structures; hinge_frames needs one")
     pts = _points_of(dataset, p)
-    step = HingeFrames(p.joint_type[0], p.joint_parts[0])
+    step = HingeFrames(p.joint_type[0], p.joint_parts[0], view_prior=view_prior)
     fields = {k: getattr(p, k) for k in ("part_label", "part_pose", "joint_axis", "joint_pivot", "T_cam_obj")}
     tr = p.split == "train"
     step.fit(pts[tr], {k: v[tr] for k, v in fields.items()})
     o = step(pts, fields)
-    kw = {k: getattr(p, k) for k in ("instance_id", "view_id", "split", "part_label", "joint_parts", "joint_type",
+    kw = {k: getattr(p, k) for k in ("instance_id", "view_id", "split", "joint_parts", "joint_type",
                                      "joint_axis", "joint_pivot", "joint_state")}
-    return Predictions(method=f"{p.method}+hinge-frames", part_pose=o["part_pose"], T_cam_obj=o["T_cam_obj"],
+    return Predictions(method=f"{p.method}+hinge-frames" + ("+view-prior" if view_prior else ""),
+                       part_label=o["part_label"], part_pose=o["part_pose"], T_cam_obj=o["T_cam_obj"],
                        needs_alignment=p.needs_alignment, supervision=dict(p.supervision),
                        dataset_hash=p.dataset_hash, info={**p.info, "hinge_frames": step.info(o)}, **kw)
 

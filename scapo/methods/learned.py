@@ -269,6 +269,10 @@ class LearnedOptions:
     """With ``hinge``: read each part's rotation from its hinge (the axis and the direction the part runs away from
     it, :func:`scapo.methods.hinge.part_axes`), through per-part offsets fitted on the training split
     (:class:`scapo.methods.hinge.HingeFrames`); the label gets ``+hinge-frames``."""
+    hinge_view_prior: bool = False
+    """With ``hinge_frames``: choose each view's root part among its root joint's two parts by the training views'
+    root orientation in the camera (a viewpoint prior fitted on the training split, used only where those views
+    agree; :class:`scapo.methods.hinge.HingeFrames`); the label gets ``+view-prior``."""
 
     def __post_init__(self):
         if self.batch_size < 1:
@@ -277,6 +281,9 @@ class LearnedOptions:
             raise ConfigError("hinge_axis=true re-estimates the axes within the hinge step; give hinge=true too")
         if self.hinge_frames and not self.hinge:
             raise ConfigError("hinge_frames=true reads the hinge step's split and pivots; give hinge=true too")
+        if self.hinge_view_prior and not self.hinge_frames:
+            raise ConfigError("hinge_view_prior=true is part of the hinge_frames step; give hinge=true and "
+                              "hinge_frames=true too")
 
 
 def post_suffix(options) -> str:
@@ -285,7 +292,7 @@ def post_suffix(options) -> str:
     if getattr(options, "hinge", False):
         hinge = "+hinge-axis" if getattr(options, "hinge_axis", False) else "+hinge"
     if getattr(options, "hinge_frames", False):
-        hinge += "+hinge-frames"
+        hinge += "+hinge-frames" + ("+view-prior" if getattr(options, "hinge_view_prior", False) else "")
     return ("+refine" if options.refine else "") + hinge
 
 
@@ -354,7 +361,8 @@ class LearnedMethod:
 
             pts = train.arrays(["points"])["points"]
             pts = pts[training_views(len(pts))]
-            self.frames = HingeFrames(self.identity["joint_type"], self.identity["joint_parts"])
+            self.frames = HingeFrames(self.identity["joint_type"], self.identity["joint_parts"],
+                                      self.options.hinge_view_prior)
             self.frames.fit(pts, self._hinged(pts, self._infer(pts)))
 
     def load(self, data_hint: str = "") -> LearnedMethod:

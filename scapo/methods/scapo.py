@@ -108,7 +108,8 @@ class SCAPOMethod:
             pts = train.arrays(["points"])["points"]
             pts = pts[training_views(len(pts))]
             mc = self.predictor.model.cfg
-            self.frames = HingeFrames(mc.joint_types, mc.joint_parts).fit(pts, self._one_pass(pts, False))
+            self.frames = HingeFrames(mc.joint_types, mc.joint_parts, self.options.hinge_view_prior)
+            self.frames.fit(pts, self._one_pass(pts, False))
 
     def fit_base_frame(self, points, max_views: int = 512) -> tuple[np.ndarray, float]:
         """Fit the base-axes offset (``base_frame``) on training clouds ``(M, N, 3)`` (camera frame, metres; no
