@@ -33,6 +33,9 @@ def main(argv=None) -> int:
     ap.add_argument("--view-prior", action="store_true",
                     help="with --frames: each view's root part chosen by the training views' prior "
                          "(hinge_view_prior=true)")
+    ap.add_argument("--skip-without-train", action="store_true",
+                    help="with --frames: pass over (and name on stderr) a file with no training-split predictions "
+                         "(a supervised method's or ICP's) instead of stopping")
     a = ap.parse_args(argv)
     out = Path(a.out_dir)
     try:
@@ -40,6 +43,10 @@ def main(argv=None) -> int:
         for f in a.pred:
             p = Predictions.load(f)
             stem = Path(f).stem
+            if a.frames and a.skip_without_train and not (p.split == "train").any():
+                print(f"scapo: skipped {f}: no training-split predictions to fit the hinge frames on (predict it "
+                      "with --option hinge_frames=true)", file=sys.stderr)
+                continue
             if "hinge" not in p.info:
                 p = hinge_predictions(a.data, p, axis_from_planes=a.axis)
                 stem += "+hinge-axis" if a.axis else "+hinge"

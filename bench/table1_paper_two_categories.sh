@@ -15,6 +15,12 @@
 #                                                             # the hinge re-split, and with its axes too (bench/hinge_rows.py
 #                                                             # [--axis]), scored on test
 #                                                             # into results/table1_paper_hinge_<BUDGET>min/<category>.*
+#   FRAMES=1 bash bench/table1_paper_two_categories.sh        # after HINGE: the hinge-axis predictions with the part
+#                                                             # rotations from the hinges and the view prior
+#                                                             # (bench/hinge_rows.py --frames --view-prior; NPCS-style
+#                                                             # predicted again with the options, ICP has no training
+#                                                             # split to fit on), scored on test beside the one-pass
+#                                                             # and hinge-axis rows into .../<category>_frames.*
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 scapo="${SCAPO:-.venv/bin/scapo}"
@@ -34,6 +40,24 @@ if [ -n "${HINGE:-}" ]; then
       --out-dir "$work/hinge_axis/$cat"
     "$scapo" evaluate --data "$data" --pred "${preds[@]}" "$work/hinge/$cat"/*.npz "$work/hinge_axis/$cat"/*.npz \
       --split test --out "$out" --name "$cat" --no-progress
+  done
+  exit 0
+fi
+if [ -n "${FRAMES:-}" ]; then
+  out="${OUT:-results}/table1_paper_hinge_${BUDGET:-5}min"
+  for data in "$work"/*_paper; do
+    cat="$(basename "$data")"; cat="${cat%%_*}"
+    dst="$work/hinge_frames/$cat"
+    "${PYTHON:-.venv/bin/python}" bench/hinge_rows.py --frames --view-prior --skip-without-train --data "$data" \
+      --pred "$work/hinge_axis/$cat"/*.npz --out-dir "$dst"
+    for run in "$data"/run_npcs_*; do
+      name="$(basename "$run")"
+      pred="$dst/predictions_${name#run_}+hinge-axis+hinge-frames+view-prior.npz"
+      [ -f "$pred" ] || "$scapo" predict --run "$run" --data "$data" --out "$pred" --no-progress --option hinge=true \
+        --option hinge_axis=true --option hinge_frames=true --option hinge_view_prior=true
+    done
+    "$scapo" evaluate --data "$data" --pred "$data"/predictions_*.npz "$work/hinge_axis/$cat"/*.npz "$dst"/*.npz \
+      --split test --out "$out" --name "${cat}_frames" --no-progress
   done
   exit 0
 fi

@@ -248,6 +248,8 @@ def test_the_view_prior_gives_back_the_base_slot_a_view_gave_to_the_lid_and_stay
     for i in range(6):
         for p in range(2):
             assert _angle_deg(res["part_pose"][i, p, :3, :3], truth[i, p, :3, :3]) < 2.0, (i, p)
-    assert not HingeFrames([0], [[0, 1]]).fit(pts, train).view_prior  # off unless asked for
+    assert step.base == 0 and not HingeFrames([0], [[0, 1]]).fit(pts, train).view_prior  # off unless asked for
+    lid_first = {**train, "part_label": 1 - train["part_label"], "part_pose": train["part_pose"][:, ::-1].copy()}
+    assert HingeFrames([0], [[0, 1]], view_prior=True).fit(pts, lid_first).base == 1  # the slot that turns least
     sp, sphere = prediction(views(rng, 24, True))
     assert HingeFrames([0], [[0, 1]], view_prior=True).fit(sp, sphere).prior is None

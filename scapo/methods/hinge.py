@@ -400,9 +400,9 @@ def snap_to_part_axes(out: dict, E: np.ndarray, ok: np.ndarray, offsets: np.ndar
     Args:
         out: a prediction with ``part_pose (B, P, 4, 4)`` and ``T_cam_obj (B, 4, 4)`` (camera frame, metres).
         E, ok: :func:`part_axes` of its views. offsets, support: :func:`fit_part_frames` (on training views).
-        root: the part never moved by a joint (the kinematic tree's root). object_offset: ``C (3, 3)``, the
-            rotation from the root's canonical frame to the method's object frame most training views share
-            (default: the identity).
+        root: the part whose frame is the object's (the base: :attr:`HingeFrames.base`). object_offset:
+            ``C (3, 3)``, the rotation from that part's canonical frame to the method's object frame most training
+            views share (default: the identity).
 
     Returns:
         A copy of ``out`` with ``part_pose`` and ``T_cam_obj`` turned and ``frame_snap_deg (B, P)`` float64, each
@@ -451,15 +451,15 @@ class HingeFrames:
     after the hinge step (it reads the re-split labels and pivot). It reads only the method's own prediction and the
     points: no ground truth, no training.
 
-    With ``view_prior`` (the option ``hinge_view_prior=true``), each view also chooses which of its root joint's two
-    parts is the root: a laptop's base and lid are exchanged by a half-turn about the bisector of the opening, and a
-    network can give the base's slot to the lid in a whole view, turning every part by 180 deg (the views are the same
-    across training seeds: ``results/canonical_ladder/hinge/``). The root's camera-frame axes ``E_root`` of the
-    training views (as the method labels them) have a consensus ``M`` when the views come from a limited range of
-    viewpoints (the paper's); a view takes the exchanged split when its exchanged ``E_root`` lies nearer ``M`` than
-    its own. The prior is used only when at least :data:`PRIOR_SHARE` of the training views lie within
-    :data:`PRIOR_DEG` of ``M`` (not under views from the whole sphere), like the refinement's upright prior it is a
-    viewpoint prior fitted on the training split, with no labels.
+    With ``view_prior`` (the option ``hinge_view_prior=true``), each view also chooses which of its base joint's two
+    parts is the base (:meth:`fit` chooses the base slot): a laptop's base and lid are exchanged by a half-turn about
+    the bisector of the opening, and a network can give the base's slot to the lid in a whole view, turning every part
+    by 180 deg (the views are the same across training seeds: ``results/canonical_ladder/hinge/``). The base's
+    camera-frame axes ``E_base`` of the training views (as the method labels them) have a consensus ``M`` when the
+    views come from a limited range of viewpoints (the paper's); a view takes the exchanged split when its exchanged
+    ``E_base`` lies nearer ``M`` than its own. The prior is used only when at least :data:`PRIOR_SHARE` of the
+    training views lie within :data:`PRIOR_DEG` of ``M`` (not under views from the whole sphere); like the
+    refinement's upright prior, it is a viewpoint prior fitted on the training split, with no labels.
 
     Args:
         joint_type: ``(J,)``; joint_parts: ``(J, 2)`` the method's joints. view_prior: see above.
@@ -475,38 +475,52 @@ class HingeFrames:
         self.offsets: np.ndarray | None = None
         self.support: np.ndarray | None = None
         self.object_offset = np.eye(3)
+        self.base = kinematic_root(self.joint_parts, int(self.joint_parts.max()) + 1 if self.joint_parts.size else 1)
+        """The part slot taken as the base (the object frame's; chosen on the training views by :meth:`fit`)."""
 
     def fit(self, points: np.ndarray, out: dict) -> HingeFrames:
-        """Fit the offsets on training views ``points (V, N, 3)`` and the method's hinged prediction of them: each
-        part's (:func:`fit_part_frames`) and the object frame's to the root part's (the consensus of
-        ``R_root^T R_obj``, :func:`scapo.methods.base_frame.fit_base_offset`)."""
-        from scapo.methods.base_frame import fit_base_offset
+        """Fit on training views ``points (V, N, 3)`` and the method's hinged prediction of them, with no labels:
+
+        1. the base slot: the part whose hinge axes spread least over the views where every part has axes (it turns
+           with the viewpoint only; :func:`scapo.methods.base_frame.choose_base_slot`, which keeps the kinematic
+           root unless another slot spreads least in 95 % of bootstrap resamples);
+        2. with ``view_prior``, the prior (the consensus of the base's axes) and each training view's split;
+        3. each part's offset (:func:`fit_part_frames`) and the object frame's to the base's (the consensus of
+           ``R_base^T R_obj``, :func:`scapo.methods.base_frame.fit_base_offset`)."""
+        from scapo.methods.base_frame import choose_base_slot, fit_base_offset
 
         E, ok = part_axes(points, out, self.joint_type, self.joint_parts)
-        self.offsets, self.support = fit_part_frames(out["part_pose"], E, ok)
         pose = np.asarray(out["part_pose"], dtype=np.float64)
-        root = kinematic_root(self.joint_parts, pose.shape[1])
-        T = np.asarray(out["T_cam_obj"], dtype=np.float64)[:, :3, :3]
-        if len(T):
-            self.object_offset = fit_base_offset(pose[:, root, :3, :3], T, group=np.eye(3)[None])[0]
-        if self.view_prior and ok[:, root].sum() >= FRAME_MIN_VIEWS:
-            Er = E[ok[:, root], root]
-            M, _, angle = fit_base_offset(np.tile(np.eye(3), (len(Er), 1, 1)), Er, group=np.eye(3)[None])
+        P = pose.shape[1]
+        self.base = kinematic_root(self.joint_parts, P)
+        every = ok.all(1)
+        if every.sum() >= FRAME_MIN_VIEWS:
+            axes = np.tile(np.eye(4), (int(every.sum()), P, 1, 1))
+            axes[..., :3, :3] = E[every]
+            slot, _ = choose_base_slot(axes)
+            if slot != 0:
+                self.base = slot
+        if self.view_prior and ok[:, self.base].sum() >= FRAME_MIN_VIEWS:
+            Eb = E[ok[:, self.base], self.base]
+            M, _, angle = fit_base_offset(np.tile(np.eye(3), (len(Eb), 1, 1)), Eb, group=np.eye(3)[None])
             self.prior_share = float((angle < PRIOR_DEG).mean())
             self.prior = M if self.prior_share >= PRIOR_SHARE else None
+            out, E, ok, _ = self._choose_root(points, out, E, ok)
+        self.offsets, self.support = fit_part_frames(pose, E, ok)
+        T = np.asarray(out["T_cam_obj"], dtype=np.float64)[:, :3, :3]
+        if len(T):
+            self.object_offset = fit_base_offset(pose[:, self.base, :3, :3], T, group=np.eye(3)[None])[0]
         return self
 
     def _root_pair(self) -> tuple[int, int] | None:
-        P = int(self.joint_parts.max()) + 1 if self.joint_parts.size else 1
-        root = kinematic_root(self.joint_parts, P)
         for (pa, ch), t in zip(self.joint_parts, self.joint_type):
-            if int(t) == 0 and root in (int(pa), int(ch)):
+            if int(t) == 0 and self.base in (int(pa), int(ch)):
                 return int(pa), int(ch)
         return None
 
     def _choose_root(self, points: np.ndarray, out: dict, E: np.ndarray, ok: np.ndarray):
-        """The ``view_prior`` step: per view, the split (as predicted or with the root joint's two parts exchanged)
-        whose root axes lie nearer the prior. Returns (out, E, ok, swapped (B,) bool)."""
+        """The ``view_prior`` step: per view, the split (as predicted or with the base's joint's two parts exchanged)
+        whose base axes lie nearer the prior. Returns (out, E, ok, swapped (B,) bool)."""
         from scapo.methods.base_frame import _angle
 
         B = len(ok)
@@ -516,7 +530,7 @@ class HingeFrames:
         lab = np.asarray(out["part_label"])
         other = _swap_pair(lab, *pair)
         E2, ok2 = part_axes(points, {**out, "part_label": other}, self.joint_type, self.joint_parts)
-        root = kinematic_root(self.joint_parts, E.shape[1])
+        root = self.base
         swap = ok[:, root] & ok2[:, root] & (_angle(E2[:, root], self.prior) < _angle(E[:, root], self.prior))
         res = dict(out)
         res["part_label"] = np.where(swap[:, None], other, lab).astype(lab.dtype)
@@ -533,15 +547,14 @@ class HingeFrames:
         E, ok = part_axes(points, out, self.joint_type, self.joint_parts)
         out, E, ok, swapped = self._choose_root(points, out, E, ok)
         P = np.asarray(out["part_pose"]).shape[1]
-        res = snap_to_part_axes(out, E, ok, self.offsets, self.support, kinematic_root(self.joint_parts, P),
-                                self.object_offset)
+        res = snap_to_part_axes(out, E, ok, self.offsets, self.support, min(self.base, P - 1), self.object_offset)
         res["frame_swapped"] = swapped
         return res
 
     def info(self, result: dict | None = None) -> dict:
         """What predictions record (``info["hinge_frames"]``): each part's offset support on the training views and,
         given a result, the share of part rotations replaced and their median correction (deg)."""
-        d = {"support": np.round(self.support, 4).tolist() if self.support is not None else []}
+        d = {"support": np.round(self.support, 4).tolist() if self.support is not None else [], "base": int(self.base)}
         if result is not None:
             snap = np.asarray(result["frame_snap_deg"])
             d["replaced_share"] = round(float((snap > 0).mean()), 4) if snap.size else 0.0
