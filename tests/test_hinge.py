@@ -75,12 +75,13 @@ def test_the_hinge_prediction_skips_prismatic_joints_and_checks_its_input():
         hinge_fit(pts, lab, pivot, np.zeros(3), 0, 1)
 
 
-def test_the_hinge_diagnosis_refuses_missing_inputs(tmp_path, capsys):
+@pytest.mark.parametrize("script", ["hinge_diagnosis", "frame_consistency"])
+def test_the_hinge_diagnosis_and_the_frame_consistency_refuse_missing_inputs(script, tmp_path, capsys):
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "bench" / "hinge_diagnosis.py"
-    spec = importlib.util.spec_from_file_location("hinge_diagnosis", path)
+    path = Path(__file__).resolve().parents[1] / "bench" / f"{script}.py"
+    spec = importlib.util.spec_from_file_location(script, path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     assert mod.main(["--data", str(tmp_path / "none"), "--pred", f"x={tmp_path / 'p.npz'}", "--out",

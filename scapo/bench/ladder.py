@@ -198,18 +198,28 @@ def parse_variant(text: str, flag: str = "--variant",
     return method, label, parse_assignments(sets.split(","), flag)
 
 
-def _consistency(data: Path, preds) -> tuple[float, float]:
-    """:func:`frame_consistency` of ``preds`` on the val split of ``data``: strict and symmetry-aware."""
+def split_consistency(data: Path, preds, split: str = "val") -> tuple[float, float]:
+    """:func:`frame_consistency` of predictions ``preds`` on one split of the dataset ``data``: strict and
+    symmetry-aware (the declared symmetries of its card).
+
+    Raises:
+        PredictionError: the predictions name samples the split lacks.
+    """
     from scapo.data import load
+    from scapo.errors import PredictionError
     from scapo.eval.evaluator import declared_rotations
 
-    val = load(data, "val")
-    gt = val.arrays(["T_cam_obj"])["T_cam_obj"]
-    keys = {k: i for i, k in enumerate(val.keys())}
-    rows = [i for i in range(len(preds)) if str(preds.split[i]) == "val"]
-    order = np.array([keys[(int(preds.instance_id[i]), int(preds.view_id[i]))] for i in rows])
+    d = load(data, split)
+    gt = d.arrays(["T_cam_obj"])["T_cam_obj"]
+    keys = {k: i for i, k in enumerate(d.keys())}
+    rows = [i for i in range(len(preds)) if str(preds.split[i]) == split]
+    try:
+        order = np.array([keys[(int(preds.instance_id[i]), int(preds.view_id[i]))] for i in rows], dtype=np.int64)
+    except KeyError as e:
+        raise PredictionError(f"predictions of {preds.method!r} name sample {e.args[0]}, which the {split} split of "
+                              f"{data} lacks") from None
     strict = frame_consistency(preds.T_cam_obj[rows], gt[order])
-    sym = declared_rotations(val.card)
+    sym = declared_rotations(d.card)
     return strict, (frame_consistency(preds.T_cam_obj[rows], gt[order], symmetries=sym) if len(sym) > 1 else strict)
 
 
@@ -267,7 +277,7 @@ def _upgrade(rec_path: Path, data: Path, method: str, preset) -> dict:
         return rec
     stem = rec_path.name[: -len(".json")]
     preds = Predictions.load(rec_path.parent / f"{stem}_predictions.npz")
-    rec["frame_consistency"], rec["frame_consistency_sym"] = (round(x, 4) for x in _consistency(data, preds))
+    rec["frame_consistency"], rec["frame_consistency_sym"] = (round(x, 4) for x in split_consistency(data, preds))
     rec["resampling_deg"] = (_stability(rec_path.parent / f"{stem}_run", data, method, preset)
                              if METHODS.get(method).trained else None)
     rec["consistency_commit"] = git_commit()
@@ -309,7 +319,7 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
     wall["predict_s"] = round(time.perf_counter() - t1, 1)
     stability = _stability(run, data, method, preset, device=device) if METHODS.get(method).trained else None
     res = evaluate(data, preds, split="val")
-    consistency, consistency_sym = _consistency(data, preds)
+    consistency, consistency_sym = split_consistency(data, preds)
     s = res.summary
     rec = {
         "rung": rung, "rung_label": RUNG_LABELS[rung], "method": name, "seed": seed, "split": "val",

@@ -1,0 +1,83 @@
+"""Object-frame consistency of predictions files already written (issue 52's target: at least 0.9).
+
+For each file, on one split (val by default): the share of samples whose object-frame offset ``R_pred^T R_gt`` lies
+within 15 deg of the offset most of them share (:func:`scapo.bench.ladder.split_consistency`; 1 is one canonical
+frame), strict and against the category's declared symmetric ground truth, as the ladder's cells report it; and the
+file's ``info["hinge_frames"]`` summary where it has one (the base slot, the view prior's use and swaps).
+
+    python bench/frame_consistency.py --data DATA --pred LABEL=PREDICTIONS.npz [--pred ...] --out results/.../NAME
+
+Writes ``<out>.{md,json}`` with provenance (commit, dataset hash, each file's sha256).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+
+def main(argv=None) -> int:
+    from scapo.bench.ladder import split_consistency
+    from scapo.data import load
+    from scapo.errors import ScapoError
+    from scapo.eval.predictions import Predictions
+    from scapo.provenance import provenance
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", required=True)
+    ap.add_argument("--pred", action="append", default=[], help="LABEL=PREDICTIONS.npz (scapo predict output)")
+    ap.add_argument("--split", default="val", choices=("val", "test"))
+    ap.add_argument("--out", required=True)
+    a = ap.parse_args(argv)
+    preds = [p.partition("=") for p in a.pred]
+    bad = [f for f in [a.data] if not Path(f).is_dir()] + [f for _, _, f in preds if not Path(f).is_file()]
+    if bad or not preds or any(not label for label, _, _ in preds):
+        print(f"scapo: {bad[0] if bad else 'no --pred LABEL=FILE'}: give a dataset folder (--data) and predictions "
+              "files (--pred LABEL=FILE.npz)", file=sys.stderr)
+        return 2
+    rows = {}
+    try:
+        for label, _, f in preds:
+            p = Predictions.load(f)
+            strict, sym = split_consistency(Path(a.data), p, a.split)
+            rows[label] = {"strict": round(strict, 4), "sym": round(sym, 4), "samples": int((p.split == a.split).sum()),
+                           "hinge_frames": p.info.get("hinge_frames")}
+        card = load(a.data, a.split).card
+    except ScapoError as e:
+        print(f"scapo: {e}", file=sys.stderr)
+        return 2
+    cmd = "python bench/frame_consistency.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    lines = [f"# Object-frame consistency ({Path(a.data).name}, {a.split})", "",
+             "Share of samples within 15 deg of the one object-frame offset most of them share (1: one canonical "
+             "frame); sym: against the declared symmetric ground truth as well. hinge_frames: the step's base slot, "
+             "whether its view prior was used (and the share of views it exchanged).", "",
+             "| predictions | samples | frame cons. | frame cons. sym | hinge_frames |", "|:--|--:|--:|--:|:--|"]
+    for label, r in rows.items():
+        hf = r["hinge_frames"] or {}
+        vp = hf.get("view_prior")
+        note = "" if not hf else f"base {hf.get('base', 0)}" + (
+            "" if vp is None else f", prior {'used' if vp['used'] else 'off'} "
+                                  f"(swapped {vp.get('swapped_share', 0):.2f})")
+        lines.append(f"| {label} | {r['samples']} | {r['strict']:.2f} | {r['sym']:.2f} | {note} |")
+    lines += ["", f"Written by `{cmd}`."]
+    out = Path(a.out)
+    sha = {label: hashlib.sha256(Path(fn).read_bytes()).hexdigest()[:16] for label, _, fn in preds}
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+        out.with_suffix(".json").write_text(json.dumps({
+            "command": cmd, "dataset": str(a.data), "dataset_hash": card.get("dataset_hash"), "split": a.split,
+            "predictions": {label: {"file": fn, "sha256_16": sha[label]} for label, _, fn in preds}, "rows": rows,
+            "provenance": provenance()}, indent=1, default=str))
+    except OSError as e:
+        print(f"scapo: cannot write {out}.md/.json ({e.strerror}); choose a writable --out", file=sys.stderr)
+        return 2
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
