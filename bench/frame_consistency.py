@@ -3,7 +3,8 @@
 For each file, on one split (val by default): the share of samples whose object-frame offset ``R_pred^T R_gt`` lies
 within 15 deg of the offset most of them share (:func:`scapo.bench.ladder.split_consistency`; 1 is one canonical
 frame), strict and against the category's declared symmetric ground truth, as the ladder's cells report it; the
-share of views whose base slot (``info["hinge_frames"]["base"]``, else slot 0) holds mostly points of the true base
+share of views whose base slot (``info["hinge_frames"]["base"]`` or ``info["base_frame"]["slot"]``, else slot 0)
+holds mostly points of the true base
 (the root part, label 0), a ground-truth diagnosis of the base/child exchange; and the file's ``info["hinge_frames"]``
 summary where it has one (the base slot, the view prior's use and swaps).
 
@@ -22,8 +23,8 @@ from pathlib import Path
 
 
 def base_on_base(data: Path, preds, split: str) -> float:
-    """Share of ``split``'s samples whose base slot (``info["hinge_frames"]["base"]``, else 0) gives more than half of
-    its points to the true root part (label 0); NaN when the slot is empty in every sample."""
+    """Share of ``split``'s samples whose base slot (the ``hinge_frames`` or ``base_frame`` step's, else 0) gives more
+    than half of its points to the true root part (label 0); NaN when the slot is empty in every sample."""
     import numpy as np
 
     from scapo.data import load
@@ -33,7 +34,7 @@ def base_on_base(data: Path, preds, split: str) -> float:
     key = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(g["instance_id"], g["view_id"]))}
     rows = np.flatnonzero(preds.split == split)
     gt = g["part_label"][[key[(int(preds.instance_id[r]), int(preds.view_id[r]))] for r in rows]]
-    base = (preds.info.get("hinge_frames") or {}).get("base", 0)
+    base = (preds.info.get("hinge_frames") or {}).get("base", (preds.info.get("base_frame") or {}).get("slot", 0))
     mine = preds.part_label[rows] == base
     n = mine.sum(1)
     share = (mine & (gt == 0)).sum(1) / np.maximum(n, 1)
