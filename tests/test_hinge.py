@@ -75,7 +75,7 @@ def test_the_hinge_prediction_skips_prismatic_joints_and_checks_its_input():
         hinge_fit(pts, lab, pivot, np.zeros(3), 0, 1)
 
 
-@pytest.mark.parametrize("script", ["hinge_diagnosis", "frame_consistency"])
+@pytest.mark.parametrize("script", ["hinge_diagnosis", "frame_consistency", "compute_hinge"])
 def test_the_hinge_diagnosis_and_the_frame_consistency_refuse_missing_inputs(script, tmp_path, capsys):
     import importlib.util
     from pathlib import Path

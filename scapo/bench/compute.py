@@ -81,7 +81,9 @@ def _check(methods, budgets, seeds, rung):
 
 def write_curve(records: Sequence[dict], out: Path, meta: dict, name: str = "accuracy_vs_compute") -> list[Path]:
     """``<out>/<name>.{md,json,csv,png}``: one row per method x budget x seed (the cells' records) and a figure of
-    S, median symmetry-aware R and symmetry-aware frame consistency against the budget (log axis)."""
+    S, median symmetry-aware R and symmetry-aware frame consistency against the budget (log axis). ``meta["note"]``,
+    when given, is a paragraph after the description and ``meta["predictions"]`` names the rows' predictions in the
+    figure's title (default "one-pass")."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -117,6 +119,7 @@ def write_curve(records: Sequence[dict], out: Path, meta: dict, name: str = "acc
           "of val samples whose object-frame offset is within 15 deg of the common one; sym: against the declared "
           "symmetric ground truths). Train wall min is the measured wall time of the training run (it may exceed "
           "the budget when other work shared the machine: the budget is fixed in steps, not in seconds).", "",
+          *([meta["note"], ""] if meta.get("note") else []),
           markdown_table(header, body), "",
           f"![curves]({meta['name']}.png)", "",
           f"Provenance: commits {', '.join(commits) or '-'}; dataset `{meta['dataset']}` ({meta['instances']} "
@@ -143,7 +146,7 @@ def write_curve(records: Sequence[dict], out: Path, meta: dict, name: str = "acc
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle(f"{meta['category']}, rung {meta['rung']}, val, one-pass", fontsize=10)
+    fig.suptitle(f"{meta['category']}, rung {meta['rung']}, val, {meta.get('predictions', 'one-pass')}", fontsize=10)
     fig.tight_layout()
     tmp = paths[3].with_name(paths[3].name + ".tmp.png")
     fig.savefig(tmp, dpi=110)
