@@ -78,7 +78,8 @@ def main(argv=None) -> int:
         meta = {"name": a.name, "category": card.get("category", "?"), "rung": card.get("viewpoints", "?"),
                 "split": "val", "dataset": data.name, "instances": cfg.get("instances"), "views": cfg.get("views"),
                 "train_views": cfg.get("train_views"), "data_seed": cfg.get("seed"), "preset": "cpu",
-                "protocol": "scapo", "command": cmd + (f" (predictions: {a.command})" if a.command else ""),
+                "protocol": "scapo", "machine": records[0]["provenance"].get("device", "-"),
+                "command": cmd + (f" (predictions: {a.command})" if a.command else ""),
                 "predictions": "one-pass and with the hinge steps",
                 "note": "Rows named `<method>+hinge-axis+hinge-frames+view-prior` are the same cells' predictions "
                         "after the hinge steps (`hinge=true, hinge_axis=true, hinge_frames=true, "
