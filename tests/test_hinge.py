@@ -250,6 +250,12 @@ def test_the_view_prior_gives_back_the_base_slot_a_view_gave_to_the_lid_and_stay
         for p in range(2):
             assert _angle_deg(res["part_pose"][i, p, :3, :3], truth[i, p, :3, :3]) < 2.0, (i, p)
     assert step.base == 0 and not HingeFrames([0], [[0, 1]]).fit(pts, train).view_prior  # off unless asked for
+    mixed = {**train, "part_label": train["part_label"].copy(), "part_pose": train["part_pose"].copy()}
+    mixed["part_label"][::2] = 1 - train["part_label"][::2]  # half the training views give the base's slot to the lid
+    mixed["part_pose"][::2] = train["part_pose"][::2, ::-1]
+    half = HingeFrames([0], [[0, 1]], view_prior=True).fit(pts, mixed)
+    assert half.prior is not None and _angle_deg(half.prior, step.prior) < 10
+    assert (half(tp, test)["part_label"] == gt).all()
     lid_first = {**train, "part_label": 1 - train["part_label"], "part_pose": train["part_pose"][:, ::-1].copy()}
     assert HingeFrames([0], [[0, 1]], view_prior=True).fit(pts, lid_first).base == 1  # the slot that turns least
     sp, sphere = prediction(views(rng, 24, True))

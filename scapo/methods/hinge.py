@@ -454,12 +454,14 @@ class HingeFrames:
     With ``view_prior`` (the option ``hinge_view_prior=true``), each view also chooses which of its base joint's two
     parts is the base (:meth:`fit` chooses the base slot): a laptop's base and lid are exchanged by a half-turn about
     the bisector of the opening, and a network can give the base's slot to the lid in a whole view, turning every part
-    by 180 deg (the views are the same across training seeds: ``results/canonical_ladder/hinge/``). The base's
-    camera-frame axes ``E_base`` of the training views (as the method labels them) have a consensus ``M`` when the
-    views come from a limited range of viewpoints (the paper's); a view takes the exchanged split when its exchanged
-    ``E_base`` lies nearer ``M`` than its own. The prior is used only when at least :data:`PRIOR_SHARE` of the
-    training views lie within :data:`PRIOR_DEG` of ``M`` (not under views from the whole sphere); like the
-    refinement's upright prior, it is a viewpoint prior fitted on the training split, with no labels.
+    by 180 deg (the views are the same across training seeds: ``results/canonical_ladder/hinge/``). Each training
+    view offers two hypotheses for the base's camera-frame axes ``E_base``: its base slot's, and the other part's
+    with the two exchanged; when the views come from a limited range of viewpoints (the paper's), one orientation
+    ``M`` is reached by most views with one of their two (:meth:`_fit_prior`), and a view takes the exchanged split
+    when its exchanged ``E_base`` lies nearer ``M`` than its own. The prior is used only when at least
+    :data:`PRIOR_SHARE` of the training views reach :data:`PRIOR_DEG` of ``M`` (not under views from the whole
+    sphere); like the refinement's upright prior, it is a viewpoint prior fitted on the training split, with no
+    labels.
 
     Args:
         joint_type: ``(J,)``; joint_parts: ``(J, 2)`` the method's joints. view_prior: see above.
@@ -500,17 +502,44 @@ class HingeFrames:
             slot, _ = choose_base_slot(axes)
             if slot != 0:
                 self.base = slot
-        if self.view_prior and ok[:, self.base].sum() >= FRAME_MIN_VIEWS:
-            Eb = E[ok[:, self.base], self.base]
-            M, _, angle = fit_base_offset(np.tile(np.eye(3), (len(Eb), 1, 1)), Eb, group=np.eye(3)[None])
-            self.prior_share = float((angle < PRIOR_DEG).mean())
-            self.prior = M if self.prior_share >= PRIOR_SHARE else None
+        if self.view_prior:
+            self._fit_prior(points, out, E, ok)
             out, E, ok, _ = self._choose_root(points, out, E, ok)
         self.offsets, self.support = fit_part_frames(pose, E, ok)
         T = np.asarray(out["T_cam_obj"], dtype=np.float64)[:, :3, :3]
         if len(T):
             self.object_offset = fit_base_offset(pose[:, self.base, :3, :3], T, group=np.eye(3)[None])[0]
         return self
+
+    def _fit_prior(self, points: np.ndarray, out: dict, E: np.ndarray, ok: np.ndarray, candidates: int = 128):
+        """The view prior ``M`` (:attr:`prior`): each training view offers two hypotheses for the base's axes, its
+        base slot's (``E``) and, with the base joint's two parts exchanged, the other part's; ``M`` is the hypothesis
+        (of up to ``candidates`` evenly spaced ones) that the most views reach within :data:`PRIOR_DEG` with either of
+        theirs, refined to the chordal mean of the nearer hypotheses of those views. A method that gives the base's
+        slot to the child in half of its views still has one base orientation that most views reach."""
+        from scapo.methods.base_frame import _angle
+
+        pair, b = self._root_pair(), self.base
+        if pair is None:
+            return
+        other = _swap_pair(np.asarray(out["part_label"]), *pair)
+        E2, ok2 = part_axes(points, {**out, "part_label": other}, self.joint_type, self.joint_parts)
+        valid = ok[:, b] | ok2[:, b]
+        H = np.concatenate([E[ok[:, b], b], E2[ok2[:, b], b]])
+        if valid.sum() < FRAME_MIN_VIEWS:
+            return
+        C = H[np.unique(np.linspace(0, len(H) - 1, min(len(H), int(candidates))).round().astype(int))]
+        d1 = np.where(ok[None, :, b], _angle(E[None, :, b], C[:, None]), np.inf)  # (C, V)
+        d2 = np.where(ok2[None, :, b], _angle(E2[None, :, b], C[:, None]), np.inf)
+        near = (np.minimum(d1, d2) < PRIOR_DEG) & valid[None]
+        k = int(near.sum(1).argmax())
+        self.prior_share = float(near[k].sum() / valid.sum())
+        if self.prior_share < PRIOR_SHARE:
+            self.prior = None
+            return
+        pick = np.where((d1[k] <= d2[k])[:, None, None], E[:, b], E2[:, b])[near[k]]
+        U, _, Vt = np.linalg.svd(pick.sum(0))
+        self.prior = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
 
     def _root_pair(self) -> tuple[int, int] | None:
         for (pa, ch), t in zip(self.joint_parts, self.joint_type):
