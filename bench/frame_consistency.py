@@ -15,8 +15,6 @@ Writes ``<out>.{md,json}`` with provenance (commit, dataset hash, each file's sh
 from __future__ import annotations
 
 import argparse
-import hashlib
-import json
 import sys
 from pathlib import Path
 
@@ -45,7 +43,7 @@ def main(argv=None) -> int:
     from scapo.data import load
     from scapo.errors import ScapoError
     from scapo.eval.predictions import Predictions
-    from scapo.provenance import provenance
+    from scapo.report import write_diagnosis
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True)
@@ -89,17 +87,11 @@ def main(argv=None) -> int:
         lines.append(f"| {label} | {r['samples']} | {r['strict']:.2f} | {r['sym']:.2f} | "
                      f"{r['base_slot_on_base']:.2f} | {note} |")
     lines += ["", f"Written by `{cmd}`."]
-    out = Path(a.out)
-    sha = {label: hashlib.sha256(Path(fn).read_bytes()).hexdigest()[:16] for label, _, fn in preds}
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.with_suffix(".md").write_text("\n".join(lines) + "\n")
-        out.with_suffix(".json").write_text(json.dumps({
-            "command": cmd, "dataset": str(a.data), "dataset_hash": card.get("dataset_hash"), "split": a.split,
-            "predictions": {label: {"file": fn, "sha256_16": sha[label]} for label, _, fn in preds}, "rows": rows,
-            "provenance": provenance()}, indent=1, default=str))
-    except OSError as e:
-        print(f"scapo: cannot write {out}.md/.json ({e.strerror}); choose a writable --out", file=sys.stderr)
+        write_diagnosis(a.out, lines, {"command": cmd, "dataset": str(a.data), "dataset_hash": card.get("dataset_hash"),
+                                       "split": a.split, "rows": rows}, {label: fn for label, _, fn in preds})
+    except ScapoError as e:
+        print(f"scapo: {e}", file=sys.stderr)
         return 2
     print("\n".join(lines))
     return 0

@@ -22,8 +22,6 @@ Writes ``<out>.{md,json}`` with provenance (commit, dataset hash, each file's sh
 from __future__ import annotations
 
 import argparse
-import hashlib
-import json
 import sys
 from pathlib import Path
 
@@ -109,7 +107,7 @@ def main(argv=None) -> int:
     from scapo.data import load
     from scapo.errors import ScapoError
     from scapo.eval.predictions import Predictions
-    from scapo.provenance import provenance
+    from scapo.report import write_diagnosis
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True)
@@ -155,17 +153,11 @@ def main(argv=None) -> int:
                      f"{e['errors_within_0.1_diag_of_joint']:.3f} | {e['pivot_line_diag_median'][0]:.3f} -> "
                      f"{e['pivot_line_diag_median'][1]:.3f} |")
     lines += ["", f"Written by `{cmd}`."]
-    out = Path(a.out)
-    sha = {label: hashlib.sha256(Path(fn).read_bytes()).hexdigest()[:16] for label, _, fn in preds}
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.with_suffix(".md").write_text("\n".join(lines) + "\n")
-        out.with_suffix(".json").write_text(json.dumps({
-            "command": cmd, "dataset": str(a.data), "dataset_hash": card.get("dataset_hash"), "split": a.split,
-            "predictions": {label: {"file": fn, "sha256_16": sha[label]} for label, _, fn in preds}, "rows": rows,
-            "provenance": provenance()}, indent=1, default=str))
-    except OSError as e:
-        print(f"scapo: cannot write {out}.md/.json ({e.strerror}); choose a writable --out", file=sys.stderr)
+        write_diagnosis(a.out, lines, {"command": cmd, "dataset": str(a.data), "dataset_hash": card.get("dataset_hash"),
+                                       "split": a.split, "rows": rows}, {label: fn for label, _, fn in preds})
+    except ScapoError as e:
+        print(f"scapo: {e}", file=sys.stderr)
         return 2
     print("\n".join(lines))
     return 0
