@@ -21,7 +21,6 @@ Writes ``<out>.{md,json}`` with provenance (commit, dataset hash, each file's sh
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -104,23 +103,15 @@ def score(B: dict, pred, split: str) -> dict:
 
 
 def main(argv=None) -> int:
+    from scapo.bench.diagnosis import diagnosis_args, finish_diagnosis
     from scapo.data import load
     from scapo.errors import ScapoError
     from scapo.eval.predictions import Predictions
-    from scapo.report import write_diagnosis
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", required=True)
-    ap.add_argument("--pred", action="append", default=[], help="LABEL=PREDICTIONS.npz (scapo predict output)")
-    ap.add_argument("--split", default="val", choices=("val", "test"))
-    ap.add_argument("--out", required=True)
-    a = ap.parse_args(argv)
-    preds = [p.partition("=") for p in a.pred]
-    bad = [f for f in [a.data] if not Path(f).is_dir()] + [f for _, _, f in preds if not Path(f).is_file()]
-    if bad or not preds:
-        print(f"scapo: {bad[0] if bad else 'no --pred'}: give a dataset folder (--data) and predictions files "
-              "(--pred LABEL=FILE.npz)", file=sys.stderr)
+    parsed = diagnosis_args(argv, __doc__.split("\n\n")[0])
+    if parsed is None:
         return 2
+    a, preds = parsed
     try:
         B = load(a.data, a.split).arrays()
         rows = {label: score(B, Predictions.load(f), a.split) for label, _, f in preds}
@@ -152,15 +143,7 @@ def main(argv=None) -> int:
         lines.append(f"| {label} | {' / '.join(f'{v:.3f}' for v in e['part_given_to_another'])} | "
                      f"{e['errors_within_0.1_diag_of_joint']:.3f} | {e['pivot_line_diag_median'][0]:.3f} -> "
                      f"{e['pivot_line_diag_median'][1]:.3f} |")
-    lines += ["", f"Written by `{cmd}`."]
-    try:
-        write_diagnosis(a.out, lines, {"command": cmd, "dataset": str(a.data), "dataset_hash": card.get("dataset_hash"),
-                                       "split": a.split, "rows": rows}, {label: fn for label, _, fn in preds})
-    except ScapoError as e:
-        print(f"scapo: {e}", file=sys.stderr)
-        return 2
-    print("\n".join(lines))
-    return 0
+    return finish_diagnosis(a, preds, lines, rows, card, cmd)
 
 
 if __name__ == "__main__":

@@ -16,6 +16,43 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
+
+def with_true_joints(data, preds):
+    """A copy of ``preds`` whose ``part_label``, ``joint_axis`` and ``joint_pivot`` are the dataset's ground truth of
+    each sample (marked as passed through the hinge step, so that :func:`scapo.methods.hinge.hinge_frame_predictions`
+    takes it).
+
+    Raises:
+        PredictionError: samples the dataset lacks, or another dataset's predictions.
+    """
+    from scapo.data import load
+    from scapo.errors import PredictionError
+    from scapo.eval.predictions import Predictions
+
+    lab, axis, piv = preds.part_label.copy(), preds.joint_axis.copy(), preds.joint_pivot.copy()
+    for split in np.unique(preds.split):
+        d = load(data, str(split))
+        if preds.dataset_hash and d.card.get("dataset_hash") and preds.dataset_hash != d.card.get("dataset_hash"):
+            raise PredictionError(f"predictions of {preds.method!r} were made on another dataset than {data}")
+        a = d.arrays(["part_label", "joint_axis", "joint_pivot"])
+        key = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(a["instance_id"], a["view_id"]))}
+        rows = np.flatnonzero(preds.split == split)
+        try:
+            src = [key[(int(preds.instance_id[r]), int(preds.view_id[r]))] for r in rows]
+        except KeyError as e:
+            raise PredictionError(f"predictions of {preds.method!r} name sample {e.args[0]}, which the {split} "
+                                  f"split of {data} lacks") from None
+        lab[rows], axis[rows], piv[rows] = a["part_label"][src], a["joint_axis"][src], a["joint_pivot"][src]
+    kw = {k: getattr(preds, k) for k in ("instance_id", "view_id", "split", "part_pose", "joint_parts", "joint_type",
+                                         "joint_state", "T_cam_obj")}
+    info = {**preds.info, "hinge": {"diagnosis": "the true split, axes and pivots"},
+            "diagnosis": "ground truth: part_label, joint_axis, joint_pivot; the method's own part poses"}
+    return Predictions(method=f"{preds.method}-true-joints", part_label=lab, joint_axis=axis, joint_pivot=piv,
+                       needs_alignment=preds.needs_alignment, supervision=dict(preds.supervision),
+                       dataset_hash=preds.dataset_hash, info=info, **kw)
+
 
 def main(argv=None) -> int:
     from scapo.errors import PredictionError, ScapoError
@@ -33,6 +70,9 @@ def main(argv=None) -> int:
     ap.add_argument("--view-prior", action="store_true",
                     help="with --frames: each view's root part chosen by the training views' prior "
                          "(hinge_view_prior=true)")
+    ap.add_argument("--true-joints", action="store_true",
+                    help="a diagnosis, not a row: with --frames, the true split, axes and pivots replace each file's "
+                         "before the frames step (bench/hinge_frames_ceiling.py)")
     ap.add_argument("--skip-without-train", action="store_true",
                     help="with --frames: pass over (and name on stderr) a file with no training-split predictions "
                          "(a supervised method's or ICP's) instead of stopping")
@@ -47,7 +87,12 @@ def main(argv=None) -> int:
                 print(f"scapo: skipped {f}: no training-split predictions to fit the hinge frames on (predict it "
                       "with --option hinge_frames=true)", file=sys.stderr)
                 continue
-            if "hinge" not in p.info:
+            if a.true_joints:
+                if not a.frames:
+                    raise PredictionError("--true-joints diagnoses the frames step; give --frames too")
+                p = with_true_joints(a.data, p)
+                stem += "+true-joints"
+            elif "hinge" not in p.info:
                 p = hinge_predictions(a.data, p, axis_from_planes=a.axis)
                 stem += "+hinge-axis" if a.axis else "+hinge"
             elif not a.frames:

@@ -20,37 +20,3 @@ def latex_escape(text: str) -> str:
         text = text.replace(a, b)
     return text
 
-
-def write_diagnosis(out, lines: Sequence[str], record: dict, predictions: dict[str, str]) -> list:
-    """Write a bench diagnosis: ``<out>.md`` (``lines``) and ``<out>.json`` (``record`` with each predictions file's
-    path and the first 16 hex digits of its sha256, and :func:`scapo.provenance.provenance`), each atomically; the
-    folder is made if needed.
-
-    Args:
-        out: the output path without suffix. lines: the Markdown lines. record: JSON-serialisable fields.
-        predictions: label -> predictions file path.
-
-    Returns:
-        The two paths written.
-
-    Raises:
-        OutputError: a file or the folder cannot be written (naming it).
-    """
-    import hashlib
-    from pathlib import Path
-
-    from scapo.errors import OutputError
-    from scapo.files import atomic_write_text, write_json
-    from scapo.provenance import provenance
-
-    out = Path(out)
-    sha = {label: hashlib.sha256(Path(fn).read_bytes()).hexdigest()[:16] for label, fn in predictions.items()}
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise OutputError(f"cannot make {out.parent} ({e.strerror}); choose a writable --out") from None
-    md, js = out.with_suffix(".md"), out.with_suffix(".json")
-    atomic_write_text(md, "\n".join(lines) + "\n")
-    write_json(js, {**record, "predictions": {label: {"file": fn, "sha256_16": sha[label]}
-                                              for label, fn in predictions.items()}, "provenance": provenance()})
-    return [md, js]

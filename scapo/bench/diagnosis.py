@@ -1,0 +1,84 @@
+"""Shared parts of the bench diagnoses that read predictions files (``bench/hinge_diagnosis.py``,
+``bench/frame_consistency.py``): their command line (``--data DATA --pred LABEL=FILE ... [--split] --out NAME``) and
+their ``<out>.{md,json}`` writer with provenance."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+
+def diagnosis_args(argv, description: str):
+    """Parse ``--data DATA --pred LABEL=FILE [--pred ...] [--split val|test] --out NAME``.
+
+    Returns:
+        ``(args, preds)`` with ``preds`` a list of ``(label, "=", path)``, or None after printing a ``scapo:`` message
+        to stderr when the dataset folder or a predictions file is missing or a label is empty.
+    """
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--data", required=True)
+    ap.add_argument("--pred", action="append", default=[], help="LABEL=PREDICTIONS.npz (scapo predict output)")
+    ap.add_argument("--split", default="val", choices=("val", "test"))
+    ap.add_argument("--out", required=True)
+    a = ap.parse_args(argv)
+    preds = [p.partition("=") for p in a.pred]
+    bad = [f for f in [a.data] if not Path(f).is_dir()] + [f for _, _, f in preds if not Path(f).is_file()]
+    if bad or not preds or any(not label for label, _, _ in preds):
+        print(f"scapo: {bad[0] if bad else 'no --pred LABEL=FILE'}: give a dataset folder (--data) and predictions "
+              "files (--pred LABEL=FILE.npz)", file=sys.stderr)
+        return None
+    return a, preds
+
+
+def write_diagnosis(out, lines: Sequence[str], record: dict, predictions: dict[str, str]) -> list:
+    """Write a bench diagnosis: ``<out>.md`` (``lines``) and ``<out>.json`` (``record`` with each predictions file's
+    path and the first 16 hex digits of its sha256, and :func:`scapo.provenance.provenance`), each atomically; the
+    folder is made if needed.
+
+    Args:
+        out: the output path without suffix. lines: the Markdown lines. record: JSON-serialisable fields.
+        predictions: label -> predictions file path.
+
+    Returns:
+        The two paths written.
+
+    Raises:
+        OutputError: a file or the folder cannot be written (naming it).
+    """
+    import hashlib
+
+    from scapo.errors import OutputError
+    from scapo.files import atomic_write_text, write_json
+    from scapo.provenance import provenance
+
+    out = Path(out)
+    sha = {label: hashlib.sha256(Path(fn).read_bytes()).hexdigest()[:16] for label, fn in predictions.items()}
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"cannot make {out.parent} ({e.strerror}); choose a writable --out") from None
+    md, js = out.with_suffix(".md"), out.with_suffix(".json")
+    atomic_write_text(md, "\n".join(lines) + "\n")
+    write_json(js, {**record, "predictions": {label: {"file": fn, "sha256_16": sha[label]}
+                                              for label, fn in predictions.items()}, "provenance": provenance()})
+    return [md, js]
+
+
+def finish_diagnosis(args, preds, lines: list[str], rows: dict, card: dict, command: str) -> int:
+    """End a diagnosis's ``main``: add the command line to ``lines``, write ``<args.out>.{md,json}``
+    (:func:`write_diagnosis`; the record holds the command, dataset, its hash, the split and ``rows``) and print the
+    Markdown. Returns the exit status: 0, or 2 after a ``scapo:`` message when the output cannot be written."""
+    from scapo.errors import ScapoError
+
+    lines = [*lines, "", f"Written by `{command}`."]
+    try:
+        write_diagnosis(args.out, lines, {"command": command, "dataset": str(args.data),
+                                          "dataset_hash": card.get("dataset_hash"), "split": args.split,
+                                          "rows": rows}, {label: fn for label, _, fn in preds})
+    except ScapoError as e:
+        print(f"scapo: {e}", file=sys.stderr)
+        return 2
+    print("\n".join(lines))
+    return 0
