@@ -260,3 +260,21 @@ def test_the_view_prior_gives_back_the_base_slot_a_view_gave_to_the_lid_and_stay
     assert HingeFrames([0], [[0, 1]], view_prior=True).fit(pts, lid_first).base == 1  # the slot that turns least
     sp, sphere = prediction(views(rng, 24, True))
     assert HingeFrames([0], [[0, 1]], view_prior=True).fit(sp, sphere).prior is None
+
+
+def test_a_diagnosis_writes_its_markdown_and_a_record_of_its_inputs_or_refuses_an_unwritable_place(tmp_path):
+    import json
+
+    from scapo.bench.diagnosis import write_diagnosis
+    from scapo.errors import OutputError
+
+    src = tmp_path / "p.npz"
+    src.write_bytes(b"abc")
+    md, js = write_diagnosis(tmp_path / "out" / "d", ["# t", "x"], {"rows": {"a": 1}}, {"a": str(src)})
+    assert md.read_text() == "# t\nx\n"
+    rec = json.loads(js.read_text())
+    assert rec["rows"] == {"a": 1} and rec["predictions"]["a"]["sha256_16"] == "ba7816bf8f01cfea"
+    assert "commit" in rec["provenance"]
+    (tmp_path / "file").write_text("")
+    with pytest.raises(OutputError, match="cannot"):
+        write_diagnosis(tmp_path / "file" / "d", ["x"], {}, {})
