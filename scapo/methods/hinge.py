@@ -29,6 +29,13 @@ prediction (its labels, joint axis and pivot; no ground truth, no training):
    points), the fit is repeated about it, and the axis re-estimated once more. A bar-like part (an eyeglasses temple)
    or near-parallel planes keep the predicted axis.
 
+6. Optionally (``hinge_frames=true``, after the steps above): each part's rotation read from its hinge
+   (:func:`part_axes`: the axis, signed by the pair's chirality, and the direction the part runs away from the hinge),
+   through per-part offsets fitted on the training split (:class:`HingeFrames`); with ``hinge_view_prior=true`` each
+   view's base chosen between its two parts by the training views' base orientation (a viewpoint prior, off under
+   views from the whole sphere). Measured in ``results/canonical_ladder/README.md``, "The part rotations from the
+   hinges".
+
 What it assumes: parts that are thin in the section normal to their hinge (a box-shaped body beside a door is a
 region, not a segment, and its line can miss the hinge), and a predicted axis near the true one (the fit moves the
 pivot, never the axis). It reads only what the method predicts, so it is offered to every trained method alike
