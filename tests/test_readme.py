@@ -46,3 +46,26 @@ def test_headline_of_table1_paper_two_categories(tmp_path):
     text = "\n".join(_table1_paper(tmp_path))
     assert "5 core-minutes" in text and "abcdef0" in text
     assert "| SCAPO | 75.0 | 5.0 | 10.0 | 8.0 | 0.60 |" in text
+
+
+def test_headline_of_the_laptop_with_the_hinge_steps(tmp_path):
+    """The hinge block: one-pass and with the steps per method and budget, means over seeds, the frame consistency of
+    the consistency file's rows of that label; absent without both files."""
+    import json
+
+    from scapo.bench.headline import STEPS, _hinge
+
+    assert _hinge(tmp_path) == []
+    folder = tmp_path / "table1_paper_hinge_45min"
+    folder.mkdir()
+    rows = [{"method": m, "category": "laptop", "split": "test", "seed": s,
+             "summary": {"S": 70.0 + 10 * s + (10 if m != "scapo" else 0), "D_median": 1.0, "R_median": 2.0}}
+            for m in ("scapo", "scapo" + STEPS) for s in (0, 1)]
+    (folder / "laptop_scapo.json").write_text(json.dumps({"results": rows}))
+    assert _hinge(tmp_path) == []  # no consistency file yet
+    cons = {f"{m}-s{s}": {"strict": 0.5 + 0.4 * (m != "scapo") + 0.02 * s} for m in ("scapo", "scapo" + STEPS)
+            for s in (0, 1)}
+    (folder / "laptop_scapo_consistency.json").write_text(json.dumps({"rows": cons}))
+    text = "\n".join(_hinge(tmp_path))
+    assert "| SCAPO | 45 | 75.0 | 1.00 | 2.00 | 0.51 |" in text
+    assert "| SCAPO + hinge steps | 45 | 85.0 | 1.00 | 2.00 | 0.91 |" in text

@@ -13,7 +13,11 @@ is read from a results JSON written by a project command (its provenance is in t
 - the canonical-frame ladder's paper-regime rung on laptop (``results/canonical_ladder/ladder_laptop.json``, val):
   per method (default rows) the symmetry-aware frame consistency, S and median symmetry-aware R, mean over seeds;
 - accuracy against training compute (``results/accuracy_vs_compute.json``, val), when it exists: S and frame
-  consistency per budget.
+  consistency per budget;
+- the laptop with the hinge prediction steps (``results/table1_paper_hinge_{45,5}min/``: ``scapo evaluate`` of the
+  tables' cells with ``hinge``, ``hinge_axis``, ``hinge_frames`` and ``hinge_view_prior``, and
+  ``bench/frame_consistency.py``), when they exist: per method and budget, one-pass and with the steps, S, median D,
+  median R and the object-frame consistency, means over the training seeds.
 """
 
 from __future__ import annotations
@@ -140,10 +144,45 @@ def _compute(results: Path) -> list[str]:
     return out
 
 
+#: The hinge tables the headline reads: (folder, evaluation JSON, frame-consistency JSON, core-minutes).
+HINGE_TABLES = (("table1_paper_hinge_45min", "laptop_scapo.json", "laptop_scapo_consistency.json", 45),
+                ("table1_paper_hinge_5min", "laptop_frames.json", "laptop_frames_consistency.json", 5))
+#: The label suffix of the rows with every hinge step.
+STEPS = "+hinge-axis+hinge-frames+view-prior"
+
+
+def _hinge(results: Path) -> list[str]:
+    body = []
+    for folder, table, cons, budget in HINGE_TABLES:
+        t, c = results / folder / table, results / folder / cons
+        if not (t.is_file() and c.is_file()):
+            continue
+        rows = [r for r in json.loads(t.read_text())["results"] if r.get("split", "test") == "test"]
+        fc = json.loads(c.read_text())["rows"]
+        for m in ORDER:
+            for label, name in ((m, NAMES[m]), (m + STEPS, NAMES[m] + " + hinge steps")):
+                s = [r["summary"] for r in rows if r["method"] == label]
+                f = [v["strict"] for k, v in fc.items() if k.rsplit("-s", 1)[0] == label]
+                if s and f:
+                    body.append(f"| {name} | {budget:g} | {_f(_mean(x['S'] for x in s))} | "
+                                f"{_f(_mean(x['D_median'] for x in s), 2)} | {_f(_mean(x['R_median'] for x in s), 2)}"
+                                f" | {_f(_mean(f), 2)} |")
+    if not body:
+        return []
+    return ["", "**Laptop with the hinge prediction steps** (`results/table1_paper_hinge_45min/`, "
+            "`results/table1_paper_hinge_5min/`: Table 1's cells in the paper's viewpoints, test split, training "
+            "seeds 0, 1, 2, scored one-pass and with `--option hinge=true, hinge_axis=true, hinge_frames=true, "
+            "hinge_view_prior=true`, prediction steps offered to every trained method; frame consistency: the object "
+            "frame's, 1 = one canonical frame, mean over seeds).", "",
+            "| method | core-min | S % | median D deg | median R deg | frame consistency |",
+            "|---|---|---|---|---|---|", *body]
+
+
 def headline(results: str | Path = "results") -> str:
     """The block's text (without its markers) from the results folder ``results``."""
     results = Path(results)
-    return "\n".join([*_table1(results), *_table1_paper(results), *_ladder(results), *_compute(results)])
+    return "\n".join([*_table1(results), *_table1_paper(results), *_ladder(results), *_compute(results),
+                      *_hinge(results)])
 
 
 def update_readme(readme: str | Path = "README.md", results: str | Path = "results", check: bool = False) -> bool:
