@@ -211,6 +211,10 @@ def test_the_hinge_frames_option_needs_the_hinge_step_and_excludes_the_base_axes
         "+hinge-axis+hinge-frames"
     with pytest.raises(ConfigError, match="give one"):
         SCAPOOptions(run="r", hinge=True, hinge_frames=True, base_frame="principal")
+    from scapo.methods.hinge import HingeFrames
+
+    with pytest.raises(ConfigError, match="prismatic: predict without hinge_frames"):
+        HingeFrames([1], [[0, 1]])  # a drawer
 
 
 def test_the_view_prior_gives_back_the_base_slot_a_view_gave_to_the_lid_and_stays_off_for_the_whole_sphere():

@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scapo.errors import InputError
+from scapo.errors import ConfigError, InputError
 
 #: Iterations of the line fit and re-split (fixed before any measurement, not tuned).
 HINGE_ITERS = 8
@@ -472,11 +472,19 @@ class HingeFrames:
 
     Args:
         joint_type: ``(J,)``; joint_parts: ``(J, 2)`` the method's joints. view_prior: see above.
+
+    Raises:
+        ConfigError: no revolute joint (a drawer's prismatic joint has no hinge to read).
     """
 
     def __init__(self, joint_type, joint_parts, view_prior: bool = False):
         self.joint_type = np.asarray(joint_type).reshape(-1)
         self.joint_parts = np.asarray(joint_parts).reshape(-1, 2)
+        if not (self.joint_type == 0).any():
+            raise ConfigError("hinge_frames reads each part's rotation from a revolute joint (a hinge); this "
+                              "object's joints are " + (", ".join("revolute" if t == 0 else "prismatic"
+                                                                  for t in self.joint_type) or "none")
+                              + ": predict without hinge_frames")
         self.view_prior = bool(view_prior)
         self.prior: np.ndarray | None = None
         """``(3, 3)`` the consensus of the training views' root axes (camera frame); None when not used."""
