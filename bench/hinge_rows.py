@@ -16,8 +16,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 
 def with_true_joints(data, preds):
     """A copy of ``preds`` whose ``part_label``, ``joint_axis`` and ``joint_pivot`` are the dataset's ground truth of
@@ -27,29 +25,16 @@ def with_true_joints(data, preds):
     Raises:
         PredictionError: samples the dataset lacks, or another dataset's predictions.
     """
-    from scapo.data import load
-    from scapo.errors import PredictionError
     from scapo.eval.predictions import Predictions
+    from scapo.methods.hinge import prediction_arrays
 
-    lab, axis, piv = preds.part_label.copy(), preds.joint_axis.copy(), preds.joint_pivot.copy()
-    for split in np.unique(preds.split):
-        d = load(data, str(split))
-        if preds.dataset_hash and d.card.get("dataset_hash") and preds.dataset_hash != d.card.get("dataset_hash"):
-            raise PredictionError(f"predictions of {preds.method!r} were made on another dataset than {data}")
-        a = d.arrays(["part_label", "joint_axis", "joint_pivot"])
-        key = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(a["instance_id"], a["view_id"]))}
-        rows = np.flatnonzero(preds.split == split)
-        try:
-            src = [key[(int(preds.instance_id[r]), int(preds.view_id[r]))] for r in rows]
-        except KeyError as e:
-            raise PredictionError(f"predictions of {preds.method!r} name sample {e.args[0]}, which the {split} "
-                                  f"split of {data} lacks") from None
-        lab[rows], axis[rows], piv[rows] = a["part_label"][src], a["joint_axis"][src], a["joint_pivot"][src]
+    gt = prediction_arrays(data, preds, ("part_label", "joint_axis", "joint_pivot"))
     kw = {k: getattr(preds, k) for k in ("instance_id", "view_id", "split", "part_pose", "joint_parts", "joint_type",
                                          "joint_state", "T_cam_obj")}
     info = {**preds.info, "hinge": {"diagnosis": "the true split, axes and pivots"},
             "diagnosis": "ground truth: part_label, joint_axis, joint_pivot; the method's own part poses"}
-    return Predictions(method=f"{preds.method}-true-joints", part_label=lab, joint_axis=axis, joint_pivot=piv,
+    return Predictions(method=f"{preds.method}-true-joints", part_label=gt["part_label"],
+                       joint_axis=gt["joint_axis"], joint_pivot=gt["joint_pivot"],
                        needs_alignment=preds.needs_alignment, supervision=dict(preds.supervision),
                        dataset_hash=preds.dataset_hash, info=info, **kw)
 

@@ -518,8 +518,8 @@ class HingeFrames:
             if slot != 0:
                 self.base = slot
         if self.view_prior:
-            self._fit_prior(points, out, E, ok)
-            out, E, ok, _ = self._choose_root(points, out, E, ok)
+            other = self._fit_prior(points, out, E, ok)
+            out, E, ok, _ = self._choose_root(points, out, E, ok, other)
         self.offsets, self.support = fit_part_frames(pose, E, ok)
         T = np.asarray(out["T_cam_obj"], dtype=np.float64)[:, :3, :3]
         if len(T):
@@ -531,18 +531,19 @@ class HingeFrames:
         base slot's (``E``) and, with the base joint's two parts exchanged, the other part's; ``M`` is the hypothesis
         (of up to ``candidates`` evenly spaced ones) that the most views reach within :data:`PRIOR_DEG` with either of
         theirs, refined to the chordal mean of the nearer hypotheses of those views. A method that gives the base's
-        slot to the child in half of its views still has one base orientation that most views reach."""
+        slot to the child in half of its views still has one base orientation that most views reach. Returns the
+        exchanged split's ``(labels, E, ok)`` (None without a base joint), which :meth:`_choose_root` reuses."""
         from scapo.methods.base_frame import _angle
 
         pair, b = self._root_pair(), self.base
         if pair is None:
-            return
+            return None
         other = _swap_pair(np.asarray(out["part_label"]), *pair)
         E2, ok2 = part_axes(points, {**out, "part_label": other}, self.joint_type, self.joint_parts)
         valid = ok[:, b] | ok2[:, b]
         H = np.concatenate([E[ok[:, b], b], E2[ok2[:, b], b]])
         if valid.sum() < FRAME_MIN_VIEWS:
-            return
+            return other, E2, ok2
         C = H[np.unique(np.linspace(0, len(H) - 1, min(len(H), int(candidates))).round().astype(int))]
         d1 = np.where(ok[None, :, b], _angle(E[None, :, b], C[:, None]), np.inf)  # (C, V)
         d2 = np.where(ok2[None, :, b], _angle(E2[None, :, b], C[:, None]), np.inf)
@@ -551,10 +552,11 @@ class HingeFrames:
         self.prior_share = float(near[k].sum() / valid.sum())
         if self.prior_share < PRIOR_SHARE:
             self.prior = None
-            return
+            return other, E2, ok2
         pick = np.where((d1[k] <= d2[k])[:, None, None], E[:, b], E2[:, b])[near[k]]
         U, _, Vt = np.linalg.svd(pick.sum(0))
         self.prior = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+        return other, E2, ok2
 
     def _root_pair(self) -> tuple[int, int] | None:
         for (pa, ch), t in zip(self.joint_parts, self.joint_type):
@@ -562,9 +564,10 @@ class HingeFrames:
                 return int(pa), int(ch)
         return None
 
-    def _choose_root(self, points: np.ndarray, out: dict, E: np.ndarray, ok: np.ndarray):
-        """The ``view_prior`` step: per view, the split (as predicted or with the base's joint's two parts exchanged)
-        whose base axes lie nearer the prior. Returns (out, E, ok, swapped (B,) bool)."""
+    def _choose_root(self, points: np.ndarray, out: dict, E: np.ndarray, ok: np.ndarray, exchanged=None):
+        """The ``view_prior`` step: per view, the split (as predicted or with the base's joint's two parts exchanged;
+        ``exchanged``: that split's ``(labels, E, ok)`` when already computed) whose base axes lie nearer the prior.
+        Returns (out, E, ok, swapped (B,) bool)."""
         from scapo.methods.base_frame import _angle
 
         B = len(ok)
@@ -572,8 +575,11 @@ class HingeFrames:
         if self.prior is None or pair is None:
             return out, E, ok, np.zeros(B, dtype=bool)
         lab = np.asarray(out["part_label"])
-        other = _swap_pair(lab, *pair)
-        E2, ok2 = part_axes(points, {**out, "part_label": other}, self.joint_type, self.joint_parts)
+        if exchanged is None:
+            other = _swap_pair(lab, *pair)
+            E2, ok2 = part_axes(points, {**out, "part_label": other}, self.joint_type, self.joint_parts)
+        else:
+            other, E2, ok2 = exchanged
         root = self.base
         swap = ok[:, root] & ok2[:, root] & (_angle(E2[:, root], self.prior) < _angle(E[:, root], self.prior))
         res = dict(out)
@@ -658,8 +664,9 @@ def hinge_frame_predictions(dataset, preds, view_prior: bool = False):
                        dataset_hash=p.dataset_hash, info={**p.info, "hinge_frames": step.info(o)}, **kw)
 
 
-def _points_of(dataset, p) -> np.ndarray:
-    """``(M, N, 3)`` the dataset's points of each sample of predictions ``p``, in their order.
+def prediction_arrays(dataset, p, fields=("points",)) -> dict[str, np.ndarray]:
+    """The dataset's ``fields`` (e.g. ``points``, or ground truth such as ``part_label``) for each sample of
+    predictions ``p``, in the predictions' order (every split they name).
 
     Raises:
         PredictionError: predictions of another dataset, or samples the dataset lacks."""
@@ -668,18 +675,27 @@ def _points_of(dataset, p) -> np.ndarray:
     from scapo.errors import PredictionError
 
     root = dataset.root if isinstance(dataset, ArticulationDataset) else dataset
-    pts = np.zeros(np.shape(p.part_label) + (3,))
+    out: dict[str, np.ndarray] = {}
     for split in np.unique(p.split):
         d = load(root, str(split))
         if p.dataset_hash and d.card.get("dataset_hash") and p.dataset_hash != d.card.get("dataset_hash"):
             raise PredictionError(f"predictions of {p.method!r} were made on dataset {p.dataset_hash[:12]}, not on "
                                   f"{root} ({str(d.card.get('dataset_hash'))[:12]})")
-        a = d.arrays(["points"])
+        a = d.arrays(list(fields))
         key = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(a["instance_id"], a["view_id"]))}
         rows = np.flatnonzero(p.split == split)
         try:
-            pts[rows] = a["points"][[key[(int(p.instance_id[r]), int(p.view_id[r]))] for r in rows]]
+            src = np.array([key[(int(p.instance_id[r]), int(p.view_id[r]))] for r in rows], dtype=np.int64)
         except KeyError as e:
             raise PredictionError(f"predictions of {p.method!r} name sample {e.args[0]} (instance, view), which the "
                                   f"{split} split of {root} lacks") from None
-    return pts
+        for f in fields:
+            if f not in out:
+                out[f] = np.zeros((len(p),) + a[f].shape[1:], dtype=a[f].dtype)
+            out[f][rows] = a[f][src]
+    return out
+
+
+def _points_of(dataset, p) -> np.ndarray:
+    """``(M, N, 3)`` float64 the dataset's points of each sample of predictions ``p``, in their order."""
+    return prediction_arrays(dataset, p, ("points",))["points"].astype(np.float64)

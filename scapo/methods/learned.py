@@ -425,9 +425,7 @@ class LearnedMethod:
             InputError: not a finite ``(B, N, 3)`` array of real numbers. TrainingError: not loaded."""
         if self.net is None:
             raise TrainingError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
-        X = torch.from_numpy(check_clouds(points)).to(self.device)
-        outs = [self.net.infer(X[i:i + self.options.batch_size]) for i in range(0, len(X), self.options.batch_size)]
-        return {k: np.concatenate([d[k] for d in outs]) for k in outs[0]}
+        return self._infer(check_clouds(points))
 
     @torch.no_grad()
     def _infer(self, points: np.ndarray, progress: str = "") -> dict[str, np.ndarray]:
