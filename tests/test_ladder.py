@@ -134,6 +134,10 @@ def test_rungs_differ_in_one_setting_each():
     assert cfgs["complete"]["render"]["complete"] and "one_shape" not in cfgs["complete"]
     assert "complete" not in cfgs["paper"]["render"] and cfgs["paper"]["view"]["object_euler_deg"]
     assert cfgs["sphere"]["view"]["random_rotation"] and "complete" not in cfgs["sphere"]["render"]
+    # aligned: the complete rung without the rotation (every Euler range is 0, so the frame is given)
+    assert cfgs["aligned"]["render"]["complete"] and "one_shape" not in cfgs["aligned"]
+    assert cfgs["aligned"]["view"]["object_euler_deg"] == [[0.0, 0.0]] * 3
+    assert "random_rotation" not in cfgs["aligned"]["view"] or not cfgs["aligned"]["view"]["random_rotation"]
 
 
 def test_frame_consistency_on_hand_built_offsets():

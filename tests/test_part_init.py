@@ -130,3 +130,57 @@ def test_seg_loss_shapes_bones_without_moving_their_centres():
         moved = gK is not None and float(gK.abs().max()) > 0
         assert moved == centre_grad
         assert gs is not None and float(gs.abs().max()) > 0
+
+
+def _split_diagnosis():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "split_init_diagnosis.py"
+    spec = importlib.util.spec_from_file_location("split_init_diagnosis", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def folding_glasses(B: int = 24, n: int = 300, seed: int = 0):
+    """Eyeglasses-like clouds in the object frame: a front bar along y (|y| <= 0.5) and two temple bars hinged at its
+    ends about z, each opened by its own angle in 0..90 deg (0: folded behind the front, along -+y). Returns clouds
+    (B, n, 3) and labels (B, n): 0 front (half the points), 1 and 2 the temples."""
+    g = torch.Generator().manual_seed(seed)
+    clouds, labels = [], []
+    for _ in range(B):
+        lab = torch.cat([torch.zeros(n // 2), torch.ones(n // 4), torch.full((n - n // 2 - n // 4,), 2.0)]).long()
+        s = torch.rand(n, generator=g)
+        pts = torch.stack([0.01 * torch.randn(n, generator=g), s - 0.5, 0.02 * torch.randn(n, generator=g)], 1)
+        for part, side in ((1, 1.0), (2, -1.0)):
+            m = lab == part
+            ang = math.radians(90 * float(torch.rand(1, generator=g)))
+            u = 0.9 * s[m]  # along the temple from its hinge
+            d = torch.tensor([math.sin(ang), -side * math.cos(ang), 0.0])  # folded: towards the centre; open: +x
+            pts[m] = torch.tensor([0.03, side * 0.5, 0.0]) + u[:, None] * d + 0.01 * torch.randn(int(m.sum()), 3,
+                                                                                                 generator=g)
+        clouds.append(pts)
+        labels.append(lab)
+    return torch.stack(clouds), torch.stack(labels)
+
+
+def test_the_split_diagnosis_scores_a_split_against_the_parts_under_one_slot_assignment():
+    mod = _split_diagnosis()
+    X, lab = folding_glasses()
+    assert mod.split_miou(lab, lab, 3) == pytest.approx(1.0)
+    assert mod.split_miou(lab, (lab + 1) % 3, 3) == pytest.approx(1.0)  # slots renamed: the same split
+    assert mod.split_miou(lab, torch.zeros_like(lab), 3) < 0.4
+    # per-cloud bones follow each cloud's temples; one static bone per part cannot (the temples fold)
+    per = [mod.gaussian_bones(X[b], lab[b], 3) for b in range(len(X))]
+    Kp, Vp, Lp = (torch.stack(t) for t in zip(*per))
+    Ks, Vs, Ls = mod.gaussian_bones(X.reshape(-1, 3), lab.reshape(-1), 3)
+    per_cloud = mod.split_miou(lab, mod.bone_labels(X, Kp, Vp, Lp), 3)
+    static = mod.split_miou(lab, mod.bone_labels(X, Ks[None], Vs[None], Ls[None]), 3)
+    assert per_cloud > 0.95 and static < per_cloud - 0.1
+
+
+def test_the_split_diagnosis_refuses_a_missing_dataset(tmp_path, capsys):
+    mod = _split_diagnosis()
+    assert mod.main(["--data", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
+    assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()

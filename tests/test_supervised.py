@@ -95,6 +95,13 @@ def test_label_init_puts_the_templates_part_k_on_the_labelled_part_k(laptop_data
     obj = lab >= 0
     agree = float((nearest[obj] == lab[obj]).float().mean())
     assert agree > 0.8  # the template's nearest-keypoint parts are its labelled parts, in the labels' order
+    # label_init without supervision (the ladder's label-init diagnosis): the labels are read for the initial split
+    # only, never put into a batch, and give the same split
+    t.job.preset = dataclasses.replace(p, supervision="")
+    plain = TrainingClouds(laptop_data, p.train_points)
+    assert "part_label" not in plain[0] and not plain.extra
+    torch.testing.assert_close(t.job._init_template(plain), lab)
+    torch.testing.assert_close(t.model.keypoints.net[-1].bias.detach().view(2, -1)[:, :3], K)
     # without label_init no labels are returned (the split comes from part_init alone, tested in test_train.py;
     # left out here, it costs 10 s)
     t2 = Trainer(laptop_data, tmp_path / "run2", dataclasses.replace(p, label_init=False, part_init=False),

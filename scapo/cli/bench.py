@@ -61,11 +61,11 @@ def cmd_bench_choose(args) -> int:
 
 def cmd_bench_ladder(args) -> int:
     """``scapo bench ladder``: the canonical-frame diagnosis ladder (:mod:`scapo.bench.ladder`)."""
-    from scapo.bench.ladder import LADDER_METHODS, RUNGS, run_ladder
+    from scapo.bench.ladder import DEFAULT_RUNGS, LADDER_METHODS, run_ladder
 
     if len(args.data) or args.categories:
         raise ConfigError("bench ladder makes its own datasets: give --category (one), not --data or --categories")
-    rungs = args.rungs if args.rungs is not None else list(RUNGS)
+    rungs = args.rungs if args.rungs is not None else list(DEFAULT_RUNGS)
     methods = args.methods if args.methods is not None else list(LADDER_METHODS)
     cmd = "scapo bench ladder " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "scapo bench ladder"
     paths = run_ladder(args.category, methods, rungs, args.seeds, work=args.work / "ladder",
@@ -231,9 +231,10 @@ def add_parsers(sub) -> None:
     sp.add_argument("what", choices=["perf", "table1", "table2", "table3", "choose", "ladder", "compute"])
     sp.add_argument("--rungs", type=names, default=None, help="ladder: rungs, easiest first (default one,complete,"
                     "paper,sphere: complete clouds of one shape at rest; of all instances and states; single views in "
-                    "the paper's regime; from the whole sphere). Scored on val; --budget-minutes (default 5) core-"
-                    "minutes of training per cell; --instances 60, --views 8, --train-views 16, --methods "
-                    "scapo,op-align,eap,npcs by default; results in --out (default results/canonical_ladder)")
+                    "the paper's regime; from the whole sphere; 'aligned', asked for by name: complete clouds of all "
+                    "instances and states with no rotation, the frame given). Scored on val; --budget-minutes "
+                    "(default 5) core-minutes of training per cell; --instances 60, --views 8, --train-views 16, "
+                    "--methods scapo,op-align,eap,npcs by default; results in --out (default results/canonical_ladder)")
     sp.add_argument("--viewpoints", default=None, choices=["paper", "sphere", "upright"],
                     help="table1, table3: paper (default: EAP's views per source dataset, which the SCAPO paper "
                          "follows, see 'scapo generate --help'; datasets named ..._paper, --train-views views per "

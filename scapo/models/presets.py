@@ -61,7 +61,10 @@ class TrainConfig:
     from), so the template's part k is the labelled part k, the part the supervised term trains the
     input's skinning weights to call k. Without it the template's parts keep :mod:`scapo.models.part_init`'s
     unlabeled split in an arbitrary order, and the template (whose parts the test-time refinement uses)
-    and the input disagree on which part is which. Set by the ``/sj`` and ``/s`` presets."""
+    and the input disagree on which part is which. Set by the ``/sj`` and ``/s`` presets. Without segmentation
+    supervision it is a diagnosis, not a self-supervised row: the labels place stage 2's initial split (the
+    keypoints at the true parts' centroids of the template) and no loss reads them (the ladder's ``label-init``
+    variant: does the split hold once it starts right?)."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)

@@ -297,13 +297,28 @@ class ScapoJob:
         fps = farthest_point_indices(S, M, rng)
         self.model.y_base.copy_(torch.from_numpy(S[fps]).to(self.model.y_base))
         labels = None
-        if self.preset.label_init and "part_label" in data.extra:  # the template's points keep their labels
-            lab = data.extra["part_label"][idx].long()
+        part_label = data.extra.get("part_label", self._init_labels(data))
+        if self.preset.label_init and part_label is not None:  # the template's points keep their labels
+            lab = part_label[idx].long()
             labels = (lab[medoid][torch.from_numpy(np.asarray(fps))] if medoid is not None else None,
                       clouds.reshape(-1, 3), lab.reshape(-1))
         if self.preset.part_init and len(clouds) >= 2:
             self._init_parts(sub, clouds.reshape(-1, 3), self.model.y_base.detach().cpu(), labels)
         return labels[0] if labels is not None else None
+
+    def _init_labels(self, data: TrainingClouds) -> torch.Tensor | None:
+        """``part_label (M, N)`` of the training clouds for ``label_init`` without segmentation supervision (a
+        diagnosis: the labels place the initial split only, no loss reads them), read from the dataset here so that no
+        batch holds them; None without ``label_init``.
+
+        Raises:
+            DatasetError: the training split's labels do not match its clouds."""
+        if not self.preset.label_init:
+            return None
+        labels = torch.from_numpy(load(self.data, "train").arrays(["part_label"])["part_label"])
+        if labels.shape[0] != len(data):
+            raise DatasetError(f"{self.data}: the training split's labels do not match its clouds")
+        return labels
 
     @torch.no_grad()
     def _init_branch(self, data: TrainingClouds, views: int = 512, points: int = 128) -> None:
