@@ -239,3 +239,37 @@ def test_frame_spread_separates_view_dependence_from_shape_dependence():
     st = fs.state_stats(turn, np.tile([0.0, 0.0, 2.0], (24, 1)), state)
     assert abs(st["about_joint_on_state_slope"] - 0.5) < 0.05 and st["about_joint_state_r2"] > 0.95
     assert abs(fs.state_stats(views, np.tile([0.0, 0.0, 1.0], (24, 1)), state)["about_joint_on_state_slope"]) < 1e-6
+
+
+def _bench_script(name: str):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_frame_branches_find_two_frames_a_half_turn_apart():
+    from scipy.spatial.transform import Rotation
+
+    mod = _bench_script("frame_branches")
+    rng = np.random.default_rng(0)
+    base = Rotation.from_rotvec([0.3, -0.2, 0.1])
+    small = Rotation.from_rotvec(rng.normal(scale=np.radians(2), size=(30, 3)))
+    half = Rotation.from_rotvec([np.pi, 0, 0])
+    offsets = np.concatenate([(base * small[:18]).as_matrix(), (base * half * small[18:]).as_matrix()])
+    b = mod.branches(offsets)
+    assert [x["size"] for x in b] == [18, 12]
+    assert b[0]["angle_deg"] == 0 and b[1]["angle_deg"] == pytest.approx(180, abs=8)
+    assert abs(b[1]["axis"][0]) == pytest.approx(1, abs=0.1)  # about x: the half turn's axis
+    assert [x["size"] for x in mod.branches(offsets[:18])] == [18]  # one frame: one branch
+
+
+def test_the_frame_branches_refuse_missing_inputs(tmp_path, capsys):
+    mod = _bench_script("frame_branches")
+    assert mod.main(["--data", str(tmp_path / "none"), "--pred", f"x={tmp_path / 'p.npz'}", "--out",
+                     str(tmp_path / "o")]) == 2
+    assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
