@@ -102,6 +102,11 @@ def test_label_init_puts_the_templates_part_k_on_the_labelled_part_k(laptop_data
     assert "part_label" not in plain[0] and not plain.extra
     torch.testing.assert_close(t.job._init_template(plain), lab)
     torch.testing.assert_close(t.model.keypoints.net[-1].bias.detach().view(2, -1)[:, :3], K)
+    # a run trained so is marked as using segmentation labels (its initial split read them)
+    run3 = tmp_path / "run3"
+    Trainer(laptop_data, run3, dataclasses.replace(p, supervision=""), progress=False).train()
+    marks = run_method("scapo", laptop_data, tmp_path / "p3.npz", run=run3, refine_steps=0).supervision
+    assert marks == {"pose": False, "segmentation": True, "joint": False}
     # without label_init no labels are returned (the split comes from part_init alone, tested in test_train.py;
     # left out here, it costs 10 s)
     t2 = Trainer(laptop_data, tmp_path / "run2", dataclasses.replace(p, label_init=False, part_init=False),

@@ -184,6 +184,8 @@ class SCAPOMethod:
         ident = self.predictor.identity
         self.trained_on = ident["dataset_hash"]
         sup = ident["preset"].get("supervision", "")
+        if ident["preset"].get("label_init") and "S" not in sup:  # its initial split read segmentation labels
+            sup = "S" + sup
         if sup:  # the semi-supervised setting: its marks, and a label of its own unless one was given
             self.supervision = supervision_marks(sup)
             if not self.options.label:

@@ -297,7 +297,9 @@ class ScapoJob:
         fps = farthest_point_indices(S, M, rng)
         self.model.y_base.copy_(torch.from_numpy(S[fps]).to(self.model.y_base))
         labels = None
-        part_label = data.extra.get("part_label", self._init_labels(data))
+        part_label = data.extra.get("part_label")
+        if part_label is None:
+            part_label = self._init_labels(data)
         if self.preset.label_init and part_label is not None:  # the template's points keep their labels
             lab = part_label[idx].long()
             labels = (lab[medoid][torch.from_numpy(np.asarray(fps))] if medoid is not None else None,
