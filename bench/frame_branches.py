@@ -48,39 +48,39 @@ def branches(offsets, inlier_deg: float = 15.0, keep: int = 4) -> list[dict]:
 
 
 def file_offsets(data: Path, preds, split: str):
-    """The base part's offsets ``R_pred^T R_gt (M, 3, 3)`` of ``split``'s samples of a predictions file."""
+    """The base part's offsets ``R_pred^T R_gt (M, 3, 3)`` of ``split``'s samples of a predictions file.
+
+    Raises:
+        PredictionError: predictions of another dataset, or none on ``split``."""
     import numpy as np
 
-    from scapo.data import load
+    from scapo.errors import PredictionError
+    from scapo.methods.hinge import prediction_arrays
 
-    g = load(data, split).arrays(["part_pose"])
-    key = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(g["instance_id"], g["view_id"]))}
     rows = np.flatnonzero(preds.split == split)
-    gt = g["part_pose"][[key[(int(preds.instance_id[r]), int(preds.view_id[r]))] for r in rows]]
+    if len(rows) == 0:
+        raise PredictionError(f"predictions of {preds.method!r} have no {split} samples; predict on a dataset with a "
+                              f"{split} split")
+    gt = prediction_arrays(data, preds, ("part_pose",))["part_pose"][rows]
     return np.einsum("bji,bjk->bik", preds.part_pose[rows][:, 0, :3, :3], gt[:, 0, :3, :3])
 
 
 def main(argv=None) -> int:
-    from scapo.bench.diagnosis import diagnosis_args, finish_diagnosis
-    from scapo.data import load
-    from scapo.errors import ScapoError
-    from scapo.eval.predictions import Predictions
+    from scapo.bench.diagnosis import diagnosis_args, finish_diagnosis, score_files
 
     parsed = diagnosis_args(argv, __doc__.split("\n\n")[0])
     if parsed is None:
         return 2
     a, preds = parsed
-    rows = {}
-    try:
-        for label, _, f in preds:
-            off = file_offsets(Path(a.data), Predictions.load(f), a.split)
-            if len(off) == 0:
-                raise ScapoError(f"{f}: no {a.split} samples; predict on a dataset with a {a.split} split")
-            rows[label] = {"samples": int(len(off)), "branches": branches(off)}
-        card = load(a.data, a.split).card
-    except ScapoError as e:
-        print(f"scapo: {e}", file=sys.stderr)
+
+    def score(p) -> dict:
+        off = file_offsets(Path(a.data), p, a.split)
+        return {"samples": int(len(off)), "branches": branches(off)}
+
+    scored = score_files(a, preds, score)
+    if scored is None:
         return 2
+    rows, card = scored
     cmd = "python bench/frame_branches.py " + " ".join(sys.argv[1:] if argv is None else argv)
     lines = [f"# The object frame's branches ({Path(a.data).name}, {a.split})", "",
              "Greedy groups of the base part's offsets R_pred^T R_gt within 15 deg, largest first: share of the "

@@ -23,13 +23,10 @@ def base_on_base(data: Path, preds, split: str) -> float:
     than half of its points to the true root part (label 0); NaN when the slot is empty in every sample."""
     import numpy as np
 
-    from scapo.data import load
+    from scapo.methods.hinge import prediction_arrays
 
-    d = load(data, split)
-    g = d.arrays(["part_label"])
-    key = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(g["instance_id"], g["view_id"]))}
     rows = np.flatnonzero(preds.split == split)
-    gt = g["part_label"][[key[(int(preds.instance_id[r]), int(preds.view_id[r]))] for r in rows]]
+    gt = prediction_arrays(data, preds, ("part_label",))["part_label"][rows]
     base = (preds.info.get("hinge_frames") or {}).get("base", (preds.info.get("base_frame") or {}).get("slot", 0))
     mine = preds.part_label[rows] == base
     n = mine.sum(1)
@@ -38,28 +35,24 @@ def base_on_base(data: Path, preds, split: str) -> float:
 
 
 def main(argv=None) -> int:
-    from scapo.bench.diagnosis import diagnosis_args, finish_diagnosis
+    from scapo.bench.diagnosis import diagnosis_args, finish_diagnosis, score_files
     from scapo.bench.ladder import split_consistency
-    from scapo.data import load
-    from scapo.errors import ScapoError
-    from scapo.eval.predictions import Predictions
 
     parsed = diagnosis_args(argv, __doc__.split("\n\n")[0])
     if parsed is None:
         return 2
     a, preds = parsed
-    rows = {}
-    try:
-        for label, _, f in preds:
-            p = Predictions.load(f)
-            strict, sym = split_consistency(Path(a.data), p, a.split)
-            rows[label] = {"strict": round(strict, 4), "sym": round(sym, 4), "samples": int((p.split == a.split).sum()),
-                           "base_slot_on_base": round(base_on_base(Path(a.data), p, a.split), 4),
-                           "hinge_frames": p.info.get("hinge_frames")}
-        card = load(a.data, a.split).card
-    except ScapoError as e:
-        print(f"scapo: {e}", file=sys.stderr)
+
+    def score(p) -> dict:
+        strict, sym = split_consistency(Path(a.data), p, a.split)
+        return {"strict": round(strict, 4), "sym": round(sym, 4), "samples": int((p.split == a.split).sum()),
+                "base_slot_on_base": round(base_on_base(Path(a.data), p, a.split), 4),
+                "hinge_frames": p.info.get("hinge_frames")}
+
+    scored = score_files(a, preds, score)
+    if scored is None:
         return 2
+    rows, card = scored
     cmd = "python bench/frame_consistency.py " + " ".join(sys.argv[1:] if argv is None else argv)
     lines = [f"# Object-frame consistency ({Path(a.data).name}, {a.split})", "",
              "Share of samples within 15 deg of the one object-frame offset most of them share (1: one canonical "

@@ -144,6 +144,10 @@ def main(argv=None) -> int:
     ap.add_argument("--clouds", type=int, default=672, help="training clouds used (the first ones)")
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
+    if a.clouds < 2:
+        print(f"scapo: --clouds must be at least 2 (a split is scored across pairs of clouds), got {a.clouds}",
+              file=sys.stderr)
+        return 2
     if not Path(a.data).is_dir():
         print(f"scapo: {a.data}: not a dataset folder; give one written by scapo generate (--data)", file=sys.stderr)
         return 2

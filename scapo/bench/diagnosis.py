@@ -32,6 +32,27 @@ def diagnosis_args(argv, description: str):
     return a, preds
 
 
+def score_files(args, preds, score) -> tuple[dict, dict] | None:
+    """Score every predictions file of a diagnosis: ``score(Predictions) -> row`` (a JSON-serialisable dict) per
+    ``(label, "=", path)`` of ``preds``, in order.
+
+    Returns:
+        ``(rows, card)``: label -> row, and the card of ``args.data``'s ``args.split``; or None after printing a
+        ``scapo:`` message to stderr when a file, the dataset or a score fails with a :class:`~scapo.errors.ScapoError`
+        (a corrupt file, predictions of another dataset, an empty split).
+    """
+    from scapo.data import load
+    from scapo.errors import ScapoError
+    from scapo.eval.predictions import Predictions
+
+    try:
+        rows = {label: score(Predictions.load(f)) for label, _, f in preds}
+        return rows, load(args.data, args.split).card
+    except ScapoError as e:
+        print(f"scapo: {e}", file=sys.stderr)
+        return None
+
+
 def write_diagnosis(out, lines: Sequence[str], record: dict, predictions: dict[str, str]) -> list:
     """Write a bench diagnosis: ``<out>.md`` (``lines``) and ``<out>.json`` (``record`` with each predictions file's
     path and the first 16 hex digits of its sha256, and :func:`scapo.provenance.provenance`), each atomically; the
