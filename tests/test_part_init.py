@@ -184,3 +184,43 @@ def test_the_split_diagnosis_refuses_a_missing_dataset(tmp_path, capsys):
     mod = _split_diagnosis()
     assert mod.main(["--data", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
     assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
+
+
+def folding_bars(B: int = 24, n: int = 240, seed: int = 0):
+    """Eyeglasses-like clouds in the front's frame: a front bar along y (part 0) and a thin temple (part 1, a bar of
+    near-square section) hinged at its end about z, folded by 0..90 deg. Returns clouds (B, n, 3), labels (B, n)."""
+    g = torch.Generator().manual_seed(seed)
+    clouds, labels = [], []
+    for _ in range(B):
+        theta = math.radians(90 * float(torch.rand(1, generator=g)))
+        lab = (torch.rand(n, generator=g) < 0.4).long()
+        s = torch.rand(n, generator=g)
+        sec = 0.02 * (torch.rand(n, 2, generator=g) - 0.5)
+        front = torch.stack([sec[:, 0], 1.0 * s - 0.5, sec[:, 1]], -1)
+        along = 0.8 * s  # the temple runs back along -x from the hinge at y = 0.5, turned by theta about z
+        temple = torch.stack([-along * math.cos(theta), 0.5 - along * math.sin(theta), sec[:, 1]], -1)
+        temple = temple + torch.stack([sec[:, 0], torch.zeros(n), torch.zeros(n)], -1)
+        clouds.append(torch.where(lab[:, None] == 1, temple, front))
+        labels.append(lab)
+    return torch.stack(clouds), torch.stack(labels)
+
+
+def test_axis_from_turns_finds_the_hinge_of_folding_bars_and_of_hinged_plates():
+    for X, lab in (folding_bars(), hinged_plates()):
+        axis = PI.axis_from_turns(X, lab, child=1)
+        assert math.degrees(math.acos(min(1.0, abs(float(axis @ HINGE))))) < 5.0
+    X, lab = folding_bars()
+    K = torch.stack([X[lab == 0].mean(0), X[lab == 1].mean(0)])
+    (moved,) = PI.estimate_axes(X, K, (0,), ((0, 1),), generator=torch.Generator().manual_seed(0))
+    assert abs(float(moved @ HINGE)) < math.cos(math.radians(45.0))  # registration reads the bar's roll as motion
+    assert PI.axis_from_turns(X[:2], lab[:2], child=1) is None  # fewer than three clouds show the child
+    assert PI.axis_from_turns(X, torch.zeros_like(lab), child=1) is None  # no cloud shows it
+
+
+def test_estimate_axes_turn_keeps_the_fallback_for_prismatic_joints_and_unseen_children():
+    X, lab = folding_bars()
+    fallback = [torch.tensor([1.0, 0.0, 0.0]), torch.tensor([0.0, 1.0, 0.0])]
+    axes = PI.estimate_axes_turn(X, lab, (1, 0), ((0, 1), (0, 2)), fallback)
+    assert torch.equal(axes[0], fallback[0]) and torch.equal(axes[1], fallback[1])  # prismatic; child 2 unseen
+    (axis,) = PI.estimate_axes_turn(X, lab, (0,), ((0, 1),), [None])
+    assert abs(float(axis @ HINGE)) > math.cos(math.radians(5.0))

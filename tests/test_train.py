@@ -325,3 +325,27 @@ def test_the_lifecycle_resolves_preset_overrides_and_seed_once(tmp_path):
     for seed in (-1, 2 ** 32, 1.5):
         with pytest.raises(ConfigError, match="training seed"):
             run_preset(SCAPO_RUN, None, "test", seed=seed)
+
+
+def test_axis_turn_is_a_preset_part_that_trains_and_leaves_older_runs_current(laptop_data, tmp_path):
+    """``/axis-turn`` starts stage 2's revolute axes from the parts' turns (``TrainConfig.axis_init``; the estimator is
+    tested on hand-built clouds in tests/test_part_init.py); at its default the field is left out of a run's identity,
+    and an unknown value is refused."""
+    import json
+
+    from scapo.errors import ConfigError
+    from scapo.models.presets import get_preset
+    from scapo.models.train import _identity_hash
+
+    p = dataclasses.replace(get_preset("test/axis-turn"), part_init=True)
+    assert p.axis_init == "turn" and get_preset("test").axis_init == "motion"
+    Trainer(laptop_data, tmp_path / "t", p, progress=False).train()
+    assert json.loads((tmp_path / "t" / "run.json").read_text())["preset"]["axis_init"] == "turn"
+    ident = {"preset": dataclasses.asdict(get_preset("test")), "dataset_hash": "h", "category": "laptop",
+             "part_names": [], "joint_type": [], "joint_parts": []}
+    older = json.loads(json.dumps(ident))
+    del older["preset"]["axis_init"]  # as written before the field existed
+    assert _identity_hash(older) == _identity_hash(ident)
+    assert _identity_hash({**ident, "preset": dataclasses.asdict(p)}) != _identity_hash(ident)
+    with pytest.raises(ConfigError, match="axis_init"):
+        dataclasses.replace(TEST, axis_init="nope")

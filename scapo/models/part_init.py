@@ -282,3 +282,60 @@ def estimate_axes(clouds: torch.Tensor, K: torch.Tensor, joint_types, joint_part
         tm = t[:, ch] - (Rm @ t[:, pa].unsqueeze(-1)).squeeze(-1)
         out.append(axis_from_motions(Rm[ok], tm[ok], int(jt)))
     return out
+
+
+def axis_from_turns(clouds: torch.Tensor, labels: torch.Tensor, child: int, min_points: int = 16,
+                    directions: int = 4000) -> torch.Tensor | None:
+    """The revolute axis ``(3,)`` about which a part's principal axes turn across clouds held in one frame (an
+    addition to the paper; ``TrainConfig.axis_init = "turn"``).
+
+    Under a turn about the unit axis ``d`` every direction ``e`` rigid with the part keeps ``(e . d)^2``; so per cloud
+    the child's principal axes ``e_k`` (eigenvectors of its points' covariance, sign-free through the square) are taken,
+    and ``d`` is the direction of a hemisphere grid of ``directions`` that minimises the variance over clouds of
+    ``(e_k . d)^2``, summed over ``k``, each axis weighted by how well its eigenvalue is separated from the others
+    (``min(gap to the nearest eigenvalue, largest) / largest``: the roll of a thin bar about its own length, or the
+    in-plane axes of a round disc, are not seen, and weigh nothing). Registration of the part across clouds
+    (:func:`estimate_axes`) reads such unseen rolls as motion: on eyeglasses' temples (thin bars) it gives axes 87-90
+    deg off with the true split, where this gives 2-3 deg (``results/canonical_ladder/axis_init/``).
+
+    Args:
+        clouds: ``(B, n, 3)`` clouds in one frame (canonical, normalised units), the parent part held still in it.
+        labels: ``(B, n)`` int64 part labels. child: the joint's child part.
+        min_points: clouds where the child has fewer points are skipped.
+
+    Returns:
+        The unit axis ``(3,)`` (sign arbitrary), or None when fewer than three clouds show the child.
+    """
+    E, W = [], []
+    for x, lab in zip(clouds, labels):
+        q = x[lab == child]
+        if len(q) < min_points:
+            continue
+        q = q - q.mean(0)
+        ev, U = torch.linalg.eigh(q.T @ q / len(q))  # ascending
+        top = ev[2].clamp_min(EPS)
+        gap = torch.stack([torch.minimum(min(abs(ev[k] - ev[i]) for i in range(3) if i != k), ev[2])
+                           for k in range(3)]) / top
+        E.append(U.T)
+        W.append(gap)
+    if len(E) < 3:
+        return None
+    E, W = torch.stack(E), torch.stack(W)  # (C, 3, 3) rows e_k; (C, 3)
+    D = fibonacci_hemisphere(directions, clouds.dtype).to(clouds.device)
+    proj = torch.einsum("cki,di->cdk", E, D) ** 2  # (C, dirs, 3)
+    Wc = W[:, None]
+    mean = (Wc * proj).sum(0) / W.sum(0).clamp_min(EPS)
+    cost = (Wc * (proj - mean) ** 2).sum(0).sum(-1)  # (dirs,)
+    return D[cost.argmin()]
+
+
+def estimate_axes_turn(clouds: torch.Tensor, labels: torch.Tensor, joint_types, joint_parts,
+                       fallback: list[torch.Tensor | None]) -> list[torch.Tensor | None]:
+    """Per joint: :func:`axis_from_turns` of its child for a revolute joint; ``fallback[j]`` (e.g.
+    :func:`estimate_axes`) for a prismatic joint or where too few clouds show the child. ``clouds (B, n, 3)``,
+    ``labels (B, n)`` int64."""
+    out = []
+    for j, ((_, child), jt) in enumerate(zip(joint_parts, joint_types)):
+        axis = axis_from_turns(clouds, labels, int(child)) if int(jt) == 0 else None
+        out.append(fallback[j] if axis is None else axis)
+    return out

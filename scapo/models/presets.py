@@ -65,6 +65,11 @@ class TrainConfig:
     supervision it is a diagnosis, not a self-supervised row: the labels place stage 2's initial split (the
     keypoints at the true parts' centroids of the template) and no loss reads them (the ladder's ``label-init``
     variant: does the split hold once it starts right?)."""
+    axis_init: str = "motion"
+    """How stage 2's revolute axes start (with ``part_init``): "motion", from the parts registered rigidly across pairs
+    of canonical training clouds (:func:`scapo.models.part_init.estimate_axes`); "turn", the direction the child's
+    principal axes turn about across them (:func:`scapo.models.part_init.axis_from_turns`: a thin part's unseen roll
+    about its own length is not read as motion; an addition to the paper, preset part ``axis-turn``)."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)
@@ -97,6 +102,8 @@ class TrainConfig:
             raise ConfigError(f"preset {self.name!r}: training seed must be an integer in [0, 2**32), got {self.seed}")
         if self.anchors not in ("", "T", "O", "I"):
             raise ConfigError(f"preset {self.name!r}: anchors must be '', 'T', 'O' or 'I', got {self.anchors!r}")
+        if self.axis_init not in ("motion", "turn"):
+            raise ConfigError(f"preset {self.name!r}: axis_init must be 'motion' or 'turn', got {self.axis_init!r}")
         if check_supervision(self.supervision) != self.supervision:
             raise ConfigError(f"preset {self.name!r}: write supervision as one of '', 'S', 'J', 'SJ', got "
                               f"{self.supervision!r}")
@@ -168,7 +175,8 @@ def get_preset(name: str) -> TrainConfig:
     trains with those labels (``TrainConfig.supervision``, the paper's Table 2 setting), e.g. ``cpu/sj``; a
     part ``seg-gaussian`` takes ``L_seg``'s targets from Gaussian parts (``LossConfig.seg_labels``); a part
     ``principal`` (``no-principal``) reads stage 1's frame from principal axes with a hypothesis set
-    (:data:`PRINCIPAL_ON`), or the paper's regressed frame; a part ``epochs-A-B`` trains stage 1 for A epochs and
+    (:data:`PRINCIPAL_ON`), or the paper's regressed frame; a part ``axis-turn`` starts stage 2's revolute axes from
+    the parts' turns (``TrainConfig.axis_init``); a part ``epochs-A-B`` trains stage 1 for A epochs and
     stage 2 for B (:func:`scapo.registry.apply_schedule`; ``scapo bench table1 --budget-minutes``).
 
     Raises:
@@ -192,6 +200,9 @@ def get_preset(name: str) -> TrainConfig:
     for part in parsed.rest:
         if part == "principal":
             principal = PRINCIPAL_ON
+            continue
+        if part == "axis-turn":
+            off["axis_init"] = "turn"  # stage 2's revolute axes from the parts' turns (TrainConfig.axis_init)
             continue
         if part != "seg-gaussian":
             raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "

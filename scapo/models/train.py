@@ -159,7 +159,8 @@ def model_config(card: dict, preset: TrainConfig) -> ModelConfig:
 INFERENCE_FIELDS = ("refine",)
 #: preset fields added after runs were trained, with the value those runs had: at that value a field is
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
-ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": ""}
+ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
+                "axis_init": "motion"}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -305,7 +306,10 @@ class ScapoJob:
             labels = (lab[medoid][torch.from_numpy(np.asarray(fps))] if medoid is not None else None,
                       clouds.reshape(-1, 3), lab.reshape(-1))
         if self.preset.part_init and len(clouds) >= 2:
-            self._init_parts(sub, clouds.reshape(-1, 3), self.model.y_base.detach().cpu(), labels)
+            sub_labels = None
+            if self.preset.label_init and part_label is not None:
+                sub_labels = part_label[idx].long()[:, :: max(1, clouds.shape[1] // 128)]
+            self._init_parts(sub, clouds.reshape(-1, 3), self.model.y_base.detach().cpu(), labels, sub_labels)
         return labels[0] if labels is not None else None
 
     def _init_labels(self, data: TrainingClouds) -> torch.Tensor | None:
@@ -349,7 +353,7 @@ class ScapoJob:
 
     @torch.no_grad()
     def _init_parts(self, clouds: torch.Tensor, union: torch.Tensor, template: torch.Tensor,
-                    labels: tuple | None = None) -> None:
+                    labels: tuple | None = None, cloud_labels: torch.Tensor | None = None) -> None:
         """Keypoint and joint heads start from the most rigid split (:mod:`scapo.models.part_init`) of
         the canonical ``clouds (B, n, 3)``, candidates drawn from their ``union (U, 3)``: keypoints at
         the part centroids of ``template (M, 3)`` under that split; each joint's pivot at the boundary
@@ -360,7 +364,11 @@ class ScapoJob:
         ``labels`` (``TrainConfig.label_init``, segmentation labels allowed): ``(template_labels (M,) or
         None, points (U', 3), point_labels (U',))`` int64, -1 for background. Each part's keypoint is then
         the centroid of its labelled template points (at least 8), else of its labelled points of all the
-        canonical clouds, else the unlabeled split's keypoint (a part no cloud shows)."""
+        canonical clouds, else the unlabeled split's keypoint (a part no cloud shows).
+
+        ``TrainConfig.axis_init`` "turn": each revolute axis is the direction the child's principal axes turn about
+        across the clouds (:func:`~scapo.models.part_init.estimate_axes_turn`), the clouds split by nearest keypoint,
+        or by ``cloud_labels (B, n)`` int64 when given (``label_init``: the labels' split, a diagnosis)."""
         from scapo.models import part_init
 
         g = torch.Generator().manual_seed(self.preset.seed)
@@ -372,6 +380,10 @@ class ScapoJob:
         kb = self.model.keypoints.net[-1].bias.view(self.mcfg.num_parts, -1)
         kb[:, :3] = K.to(kb)
         axes = part_init.estimate_axes(clouds, K, self.mcfg.joint_types, self.mcfg.joint_parts, generator=g)
+        if self.preset.axis_init == "turn":
+            split = cloud_labels if cloud_labels is not None else part_init.nearest_keypoint(
+                clouds, K.expand(len(clouds), *K.shape))
+            axes = part_init.estimate_axes_turn(clouds, split, self.mcfg.joint_types, self.mcfg.joint_parts, axes)
         jb = self.model.joints.joint_bias()
         for j, (parent, child) in enumerate(self.mcfg.joint_parts):
             pivot, axis = part_init.boundary_joint(template, K, parent, child)
