@@ -224,3 +224,23 @@ def test_estimate_axes_turn_keeps_the_fallback_for_prismatic_joints_and_unseen_c
     assert torch.equal(axes[0], fallback[0]) and torch.equal(axes[1], fallback[1])  # prismatic; child 2 unseen
     (axis,) = PI.estimate_axes_turn(X, lab, (0,), ((0, 1),), [None])
     assert abs(float(axis @ HINGE)) > math.cos(math.radians(5.0))
+
+
+def test_the_axis_diagnosis_measures_sign_free_angles_and_refuses_bad_input(tmp_path, capsys):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "axis_init_diagnosis.py"
+    spec = importlib.util.spec_from_file_location("axis_init_diagnosis", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.angle_deg(-HINGE, HINGE) == pytest.approx(0.0, abs=1e-6)
+    assert mod.angle_deg(torch.tensor([1.0, 0.0, 1.0]), HINGE) == pytest.approx(45.0)
+    assert math.isnan(mod.angle_deg(None, HINGE))
+    # on folding bars the L_dir-align target under the true split is not the hinge (the boundary is a small blob)
+    X, lab = folding_bars()
+    target, elongation = mod.dir_align_targets(X, lab, 2, 0, 1)
+    assert target.shape == (len(X), 3) and elongation.shape == (len(X),)
+    assert mod.main(["--data", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
+    assert mod.main(["--data", str(tmp_path), "--out", str(tmp_path / "o"), "--clouds", "2"]) == 2
+    assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
