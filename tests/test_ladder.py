@@ -273,3 +273,39 @@ def test_the_frame_branches_refuse_missing_inputs(tmp_path, capsys):
     assert mod.main(["--data", str(tmp_path / "none"), "--pred", f"x={tmp_path / 'p.npz'}", "--out",
                      str(tmp_path / "o")]) == 2
     assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
+
+
+def _template_registration():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "template_registration.py"
+    spec = importlib.util.spec_from_file_location("template_registration", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_template_registration_finds_the_start_that_fits_and_refuses_bad_input(tmp_path, capsys):
+    """A lopsided cloud turned by a half turn is registered back to its template from the cube-rotation start that
+    fits (the identity start alone cannot undo a half turn); bad arguments end in a scapo: message, nothing written."""
+    import torch
+    from scipy.spatial.transform import Rotation
+
+    from scapo.ops.groups import rotation_group
+
+    mod = _template_registration()
+    g = torch.Generator().manual_seed(0)
+    U = torch.randn(200, 3, generator=g) * torch.tensor([0.5, 0.2, 0.1])
+    U = torch.cat([U, torch.tensor([[0.8, 0.3, 0.05]]) + 0.05 * torch.randn(40, 3, generator=g)])  # a lump off-axis
+    U = U - U.mean(0)
+    Q = torch.tensor(Rotation.from_rotvec([0.0, 0.0, 3.0]).as_matrix(), dtype=torch.float32)  # 172 deg about z
+    S = (U @ Q.T)[None]  # the template turned: the registration must turn it back by Q^T
+    O = torch.tensor(rotation_group("O"), dtype=torch.float32)
+    R, res, _ = mod.icp_starts(S, U, O)
+    assert float(torch.linalg.matrix_norm(R[0] - Q.T)) < 0.05 and float(res[0]) < 1e-4
+    R1, res1, _ = mod.icp_starts(S, U, torch.eye(3)[None])
+    assert float(res1[0]) > 10 * float(res[0])
+    assert mod.main(["--rounds", "0", "--data", str(tmp_path), "--pred", "a=x.npz", "--out", str(tmp_path / "o")]) == 2
+    assert mod.main(["--data", str(tmp_path / "none"), "--pred", "a=x.npz", "--out", str(tmp_path / "o")]) == 2
+    assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
