@@ -295,8 +295,8 @@ def axis_from_turns(clouds: torch.Tensor, labels: torch.Tensor, child: int, min_
     ``(e_k . d)^2``, summed over ``k``, each axis weighted by how well its eigenvalue is separated from the others
     (``min(gap to the nearest eigenvalue, largest) / largest``: the roll of a thin bar about its own length, or the
     in-plane axes of a round disc, are not seen, and weigh nothing). Registration of the part across clouds
-    (:func:`estimate_axes`) reads such unseen rolls as motion: on eyeglasses' temples (thin bars) it gives axes 87-90
-    deg off with the true split, where this gives 2-3 deg (``results/canonical_ladder/axis_init/``).
+    (:func:`estimate_axes`) reads such unseen rolls as motion: on eyeglasses' temples (thin bars) it gives axes 84-90
+    deg off with the true split, where this gives 2-4 deg (``results/canonical_ladder/axis_init/``).
 
     Args:
         clouds: ``(B, n, 3)`` clouds in one frame (canonical, normalised units), the parent part held still in it.
