@@ -132,7 +132,7 @@ def diagnose(data: Path, clouds: int, seed: int = 0) -> tuple[dict, dict]:
 
 
 def main(argv=None) -> int:
-    from scapo.bench.diagnosis import write_diagnosis
+    from scapo.bench.diagnosis import finish_diagnosis
     from scapo.errors import ScapoError
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -168,15 +168,8 @@ def main(argv=None) -> int:
                      f"{row['turn_nearest_centroid']:.1f} | {row['turn_true_labels']:.1f} | "
                      f"{row['boundary_fallback']:.1f} | {row['dir_align_target_median']:.1f} | "
                      f"{row['dir_align_target_within_20']:.2f} | {row['boundary_elongation_median']:.3f} |")
-    lines += ["", f"Written by `{cmd}`."]
-    try:
-        write_diagnosis(a.out, lines, {"command": cmd, "dataset": str(a.data), "dataset_hash": card.get("dataset_hash"),
-                                       "split": "train", "rows": r}, {})
-    except ScapoError as e:
-        print(f"scapo: {e}", file=sys.stderr)
-        return 2
-    print("\n".join(lines))
-    return 0
+    a.split = "train"  # the record's split: ground truth of the training clouds, no predictions
+    return finish_diagnosis(a, [], lines, r, card, cmd)
 
 
 if __name__ == "__main__":

@@ -91,24 +91,20 @@ def diagnose(data: Path, preds, split: str, bins: list[float]) -> dict:
 
 
 def main(argv=None) -> int:
-    import argparse
-
     from scapo.bench.diagnosis import diagnosis_args, finish_diagnosis, score_files
 
-    ap = argparse.ArgumentParser(add_help=False)
-    ap.add_argument("--bins", default="0,20,50,180")
-    known, rest = ap.parse_known_args(argv)
-    try:
-        bins = [float(b) for b in known.bins.split(",")]
-    except ValueError:
-        bins = []
-    if len(bins) < 2 or any(b >= c for b, c in zip(bins[:-1], bins[1:])):
-        print(f"scapo: --bins {known.bins!r}: give two or more increasing numbers, e.g. 0,20,50,180", file=sys.stderr)
-        return 2
-    parsed = diagnosis_args(rest, __doc__.split("\n\n")[0])
+    parsed = diagnosis_args(argv, __doc__.split("\n\n")[0],
+                            [("--bins", {"default": "0,20,50,180", "help": "joint-state bin edges (deg or m)"})])
     if parsed is None:
         return 2
     a, preds = parsed
+    try:
+        bins = [float(b) for b in a.bins.split(",")]
+    except ValueError:
+        bins = []
+    if len(bins) < 2 or any(b >= c for b, c in zip(bins[:-1], bins[1:])):
+        print(f"scapo: --bins {a.bins!r}: give two or more increasing numbers, e.g. 0,20,50,180", file=sys.stderr)
+        return 2
     scored = score_files(a, preds, lambda p: diagnose(Path(a.data), p, a.split, bins))
     if scored is None:
         return 2

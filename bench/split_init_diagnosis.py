@@ -135,7 +135,7 @@ def object_frame_clouds(data: Path, clouds: int):
 
 
 def main(argv=None) -> int:
-    from scapo.bench.diagnosis import write_diagnosis
+    from scapo.bench.diagnosis import finish_diagnosis
     from scapo.errors import ScapoError
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -174,16 +174,9 @@ def main(argv=None) -> int:
              f"| per-cloud true centroids, nearest keypoint (L_seg's target) | "
              f"{r['per_cloud_nearest_keypoint']['miou']:.3f} | |",
              f"| static Gaussian bones of the true parts | {r['static_gaussian_bones']['miou']:.3f} | |",
-             f"| per-cloud Gaussian bones of the true parts | {r['per_cloud_gaussian_bones']['miou']:.3f} | |",
-             "", f"Written by `{cmd}`."]
-    try:
-        write_diagnosis(a.out, lines, {"command": cmd, "dataset": str(a.data), "dataset_hash": card.get("dataset_hash"),
-                                       "split": "train", "rows": r}, {})
-    except ScapoError as e:
-        print(f"scapo: {e}", file=sys.stderr)
-        return 2
-    print("\n".join(lines))
-    return 0
+             f"| per-cloud Gaussian bones of the true parts | {r['per_cloud_gaussian_bones']['miou']:.3f} | |"]
+    a.split = "train"  # the record's split: ground truth of the training clouds, no predictions
+    return finish_diagnosis(a, [], lines, r, card, cmd)
 
 
 if __name__ == "__main__":

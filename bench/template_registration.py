@@ -118,26 +118,20 @@ def diagnose(data: Path, preds, split: str, rounds: int) -> dict:
 
 
 def main(argv=None) -> int:
-    import argparse
-
     import torch
 
-    from scapo.bench.diagnosis import finish_diagnosis, score_files
+    from scapo.bench.diagnosis import diagnosis_args, finish_diagnosis, score_files
 
-    ap = argparse.ArgumentParser(add_help=False)
-    ap.add_argument("--rounds", type=int, default=3)
-    known, rest = ap.parse_known_args(argv)
-    if known.rounds < 1:
-        print(f"scapo: --rounds must be at least 1, got {known.rounds}", file=sys.stderr)
-        return 2
-    from scapo.bench.diagnosis import diagnosis_args
-
-    parsed = diagnosis_args(rest, __doc__.split("\n\n")[0])
+    parsed = diagnosis_args(argv, __doc__.split("\n\n")[0],
+                            [("--rounds", {"type": int, "default": 3, "help": "template synchronisation rounds"})])
     if parsed is None:
         return 2
     a, preds = parsed
+    if a.rounds < 1:
+        print(f"scapo: --rounds must be at least 1, got {a.rounds}", file=sys.stderr)
+        return 2
     torch.set_num_threads(1)
-    scored = score_files(a, preds, lambda p: diagnose(Path(a.data), p, a.split, known.rounds))
+    scored = score_files(a, preds, lambda p: diagnose(Path(a.data), p, a.split, a.rounds))
     if scored is None:
         return 2
     rows, card = scored

@@ -275,17 +275,6 @@ def test_the_frame_branches_refuse_missing_inputs(tmp_path, capsys):
     assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
 
 
-def _template_registration():
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "bench" / "template_registration.py"
-    spec = importlib.util.spec_from_file_location("template_registration", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_template_registration_finds_the_start_that_fits_and_refuses_bad_input(tmp_path, capsys):
     """A lopsided cloud turned by a half turn is registered back to its template from the cube-rotation start that
     fits (the identity start alone cannot undo a half turn); bad arguments end in a scapo: message, nothing written."""
@@ -294,7 +283,7 @@ def test_template_registration_finds_the_start_that_fits_and_refuses_bad_input(t
 
     from scapo.ops.groups import rotation_group
 
-    mod = _template_registration()
+    mod = _bench_script("template_registration")
     g = torch.Generator().manual_seed(0)
     U = torch.randn(200, 3, generator=g) * torch.tensor([0.5, 0.2, 0.1])
     U = torch.cat([U, torch.tensor([[0.8, 0.3, 0.05]]) + 0.05 * torch.randn(40, 3, generator=g)])  # a lump off-axis
@@ -306,7 +295,10 @@ def test_template_registration_finds_the_start_that_fits_and_refuses_bad_input(t
     assert float(torch.linalg.matrix_norm(R[0] - Q.T)) < 0.05 and float(res[0]) < 1e-4
     R1, res1, _ = mod.icp_starts(S, U, torch.eye(3)[None])
     assert float(res1[0]) > 10 * float(res[0])
-    assert mod.main(["--rounds", "0", "--data", str(tmp_path), "--pred", "a=x.npz", "--out", str(tmp_path / "o")]) == 2
+    (tmp_path / "x.npz").write_bytes(b"")
+    pred = f"a={tmp_path / 'x.npz'}"
+    assert mod.main(["--rounds", "0", "--data", str(tmp_path), "--pred", pred, "--out", str(tmp_path / "o")]) == 2
+    assert "--rounds must be at least 1" in capsys.readouterr().err
     assert mod.main(["--data", str(tmp_path / "none"), "--pred", "a=x.npz", "--out", str(tmp_path / "o")]) == 2
     assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
 
@@ -314,13 +306,7 @@ def test_template_registration_finds_the_start_that_fits_and_refuses_bad_input(t
 def test_part_confusion_reads_a_view_level_exchange_of_mirror_parts():
     """Predictions that are the truth with the two temples exchanged in half of the views: the best assignment keeps
     the order, the exchange fits better in half of the views, and the better of the two per view is exact."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "bench" / "part_confusion.py"
-    spec = importlib.util.spec_from_file_location("part_confusion", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = _bench_script("part_confusion")
     rng = np.random.default_rng(0)
     labels = rng.integers(0, 3, size=(10, 60))
     pred = labels.copy()
@@ -333,3 +319,14 @@ def test_part_confusion_reads_a_view_level_exchange_of_mirror_parts():
     kept = 0.5 * (mod.iou(pred == perm[1], labels == 1) + mod.iou(pred == perm[2], labels == 2))
     exchanged = 0.5 * (mod.iou(pred == perm[2], labels == 1) + mod.iou(pred == perm[1], labels == 2))
     assert np.maximum(kept, exchanged) == pytest.approx(np.ones(10)) and float((exchanged > kept).mean()) == 0.5
+
+
+def test_part_confusion_refuses_bad_bins_and_missing_inputs(tmp_path, capsys):
+    mod = _bench_script("part_confusion")
+    (tmp_path / "x.npz").write_bytes(b"")
+    pred = f"a={tmp_path / 'x.npz'}"
+    for bins in ("0", "0,50,20", "a,b"):
+        assert mod.main(["--bins", bins, "--data", str(tmp_path), "--pred", pred, "--out", str(tmp_path / "o")]) == 2
+        assert "--bins" in capsys.readouterr().err
+    assert mod.main(["--data", str(tmp_path / "none"), "--pred", pred, "--out", str(tmp_path / "o")]) == 2
+    assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()

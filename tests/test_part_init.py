@@ -132,12 +132,12 @@ def test_seg_loss_shapes_bones_without_moving_their_centres():
         assert gs is not None and float(gs.abs().max()) > 0
 
 
-def _split_diagnosis():
+def _bench_script(name: str = "split_init_diagnosis"):
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "bench" / "split_init_diagnosis.py"
-    spec = importlib.util.spec_from_file_location("split_init_diagnosis", path)
+    path = Path(__file__).resolve().parents[1] / "bench" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -166,7 +166,7 @@ def folding_glasses(B: int = 24, n: int = 300, seed: int = 0):
 
 
 def test_the_split_diagnosis_scores_a_split_against_the_parts_under_one_slot_assignment():
-    mod = _split_diagnosis()
+    mod = _bench_script()
     X, lab = folding_glasses()
     assert mod.split_miou(lab, lab, 3) == pytest.approx(1.0)
     assert mod.split_miou(lab, (lab + 1) % 3, 3) == pytest.approx(1.0)  # slots renamed: the same split
@@ -181,7 +181,7 @@ def test_the_split_diagnosis_scores_a_split_against_the_parts_under_one_slot_ass
 
 
 def test_the_split_diagnosis_refuses_a_missing_dataset(tmp_path, capsys):
-    mod = _split_diagnosis()
+    mod = _bench_script()
     assert mod.main(["--data", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
     assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
 
@@ -227,13 +227,7 @@ def test_estimate_axes_turn_keeps_the_fallback_for_prismatic_joints_and_unseen_c
 
 
 def test_the_axis_diagnosis_measures_sign_free_angles_and_refuses_bad_input(tmp_path, capsys):
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "bench" / "axis_init_diagnosis.py"
-    spec = importlib.util.spec_from_file_location("axis_init_diagnosis", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = _bench_script("axis_init_diagnosis")
     assert mod.angle_deg(-HINGE, HINGE) == pytest.approx(0.0, abs=1e-6)
     assert mod.angle_deg(torch.tensor([1.0, 0.0, 1.0]), HINGE) == pytest.approx(45.0)
     assert math.isnan(mod.angle_deg(None, HINGE))

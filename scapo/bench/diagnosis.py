@@ -10,8 +10,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 
-def diagnosis_args(argv, description: str):
-    """Parse ``--data DATA --pred LABEL=FILE [--pred ...] [--split val|test] --out NAME``.
+def diagnosis_args(argv, description: str, options: Sequence[tuple[str, dict]] = ()):
+    """Parse ``--data DATA --pred LABEL=FILE [--pred ...] [--split val|test] --out NAME``, and a diagnosis's own
+    ``options``: ``(flag, argparse keyword arguments)`` pairs, e.g. ``("--rounds", {"type": int, "default": 3})``.
 
     Returns:
         ``(args, preds)`` with ``preds`` a list of ``(label, "=", path)``, or None after printing a ``scapo:`` message
@@ -22,6 +23,8 @@ def diagnosis_args(argv, description: str):
     ap.add_argument("--pred", action="append", default=[], help="LABEL=PREDICTIONS.npz (scapo predict output)")
     ap.add_argument("--split", default="val", choices=("val", "test"))
     ap.add_argument("--out", required=True)
+    for flag, kwargs in options:
+        ap.add_argument(flag, **kwargs)
     a = ap.parse_args(argv)
     preds = [p.partition("=") for p in a.pred]
     bad = [f for f in [a.data] if not Path(f).is_dir()] + [f for _, _, f in preds if not Path(f).is_file()]
