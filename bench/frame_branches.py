@@ -15,7 +15,6 @@ Writes ``<out>.{md,json}`` with provenance (commit, dataset hash, each file's sh
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 
@@ -66,22 +65,17 @@ def file_offsets(data: Path, preds, split: str):
 
 
 def main(argv=None) -> int:
-    from scapo.bench.diagnosis import diagnosis_args, finish_diagnosis, score_files
+    from scapo.bench.diagnosis import run_diagnosis
 
-    parsed = diagnosis_args(argv, __doc__.split("\n\n")[0])
-    if parsed is None:
-        return 2
-    a, preds = parsed
-
-    def score(p) -> dict:
+    def score(a, p) -> dict:
         off = file_offsets(Path(a.data), p, a.split)
         return {"samples": int(len(off)), "branches": branches(off)}
 
-    scored = score_files(a, preds, score)
-    if scored is None:
-        return 2
-    rows, card = scored
-    cmd = "python bench/frame_branches.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    return run_diagnosis(argv, __doc__, "frame_branches.py", score, render)
+
+
+def render(a, rows: dict, card: dict) -> list[str]:
+    """The Markdown lines of the branches of every file."""
     lines = [f"# The object frame's branches ({Path(a.data).name}, {a.split})", "",
              "Greedy groups of the base part's offsets R_pred^T R_gt within 15 deg, largest first: share of the "
              "samples; the rotation from the largest group's offset to this group's (degrees, about an axis in the "
@@ -93,7 +87,7 @@ def main(argv=None) -> int:
                  for i, b in enumerate(r["branches"])]
         cells += [""] * (4 - len(cells))
         lines.append(f"| {label} | {r['samples']} | " + " | ".join(cells) + " |")
-    return finish_diagnosis(a, preds, lines, rows, card, cmd)
+    return lines
 
 
 if __name__ == "__main__":

@@ -14,7 +14,6 @@ Writes ``<out>.{md,json}`` with provenance (commit, dataset hash, each file's sh
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 
@@ -35,25 +34,20 @@ def base_on_base(data: Path, preds, split: str) -> float:
 
 
 def main(argv=None) -> int:
-    from scapo.bench.diagnosis import diagnosis_args, finish_diagnosis, score_files
+    from scapo.bench.diagnosis import run_diagnosis
     from scapo.bench.ladder import split_consistency
 
-    parsed = diagnosis_args(argv, __doc__.split("\n\n")[0])
-    if parsed is None:
-        return 2
-    a, preds = parsed
-
-    def score(p) -> dict:
+    def score(a, p) -> dict:
         strict, sym = split_consistency(Path(a.data), p, a.split)
         return {"strict": round(strict, 4), "sym": round(sym, 4), "samples": int((p.split == a.split).sum()),
                 "base_slot_on_base": round(base_on_base(Path(a.data), p, a.split), 4),
                 "hinge_frames": p.info.get("hinge_frames")}
 
-    scored = score_files(a, preds, score)
-    if scored is None:
-        return 2
-    rows, card = scored
-    cmd = "python bench/frame_consistency.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    return run_diagnosis(argv, __doc__, "frame_consistency.py", score, render)
+
+
+def render(a, rows: dict, card: dict) -> list[str]:
+    """The Markdown lines of every file's frame consistency."""
     lines = [f"# Object-frame consistency ({Path(a.data).name}, {a.split})", "",
              "Share of samples within 15 deg of the one object-frame offset most of them share (1: one canonical "
              "frame); sym: against the declared symmetric ground truth as well. base slot on base: the share of "
@@ -70,7 +64,7 @@ def main(argv=None) -> int:
                                   f"(swapped {vp.get('swapped_share', 0):.2f})")
         lines.append(f"| {label} | {r['samples']} | {r['strict']:.2f} | {r['sym']:.2f} | "
                      f"{r['base_slot_on_base']:.2f} | {note} |")
-    return finish_diagnosis(a, preds, lines, rows, card, cmd)
+    return lines
 
 
 if __name__ == "__main__":

@@ -21,7 +21,6 @@ Writes ``<out>.{md,json}`` with provenance (commit, dataset hash, each file's sh
 from __future__ import annotations
 
 import itertools
-import sys
 from pathlib import Path
 
 
@@ -90,27 +89,28 @@ def diagnose(data: Path, preds, split: str, bins: list[float]) -> dict:
     return out
 
 
-def main(argv=None) -> int:
-    from scapo.bench.diagnosis import diagnosis_args, finish_diagnosis, score_files
-
-    parsed = diagnosis_args(argv, __doc__.split("\n\n")[0],
-                            [("--bins", {"default": "0,20,50,180", "help": "joint-state bin edges (deg or m)"})])
-    if parsed is None:
-        return 2
-    a, preds = parsed
+def bin_edges(text: str) -> list[float] | None:
+    """``--bins`` as two or more increasing numbers, or None."""
     try:
-        bins = [float(b) for b in a.bins.split(",")]
+        bins = [float(b) for b in text.split(",")]
     except ValueError:
-        bins = []
-    if len(bins) < 2 or any(b >= c for b, c in zip(bins[:-1], bins[1:])):
-        print(f"scapo: --bins {a.bins!r}: give two or more increasing numbers, e.g. 0,20,50,180", file=sys.stderr)
-        return 2
-    scored = score_files(a, preds, lambda p: diagnose(Path(a.data), p, a.split, bins))
-    if scored is None:
-        return 2
-    rows, card = scored
+        return None
+    return bins if len(bins) >= 2 and all(b < c for b, c in zip(bins[:-1], bins[1:])) else None
+
+
+def main(argv=None) -> int:
+    from scapo.bench.diagnosis import run_diagnosis
+
+    return run_diagnosis(argv, __doc__, "part_confusion.py",
+                         lambda a, p: diagnose(Path(a.data), p, a.split, bin_edges(a.bins)), render,
+                         [("--bins", {"default": "0,20,50,180", "help": "joint-state bin edges (deg or m)"})],
+                         lambda a: None if bin_edges(a.bins) else (f"--bins {a.bins!r}: give two or more increasing "
+                                                                   "numbers, e.g. 0,20,50,180"))
+
+
+def render(a, rows: dict, card: dict) -> list[str]:
+    """The Markdown lines: per file, the confusion, the child IoU by state and the mirror pairs."""
     names = card["part_names"]
-    cmd = "python bench/part_confusion.py " + " ".join(sys.argv[1:] if argv is None else argv)
     lines = [f"# Part confusion ({Path(a.data).name}, {a.split})", "",
              "Slots assigned to the true parts by the best mean IoU over the split. Confusion: of each true part's "
              "points, the share each assigned part got (rows: true). Child IoU by the joint's true state. Mirror "
@@ -132,7 +132,7 @@ def main(argv=None) -> int:
                           f"exchanged {m['exchanged']:.3f}, best of two {m['best_of_two']:.3f}, exchange fits better "
                           f"in {m['views_exchange_fits_better']:.2f} of the views."]
         lines.append("")
-    return finish_diagnosis(a, preds, lines, rows, card, cmd)
+    return lines
 
 
 if __name__ == "__main__":

@@ -22,7 +22,6 @@ Writes ``<out>.{md,json}`` with provenance (commit, dataset hash, each file's sh
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 POINTS, TEMPLATE_POINTS, KEEP, STEPS, CHUNK = 128, 1024, 0.9, 8, 512
@@ -120,22 +119,17 @@ def diagnose(data: Path, preds, split: str, rounds: int) -> dict:
 def main(argv=None) -> int:
     import torch
 
-    from scapo.bench.diagnosis import diagnosis_args, finish_diagnosis, score_files
+    from scapo.bench.diagnosis import run_diagnosis
 
-    parsed = diagnosis_args(argv, __doc__.split("\n\n")[0],
-                            [("--rounds", {"type": int, "default": 3, "help": "template synchronisation rounds"})])
-    if parsed is None:
-        return 2
-    a, preds = parsed
-    if a.rounds < 1:
-        print(f"scapo: --rounds must be at least 1, got {a.rounds}", file=sys.stderr)
-        return 2
     torch.set_num_threads(1)
-    scored = score_files(a, preds, lambda p: diagnose(Path(a.data), p, a.split, a.rounds))
-    if scored is None:
-        return 2
-    rows, card = scored
-    cmd = "python bench/template_registration.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    return run_diagnosis(argv, __doc__, "template_registration.py",
+                         lambda a, p: diagnose(Path(a.data), p, a.split, a.rounds), render,
+                         [("--rounds", {"type": int, "default": 3, "help": "template synchronisation rounds"})],
+                         lambda a: None if a.rounds >= 1 else f"--rounds must be at least 1, got {a.rounds}")
+
+
+def render(a, rows: dict, card: dict) -> list[str]:
+    """The Markdown lines: every file's frame consistency before and after each registration."""
     lines = [f"# Rigid registration to a category template ({Path(a.data).name}, train / {a.split})", "",
              "Frame consistency (share of views within 15 deg of the common object-frame offset) of the method's "
              "frames, and after registering each view rigidly to a template built from the training views (from the "
@@ -145,7 +139,7 @@ def main(argv=None) -> int:
     for label, r in rows.items():
         for name, v in r.items():
             lines.append(f"| {label} | {name} | {v['train']:.2f} | {v[a.split]:.2f} |")
-    return finish_diagnosis(a, preds, lines, rows, card, cmd)
+    return lines
 
 
 if __name__ == "__main__":
