@@ -70,6 +70,13 @@ class TrainConfig:
     of canonical training clouds (:func:`scapo.models.part_init.estimate_axes`); "turn", the direction the child's
     principal axes turn about across them (:func:`scapo.models.part_init.axis_from_turns`: a thin part's unseen roll
     about its own length is not read as motion; an addition to the paper, preset part ``axis-turn``)."""
+    split_init: str = "rigid"
+    """How stage 2's starting split is found (with ``part_init``): "rigid", the keypoint set whose nearest-keypoint
+    split moves most rigidly across the canonical training clouds (:func:`scapo.models.part_init.initial_split`);
+    "fit", the most rigid of that split and template splits found by fitting the template part by part to the clouds
+    from many starts (:func:`scapo.models.part_init.choose_split`: a part need not be a keypoint's Voronoi cell; the
+    keypoints start at the chosen parts' centroids, the joints from that split; an addition to the paper, preset part
+    ``split-fit``)."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)
@@ -104,6 +111,8 @@ class TrainConfig:
             raise ConfigError(f"preset {self.name!r}: anchors must be '', 'T', 'O' or 'I', got {self.anchors!r}")
         if self.axis_init not in ("motion", "turn"):
             raise ConfigError(f"preset {self.name!r}: axis_init must be 'motion' or 'turn', got {self.axis_init!r}")
+        if self.split_init not in ("rigid", "fit"):
+            raise ConfigError(f"preset {self.name!r}: split_init must be 'rigid' or 'fit', got {self.split_init!r}")
         if check_supervision(self.supervision) != self.supervision:
             raise ConfigError(f"preset {self.name!r}: write supervision as one of '', 'S', 'J', 'SJ', got "
                               f"{self.supervision!r}")
@@ -176,7 +185,8 @@ def get_preset(name: str) -> TrainConfig:
     part ``seg-gaussian`` takes ``L_seg``'s targets from Gaussian parts (``LossConfig.seg_labels``); a part
     ``principal`` (``no-principal``) reads stage 1's frame from principal axes with a hypothesis set
     (:data:`PRINCIPAL_ON`), or the paper's regressed frame; a part ``axis-turn`` starts stage 2's revolute axes from
-    the parts' turns (``TrainConfig.axis_init``); a part ``epochs-A-B`` trains stage 1 for A epochs and
+    the parts' turns (``TrainConfig.axis_init``); a part ``split-fit`` finds stage 2's starting split by fitting the
+    template to the clouds (``TrainConfig.split_init``); a part ``epochs-A-B`` trains stage 1 for A epochs and
     stage 2 for B (:func:`scapo.registry.apply_schedule`; ``scapo bench table1 --budget-minutes``).
 
     Raises:
@@ -203,6 +213,9 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "axis-turn":
             off["axis_init"] = "turn"  # stage 2's revolute axes from the parts' turns (TrainConfig.axis_init)
+            continue
+        if part == "split-fit":
+            off["split_init"] = "fit"  # stage 2's split from template fits (TrainConfig.split_init)
             continue
         if part != "seg-gaussian":
             raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "

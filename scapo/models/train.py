@@ -160,7 +160,7 @@ INFERENCE_FIELDS = ("refine",)
 #: preset fields added after runs were trained, with the value those runs had: at that value a field is
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
-                "axis_init": "motion"}
+                "axis_init": "motion", "split_init": "rigid"}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -375,20 +375,46 @@ class ScapoJob:
         pool = union[torch.randperm(len(union), generator=g)[:1024]]
         K, _ = part_init.initial_split(clouds, pool, self.mcfg.num_parts, seed=self.preset.seed)
         K = part_init.part_centroids(template, K)
+        tpl_split = fit_split = None
+        if self.preset.split_init == "fit" and labels is None:
+            tpl_split, fit_split, K = self._fit_split(clouds, template, K)
         if labels is not None:
             K = labelled_centroids(K, template, *labels)
         kb = self.model.keypoints.net[-1].bias.view(self.mcfg.num_parts, -1)
         kb[:, :3] = K.to(kb)
-        axes = part_init.estimate_axes(clouds, K, self.mcfg.joint_types, self.mcfg.joint_parts, generator=g)
+        axes = part_init.estimate_axes(clouds, K, self.mcfg.joint_types, self.mcfg.joint_parts, generator=g,
+                                       labels=fit_split)
         if self.preset.axis_init == "turn":
-            split = cloud_labels if cloud_labels is not None else part_init.nearest_keypoint(
-                clouds, K.expand(len(clouds), *K.shape))
+            split = cloud_labels if cloud_labels is not None else fit_split if fit_split is not None else \
+                part_init.nearest_keypoint(clouds, K.expand(len(clouds), *K.shape))
             axes = part_init.estimate_axes_turn(clouds, split, self.mcfg.joint_types, self.mcfg.joint_parts, axes)
         jb = self.model.joints.joint_bias()
         for j, (parent, child) in enumerate(self.mcfg.joint_parts):
-            pivot, axis = part_init.boundary_joint(template, K, parent, child)
+            pivot, axis = part_init.boundary_joint(template, K, parent, child, labels=tpl_split)
             jb[j, :3] = pivot.to(jb)
             jb[j, 3:6] = (axis if axes[j] is None else axes[j]).to(jb)
+
+    @torch.no_grad()
+    def _fit_split(self, clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor
+                   ) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
+        """``TrainConfig.split_init = "fit"``: :func:`~scapo.models.part_init.choose_split` between the keypoint
+        split ``K (P, 3)`` of ``template (M, 3)`` and template splits fitted to the canonical ``clouds (B, n, 3)``. A
+        fitted split wins -> (its template labels ``(M,)``, its cloud labels ``(B, n)``, keypoints at its parts'
+        template centroids ``(P, 3)``), the base first; the keypoint split wins -> ``(None, None, K)``. What was found
+        goes to ``split_init.json`` in the run folder."""
+        from scapo.models import part_init
+
+        found = part_init.choose_split(clouds, template, K, seed=self.preset.seed)
+        out: tuple = (None, None, K)
+        if found["source"] == "fit":
+            perm, C = part_init.base_first_labels(template, found["template_labels"], self.mcfg.num_parts)
+            out = (perm[found["template_labels"]], perm[found["cloud_labels"]], C.to(K))
+        if self.dist.is_main:
+            write_json(self.run / "split_init.json",
+                       {"source": found["source"], "chosen": found["chosen"], "scores": found["scores"],
+                        "template_part_points": torch.bincount(found["template_labels"],
+                                                               minlength=self.mcfg.num_parts).tolist()})
+        return out
 
 
 def _stored_preset(ident: dict) -> TrainConfig | None:
