@@ -238,3 +238,38 @@ def test_the_axis_diagnosis_measures_sign_free_angles_and_refuses_bad_input(tmp_
     assert mod.main(["--data", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
     assert mod.main(["--data", str(tmp_path), "--out", str(tmp_path / "o"), "--clouds", "2"]) == 2
     assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
+
+
+def _miou(pred: torch.Tensor, gt: torch.Tensor, parts: int) -> float:
+    import itertools
+
+    return max(float(np.mean([float(((pred == perm[p]) & (gt == p)).sum()) / max(1, int(((pred == perm[p]) |
+                                                                                           (gt == p)).sum()))
+                              for p in range(parts)])) for perm in itertools.permutations(range(parts)))
+
+
+def test_fit_template_parts_draws_temples_that_no_keypoint_cells_draw():
+    """``split_init="fit"``: the template fitted part by part to the clouds finds the parts that move as one body; the
+    Voronoi cells of the true parts' own centroids cut the front's ends off to the temples."""
+    X, lab = folding_glasses(B=16, n=120)
+    X = X - X.mean(1, keepdim=True)
+    T, Tl = X[0], lab[0]
+    K = torch.stack([T[Tl == p].mean(0) for p in range(3)])
+    cells = PI.nearest_keypoint(T, K)
+    labels, cloud_labels = PI.fit_template_parts(T, X, cells, 3)
+    assert _miou(cells, Tl, 3) < 0.75 and _miou(labels, Tl, 3) > _miou(cells, Tl, 3) + 0.08
+    assert labels.shape == Tl.shape and cloud_labels.shape == lab.shape and int(cloud_labels.max()) < 3
+    # the choice keeps the keypoint split where it is already the parts (hinged plates) and takes a fit where the
+    # fit moves more rigidly (the glasses); the base comes first after renumbering
+    found = PI.choose_split(X, T, K, starts=2)
+    assert found["source"] == "fit" and found["scores"][found["chosen"]] < found["scores"][0]
+    assert _miou(found["template_labels"], Tl, 3) > 0.8
+    perm, C = PI.base_first_labels(T, found["template_labels"], 3)
+    front = int(torch.mode(perm[found["template_labels"]][Tl == 0]).values)
+    assert front == 0 and torch.allclose(C[0], T[perm[found["template_labels"]] == 0].mean(0))
+    Xp, lp = hinged_plates(B=12, n=100)
+    Kp = torch.stack([Xp[0][lp[0] == p].mean(0) for p in range(2)])
+    plates = PI.choose_split(Xp, Xp[0], Kp, starts=2, pairs=48)
+    assert _miou(plates["template_labels"], lp[0], 2) > 0.85
+    with pytest.raises(ValueError, match="two clouds"):
+        PI.choose_split(X[:1], T, K)

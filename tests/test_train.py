@@ -327,25 +327,33 @@ def test_the_lifecycle_resolves_preset_overrides_and_seed_once(tmp_path):
             run_preset(SCAPO_RUN, None, "test", seed=seed)
 
 
-def test_axis_turn_is_a_preset_part_that_trains_and_leaves_older_runs_current(laptop_data, tmp_path):
-    """``/axis-turn`` starts stage 2's revolute axes from the parts' turns (``TrainConfig.axis_init``; the estimator is
-    tested on hand-built clouds in tests/test_part_init.py); at its default the field is left out of a run's identity,
-    and an unknown value is refused."""
+def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_runs_current(laptop_data, tmp_path):
+    """``/axis-turn`` starts stage 2's revolute axes from the parts' turns (``TrainConfig.axis_init``) and ``/split-fit``
+    chooses its starting split among the keypoint split and fitted template splits (``TrainConfig.split_init``); the
+    estimators are tested on hand-built clouds in tests/test_part_init.py. A run with both trains and writes the split
+    it chose; at their defaults the fields are left out of a run's identity; unknown values are refused."""
     import json
 
     from scapo.errors import ConfigError
     from scapo.models.presets import get_preset
     from scapo.models.train import _identity_hash
 
-    p = dataclasses.replace(get_preset("test/axis-turn"), part_init=True)
+    p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True)
     assert p.axis_init == "turn" and get_preset("test").axis_init == "motion"
+    assert p.split_init == "fit" and get_preset("test").split_init == "rigid"
     Trainer(laptop_data, tmp_path / "t", p, progress=False).train()
-    assert json.loads((tmp_path / "t" / "run.json").read_text())["preset"]["axis_init"] == "turn"
+    stored = json.loads((tmp_path / "t" / "run.json").read_text())["preset"]
+    assert stored["axis_init"] == "turn" and stored["split_init"] == "fit"
+    found = json.loads((tmp_path / "t" / "split_init.json").read_text())
+    assert found["source"] in ("keypoints", "fit") and found["scores"][found["chosen"]] == min(found["scores"])
+    assert sum(found["template_part_points"]) == p.template_points
     ident = {"preset": dataclasses.asdict(get_preset("test")), "dataset_hash": "h", "category": "laptop",
              "part_names": [], "joint_type": [], "joint_parts": []}
-    older = json.loads(json.dumps(ident))
-    del older["preset"]["axis_init"]  # as written before the field existed
-    assert _identity_hash(older) == _identity_hash(ident)
+    for field in ("axis_init", "split_init"):
+        older = json.loads(json.dumps(ident))
+        del older["preset"][field]  # as written before the field existed
+        assert _identity_hash(older) == _identity_hash(ident)
     assert _identity_hash({**ident, "preset": dataclasses.asdict(p)}) != _identity_hash(ident)
-    with pytest.raises(ConfigError, match="axis_init"):
-        dataclasses.replace(TEST, axis_init="nope")
+    for field in ("axis_init", "split_init"):
+        with pytest.raises(ConfigError, match=field):
+            dataclasses.replace(TEST, **{field: "nope"})
