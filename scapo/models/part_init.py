@@ -345,17 +345,65 @@ def estimate_axes_turn(clouds: torch.Tensor, labels: torch.Tensor, joint_types, 
     return out
 
 
+def register_template_parts(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Tensor, num_parts: int,
+                            iters: int = 6, clip: float = 0.01, R: torch.Tensor | None = None,
+                            t: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Register each part of ``template (M, 3)`` (split by ``labels (M,)`` int64) rigidly onto each of ``clouds (B, n,
+    3)``: ``iters`` point-to-point ICP steps from ``R (B P, 3, 3), t (B P, 3)`` (row ``b P + p``: part ``p`` onto cloud
+    ``b``; default the identity), matched to *any* point of the cloud, matches farther than ``2 sqrt(clip)`` ignored;
+    a part with under three matches keeps its motion. Returns ``(R, t, d2)`` with ``d2 (B, P, M)`` the squared distance
+    of every template point, moved by each part's motion, to its nearest cloud point."""
+    M, B, P = template.shape[0], clouds.shape[0], num_parts
+    dt, dev = template.dtype, template.device
+    R = torch.eye(3, dtype=dt, device=dev).expand(B * P, 3, 3).clone() if R is None else R
+    t = torch.zeros(B * P, 3, dtype=dt, device=dev) if t is None else t
+    target = clouds.repeat_interleave(P, 0)  # (BP, n, 3): row b*P + p is cloud b for part p
+    slot = torch.arange(P, device=dev).repeat(B)[:, None]  # (BP, 1)
+    src = template.expand(B * P, M, 3)
+    for it in range(iters + 1):
+        dmin, j = pairwise_sq_dist(src @ R.transpose(1, 2) + t[:, None], target).min(-1)
+        if it == iters:
+            break
+        w = ((labels[None] == slot) & (dmin < 4 * clip)).to(dt)
+        Rn, tn = kabsch(src, target.gather(1, j.unsqueeze(-1).expand(-1, -1, 3)), w)
+        ok = w.sum(1) >= 3
+        R = torch.where(ok[:, None, None], Rn, R)
+        t = torch.where(ok[:, None], tn, t)
+    return R, t, dmin.reshape(B, P, M)
+
+
+def label_clouds(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Tensor, num_parts: int,
+                 R: torch.Tensor | None = None, t: torch.Tensor | None = None, iters: int = 6, chunk: int = 64
+                 ) -> torch.Tensor:
+    """Label every point of ``clouds (B, n, 3)`` with the part of its nearest point of the template posed for that
+    cloud, each part of ``template (M, 3)`` (split by ``labels (M,)``) at its motion (:func:`register_template_parts`
+    from ``R, t`` when given, else ``iters`` ICP steps from the identity), ``chunk`` clouds at a time -> ``(B, n)``
+    int64."""
+    out = []
+    P, M = num_parts, template.shape[0]
+    for k in range(0, clouds.shape[0], chunk):
+        C = clouds[k:k + chunk]
+        if R is None:
+            Rc, tc, _ = register_template_parts(template, labels, C, P, iters)
+        else:
+            Rc, tc = R[k * P:(k + len(C)) * P], t[k * P:(k + len(C)) * P]
+        moved = (template.expand(len(C) * P, M, 3) @ Rc.transpose(1, 2) + tc[:, None]).reshape(len(C), P, M, 3)
+        posed = moved.gather(1, labels.view(1, 1, M, 1).expand(len(C), 1, M, 3)).squeeze(1)  # each point its part
+        out.append(labels[pairwise_sq_dist(C, posed).argmin(-1)])
+    return torch.cat(out)
+
+
 def fit_template_parts(template: torch.Tensor, clouds: torch.Tensor, labels: torch.Tensor, num_parts: int,
                        rounds: int = 8, iters: int = 6, clip: float = 0.01) -> tuple[torch.Tensor, torch.Tensor]:
     """Split a template by fitting it, part by part, to every canonical cloud (an addition to the paper).
 
     Alternates two steps from the template's ``labels (M,)``: (1) each part of ``template (M, 3)`` is registered
-    rigidly onto each cloud of ``clouds (B, n, 3)`` (``iters`` point-to-point ICP steps continuing from the previous
-    round, matches to *any* point of the cloud, those farther than ``2 sqrt(clip)`` ignored); (2) each template point
-    goes to the part whose motions place it nearest the clouds, its squared distance to the nearest cloud point
-    clipped at ``clip`` and averaged over the clouds. A part of the template is thus whatever moves as one rigid body
-    across the clouds; where the Voronoi cells of :func:`initial_split`'s keypoints cannot draw a part (an eyeglasses
-    temple folded along the front), these labels can. A local method: :func:`choose_split` runs it from many starts.
+    rigidly onto each cloud of ``clouds (B, n, 3)`` (:func:`register_template_parts`, ``iters`` ICP steps continuing
+    from the previous round); (2) each template point goes to the part whose motions place it nearest the clouds, its
+    squared distance to the nearest cloud point clipped at ``clip`` and averaged over the clouds. A part of the
+    template is thus whatever moves as one rigid body across the clouds; where the Voronoi cells of
+    :func:`initial_split`'s keypoints cannot draw a part (an eyeglasses temple folded along the front), these labels
+    can. A local method: :func:`choose_split` runs it from many starts.
 
     Args:
         template: ``(M, 3)``, one canonical cloud (normalised units). clouds: ``(B, n, 3)`` in the same frame.
@@ -363,40 +411,20 @@ def fit_template_parts(template: torch.Tensor, clouds: torch.Tensor, labels: tor
 
     Returns:
         ``(labels (M,) int64, cloud_labels (B, n) int64)``: the template's split, and each cloud point labelled by the
-        part of its nearest point of the posed template (each part at its motion for that cloud).
+        part of its nearest point of the posed template (:func:`label_clouds`, each part at the motion of the last
+        round, i.e. fitted to the labels before the last relabelling when ``rounds`` ran out).
     """
-    M, B, P = template.shape[0], clouds.shape[0], num_parts
-    dt, dev = template.dtype, template.device
-    R = torch.eye(3, dtype=dt, device=dev).expand(B * P, 3, 3).clone()
-    t = torch.zeros(B * P, 3, dtype=dt, device=dev)
-    target = clouds.repeat_interleave(P, 0)  # (BP, n, 3): row b*P + p is cloud b for part p
-    slot = torch.arange(P, device=dev).repeat(B)[:, None]  # (BP, 1)
-    src = template.expand(B * P, M, 3)
+    R = t = None
     labels = labels.clone()
-
-    def place() -> tuple[torch.Tensor, torch.Tensor]:
-        moved = src @ R.transpose(1, 2) + t[:, None]
-        return moved, pairwise_sq_dist(moved, target).min(-1)
-
     for _ in range(rounds):
-        for _ in range(iters):
-            _, (dmin, j) = place()
-            w = ((labels[None] == slot) & (dmin < 4 * clip)).to(dt)
-            Rn, tn = kabsch(src, target.gather(1, j.unsqueeze(-1).expand(-1, -1, 3)), w)
-            ok = w.sum(1) >= 3  # a part with (almost) no matched point keeps its motion
-            R = torch.where(ok[:, None, None], Rn, R)
-            t = torch.where(ok[:, None], tn, t)
-        _, (dmin, _) = place()
-        cost = dmin.clamp(max=clip).reshape(B, P, M).mean(0)  # (P, M)
-        new = cost.argmin(0)
+        R, t, d2 = register_template_parts(template, labels, clouds, num_parts, iters, clip, R, t)
+        new = d2.clamp(max=clip).mean(0).argmin(0)  # (M,)
         if torch.equal(new, labels):
             break
         labels = new
-    moved, _ = place()
-    moved = moved.reshape(B, P, M, 3)
-    posed = moved.gather(1, labels.view(1, 1, M, 1).expand(B, 1, M, 3)).squeeze(1)  # (B, M, 3) each point its part
-    cloud_labels = labels[pairwise_sq_dist(clouds, posed).argmin(-1)]
-    return labels, cloud_labels
+    if R is None:  # no round: the parts at their motions for the starting labels
+        R, t, _ = register_template_parts(template, labels, clouds, num_parts, iters, clip)
+    return labels, label_clouds(template, labels, clouds, num_parts, R, t, chunk=clouds.shape[0])
 
 
 def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, starts: int = 24, pairs: int = 128,

@@ -77,6 +77,13 @@ class TrainConfig:
     from many starts (:func:`scapo.models.part_init.choose_split`: a part need not be a keypoint's Voronoi cell; the
     keypoints start at the chosen parts' centroids, the joints from that split; an addition to the paper, preset part
     ``split-fit``)."""
+    split_labels: bool = False
+    """At the start of stage 2, label every training cloud with stage 2's starting split (the template, split as it
+    starts, fitted part by part to the cloud in its stage-1 frame: :func:`scapo.models.part_init.label_clouds`) and
+    train stage 2's skinning weights towards those labels as the semi-supervised setting trains them towards true ones
+    (``sup_seg``, weight ``sup_weight``). Pseudo-labels from the unlabeled clouds (self-training, an addition to the
+    paper; preset part ``split-labels``, with ``split-fit`` the split it reads); stored in the run folder
+    (``split_labels.npy``) so that a resumed run trains on the same ones."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)
@@ -113,6 +120,12 @@ class TrainConfig:
             raise ConfigError(f"preset {self.name!r}: axis_init must be 'motion' or 'turn', got {self.axis_init!r}")
         if self.split_init not in ("rigid", "fit"):
             raise ConfigError(f"preset {self.name!r}: split_init must be 'rigid' or 'fit', got {self.split_init!r}")
+        if self.split_labels and "S" in str(self.supervision):
+            raise ConfigError(f"preset {self.name!r}: split_labels (pseudo-labels) and segmentation supervision cannot "
+                              "be combined: both train the skinning weights towards labels; choose one")
+        if self.split_labels and not self.part_init:
+            raise ConfigError(f"preset {self.name!r}: split_labels needs part_init (the split it labels the clouds "
+                              "with)")
         if check_supervision(self.supervision) != self.supervision:
             raise ConfigError(f"preset {self.name!r}: write supervision as one of '', 'S', 'J', 'SJ', got "
                               f"{self.supervision!r}")
@@ -186,7 +199,8 @@ def get_preset(name: str) -> TrainConfig:
     ``principal`` (``no-principal``) reads stage 1's frame from principal axes with a hypothesis set
     (:data:`PRINCIPAL_ON`), or the paper's regressed frame; a part ``axis-turn`` starts stage 2's revolute axes from
     the parts' turns (``TrainConfig.axis_init``); a part ``split-fit`` finds stage 2's starting split by fitting the
-    template to the clouds (``TrainConfig.split_init``); a part ``epochs-A-B`` trains stage 1 for A epochs and
+    template to the clouds (``TrainConfig.split_init``) and ``split-labels`` trains stage 2 towards that split's labels
+    of every training cloud (``TrainConfig.split_labels``); a part ``epochs-A-B`` trains stage 1 for A epochs and
     stage 2 for B (:func:`scapo.registry.apply_schedule`; ``scapo bench table1 --budget-minutes``).
 
     Raises:
@@ -216,6 +230,9 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "split-fit":
             off["split_init"] = "fit"  # stage 2's split from template fits (TrainConfig.split_init)
+            continue
+        if part == "split-labels":
+            off["split_labels"] = True  # stage 2 trained towards its starting split's labels (TrainConfig.split_labels)
             continue
         if part != "seg-gaussian":
             raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "

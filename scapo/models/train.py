@@ -160,7 +160,7 @@ INFERENCE_FIELDS = ("refine",)
 #: preset fields added after runs were trained, with the value those runs had: at that value a field is
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
-                "axis_init": "motion", "split_init": "rigid"}
+                "axis_init": "motion", "split_init": "rigid", "split_labels": False}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -230,6 +230,8 @@ class ScapoJob:
         pc = self.preset
         data = (PairedClouds if pc.losses.view_consist > 0 else TrainingClouds)(self.data, pc.train_points,
                                                                                  pc.supervision)
+        if pc.split_labels:
+            self._load_split_labels(data)
         view = ("view_consist",) if pc.losses.view_consist > 0 else ()  # logged only where on (older logs' columns)
         view += ("template",) if pc.losses.template > 0 else ()
         stages = [Stage(index=1, epochs=pc.stage1_epochs, lr=pc.lr_stage1, params=lambda: self._params(1),
@@ -310,7 +312,51 @@ class ScapoJob:
             if self.preset.label_init and part_label is not None:
                 sub_labels = part_label[idx].long()[:, :: max(1, clouds.shape[1] // 128)]
             self._init_parts(sub, clouds.reshape(-1, 3), self.model.y_base.detach().cpu(), labels, sub_labels)
+            if self.preset.split_labels:
+                self._label_training_clouds(data)
         return labels[0] if labels is not None else None
+
+    SPLIT_LABELS = "split_labels.npy"
+
+    @torch.no_grad()
+    def _label_training_clouds(self, data: TrainingClouds) -> None:
+        """``TrainConfig.split_labels``: every training cloud, in its (branch-corrected) stage-1 frame, labelled by
+        the template split stage 2 starts from (:func:`scapo.models.part_init.label_clouds`); the labels ``(M, N)``
+        int64 become the clouds' ``part_label`` (so batches carry them and stage 2 adds ``sup_seg``) and are saved to
+        ``split_labels.npy`` in the run folder for a resume."""
+        from scapo.models import part_init
+
+        template = self.model.y_base.detach().cpu()
+        canon = []
+        self.model.eval()
+        for k in range(0, len(data), 64):
+            X, _ = SCAPOModel.normalize(data.clouds[k:k + 64].to(self.device))
+            enc = self.model.frame(X)
+            canon.append(((X - enc.t[:, None]) @ apply_branch(enc.R, self.model.branch, self.model.branch_flip)).cpu())
+        self.model.train()
+        labels = part_init.label_clouds(template, self._split_template_labels, torch.cat(canon), self.mcfg.num_parts)
+        data.tensors["part_label"] = labels
+        if self.dist.is_main:
+            np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
+
+    def _load_split_labels(self, data: TrainingClouds) -> None:
+        """On a resume inside stage 2, the pseudo-labels :meth:`_label_training_clouds` saved (nothing before it ran).
+
+        Raises:
+            DatasetError: the file is unreadable or does not match the training clouds."""
+        path = self.run / self.SPLIT_LABELS
+        if not path.is_file():
+            return
+        try:
+            labels = np.load(path, allow_pickle=False)  # plain integers: no code runs from the file
+        except (OSError, ValueError) as e:
+            raise DatasetError(f"{path}: unreadable ({e}); delete the run folder and train again") from None
+        if labels.shape != tuple(data.clouds.shape[:2]) or labels.dtype.kind not in "iu" or \
+                (labels.size and (labels.min() < 0 or labels.max() >= self.mcfg.num_parts)):
+            raise DatasetError(f"{path}: pseudo-labels of shape {labels.shape} do not match the "
+                               f"{tuple(data.clouds.shape[:2])} training clouds of {self.mcfg.num_parts} parts; delete "
+                               "the run folder and train again")
+        data.tensors["part_label"] = torch.from_numpy(labels.astype(np.int64))
 
     def _init_labels(self, data: TrainingClouds) -> torch.Tensor | None:
         """``part_label (M, N)`` of the training clouds for ``label_init`` without segmentation supervision (a
@@ -380,6 +426,7 @@ class ScapoJob:
             tpl_split, fit_split, K = self._fit_split(clouds, template, K)
         if labels is not None:
             K = labelled_centroids(K, template, *labels)
+        self._split_template_labels = tpl_split if tpl_split is not None else part_init.nearest_keypoint(template, K)
         kb = self.model.keypoints.net[-1].bias.view(self.mcfg.num_parts, -1)
         kb[:, :3] = K.to(kb)
         axes = part_init.estimate_axes(clouds, K, self.mcfg.joint_types, self.mcfg.joint_parts, generator=g,
