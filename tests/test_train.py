@@ -329,19 +329,41 @@ def test_the_lifecycle_resolves_preset_overrides_and_seed_once(tmp_path):
 
 def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_runs_current(laptop_data, tmp_path):
     """``/axis-turn`` starts stage 2's revolute axes from the parts' turns (``TrainConfig.axis_init``) and ``/split-fit``
-    chooses its starting split among the keypoint split and fitted template splits (``TrainConfig.split_init``); the
-    estimators are tested on hand-built clouds in tests/test_part_init.py. A run with both trains and writes the split
-    it chose; at their defaults the fields are left out of a run's identity; unknown values are refused."""
+    chooses its starting split among the keypoint split and fitted template splits (``TrainConfig.split_init``), and
+    ``split_labels`` trains stage 2 towards that split's pseudo-labels; the estimators are tested on hand-built clouds in
+    tests/test_part_init.py. A run with all three trains and writes the split it chose and its pseudo-labels; at their
+    defaults the fields are left out of a run's identity; unknown values and conflicting settings are refused."""
     import json
 
     from scapo.errors import ConfigError
     from scapo.models.presets import get_preset
     from scapo.models.train import _identity_hash
 
-    p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True)
+    p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True)
     assert p.axis_init == "turn" and get_preset("test").axis_init == "motion"
     assert p.split_init == "fit" and get_preset("test").split_init == "rigid"
-    Trainer(laptop_data, tmp_path / "t", p, progress=False).train()
+    trainer = Trainer(laptop_data, tmp_path / "t", p, progress=False)
+    trainer.train()
+    # split_labels: every training cloud's pseudo-labels saved for a resume, which reads them back or refuses them
+    from scapo.errors import DatasetError
+    from scapo.models.train import TrainingClouds
+
+    data = TrainingClouds(laptop_data, 32)
+    saved = np.load(tmp_path / "t" / "split_labels.npy", allow_pickle=False)
+    assert saved.shape == tuple(data.clouds.shape[:2]) and saved.min() >= 0 and saved.max() < 2
+    trainer.job._load_split_labels(data)
+    assert torch.equal(data.tensors["part_label"], torch.from_numpy(saved)) and "part_label" in data[0]
+    for bad in (b"not a numpy file", None):
+        if bad is None:
+            np.save(tmp_path / "t" / "split_labels.npy", saved[:, :5])
+        else:
+            (tmp_path / "t" / "split_labels.npy").write_bytes(bad)
+        with pytest.raises(DatasetError, match="split_labels.npy"):
+            trainer.job._load_split_labels(TrainingClouds(laptop_data, 32))
+    with pytest.raises(ConfigError, match="needs part_init"):
+        get_preset("test/split-labels")
+    with pytest.raises(ConfigError, match="cannot be combined"):
+        dataclasses.replace(get_preset("cpu/split-labels"), supervision="S")
     stored = json.loads((tmp_path / "t" / "run.json").read_text())["preset"]
     assert stored["axis_init"] == "turn" and stored["split_init"] == "fit"
     found = json.loads((tmp_path / "t" / "split_init.json").read_text())
@@ -349,7 +371,7 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     assert sum(found["template_part_points"]) == p.template_points
     ident = {"preset": dataclasses.asdict(get_preset("test")), "dataset_hash": "h", "category": "laptop",
              "part_names": [], "joint_type": [], "joint_parts": []}
-    for field in ("axis_init", "split_init"):
+    for field in ("axis_init", "split_init", "split_labels"):
         older = json.loads(json.dumps(ident))
         del older["preset"][field]  # as written before the field existed
         assert _identity_hash(older) == _identity_hash(ident)
