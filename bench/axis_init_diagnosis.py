@@ -12,6 +12,8 @@ frame). Per revolute joint, the angle (deg, sign-free) between the true axis and
   child's principal axes turn about across the clouds, with the same two splits;
 - ``boundary fallback``: :func:`scapo.models.part_init.boundary_joint` on one cloud (the principal direction of the
   points nearest the bisecting plane of the two centroids), part_init's fallback;
+- ``turn, fit``: the turn with the split ``split_init="fit"`` finds without labels
+  (:func:`scapo.models.part_init.choose_split`), its slots named after the true parts they overlap best;
 - ``L_dir-align target``: the per-cloud target of the paper's ``L_dir-align``
   (:func:`scapo.losses.scapo_losses.boundary_direction`, the principal direction of the two parts' most uncertain
   points) under the true split (soft weights from per-cloud Gaussian bones of the true parts), median over clouds and
@@ -98,6 +100,21 @@ def diagnose(data: Path, clouds: int, seed: int = 0) -> tuple[dict, dict]:
     lab = labels[:, :: max(1, X.shape[1] // 128)]
     K = torch.stack([sub[lab == p].mean(0) if bool((lab == p).any()) else torch.zeros(3) for p in range(P)])
     nearest = part_init.nearest_keypoint(sub, K.expand(len(sub), P, 3))
+    # split_init="fit" without labels (part_init.choose_split on a 256-point template of the medoid cloud), its slots
+    # then named after the true parts they overlap best (one permutation for all clouds: the diagnosis's only label use)
+    import itertools
+
+    m = part_init.medoid(sub)
+    tpl = X[m, :: max(1, X.shape[1] // 256)]
+    Kk, _ = part_init.initial_split(sub, sub.reshape(-1, 3)[:: max(1, sub.shape[0] * sub.shape[1] // 1024)], P,
+                                    seed=seed)
+    found = part_init.choose_split(sub, tpl, part_init.part_centroids(tpl, Kk), seed=seed)
+    best = max(itertools.permutations(range(P)),
+               key=lambda perm: sum(float(((found["cloud_labels"] == perm[q]) & (lab == q)).sum()) for q in range(P)))
+    fit = torch.empty_like(found["cloud_labels"])
+    for q in range(P):
+        fit[found["cloud_labels"] == best[q]] = q
+    fit_miou = sd.split_miou(lab, fit, P)
     rows = {}
     for j, ((pa, ch), t) in enumerate(zip(jp, jt)):
         if t != 0:
@@ -122,6 +139,9 @@ def diagnose(data: Path, clouds: int, seed: int = 0) -> tuple[dict, dict]:
             row[f"turn_{name}"] = round(angle_deg(part_init.axis_from_turns(sub, split, ch), true), 2)
         _, fallback = part_init.boundary_joint(sub[0], K, pa, ch)
         row["boundary_fallback"] = round(angle_deg(fallback, true), 2)
+        turn_fit = part_init.axis_from_turns(sub, fit, ch)
+        row["turn_fit"] = round(angle_deg(turn_fit, true), 2) if turn_fit is not None else None
+        row["fit_source"], row["fit_miou"] = found["source"], round(fit_miou, 4)
         target, elong = dir_align_targets(sub, lab, P, pa, ch)
         ang = torch.rad2deg(torch.arccos((target @ true / true.norm()).abs().clamp(max=1.0)))
         row["dir_align_target_median"] = round(float(ang.median()), 2)
@@ -159,15 +179,20 @@ def main(argv=None) -> int:
              "(`turn`, `axis_init=turn`), each with the split by nearest true-part centroid (label_init's start) and "
              "by the true labels; part_init's boundary fallback; the target of L_dir-align under the true split "
              "(median over clouds, share within 20 deg) and the boundary's elongation (second / first eigenvalue; "
-             "near 0 for a line along the hinge).", "",
+             "near 0 for a line along the hinge). `turn, fit`: the turn with `split_init=fit`'s split found without "
+             "labels (`part_init.choose_split`; its slots named after the true parts they overlap best; its mean IoU "
+             "in the last column).", "",
              "| joint | motion, nearest centroid | motion, true labels | turn, nearest centroid | turn, true labels | "
-             "boundary fallback | L_dir-align target median | within 20 deg | boundary elongation |",
-             "|:--|--:|--:|--:|--:|--:|--:|--:|--:|"]
+             "boundary fallback | L_dir-align target median | within 20 deg | boundary elongation | turn, fit | "
+             "fit's split mIoU |",
+             "|:--|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|"]
     for name, row in r["joints"].items():
         lines.append(f"| {name} | {row['motion_nearest_centroid']:.1f} | {row['motion_true_labels']:.1f} | "
                      f"{row['turn_nearest_centroid']:.1f} | {row['turn_true_labels']:.1f} | "
                      f"{row['boundary_fallback']:.1f} | {row['dir_align_target_median']:.1f} | "
-                     f"{row['dir_align_target_within_20']:.2f} | {row['boundary_elongation_median']:.3f} |")
+                     f"{row['dir_align_target_within_20']:.2f} | {row['boundary_elongation_median']:.3f} | "
+                     f"{'-' if row['turn_fit'] is None else format(row['turn_fit'], '.1f')} | "
+                     f"{row['fit_miou']:.2f} ({row['fit_source']}) |")
     a.split = "train"  # the record's split: ground truth of the training clouds, no predictions
     return finish_diagnosis(a, [], lines, r, card, cmd)
 
