@@ -364,6 +364,10 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
         get_preset("test/split-labels")
     with pytest.raises(ConfigError, match="cannot be combined"):
         dataclasses.replace(get_preset("cpu/split-labels"), supervision="S")
+    from scapo.models.train import _check
+
+    with pytest.raises(ConfigError, match="split_labels"):
+        _check(dataclasses.replace(p, losses=dataclasses.replace(p.losses, view_consist=0.1)), {}, 100)
     stored = json.loads((tmp_path / "t" / "run.json").read_text())["preset"]
     assert stored["axis_init"] == "turn" and stored["split_init"] == "fit"
     found = json.loads((tmp_path / "t" / "split_init.json").read_text())

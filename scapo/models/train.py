@@ -479,12 +479,16 @@ def _check(preset: TrainConfig, card: dict, clouds: int) -> None:
     one canonical training cloud (``part_init``) or from the union of up to 64 (:meth:`ScapoJob._init_template`).
 
     Raises:
-        ConfigError: more template points than that cloud or union has."""
+        ConfigError: more template points than that cloud or union has; pairs of views (``losses.view_consist``) with
+            labels (a supervised setting or ``split_labels``), which cover the first view of each pair only."""
     from scapo.errors import ConfigError
 
     if preset.losses.view_consist > 0 and preset.supervision:
         raise ConfigError("losses.view_consist (pairs of views) and a supervised setting cannot be combined yet: the "
                           "labels cover the first view of each pair only; train one of them")
+    if preset.losses.view_consist > 0 and preset.split_labels:
+        raise ConfigError("losses.view_consist (pairs of views) and split_labels cannot be combined yet: the "
+                          "pseudo-labels cover the first view of each pair only; train one of them")
     have = preset.train_points * (1 if preset.part_init else min(64, clouds))
     if preset.stage2_epochs > 0 and preset.template_points > have:
         raise ConfigError(f"template_points {preset.template_points} exceeds the {have} points stage 2 samples its "
