@@ -27,7 +27,6 @@ Writes ``<out>.{md,json}`` with provenance (commit, dataset hash).
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import math
 import sys
@@ -152,20 +151,12 @@ def diagnose(data: Path, clouds: int, seed: int = 0) -> tuple[dict, dict]:
 
 
 def main(argv=None) -> int:
-    from scapo.bench.diagnosis import finish_diagnosis
+    from scapo.bench.diagnosis import finish_diagnosis, ground_truth_args
     from scapo.errors import ScapoError
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", required=True)
-    ap.add_argument("--out", required=True)
-    ap.add_argument("--clouds", type=int, default=64, help="training clouds used (the first ones; part_init reads 64)")
-    ap.add_argument("--seed", type=int, default=0)
-    a = ap.parse_args(argv)
-    if a.clouds < 3:
-        print(f"scapo: --clouds must be at least 3 (an axis is read across clouds), got {a.clouds}", file=sys.stderr)
-        return 2
-    if not Path(a.data).is_dir():
-        print(f"scapo: {a.data}: not a dataset folder; give one written by scapo generate (--data)", file=sys.stderr)
+    a = ground_truth_args(argv, __doc__.split("\n\n")[0], 64, 3, "an axis is read across clouds",
+                          "training clouds used (the first ones; part_init reads 64)")
+    if a is None:
         return 2
     try:
         r, card = diagnose(Path(a.data), a.clouds, a.seed)

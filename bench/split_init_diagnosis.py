@@ -28,7 +28,6 @@ Writes ``<out>.{md,json}`` with provenance (commit, dataset hash).
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import math
 import sys
@@ -148,21 +147,12 @@ def object_frame_clouds(data: Path, clouds: int):
 
 
 def main(argv=None) -> int:
-    from scapo.bench.diagnosis import finish_diagnosis
+    from scapo.bench.diagnosis import finish_diagnosis, ground_truth_args
     from scapo.errors import ScapoError
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", required=True)
-    ap.add_argument("--out", required=True)
-    ap.add_argument("--clouds", type=int, default=672, help="training clouds used (the first ones)")
-    ap.add_argument("--seed", type=int, default=0)
-    a = ap.parse_args(argv)
-    if a.clouds < 2:
-        print(f"scapo: --clouds must be at least 2 (a split is scored across pairs of clouds), got {a.clouds}",
-              file=sys.stderr)
-        return 2
-    if not Path(a.data).is_dir():
-        print(f"scapo: {a.data}: not a dataset folder; give one written by scapo generate (--data)", file=sys.stderr)
+    a = ground_truth_args(argv, __doc__.split("\n\n")[0], 672, 2, "a split is scored across pairs of clouds",
+                          "training clouds used (the first ones)")
+    if a is None:
         return 2
     try:
         X, labels, P, card = object_frame_clouds(Path(a.data), a.clouds)

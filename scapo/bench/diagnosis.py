@@ -1,6 +1,7 @@
-"""Shared parts of the bench diagnoses that read predictions files (``bench/hinge_diagnosis.py``,
-``bench/frame_consistency.py``): their command line (``--data DATA --pred LABEL=FILE ... [--split] --out NAME``) and
-their ``<out>.{md,json}`` writer with provenance."""
+"""Shared parts of the bench diagnoses: the command line of those that read predictions files
+(``bench/hinge_diagnosis.py``, ``bench/frame_consistency.py``: ``--data DATA --pred LABEL=FILE ... [--split] --out
+NAME``) and of the ground-truth ones (``bench/split_init_diagnosis.py``, ``bench/axis_init_diagnosis.py``: ``--data
+DATA --out NAME [--clouds C] [--seed S]``), and their ``<out>.{md,json}`` writer with provenance."""
 
 from __future__ import annotations
 
@@ -33,6 +34,31 @@ def diagnosis_args(argv, description: str, options: Sequence[tuple[str, dict]] =
               "files (--pred LABEL=FILE.npz)", file=sys.stderr)
         return None
     return a, preds
+
+
+def ground_truth_args(argv, description: str, clouds: int, min_clouds: int, why: str, clouds_help: str):
+    """Parse a ground-truth diagnosis's ``--data DATA --out NAME [--clouds C] [--seed S]`` (no predictions files).
+
+    Args:
+        clouds: ``--clouds``'s default. min_clouds: the fewest it accepts, ``why`` saying why in the message.
+
+    Returns:
+        The parsed arguments, or None after printing a ``scapo:`` message to stderr when ``--clouds`` is under
+        ``min_clouds`` or the dataset folder is missing.
+    """
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--data", required=True)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--clouds", type=int, default=clouds, help=clouds_help)
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args(argv)
+    if a.clouds < min_clouds:
+        print(f"scapo: --clouds must be at least {min_clouds} ({why}), got {a.clouds}", file=sys.stderr)
+        return None
+    if not Path(a.data).is_dir():
+        print(f"scapo: {a.data}: not a dataset folder; give one written by scapo generate (--data)", file=sys.stderr)
+        return None
+    return a
 
 
 def score_files(args, preds, score) -> tuple[dict, dict] | None:

@@ -188,13 +188,17 @@ def score_keypoints(clouds: torch.Tensor, candidates: torch.Tensor, pairs: int =
     return torch.cat(scores)
 
 
-def order_base_first(K: torch.Tensor) -> torch.Tensor:
-    """Put the base (slot 0) first: the keypoint with the smallest summed distance to the others (the
-    hub of a star-shaped tree); ties (two parts) keep the order. ``K (P, 3)`` -> ``(P, 3)``."""
+def base_first_order(K: torch.Tensor) -> list[int]:
+    """The slot order with the base first: the keypoint with the smallest summed distance to the others (the hub of a
+    star-shaped tree), then the others in their order; ties (two parts) keep the order. ``K (P, 3)``."""
     d = torch.cdist(K, K).sum(1)
     base = int(torch.argmin(d - 1e-6 * (torch.arange(len(K), device=K.device) == 0).to(K.dtype)))
-    order = [base] + [p for p in range(len(K)) if p != base]
-    return K[order]
+    return [base] + [p for p in range(len(K)) if p != base]
+
+
+def order_base_first(K: torch.Tensor) -> torch.Tensor:
+    """Put the base (slot 0) first (:func:`base_first_order`): ``K (P, 3)`` -> ``(P, 3)``."""
+    return K[base_first_order(K)]
 
 
 def initial_split(clouds: torch.Tensor, template: torch.Tensor, num_parts: int, seed: int = 0,
@@ -475,15 +479,13 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
 
 def base_first_labels(template: torch.Tensor, labels: torch.Tensor, num_parts: int
                       ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Renumber a template split so that the base comes first as :func:`order_base_first` orders keypoints (the
+    """Renumber a template split so that the base comes first as :func:`base_first_order` orders keypoints (the
     part whose centroid has the smallest summed distance to the others): ``template (M, 3)``, ``labels (M,)`` int64
     -> (``perm (P,)`` int64 with ``new = perm[old]``, ``centroids (P, 3)`` in the new order). A part with no point
     gets the template's centroid."""
     C = torch.stack([template[labels == p].mean(0) if bool((labels == p).any()) else template.mean(0)
                      for p in range(num_parts)])
-    d = torch.cdist(C, C).sum(1)
-    base = int(torch.argmin(d - 1e-6 * (torch.arange(num_parts, device=C.device) == 0).to(C.dtype)))
-    order = [base] + [p for p in range(num_parts) if p != base]
+    order = base_first_order(C)
     perm = torch.empty(num_parts, dtype=torch.long, device=labels.device)
     perm[torch.tensor(order, device=labels.device)] = torch.arange(num_parts, device=labels.device)
     return perm, C[order]

@@ -311,17 +311,19 @@ class ScapoJob:
             sub_labels = None
             if self.preset.label_init and part_label is not None:
                 sub_labels = part_label[idx].long()[:, :: max(1, clouds.shape[1] // 128)]
-            self._init_parts(sub, clouds.reshape(-1, 3), self.model.y_base.detach().cpu(), labels, sub_labels)
+            split = self._init_parts(sub, clouds.reshape(-1, 3), self.model.y_base.detach().cpu(), labels,
+                                     sub_labels)
             if self.preset.split_labels:
-                self._label_training_clouds(data)
+                self._label_training_clouds(data, split)
         return labels[0] if labels is not None else None
 
     SPLIT_LABELS = "split_labels.npy"
 
     @torch.no_grad()
-    def _label_training_clouds(self, data: TrainingClouds) -> None:
+    def _label_training_clouds(self, data: TrainingClouds, template_labels: torch.Tensor) -> None:
         """``TrainConfig.split_labels``: every training cloud, in its (branch-corrected) stage-1 frame, labelled by
-        the template split stage 2 starts from (:func:`scapo.models.part_init.label_clouds`); the labels ``(M, N)``
+        the template split stage 2 starts from, ``template_labels (M,)`` int64 (:meth:`_init_parts`'s;
+        :func:`scapo.models.part_init.label_clouds`); the labels ``(M, N)``
         int64 become the clouds' ``part_label`` (so batches carry them and stage 2 adds ``sup_seg``) and are saved to
         ``split_labels.npy`` in the run folder for a resume."""
         from scapo.models import part_init
@@ -334,7 +336,7 @@ class ScapoJob:
             enc = self.model.frame(X)
             canon.append(((X - enc.t[:, None]) @ apply_branch(enc.R, self.model.branch, self.model.branch_flip)).cpu())
         self.model.train()
-        labels = part_init.label_clouds(template, self._split_template_labels, torch.cat(canon), self.mcfg.num_parts)
+        labels = part_init.label_clouds(template, template_labels, torch.cat(canon), self.mcfg.num_parts)
         data.tensors["part_label"] = labels
         if self.dist.is_main:
             np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
@@ -399,7 +401,7 @@ class ScapoJob:
 
     @torch.no_grad()
     def _init_parts(self, clouds: torch.Tensor, union: torch.Tensor, template: torch.Tensor,
-                    labels: tuple | None = None, cloud_labels: torch.Tensor | None = None) -> None:
+                    labels: tuple | None = None, cloud_labels: torch.Tensor | None = None) -> torch.Tensor:
         """Keypoint and joint heads start from the most rigid split (:mod:`scapo.models.part_init`) of
         the canonical ``clouds (B, n, 3)``, candidates drawn from their ``union (U, 3)``: keypoints at
         the part centroids of ``template (M, 3)`` under that split; each joint's pivot at the boundary
@@ -414,7 +416,11 @@ class ScapoJob:
 
         ``TrainConfig.axis_init`` "turn": each revolute axis is the direction the child's principal axes turn about
         across the clouds (:func:`~scapo.models.part_init.estimate_axes_turn`), the clouds split by nearest keypoint,
-        or by ``cloud_labels (B, n)`` int64 when given (``label_init``: the labels' split, a diagnosis)."""
+        or by ``cloud_labels (B, n)`` int64 when given (``label_init``: the labels' split, a diagnosis).
+
+        ``TrainConfig.split_init`` "fit": the split is :meth:`_fit_split`'s choice, and the pivots and axes are read
+        from it. Returns the template's split stage 2 starts from, ``(M,)`` int64 (the fitted one, or the template by
+        nearest keypoint)."""
         from scapo.models import part_init
 
         g = torch.Generator().manual_seed(self.preset.seed)
@@ -426,7 +432,6 @@ class ScapoJob:
             tpl_split, fit_split, K = self._fit_split(clouds, template, K)
         if labels is not None:
             K = labelled_centroids(K, template, *labels)
-        self._split_template_labels = tpl_split if tpl_split is not None else part_init.nearest_keypoint(template, K)
         kb = self.model.keypoints.net[-1].bias.view(self.mcfg.num_parts, -1)
         kb[:, :3] = K.to(kb)
         axes = part_init.estimate_axes(clouds, K, self.mcfg.joint_types, self.mcfg.joint_parts, generator=g,
@@ -440,6 +445,7 @@ class ScapoJob:
             pivot, axis = part_init.boundary_joint(template, K, parent, child, labels=tpl_split)
             jb[j, :3] = pivot.to(jb)
             jb[j, 3:6] = (axis if axes[j] is None else axes[j]).to(jb)
+        return tpl_split if tpl_split is not None else part_init.nearest_keypoint(template, K)
 
     @torch.no_grad()
     def _fit_split(self, clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor
