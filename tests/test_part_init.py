@@ -267,6 +267,21 @@ def test_fit_template_parts_draws_temples_that_no_keypoint_cells_draw():
     perm, C = PI.base_first_labels(T, found["template_labels"], 3)
     front = int(torch.mode(perm[found["template_labels"]][Tl == 0]).values)
     assert front == 0 and torch.allclose(C[0], T[perm[found["template_labels"]] == 0].mean(0))
+    # a template with both temples shut and stacked behind the front: the temples' centroids lie nearer each other
+    # than the front's, so the hub of the centroids would be a temple; the largest part (the front) comes first
+    n = 200
+    s = torch.linspace(-0.5, 0.5, n)
+    front = torch.stack([torch.zeros(n), s, torch.zeros(n)], 1)
+    shut = [torch.stack([torch.full((n // 4,), x), torch.linspace(-0.45, 0.45, n // 4), torch.full((n // 4,), 0.05)],
+                        1) for x in (0.04, 0.05)]
+    folded, flab = torch.cat([shut[0], front, shut[1]]), torch.cat([torch.zeros(n // 4), torch.ones(n),
+                                                                   torch.full((n // 4,), 2.0)]).long()
+    Cf = torch.stack([folded[flab == p].mean(0) for p in range(3)])
+    assert PI.base_first_order(Cf)[0] != 1  # the centroids' hub is a shut temple
+    perm, C = PI.base_first_labels(folded, flab, 3)
+    assert perm.tolist() == [1, 0, 2] and torch.allclose(C[0], front.mean(0))
+    two, _ = PI.base_first_labels(folded[flab > 0], flab[flab > 0] - 1, 2)
+    assert two.tolist() == [0, 1]  # two parts keep their order
     Xp, lp = hinged_plates(B=12, n=100)
     Kp = torch.stack([Xp[0][lp[0] == p].mean(0) for p in range(2)])
     plates = PI.choose_split(Xp, Xp[0], Kp, starts=2, pairs=48)
