@@ -1,6 +1,6 @@
 """The hinge step (:mod:`scapo.methods.hinge`) applied to predictions files already written, e.g. a table's cells.
 
-    python bench/hinge_rows.py --data DATA --pred PREDICTIONS.npz [...] --out-dir DIR [--axis] [--frames]
+    python bench/hinge_rows.py --data DATA --pred PREDICTIONS.npz [...] --out-dir DIR [--axis] [--bar-axis] [--frames]
 
 Writes ``DIR/<name>+hinge.npz`` for each input (the label ``<method>+hinge``; the source's label in
 ``info["hinge_source"]``), to be scored beside the sources by ``scapo evaluate --pred SOURCES... HINGED...``. The
@@ -49,6 +49,9 @@ def main(argv=None) -> int:
     ap.add_argument("--pred", nargs="+", required=True)
     ap.add_argument("--out-dir", required=True)
     ap.add_argument("--axis", action="store_true", help="also the axes from the parts' planes (hinge_axis=true)")
+    ap.add_argument("--bar-axis", action="store_true",
+                    help="also the axes of bar-shaped children from their parents' principal directions, the rank "
+                         "chosen on each file's training split (scapo.methods.hinge.bar_axis_choice)")
     ap.add_argument("--frames", action="store_true",
                     help="then the part rotations from the hinges (hinge_frames=true; offsets fitted on each file's "
                          "training split); a file already hinged goes through this step alone")
@@ -78,8 +81,8 @@ def main(argv=None) -> int:
                 p = with_true_joints(a.data, p)
                 stem += "+true-joints"
             elif "hinge" not in p.info:
-                p = hinge_predictions(a.data, p, axis_from_planes=a.axis)
-                stem += "+hinge-axis" if a.axis else "+hinge"
+                p = hinge_predictions(a.data, p, axis_from_planes=a.axis, axis_from_bars=a.bar_axis)
+                stem += ("+hinge-axis" if a.axis else "+hinge") + ("-bar" if a.bar_axis else "")
             elif not a.frames:
                 raise PredictionError(f"{f} already went through the hinge step")
             if a.frames:

@@ -111,6 +111,56 @@ def test_the_axis_from_the_parts_planes_corrects_a_tilted_axis_and_keeps_it_for_
     assert np.allclose(plane_axis(bar, gt, 0, 1, tilt), tilt)
 
 
+def _glasses(rng, n=400):
+    """An eyeglasses-like view: a front (0.14 m wide along y, 0.04 m high along z, 1 cm deep) and two temples (bars
+    0.13 m long) hinged at its ends about z, each open by its own angle in 0..90 deg (0: shut behind the front),
+    turned and moved into a camera frame. Returns points, labels (0 front, 1 and 2 the temples), the camera-frame
+    axis (the front's height) and the rotation."""
+    from scipy.spatial.transform import Rotation
+
+    lab = np.repeat([0, 1, 2], [n // 2, n // 4, n - n // 2 - n // 4])
+    f = lab == 0
+    pts = np.zeros((n, 3))
+    pts[f] = np.stack([rng.uniform(0, 0.01, f.sum()), rng.uniform(-0.07, 0.07, f.sum()),
+                       rng.uniform(-0.02, 0.02, f.sum())], 1)
+    for part, side in ((1, 1.0), (2, -1.0)):
+        m = lab == part
+        ang = np.radians(rng.uniform(0, 90))
+        d = np.array([np.sin(ang), -side * np.cos(ang), 0.0])
+        pts[m] = np.array([0.015, side * 0.07, 0.01]) + np.outer(rng.uniform(0, 0.13, m.sum()), d) \
+            + rng.normal(0, 0.002, (m.sum(), 3))
+    R = Rotation.random(random_state=rng).as_matrix()
+    return pts @ R.T + np.array([0.0, 0.0, 0.6]), lab, R[:, 2], R
+
+
+def test_a_bar_childs_axis_is_its_parents_principal_direction_chosen_over_the_training_views():
+    """``bar_axes``: an eyeglasses temple turns about the front's height (its middle principal direction); the rank
+    is chosen over views, each view's axis read from its own front, and the split kept; a laptop's lid is no bar."""
+    from scapo.methods.hinge import bar_axis, bar_axis_choice
+
+    rng = np.random.default_rng(0)
+    views = [_glasses(rng) for _ in range(24)]
+    pts, lab = np.stack([v[0] for v in views]), np.stack([v[1] for v in views])
+    assert bar_axis_choice(pts, lab, [0, 0], [[0, 1], [0, 2]]) == [1, 1]
+    assert bar_axis_choice(pts, lab, [0, 1], [[0, 1], [0, 2]]) == [1, None]  # a prismatic joint has no bar axis
+    assert bar_axis_choice(pts[:5], lab[:5], [0, 0], [[0, 1], [0, 2]]) == [None, None]  # too few views
+    for (p, lb, axis, _) in views[:6]:
+        wrong = np.cross(axis, [1.0, 0.0, 0.0])  # a predicted axis 90 deg off
+        a = bar_axis(p, lb, 0, 1, wrong)
+        assert abs(a @ axis) > np.cos(np.radians(3.0)) and a @ wrong >= 0
+    pivots = np.zeros((len(pts), 2, 3))
+    out = {"part_label": lab, "joint_axis": np.repeat(np.cross(pts[:, :1, :], pts[:, 1:2, :]), 2, 1),
+           "joint_pivot": pivots + pts.mean(1, keepdims=True)}
+    res = hinge_prediction(pts, out, [0, 0], [[0, 1], [0, 2]], bar_axes=[1, 1])
+    err = [np.degrees(np.arccos(min(1.0, abs(float(res["joint_axis"][b, j] @ views[b][2]))))) for b in range(len(pts))
+           for j in range(2)]
+    assert np.median(err) < 3.0 and (res["part_label"] == lab).all()
+    slabs = [_slabs(rng) for _ in range(12)]  # a lid is a plate: no bar, no rank
+    assert bar_axis_choice(np.stack([v[0] for v in slabs]), np.stack([v[1] for v in slabs]), [0], [[0, 1]]) == [None]
+    with pytest.raises(InputError):
+        bar_axis_choice(pts[:, :, :2], lab, [0, 0], [[0, 1], [0, 2]])
+
+
 def test_the_hinge_axis_option_needs_the_hinge_step():
     from scapo.errors import ConfigError
     from scapo.methods.learned import LearnedOptions, post_suffix
@@ -119,6 +169,10 @@ def test_the_hinge_axis_option_needs_the_hinge_step():
         LearnedOptions(run="r", hinge_axis=True)
     assert post_suffix(LearnedOptions(run="r", hinge=True, hinge_axis=True)) == "+hinge-axis"
     assert post_suffix(LearnedOptions(run="r", hinge=True)) == "+hinge"
+    with pytest.raises(ConfigError, match="hinge=true"):
+        LearnedOptions(run="r", hinge_bar_axis=True)
+    assert post_suffix(LearnedOptions(run="r", hinge=True, hinge_bar_axis=True, hinge_frames=True)) == \
+        "+hinge-bar+hinge-frames"
 
 
 def _posed_slabs(rng, opening_deg, n=600):

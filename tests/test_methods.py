@@ -110,6 +110,20 @@ def test_a_trained_method_predicts_with_the_hinge_resplit(name, axis, laptop_dat
     assert np.allclose(post.joint_axis, preds.joint_axis, atol=1e-5)
     with pytest.raises(PredictionError, match="already"):
         hinge_predictions(laptop_data, post)
+    # the bar axes, a rank chosen on the training split from the method's own split (a few steps of training: its
+    # "lid" may look like a bar); a joint given a rank keeps the one-pass split, one without is the plain step
+    bar = run_method(name, laptop_data, tmp_path / "b.npz", run=trained_runs[name], hinge=True, hinge_axis=axis,
+                     hinge_bar_axis=True)
+    (rank,) = bar.info["hinge"]["bar_axes"]
+    assert bar.method == name + suffix + "-bar" and rank in (None, 0, 1, 2)
+    if rank is None:
+        assert (bar.part_label == preds.part_label).all() and np.allclose(bar.joint_axis, preds.joint_axis)
+    else:
+        assert (bar.part_label == plain.part_label).all()
+        assert np.allclose(np.linalg.norm(bar.joint_axis, axis=-1), 1.0, atol=1e-4)
+    if name == "npcs":  # a supervised method's file holds no training split to choose the ranks on
+        with pytest.raises(PredictionError, match="training-split"):
+            hinge_predictions(laptop_data, tmp_path / "a.npz", axis_from_bars=True)
 
 
 @pytest.mark.parametrize("name", ["scapo", "npcs"])

@@ -29,6 +29,15 @@ prediction (its labels, joint axis and pivot; no ground truth, no training):
    points), the fit is repeated about it, and the axis re-estimated once more. A bar-like part (an eyeglasses temple)
    or near-parallel planes keep the predicted axis.
 
+5b. Optionally (``bar_axes``, the option ``hinge_bar_axis=true``; :func:`bar_axis_choice` fitted on the training
+   split): where the child is a bar (an
+   eyeglasses temple) it turns about an axis perpendicular to its length, and that axis is one of its parent's
+   principal directions (the front's height). Which one is chosen per joint over the training views, as the parent's
+   principal direction the child's length is most nearly perpendicular to in every view; each view's axis is then
+   its parent's principal direction of that rank (:func:`bar_axis`) and its pivot the lines' intersection about it.
+   That joint's split is not re-fitted: a shut bar lies along its parent, where two rays cannot split it (with the
+   true eyeglasses split of the paper rung's val views the re-split lost 21 points of S).
+
 6. Optionally (``hinge_frames=true``, after the steps above): each part's rotation read from its hinge
    (:func:`part_axes`: the axis, signed by the pair's chirality, and the direction the part runs away from the hinge),
    through per-part offsets fitted on the training split (:class:`HingeFrames`); with ``hinge_view_prior=true`` each
@@ -165,8 +174,97 @@ def plane_axis(points: np.ndarray, part_label: np.ndarray, parent: int, child: i
     return a if a @ ax >= 0 else -a
 
 
+#: A child part is a bar in a view when its largest variance exceeds this multiple of its middle one (fixed before
+#: any measurement: an eyeglasses temple's is 30 or more, a laptop lid's under 3).
+BAR_RATIO = 4.0
+#: :func:`bar_axis_choice` takes a rank only when its mean squared cosine is under this share of the next rank's.
+BAR_MARGIN = 0.25
+
+
+def _principal(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Variances ``(3,)`` in descending order and the matching unit directions as columns ``(3, 3)`` of ``Q (n, 3)``."""
+    w, v = np.linalg.eigh(np.cov((Q - Q.mean(0)).T))
+    return w[::-1], v[:, ::-1]
+
+
+def bar_axis_choice(points: np.ndarray, part_label: np.ndarray, joint_type, joint_parts,
+                    min_points: int = HINGE_MIN_POINTS) -> list[int | None]:
+    """Per joint, the rank of the parent's principal direction that a bar-shaped child turns about (``bar_axes``;
+    an addition to the paper, fitted on a method's own training-split predictions, no labels).
+
+    A revolute child that is a bar (its largest variance over :data:`BAR_RATIO` times its middle one) turns about an
+    axis perpendicular to its length; where that axis is one of the parent's principal directions (an eyeglasses
+    front's height), the child's length ``u`` is perpendicular to it in every view. Over the views where both parts
+    have ``min_points`` points and the child is a bar, the mean of ``(u . e_k)^2`` is taken for each of the parent's
+    principal directions ``e_k`` (rank 0 the largest variance); the smallest wins if it is under :data:`BAR_MARGIN`
+    times the next one and at least 8 views gave it.
+
+    Args:
+        points: ``(B, N, 3)`` views (camera frame, metres). part_label: ``(B, N)`` int slots.
+        joint_type: ``(J,)`` 0 revolute, 1 prismatic. joint_parts: ``(J, 2)`` (parent, child) slots.
+
+    Returns:
+        Per joint the rank (0, 1 or 2), or None (a prismatic joint, a child that is not a bar, no clear rank).
+
+    Raises:
+        InputError: mismatched shapes.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    lab = np.asarray(part_label)
+    jp = np.asarray(joint_parts).reshape(-1, 2)
+    jt = np.asarray(joint_type).reshape(-1)
+    if pts.ndim != 3 or pts.shape[-1] != 3 or lab.shape != pts.shape[:2] or len(jp) != len(jt):
+        raise InputError(f"bar_axis_choice needs points (B, N, 3), part_label (B, N) and one (parent, child) per "
+                         f"joint type; got {pts.shape}, {lab.shape}, {len(jp)} parts, {len(jt)} types")
+    out: list[int | None] = []
+    for j in range(len(jt)):
+        pa, ch = int(jp[j, 0]), int(jp[j, 1])
+        cos2 = []
+        for b in range(len(pts)):
+            Qp, Qc = pts[b][lab[b] == pa], pts[b][lab[b] == ch]
+            if int(jt[j]) != 0 or len(Qp) < min_points or len(Qc) < min_points:
+                continue
+            wc, vc = _principal(Qc)
+            if wc[0] < BAR_RATIO * wc[1]:
+                continue
+            cos2.append((_principal(Qp)[1].T @ vc[:, 0]) ** 2)
+        if len(cos2) < 8:
+            out.append(None)
+            continue
+        m = np.mean(cos2, axis=0)
+        order = np.argsort(m)
+        out.append(int(order[0]) if m[order[0]] < BAR_MARGIN * m[order[1]] else None)
+    return out
+
+
+def bar_axis(points: np.ndarray, part_label: np.ndarray, parent: int, rank: int, axis: np.ndarray,
+             min_points: int = HINGE_MIN_POINTS) -> np.ndarray:
+    """One view's axis of a joint whose bar-shaped child turns about its parent's principal direction of ``rank``
+    (:func:`bar_axis_choice`): that direction of the parent's points, signed to agree with ``axis (3,)``; ``axis``
+    kept when the parent has fewer than ``min_points`` points or that direction's variance is within 10 % of a
+    neighbour's (not a direction the points fix).
+
+    Args:
+        points: ``(N, 3)`` camera frame (metres). part_label: ``(N,)`` slots. parent: the joint's parent slot.
+        rank: 0, 1 or 2 (the largest variance first). axis: ``(3,)`` the current direction.
+
+    Returns:
+        ``(3,)`` unit direction."""
+    ax = np.asarray(axis, dtype=np.float64)
+    Q = np.asarray(points, dtype=np.float64)[np.asarray(part_label) == parent]
+    if len(Q) < min_points:
+        return ax
+    w, v = _principal(Q)
+    near = [w[k] for k in (rank - 1, rank + 1) if 0 <= k < 3]
+    if any(abs(w[rank] - x) < 0.1 * max(w[rank], x, 1e-18) for x in near):
+        return ax
+    a = v[:, rank]
+    return a if a @ ax >= 0 else -a
+
+
 def hinge_prediction(points: np.ndarray, out: dict, joint_type, joint_parts, iters: int = HINGE_ITERS,
-                     min_points: int = HINGE_MIN_POINTS, axis_from_planes: bool = False) -> dict:
+                     min_points: int = HINGE_MIN_POINTS, axis_from_planes: bool = False,
+                     bar_axes: list | None = None) -> dict:
     """:func:`hinge_fit` for every view and revolute joint of a prediction.
 
     Args:
@@ -177,6 +275,9 @@ def hinge_prediction(points: np.ndarray, out: dict, joint_type, joint_parts, ite
         joint_parts: ``(J, 2)`` (parent slot, child slot) per joint, in the order the joints are fitted.
         axis_from_planes: after the fit, also re-estimate each revolute axis where its two parts are planar
             (:func:`plane_axis` on the re-split points), fit again about it, and re-estimate it once more.
+        bar_axes: per joint a rank from :func:`bar_axis_choice` (or None): that joint's axis becomes the parent's
+            principal direction of that rank (:func:`bar_axis`, in place of the planes' axis) and its pivot the two
+            lines' intersection about it (:func:`hinge_fit`); its split is kept.
 
     Returns:
         A copy of ``out`` with ``part_label`` and ``joint_pivot`` (and, with ``axis_from_planes``, ``joint_axis``)
@@ -203,6 +304,13 @@ def hinge_prediction(points: np.ndarray, out: dict, joint_type, joint_parts, ite
             if int(jt[j]) != 0:
                 continue
             pa, ch = int(jp[j, 0]), int(jp[j, 1])
+            rank = None if bar_axes is None else bar_axes[j]
+            if rank is not None:  # a bar child: the axis from the parent's principal direction, the pivot from the
+                # two lines about it; the split is kept (a shut bar lies along its parent: no two rays to split by)
+                new_axis[b, j] = bar_axis(pts[b], new_lab[b], pa, int(rank), axis[b, j], min_points)
+                new_piv[b, j] = hinge_fit(pts[b], new_lab[b], pivot[b, j], new_axis[b, j], pa, ch, iters,
+                                          min_points)[1]
+                continue
             new_lab[b], new_piv[b, j] = hinge_fit(pts[b], new_lab[b], pivot[b, j], axis[b, j], pa, ch, iters,
                                                   min_points)
             if axis_from_planes:
@@ -220,18 +328,19 @@ def hinge_prediction(points: np.ndarray, out: dict, joint_type, joint_parts, ite
     return res
 
 
-def hinge_info(result: dict, axis_from_planes: bool = False) -> dict:
+def hinge_info(result: dict, axis_from_planes: bool = False, bar_axes: list | None = None) -> dict:
     """What predictions record of the step (their ``info["hinge"]``), from :func:`hinge_prediction`'s output and
-    whether it re-estimated the axes."""
+    whether it re-estimated the axes (from the planes; ``bar_axes``: the ranks of :func:`bar_axis_choice`)."""
     move = np.asarray(result["hinge_pivot_move"])
     turn = np.asarray(result.get("hinge_axis_turn", np.zeros(0)))
-    return {"iters": HINGE_ITERS, "min_points": HINGE_MIN_POINTS, "axis_from_planes": bool(axis_from_planes),
+    extra = {} if bar_axes is None else {"bar_axes": [None if r is None else int(r) for r in bar_axes]}
+    return {"iters": HINGE_ITERS, "min_points": HINGE_MIN_POINTS, "axis_from_planes": bool(axis_from_planes), **extra,
             "axis_turn_deg_median": round(float(np.median(turn)), 3) if turn.size else 0.0,
             "changed_share_mean": round(float(np.mean(result["hinge_changed"])), 4),
             "pivot_move_m_median": round(float(np.median(move)), 5) if move.size else 0.0}
 
 
-def hinge_predictions(dataset, preds, axis_from_planes: bool = False):
+def hinge_predictions(dataset, preds, axis_from_planes: bool = False, axis_from_bars: bool = False):
     """The hinge step applied to a predictions file already written (``scapo predict`` output of any method, made
     without ``hinge``): what ``--option hinge=true`` would have given, without predicting again (the step reads only
     the prediction and the points). Each sample's joints are its own ``joint_type``/``joint_parts`` rows.
@@ -240,6 +349,8 @@ def hinge_predictions(dataset, preds, axis_from_planes: bool = False):
         dataset: the dataset folder (or an opened dataset of any split) the predictions were made on.
         preds: :class:`~scapo.eval.predictions.Predictions` (or a path to one).
         axis_from_planes: also the axes (:func:`hinge_prediction`; the label is then ``<method>+hinge-axis``).
+        axis_from_bars: also the axes of bar-shaped children (:func:`bar_axis_choice` on the file's own
+            training-split predictions, then :func:`bar_axis` per view; the label gets ``-bar``).
 
     Returns:
         New :class:`~scapo.eval.predictions.Predictions`: ``part_label`` and ``joint_pivot`` replaced, the label
@@ -247,7 +358,8 @@ def hinge_predictions(dataset, preds, axis_from_planes: bool = False):
 
     Raises:
         PredictionError: the predictions are of another dataset (its hash), already hinged, or name samples the
-            dataset lacks. DatasetError: not a dataset.
+            dataset lacks; ``axis_from_bars`` on a file without training-split predictions. DatasetError: not a
+            dataset.
     """
     from scapo.errors import PredictionError
     from scapo.eval.predictions import Predictions
@@ -255,26 +367,34 @@ def hinge_predictions(dataset, preds, axis_from_planes: bool = False):
     p = preds if isinstance(preds, Predictions) else Predictions.load(preds)
     if "hinge" in p.info:
         raise PredictionError(f"predictions of {p.method!r} already went through the hinge step")
+    if axis_from_bars and not (p.split == "train").any():
+        raise PredictionError(f"predictions of {p.method!r} hold no training-split views to choose the bar axes on; "
+                              "predict the training split too")
     points = _points_of(dataset, p)
     lab, piv, axis = p.part_label.copy(), p.joint_pivot.copy(), p.joint_axis.copy()
     changed, moves, turns = np.zeros(len(p)), [], []
     rows = np.arange(len(p))
+    ranks = None
     for jt, jp in {(tuple(p.joint_type[r]), tuple(map(tuple, p.joint_parts[r]))) for r in rows}:
         sub = rows[[tuple(p.joint_type[r]) == jt and tuple(map(tuple, p.joint_parts[r])) == jp for r in rows]]
+        train = sub[p.split[sub] == "train"]
+        ranks = bar_axis_choice(points[train], p.part_label[train], jt, jp) if axis_from_bars and len(train) else \
+            [None] * len(jt) if axis_from_bars else None
         o = hinge_prediction(points[sub], {"part_label": p.part_label[sub], "joint_axis": p.joint_axis[sub],
                                            "joint_pivot": p.joint_pivot[sub]}, jt, jp,
-                             axis_from_planes=axis_from_planes)
+                             axis_from_planes=axis_from_planes, bar_axes=ranks)
         lab[sub], piv[sub], axis[sub], changed[sub] = (o["part_label"], o["joint_pivot"], o["joint_axis"],
                                                        o["hinge_changed"])
         moves.append(o["hinge_pivot_move"].ravel())
         turns.append(o["hinge_axis_turn"].ravel())
     moves, turns = (np.concatenate(x) if x else np.zeros(0) for x in (moves, turns))
     info = {**p.info, "hinge": hinge_info({"hinge_changed": changed, "hinge_pivot_move": moves,
-                                           "hinge_axis_turn": turns}, axis_from_planes),
+                                           "hinge_axis_turn": turns}, axis_from_planes, ranks),
             "hinge_source": p.method}
     kw = {k: getattr(p, k) for k in ("instance_id", "view_id", "split", "part_pose", "joint_parts", "joint_type",
                                      "joint_state", "T_cam_obj")}
-    return Predictions(method=f"{p.method}+hinge" + ("-axis" if axis_from_planes else ""), part_label=lab,
+    return Predictions(method=f"{p.method}+hinge" + ("-axis" if axis_from_planes else "") +
+                       ("-bar" if axis_from_bars else ""), part_label=lab,
                        joint_pivot=piv, joint_axis=axis, needs_alignment=p.needs_alignment,
                        supervision=dict(p.supervision), dataset_hash=p.dataset_hash, info=info, **kw)
 

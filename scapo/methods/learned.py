@@ -265,6 +265,11 @@ class LearnedOptions:
     hinge_axis: bool = False
     """With ``hinge``: also re-estimate each revolute axis as the line where its two parts' planes meet, where both
     are planar (:func:`scapo.methods.hinge.plane_axis`); the label gets ``+hinge-axis``."""
+    hinge_bar_axis: bool = False
+    """With ``hinge``: a joint whose child is a bar (an eyeglasses temple) takes as its axis its parent's principal
+    direction of the rank its child's length is perpendicular to over the training views
+    (:func:`scapo.methods.hinge.bar_axis_choice`, fitted on the training split; :func:`scapo.methods.hinge.bar_axis`
+    per view) and its pivot from the two lines about it, its split kept; the label gets ``-bar``."""
     hinge_frames: bool = False
     """With ``hinge``: read each part's rotation from its hinge (the axis and the direction the part runs away from
     it, :func:`scapo.methods.hinge.part_axes`), through per-part offsets fitted on the training split
@@ -279,6 +284,8 @@ class LearnedOptions:
             raise ConfigError(f"batch_size must be >= 1, got {self.batch_size}")
         if self.hinge_axis and not self.hinge:
             raise ConfigError("hinge_axis=true re-estimates the axes within the hinge step; give hinge=true too")
+        if self.hinge_bar_axis and not self.hinge:
+            raise ConfigError("hinge_bar_axis=true re-estimates the axes within the hinge step; give hinge=true too")
         if self.hinge_frames and not self.hinge:
             raise ConfigError("hinge_frames=true reads the hinge step's split and pivots; give hinge=true too")
         if self.hinge_view_prior and not self.hinge_frames:
@@ -291,6 +298,7 @@ def post_suffix(options) -> str:
     hinge = ""
     if getattr(options, "hinge", False):
         hinge = "+hinge-axis" if getattr(options, "hinge_axis", False) else "+hinge"
+        hinge += "-bar" if getattr(options, "hinge_bar_axis", False) else ""
     if getattr(options, "hinge_frames", False):
         hinge += "+hinge-frames" + ("+view-prior" if getattr(options, "hinge_view_prior", False) else "")
     return ("+refine" if options.refine else "") + hinge
@@ -350,12 +358,21 @@ class LearnedMethod:
         self.label = options.label or (spec.method + post_suffix(options))
         self.net = None
         self.frames = None
+        self.bar_ranks: list | None = None
+        """``hinge_bar_axis``: per joint the rank of :func:`scapo.methods.hinge.bar_axis_choice` (fitted in ``fit``)."""
 
     def fit(self, train: ArticulationDataset) -> None:
         """Load the finished run (:meth:`load`) and check it against ``train``'s category and structure."""
         self.load(f"--data {train.root} ")
         check_run_fits(self.run, self.identity, train, self.options.cross_category, f"train a run on this dataset "
                        f"first ('scapo train --method {self.spec.method} --data {train.root} --out RUN')")
+        if self.options.hinge_bar_axis:
+            from scapo.methods.hinge import bar_axis_choice
+
+            pts = train.arrays(["points"])["points"]
+            pts = pts[training_views(len(pts))]
+            self.bar_ranks = bar_axis_choice(pts, self._infer(pts)["part_label"], self.identity["joint_type"],
+                                             self.identity["joint_parts"])
         if self.options.hinge_frames:
             from scapo.methods.hinge import HingeFrames
 
@@ -442,11 +459,16 @@ class LearnedMethod:
         return {k: np.concatenate([d[k] for d in outs]) for k in outs[0]} if outs else {}
 
     def _hinged(self, points: np.ndarray, o: dict) -> dict:
-        """The hinge step (:func:`scapo.methods.hinge.hinge_prediction`) on the one-pass outputs ``o``."""
+        """The hinge step (:func:`scapo.methods.hinge.hinge_prediction`) on the one-pass outputs ``o``.
+
+        Raises:
+            TrainingError: ``hinge_bar_axis`` before ``fit`` chose the bar axes' ranks."""
         from scapo.methods.hinge import hinge_prediction
 
+        if self.options.hinge_bar_axis and self.bar_ranks is None:
+            raise TrainingError("hinge_bar_axis needs its ranks chosen on the training split first: fit(train)")
         return hinge_prediction(points, o, self.identity["joint_type"], self.identity["joint_parts"],
-                                axis_from_planes=self.options.hinge_axis)
+                                axis_from_planes=self.options.hinge_axis, bar_axes=self.bar_ranks)
 
     @torch.no_grad()
     def predict(self, dataset: ArticulationDataset) -> Predictions:
@@ -461,7 +483,7 @@ class LearnedMethod:
             from scapo.methods.hinge import hinge_info
 
             o = self._hinged(a["points"], o)
-            info["hinge"] = hinge_info(o, self.options.hinge_axis)
+            info["hinge"] = hinge_info(o, self.options.hinge_axis, self.bar_ranks)
         if self.options.hinge_frames:
             if self.frames is None:
                 raise TrainingError("hinge_frames needs its offsets fitted on the training split first: fit(train)")

@@ -84,6 +84,8 @@ class SCAPOMethod:
         self.base_dispersion: np.ndarray | None = None
         self.frames = None
         """The ``hinge_frames`` step (:class:`scapo.methods.hinge.HingeFrames`), fitted on the training split."""
+        self.bar_ranks: list | None = None
+        """``hinge_bar_axis``: per joint the rank of :func:`scapo.methods.hinge.bar_axis_choice` (fitted in ``fit``)."""
 
     def fit(self, train: ArticulationDataset) -> None:
         """Load the run and check that it was trained on this dataset's category and kinematic structure.
@@ -102,6 +104,14 @@ class SCAPOMethod:
             self.predictor.fit_upright(train.arrays(["points"])["points"])
         if self.options.base_frame:
             self.fit_base_frame(train.arrays(["points"])["points"])
+        if self.options.hinge_bar_axis:
+            from scapo.methods.hinge import bar_axis_choice
+
+            pts = train.arrays(["points"])["points"]
+            pts = pts[training_views(len(pts))]
+            mc = self.predictor.model.cfg
+            o = self.predictor.predict(pts, self.options.batch_size, False)
+            self.bar_ranks = bar_axis_choice(pts, o["part_label"], mc.joint_types, mc.joint_parts)
         if self.options.hinge_frames:
             from scapo.methods.hinge import HingeFrames
 
@@ -145,9 +155,11 @@ class SCAPOMethod:
         if self.options.hinge:
             from scapo.methods.hinge import hinge_prediction
 
+            if self.options.hinge_bar_axis and self.bar_ranks is None:
+                raise ConfigError("hinge_bar_axis=true needs its ranks chosen on a training split first: fit(train)")
             mc = self.predictor.model.cfg
             o = hinge_prediction(np.asarray(points), o, mc.joint_types, mc.joint_parts,
-                                 axis_from_planes=self.options.hinge_axis)
+                                 axis_from_planes=self.options.hinge_axis, bar_axes=self.bar_ranks)
         return o
 
     def _base_frame(self, points, o: dict) -> dict:
@@ -218,7 +230,7 @@ class SCAPOMethod:
         if self.options.hinge:
             from scapo.methods.hinge import hinge_info
 
-            extra["hinge"] = hinge_info(o, self.options.hinge_axis)
+            extra["hinge"] = hinge_info(o, self.options.hinge_axis, self.bar_ranks)
         if self.options.hinge_frames:
             extra["hinge_frames"] = self.frames.info(o)
         seconds = time.perf_counter() - t0
