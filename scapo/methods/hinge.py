@@ -29,14 +29,13 @@ prediction (its labels, joint axis and pivot; no ground truth, no training):
    points), the fit is repeated about it, and the axis re-estimated once more. A bar-like part (an eyeglasses temple)
    or near-parallel planes keep the predicted axis.
 
-5b. Optionally (``bar_axes``, the option ``hinge_bar_axis=true``; :func:`bar_axis_choice` fitted on the training
-   split): where the child is a bar (an
-   eyeglasses temple) it turns about an axis perpendicular to its length, and that axis is one of its parent's
-   principal directions (the front's height). Which one is chosen per joint over the training views, as the parent's
-   principal direction the child's length is most nearly perpendicular to in every view; each view's axis is then
-   its parent's principal direction of that rank (:func:`bar_axis`) and its pivot the lines' intersection about it.
-   That joint's split is not re-fitted: a shut bar lies along its parent, where two rays cannot split it (with the
-   true eyeglasses split of the paper rung's val views the re-split lost 21 points of S).
+5b. Optionally (``bar_axes``, the option ``hinge_bar_axis=true``): where the child is a bar (an eyeglasses temple)
+   it turns about an axis perpendicular to its length, and that axis is one of its parent's principal directions
+   (the front's height). Which one is chosen per joint on the training split (:func:`bar_axis_choice`), as the
+   parent's principal direction the child's length is most nearly perpendicular to in every view; each view's axis
+   is then its parent's principal direction of that rank (:func:`bar_axis`) and its pivot the lines' intersection
+   about it. That joint's split is not re-fitted: a shut bar lies along its parent, where two rays cannot split it
+   (with the true eyeglasses split of the paper rung's val views the re-split lost 21 points of S).
 
 6. Optionally (``hinge_frames=true``, after the steps above): each part's rotation read from its hinge
    (:func:`part_axes`: the axis, signed by the pair's chirality, and the direction the part runs away from the hinge),
