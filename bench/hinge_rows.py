@@ -39,6 +39,25 @@ def with_true_joints(data, preds):
                        dataset_hash=preds.dataset_hash, info=info, **kw)
 
 
+def with_true_labels(data, preds):
+    """A copy of ``preds`` whose ``part_label`` is the dataset's ground truth of each sample (slots = true parts, so
+    slot 0 the root), everything else the method's: a diagnosis of the steps that read the split (``--true-labels``).
+
+    Raises:
+        PredictionError: samples the dataset lacks, or another dataset's predictions.
+    """
+    from scapo.eval.predictions import Predictions
+    from scapo.methods.hinge import prediction_arrays
+
+    gt = prediction_arrays(data, preds, ("part_label",))
+    kw = {k: getattr(preds, k) for k in ("instance_id", "view_id", "split", "part_pose", "joint_parts", "joint_type",
+                                         "joint_state", "T_cam_obj", "joint_axis", "joint_pivot")}
+    info = {**preds.info, "diagnosis": "ground truth: part_label; the method's own joints and part poses"}
+    return Predictions(method=f"{preds.method}-true-labels", part_label=gt["part_label"],
+                       needs_alignment=preds.needs_alignment, supervision=dict(preds.supervision),
+                       dataset_hash=preds.dataset_hash, info=info, **kw)
+
+
 def main(argv=None) -> int:
     from scapo.errors import PredictionError, ScapoError
     from scapo.eval.predictions import Predictions
@@ -61,6 +80,9 @@ def main(argv=None) -> int:
     ap.add_argument("--true-joints", action="store_true",
                     help="a diagnosis, not a row: with --frames, the true split, axes and pivots replace each file's "
                          "before the frames step (bench/hinge_frames_ceiling.py)")
+    ap.add_argument("--true-labels", action="store_true",
+                    help="a diagnosis, not a row: the true split replaces each file's labels before the hinge step "
+                         "(the method's own axes, pivots and part poses)")
     ap.add_argument("--skip-without-train", action="store_true",
                     help="with --frames: pass over (and name on stderr) a file with no training-split predictions "
                          "(a supervised method's or ICP's) instead of stopping")
@@ -81,6 +103,9 @@ def main(argv=None) -> int:
                 p = with_true_joints(a.data, p)
                 stem += "+true-joints"
             elif "hinge" not in p.info:
+                if a.true_labels:
+                    p = with_true_labels(a.data, p)
+                    stem += "+true-labels"
                 p = hinge_predictions(a.data, p, axis_from_planes=a.axis, axis_from_bars=a.bar_axis)
                 stem += ("+hinge-axis" if a.axis else "+hinge") + ("-bar" if a.bar_axis else "")
             elif not a.frames:

@@ -124,6 +124,25 @@ def test_a_trained_method_predicts_with_the_hinge_resplit(name, axis, laptop_dat
     if name == "npcs":  # a supervised method's file holds no training split to choose the ranks on
         with pytest.raises(PredictionError, match="training-split"):
             hinge_predictions(laptop_data, tmp_path / "a.npz", axis_from_bars=True)
+    else:  # the diagnosis with the true split (bench/hinge_rows.py --true-labels): labels replaced, joints the method's
+        import importlib.util
+        from pathlib import Path
+
+        from scapo.eval.predictions import Predictions
+        from scapo.methods.hinge import prediction_arrays
+
+        path = Path(__file__).resolve().parents[1] / "bench" / "hinge_rows.py"
+        spec = importlib.util.spec_from_file_location("hinge_rows", path)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        assert mod.main(["--data", str(laptop_data), "--pred", str(tmp_path / "a.npz"), "--out-dir",
+                         str(tmp_path / "d"), "--true-labels", "--bar-axis"]) == 0
+        diag = Predictions.load(tmp_path / "d" / "a+true-labels+hinge-bar.npz")
+        assert diag.method == name + "-true-labels+hinge-bar" and "diagnosis" in diag.info
+        assert diag.info["hinge"]["bar_axes"] == [None]  # the true lid is a plate
+        true = mod.with_true_labels(laptop_data, plain)
+        gt = prediction_arrays(laptop_data, plain, ("part_label",))["part_label"]
+        assert (true.part_label == gt).all() and np.allclose(true.joint_axis, plain.joint_axis)
 
 
 @pytest.mark.parametrize("name", ["scapo", "npcs"])
