@@ -111,11 +111,11 @@ def test_the_axis_from_the_parts_planes_corrects_a_tilted_axis_and_keeps_it_for_
     assert np.allclose(plane_axis(bar, gt, 0, 1, tilt), tilt)
 
 
-def _glasses(rng, n=400):
+def _glasses(rng, n=400, angles=None):
     """An eyeglasses-like view: a front (0.14 m wide along y, 0.04 m high along z, 1 cm deep) and two temples (bars
     0.13 m long) hinged at its ends about z, each open by its own angle in 0..90 deg (0: shut behind the front),
-    turned and moved into a camera frame. Returns points, labels (0 front, 1 and 2 the temples), the camera-frame
-    axis (the front's height) and the rotation."""
+    turned and moved into a camera frame (``angles``: the two openings in deg). Returns points, labels (0 front, 1
+    and 2 the temples), the camera-frame axis (the front's height) and the rotation."""
     from scipy.spatial.transform import Rotation
 
     lab = np.repeat([0, 1, 2], [n // 2, n // 4, n - n // 2 - n // 4])
@@ -125,7 +125,7 @@ def _glasses(rng, n=400):
                        rng.uniform(-0.02, 0.02, f.sum())], 1)
     for part, side in ((1, 1.0), (2, -1.0)):
         m = lab == part
-        ang = np.radians(rng.uniform(0, 90))
+        ang = np.radians(rng.uniform(0, 90) if angles is None else angles[part - 1])
         d = np.array([np.sin(ang), -side * np.cos(ang), 0.0])
         pts[m] = np.array([0.015, side * 0.07, 0.01]) + np.outer(rng.uniform(0, 0.13, m.sum()), d) \
             + rng.normal(0, 0.002, (m.sum(), 3))
@@ -159,6 +159,28 @@ def test_a_bar_childs_axis_is_its_parents_principal_direction_chosen_over_the_tr
     assert bar_axis_choice(np.stack([v[0] for v in slabs]), np.stack([v[1] for v in slabs]), [0], [[0, 1]]) == [None]
     with pytest.raises(InputError):
         bar_axis_choice(pts[:, :, :2], lab, [0, 0], [[0, 1], [0, 2]])
+
+
+def test_a_part_on_several_hinges_reads_its_axes_from_its_first_only():
+    """An eyeglasses front is the parent of both hinges: its axes come from the first, at one offset in the front;
+    where the first temple is shut the front keeps the method's rotation, never the second hinge's axes (those sit
+    in the front at another offset: a half turn)."""
+    from scapo.methods.hinge import part_axes
+
+    rng = np.random.default_rng(1)
+    views = [_glasses(rng, angles=(0.0 if k % 2 else 60.0, 70.0)) for k in range(8)]
+    pts, lab = np.stack([v[0] for v in views]), np.stack([v[1] for v in views])
+    Rs = np.stack([v[3] for v in views])
+    z = Rs[:, :, 2]
+    pivots = np.stack([np.stack([R @ np.array([0.015, 0.07, 0.01]), R @ np.array([0.015, -0.07, 0.01])])
+                       for R in Rs]) + np.array([0.0, 0.0, 0.6])
+    out = {"part_label": lab, "joint_axis": np.stack([z, z], 1), "joint_pivot": pivots,
+           "part_pose": np.tile(np.eye(4), (len(pts), 3, 1, 1))}
+    E, ok = part_axes(pts, out, [0, 0], [[0, 1], [0, 2]])
+    shut = np.arange(len(pts)) % 2 == 1
+    assert (ok[shut, 0] == 0).all() and ok[~shut, 0].all() and ok[:, 2].all()
+    canon = np.einsum("bji,bjk->bik", Rs[~shut], E[~shut, 0])  # the front's axes in its own frame: one rotation
+    assert np.allclose(canon, canon[0], atol=0.05)
 
 
 def test_the_hinge_axis_option_needs_the_hinge_step():
