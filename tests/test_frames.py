@@ -241,12 +241,73 @@ def test_the_base_frame_snap_recovers_one_frame_from_noisy_ones():
     assert np.allclose(kept["part_pose"], pose) and (kept["base_snap_deg"] == 0).all()
 
 
+def _glasses_view(rng, opening_deg, n=600):
+    """An eyeglasses-like view in the object frame: a front (x depth 1 cm, y width 14 cm, z height 4 cm, centred) and
+    two temple bars hinged behind its ends 1.5 cm above its centre, both open by ``opening_deg``. Labels 0 front, 1
+    and 2 the temples."""
+    import numpy as np
+
+    lab = np.repeat([0, 1, 2], [n // 2, n // 4, n - n // 2 - n // 4])
+    pts = np.zeros((n, 3))
+    f = lab == 0
+    pts[f] = rng.uniform([-0.005, -0.07, -0.02], [0.005, 0.07, 0.02], (f.sum(), 3))
+    a = np.radians(opening_deg)
+    for part, side in ((1, 1.0), (2, -1.0)):
+        m = lab == part
+        d = np.array([np.sin(a), -side * np.cos(a), 0.0])
+        pts[m] = np.array([0.008, side * 0.07, 0.015]) + np.outer(rng.uniform(0, 0.13, m.sum()), d)
+    return pts + rng.normal(0, 0.001, pts.shape), lab
+
+
+def test_the_base_axes_signed_by_the_other_parts_give_one_frame_whatever_the_networks():
+    """``base_frame=parts``: the front's height and normal signed towards the temples' centroid (above its centre,
+    behind it) fix every sign, so views turned at random give one frame even from a 'network' whose frames are
+    random; the signed ranks are chosen on the views; a view without other parts is not snapped."""
+    import numpy as np
+
+    from scapo.errors import InputError
+    from scapo.methods.base_frame import choose_signed_pair, fit_base_offset, parts_signed_axes, snap_to_base
+
+    rng = np.random.default_rng(0)
+    g = torch.Generator().manual_seed(4)
+    V = 30
+    Q = random_rotation(V, torch.float64, g).numpy()
+    views = [_glasses_view(rng, 20 + 70 * k / V) for k in range(V)]
+    pts = np.stack([v[0] for v in views]) @ Q.transpose(0, 2, 1) + np.array([0.0, 0.0, 0.8])
+    lab = np.stack([v[1] for v in views])
+    pair = choose_signed_pair(pts, lab)
+    assert pair == (1, 2)  # the front's height (rank 1) and normal (rank 2); its width is the mirror plane's normal
+    E, ok = parts_signed_axes(pts, lab, pair)
+    assert ok.all() and np.allclose(np.linalg.det(E), 1.0)
+    canon = np.einsum("vji,vjk->vik", Q, E)  # the axes in the object frame: one rotation for every view
+    ang = np.degrees(np.arccos(np.clip((np.einsum("ij,vij->v", canon[0], canon) - 1) / 2, -1, 1)))
+    assert ang.max() < 5.0 and abs(canon[0][:, 1] @ [0, 0, 1.0]) > 0.99
+    R_net = random_rotation(V, torch.float64, g).numpy()  # a network whose frames are random
+    pose = np.tile(np.eye(4), (V, 3, 1, 1))
+    pose[:, :, :3, :3] = R_net[:, None]
+    out = {"part_label": lab, "part_pose": pose, "T_cam_obj": pose[:, 0].copy()}
+    O, _, _ = fit_base_offset(R_net, E, group=np.eye(3)[None])
+    snapped = snap_to_base(pts, out, O, pair=pair)
+    rel = np.einsum("vji,vjk->vik", Q, snapped["part_pose"][:, 0, :3, :3])
+    ang = np.degrees(np.arccos(np.clip((np.einsum("ij,vij->v", rel[0], rel) - 1) / 2, -1, 1)))
+    assert ang.max() < 5.0
+    alone = lab.copy()
+    alone[0] = 0  # a view with the front alone keeps its frame
+    E2, ok2 = parts_signed_axes(pts, alone, pair)
+    assert not ok2[0] and ok2[1:].all()
+    with pytest.raises(InputError, match="no training view"):
+        choose_signed_pair(pts, np.zeros_like(lab))
+    with pytest.raises(InputError, match="two ranks"):
+        parts_signed_axes(pts, lab, (2, 2))
+
+
 def test_the_base_frame_option_is_checked():
     from scapo.errors import ConfigError
     from scapo.methods.scapo import SCAPOMethod, SCAPOOptions
 
     with pytest.raises(ConfigError, match="base_frame"):
         SCAPOOptions(run="r", base_frame="pca")
+    assert SCAPOOptions(run="r", base_frame="parts", base_slot="auto").base_frame == "parts"
     with pytest.raises(ConfigError, match="base_slot"):
         SCAPOOptions(run="r", base_frame="principal", base_slot="lid")
     with pytest.raises(ConfigError, match="base_slot"):  # a slot choice without the snap does nothing: refused

@@ -145,6 +145,18 @@ def test_a_trained_method_predicts_with_the_hinge_resplit(name, axis, laptop_dat
         assert (true.part_label == gt).all() and np.allclose(true.joint_axis, plain.joint_axis)
 
 
+def test_scapo_snaps_its_frame_to_base_axes_signed_by_the_other_parts(laptop_data, trained_runs, tmp_path):
+    """``base_frame=parts``: the ranks chosen and the offset fitted on the training split, every view's base rotation
+    then its base axes signed by the other parts; translations kept."""
+    plain = run_method("scapo", laptop_data, tmp_path / "a.npz", run=trained_runs["scapo"], refine_steps=0)
+    preds = run_method("scapo", laptop_data, tmp_path / "p.npz", run=trained_runs["scapo"], refine_steps=0,
+                       base_frame="parts")
+    info = preds.info["base_frame"]
+    assert info["mode"] == "parts" and len(info["signed_ranks"]) == 2 and 0 <= info["train_support"] <= 1
+    assert np.allclose(preds.part_pose[..., :3, 3], plain.part_pose[..., :3, 3], atol=1e-5)
+    assert math.isfinite(evaluate(laptop_data, tmp_path / "p.npz").summary["R"])
+
+
 @pytest.mark.parametrize("name", ["scapo", "npcs"])
 def test_a_trained_method_reads_its_part_rotations_from_its_hinges(name, laptop_data, trained_runs, tmp_path):
     """``hinge_frames=true``: offsets fitted on the training split, then the part rotations from the hinges; for a

@@ -27,6 +27,16 @@ takes instead the slot whose predicted camera-frame rotations vary least over th
 only with the viewpoint, every other part also with its joint states. The snapped frame is then that slot's pose.
 
 A view with fewer than ``min_points`` base points keeps its frame.
+
+``base_frame=parts`` (:func:`parts_signed_axes`, session 30) signs the axes from the object instead of the network: the
+base's principal directions of two ranks are each signed towards the centroid of the points of the other parts (an
+eyeglasses front's normal towards its temples, its height towards the hinges above its centre; a laptop base's depth
+towards the hinge and its normal towards the open lid), the third by the right-hand rule. Which two ranks is chosen
+on the training split (:func:`choose_signed_pair`: the ranks along which the other parts lie farthest, in units of the
+base's spread, in most views). The axes then have no ambiguity left, so the offset is fitted with no group and each
+view's base rotation is ``E O^T`` whatever the network's frame: on the eyeglasses' paper rung, where SCAPO's frame
+scatters, this is what can give one frame (``results/canonical_ladder/README.md``, "The base's axes signed by the
+other parts").
 """
 
 from __future__ import annotations
@@ -129,6 +139,92 @@ def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16,
     return E, ok
 
 
+def _signed_candidates(points: np.ndarray, part_label: np.ndarray, slot: int, min_points: int):
+    """Per view the base's principal directions ``V (3, 3)`` (columns, largest variance first), the other parts'
+    centroid's offset along them in units of the base's spread ``(3,)`` (signed), and whether both sets have
+    ``min_points`` points."""
+    out = []
+    for x, lab in zip(points, part_label):
+        base, other = x[lab == int(slot)], x[(lab != int(slot)) & (lab >= 0)]
+        if len(base) < max(int(min_points), 4) or len(other) < max(int(min_points), 4):
+            out.append((np.eye(3), np.zeros(3), False))
+            continue
+        c = base.mean(0)
+        w, v = np.linalg.eigh(np.cov((base - c).T))
+        w, v = w[::-1], v[:, ::-1]
+        out.append((v, (v.T @ (other.mean(0) - c)) / np.sqrt(np.maximum(w, 1e-18)), True))
+    return out
+
+
+def choose_signed_pair(points: np.ndarray, part_label: np.ndarray, slot: int = 0,
+                       min_points: int = 16) -> tuple[int, int]:
+    """The two ranks of the base's principal directions ``base_frame=parts`` signs (:func:`parts_signed_axes`), chosen
+    on training views with no labels: per view, the two ranks along which the other parts' centroid lies farthest
+    from the base's (in units of the base's spread along each); the pair most views give.
+
+    Args:
+        points: ``(V, N, 3)`` camera-frame clouds (metres). part_label: ``(V, N)`` int predicted parts (-1 none).
+        slot: the base's part slot. min_points: fewest points the base and the other parts need in a view.
+
+    Returns:
+        ``(i, j)`` with ``i < j`` in 0..2 (0 the largest variance).
+
+    Raises:
+        InputError: shapes that do not match, or no view with enough points of both.
+    """
+    pts, lab = np.asarray(points, dtype=np.float64), np.asarray(part_label)
+    if pts.ndim != 3 or pts.shape[-1] != 3 or lab.shape != pts.shape[:2]:
+        raise InputError(f"scapo: choose_signed_pair needs points (V, N, 3) and part_label (V, N), got {pts.shape} "
+                         f"and {lab.shape}")
+    votes: dict[tuple[int, int], int] = {}
+    for _, off, ok in _signed_candidates(pts, lab, slot, min_points):
+        if ok:
+            pair = tuple(sorted(int(k) for k in np.argsort(-np.abs(off))[:2]))
+            votes[pair] = votes.get(pair, 0) + 1
+    if not votes:
+        raise InputError(f"scapo: no training view has {min_points} points of the base (slot {slot}) and of the "
+                         "other parts; base_frame=parts needs the base and its children segmented")
+    return max(sorted(votes), key=votes.__getitem__)
+
+
+def parts_signed_axes(points: np.ndarray, part_label: np.ndarray, pair: tuple[int, int], slot: int = 0,
+                      min_points: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """The base's principal axes with their signs from the other parts (``base_frame=parts``).
+
+    Per view: the principal directions of the points labelled ``slot`` (largest variance first); those of the ranks
+    in ``pair`` (:func:`choose_signed_pair`) each signed towards the centroid of the points of the other parts; the
+    third the cross product that makes the columns a rotation.
+
+    Args:
+        points: ``(V, N, 3)`` camera-frame clouds (metres). part_label: ``(V, N)`` int predicted parts (-1 none).
+        pair: the two signed ranks. slot, min_points: as :func:`choose_signed_pair`.
+
+    Returns:
+        ``E (V, 3, 3)`` float64 rotations (columns: the axes in rank order, camera frame; identity where not found)
+        and ``ok (V,)`` bool (both sets have ``min_points`` points and neither signed offset is zero).
+
+    Raises:
+        InputError: shapes that do not match, non-finite points, or a pair that is not two distinct ranks in 0..2.
+    """
+    pts, lab = np.asarray(points, dtype=np.float64), np.asarray(part_label)
+    i, j = (int(k) for k in pair)
+    if pts.ndim != 3 or pts.shape[-1] != 3 or lab.shape != pts.shape[:2] or not (0 <= i < j <= 2):
+        raise InputError(f"scapo: parts_signed_axes needs points (V, N, 3), part_label (V, N) and two ranks i < j in "
+                         f"0..2; got {pts.shape}, {lab.shape}, {pair}")
+    if not np.isfinite(pts).all():
+        raise InputError("scapo: parts_signed_axes got NaN or infinite points; drop them before predicting")
+    k = 3 - i - j
+    E = np.tile(np.eye(3), (len(pts), 1, 1))
+    ok = np.zeros(len(pts), dtype=bool)
+    for n, (v, off, found) in enumerate(_signed_candidates(pts, lab, slot, min_points)):
+        if not found or off[i] == 0 or off[j] == 0:
+            continue
+        e = v * np.sign(off)[None]
+        e[:, k] = np.cross(e[:, (k + 1) % 3], e[:, (k + 2) % 3])
+        E[n], ok[n] = e, True
+    return E, ok
+
+
 def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,
                     candidates: int = 64, group: np.ndarray | None = None) -> tuple[np.ndarray, float, np.ndarray]:
     """The offset ``O (3, 3)`` from the canonical base frame to the base's principal axes that most training views
@@ -171,7 +267,8 @@ def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,
     return O, float((angle < inlier_deg).mean()), angle
 
 
-def snap_to_base(points: np.ndarray, out: dict, offset: np.ndarray, min_points: int = 16, slot: int = 0) -> dict:
+def snap_to_base(points: np.ndarray, out: dict, offset: np.ndarray, min_points: int = 16, slot: int = 0,
+                 pair: tuple[int, int] | None = None) -> dict:
     """Turn each view's prediction so that its base rotation is its base points' principal axes ``E G_k O^T``.
 
     Args:
@@ -179,7 +276,8 @@ def snap_to_base(points: np.ndarray, out: dict, offset: np.ndarray, min_points: 
             :meth:`scapo.models.predict.Predictor.predict`): ``part_label (V, N)``, ``part_pose (V, P, 4, 4)``,
             ``T_cam_obj (V, 4, 4)`` (camera frame, m). offset:
             ``O (3, 3)`` (:func:`fit_base_offset`, fitted with the same ``slot``). slot: the part slot taken as the
-            base (:func:`choose_base_slot`).
+            base (:func:`choose_base_slot`). pair: with ``base_frame=parts``, the signed ranks
+            (:func:`choose_signed_pair`): the axes are :func:`parts_signed_axes` and the base rotation ``E O^T``.
 
     Returns:
         A copy of ``out`` with the rotations of ``part_pose`` and ``T_cam_obj`` turned (translations, joints and
@@ -187,14 +285,17 @@ def snap_to_base(points: np.ndarray, out: dict, offset: np.ndarray, min_points: 
         ``base_snap_deg (V,)`` float64, the correction's angle per view (0 where the view has fewer
         than ``min_points`` base points and keeps its frame).
     """
-    E, ok = base_axes(points, out["part_label"], min_points, slot)
-    G = _group()
     pose = np.asarray(out["part_pose"], dtype=np.float64)
     R0 = pose[:, int(slot), :3, :3]
-    target = R0 @ np.asarray(offset, dtype=np.float64)  # where the network puts the base axes
-    EG = np.einsum("vij,gjk->vgik", E, G)
-    k = _angle(EG, target[:, None]).argmin(1)
-    R_new = EG[np.arange(len(E)), k] @ np.asarray(offset, dtype=np.float64).T
+    if pair is not None:  # the axes' signs from the other parts: no choice left to the network's frame
+        E, ok = parts_signed_axes(points, out["part_label"], pair, slot, min_points)
+        R_new = E @ np.asarray(offset, dtype=np.float64).T
+    else:
+        E, ok = base_axes(points, out["part_label"], min_points, slot)
+        target = R0 @ np.asarray(offset, dtype=np.float64)  # where the network puts the base axes
+        EG = np.einsum("vij,gjk->vgik", E, _group())
+        k = _angle(EG, target[:, None]).argmin(1)
+        R_new = EG[np.arange(len(E)), k] @ np.asarray(offset, dtype=np.float64).T
     delta = np.einsum("vij,vkj->vik", R_new, R0)  # R_new R0^T
     delta[~ok] = np.eye(3)
     res = dict(out)

@@ -39,7 +39,10 @@ class SCAPOOptions(LearnedOptions):
     base_frame: str = ""
     """"principal": snap each prediction's frame to the principal axes of the points it labels as the base part,
     through an offset fitted on the training split (:mod:`scapo.methods.base_frame`, an addition to the paper; a
-    one-pass inference step on the method's own segmentation, no ground truth); "" (default): the network's frame."""
+    one-pass inference step on the method's own segmentation, no ground truth), each view's signed permutation of
+    the axes the one nearest the network's frame; "parts": the same axes with their signs from the other parts'
+    centroid (:func:`scapo.methods.base_frame.parts_signed_axes`), the network's frame used for nothing but the
+    offset; "" (default): the network's frame."""
     base_slot: str = "0"
     """The part slot ``base_frame`` takes as the base: "0" (default; the model's base slot), another slot number, or
     "auto": the slot whose predicted rotations spread least over the training views
@@ -47,14 +50,15 @@ class SCAPOOptions(LearnedOptions):
 
     def __post_init__(self):
         super().__post_init__()
-        if self.base_frame not in ("", "principal"):
-            raise ConfigError(f"base_frame must be '' (off) or 'principal', got {self.base_frame!r}")
+        if self.base_frame not in ("", "principal", "parts"):
+            raise ConfigError(f"base_frame must be '' (off), 'principal' or 'parts', got {self.base_frame!r}")
         if str(self.base_slot) != "auto" and not str(self.base_slot).isdigit():
             raise ConfigError(f"base_slot must be a part slot number or 'auto', got {self.base_slot!r}")
         if self.hinge_frames and self.base_frame:
-            raise ConfigError("hinge_frames=true and base_frame=principal both set the part rotations; give one")
+            raise ConfigError(f"hinge_frames=true and base_frame={self.base_frame} both set the part rotations; give "
+                              "one")
         if str(self.base_slot) != "0" and not self.base_frame:
-            raise ConfigError(f"base_slot={self.base_slot} applies to base_frame=principal; give both")
+            raise ConfigError(f"base_slot={self.base_slot} applies to base_frame=principal or parts; give both")
         if self.refine_steps is not None and self.refine_steps < 0:
             raise ConfigError(f"refine_steps must be >= 0, got {self.refine_steps}")
         if self.refine and self.refine_steps:
@@ -81,6 +85,8 @@ class SCAPOMethod:
         self.base_support = float("nan")
         self.base_slot = 0
         """The part slot taken as the base (``base_slot``; chosen on the training split when "auto")."""
+        self.base_pair: tuple[int, int] | None = None
+        """``base_frame=parts``: the signed ranks of the base's axes (:func:`.base_frame.choose_signed_pair`)."""
         self.base_dispersion: np.ndarray | None = None
         self.frames = None
         """The ``hinge_frames`` step (:class:`scapo.methods.hinge.HingeFrames`), fitted on the training split."""
@@ -130,7 +136,13 @@ class SCAPOMethod:
             ConfigError: not loaded, or a base slot the model does not have. InputError: the network labels no
             training view's points as the base.
         """
-        from scapo.methods.base_frame import base_axes, choose_base_slot, fit_base_offset
+        from scapo.methods.base_frame import (
+            base_axes,
+            choose_base_slot,
+            choose_signed_pair,
+            fit_base_offset,
+            parts_signed_axes,
+        )
 
         if self.predictor is None:
             raise ConfigError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
@@ -144,6 +156,17 @@ class SCAPOMethod:
             if slot >= pose.shape[1]:
                 raise ConfigError(f"base_slot={slot}: the model has part slots 0-{pose.shape[1] - 1}")
         self.base_slot = slot
+        if self.options.base_frame == "parts":
+            self.base_pair = choose_signed_pair(pts, o["part_label"], slot)
+            E, ok = parts_signed_axes(pts, o["part_label"], self.base_pair, slot)
+            if not ok.any():
+                from scapo.errors import InputError
+
+                raise InputError("scapo: no training view has its base and other parts found; base_frame=parts "
+                                 "needs them segmented")
+            self.base_offset, self.base_support, _ = fit_base_offset(pose[ok, slot, :3, :3], E[ok],
+                                                                     group=np.eye(3)[None])
+            return self.base_offset, self.base_support
         E, ok = base_axes(pts, o["part_label"], slot=slot)
         self.base_offset, self.base_support, _ = fit_base_offset(pose[ok, slot, :3, :3], E[ok])
         return self.base_offset, self.base_support
@@ -175,7 +198,7 @@ class SCAPOMethod:
                               "or fit_base_frame(points)")
         from scapo.methods.base_frame import snap_to_base
 
-        return snap_to_base(np.asarray(points), o, self.base_offset, slot=self.base_slot)
+        return snap_to_base(np.asarray(points), o, self.base_offset, slot=self.base_slot, pair=self.base_pair)
 
     def load(self) -> SCAPOMethod:
         """Load the run (:meth:`Predictor.load <scapo.models.predict.Predictor.load>`; no dataset needed, so the
@@ -258,7 +281,9 @@ class SCAPOMethod:
                                      "train_support": round(self.base_support, 4),
                                      "slot": self.base_slot, "slot_option": str(self.options.base_slot),
                                      "dispersion": np.round(self.base_dispersion, 4).tolist(),
-                                     "snap_deg_median": round(float(np.median(o["base_snap_deg"])), 2)}}
+                                     "snap_deg_median": round(float(np.median(o["base_snap_deg"])), 2),
+                                     "mode": self.options.base_frame,
+                                     **({"signed_ranks": list(self.base_pair)} if self.base_pair else {})}}
                      if self.options.base_frame else {})},
         )
 
