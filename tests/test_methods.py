@@ -150,9 +150,10 @@ def test_scapo_snaps_its_frame_to_base_axes_signed_by_the_other_parts(laptop_dat
     then its base axes signed by the other parts; translations kept."""
     plain = run_method("scapo", laptop_data, tmp_path / "a.npz", run=trained_runs["scapo"], refine_steps=0)
     preds = run_method("scapo", laptop_data, tmp_path / "p.npz", run=trained_runs["scapo"], refine_steps=0,
-                       base_frame="parts")
+                       base_frame="parts", hinge=True, hinge_bar_axis=True)  # with the bar axes fitted before it
     info = preds.info["base_frame"]
     assert info["mode"] == "parts" and len(info["signed_ranks"]) == 2 and 0 <= info["train_support"] <= 1
+    assert "bar_axes" in preds.info["hinge"]
     assert np.allclose(preds.part_pose[..., :3, 3], plain.part_pose[..., :3, 3], atol=1e-5)
     assert math.isfinite(evaluate(laptop_data, tmp_path / "p.npz").summary["R"])
 

@@ -108,9 +108,7 @@ class SCAPOMethod:
         rc = self.predictor.refine
         if rc.steps > 0 and rc.starts == "octahedral" and rc.upright_deg > 0:
             self.predictor.fit_upright(train.arrays(["points"])["points"])
-        if self.options.base_frame:
-            self.fit_base_frame(train.arrays(["points"])["points"])
-        if self.options.hinge_bar_axis:
+        if self.options.hinge_bar_axis:  # before the base frame's fit, whose one-pass predictions take the step
             from scapo.methods.hinge import bar_axis_choice
 
             pts = train.arrays(["points"])["points"]
@@ -118,6 +116,8 @@ class SCAPOMethod:
             mc = self.predictor.model.cfg
             o = self.predictor.predict(pts, self.options.batch_size, False)
             self.bar_ranks = bar_axis_choice(pts, o["part_label"], mc.joint_types, mc.joint_parts)
+        if self.options.base_frame:
+            self.fit_base_frame(train.arrays(["points"])["points"])
         if self.options.hinge_frames:
             from scapo.methods.hinge import HingeFrames
 
