@@ -339,7 +339,8 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     from scapo.models.presets import get_preset
     from scapo.models.train import _identity_hash
 
-    p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True)
+    p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True,
+                            split_frame="parts")
     assert p.axis_init == "turn" and get_preset("test").axis_init == "motion"
     assert p.split_init == "fit" and get_preset("test").split_init == "rigid"
     trainer = Trainer(laptop_data, tmp_path / "t", p, progress=False)
@@ -360,6 +361,11 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
             (tmp_path / "t" / "split_labels.npy").write_bytes(bad)
         with pytest.raises(DatasetError, match="split_labels.npy"):
             trainer.job._load_split_labels(TrainingClouds(laptop_data, 32))
+    made = json.loads((tmp_path / "t" / "split_frame.json").read_text())  # split_frame: each cloud's own frame
+    assert len(made["signed_ranks"]) == 2 and 0 <= made["found"] <= made["clouds"] == len(saved)
+    with pytest.raises(ConfigError, match="set split_labels"):
+        dataclasses.replace(p, split_labels=False)
+    assert get_preset("cpu/split-fit/split-labels/split-parts").split_frame == "parts"
     with pytest.raises(ConfigError, match="needs part_init"):
         get_preset("test/split-labels")
     with pytest.raises(ConfigError, match="cannot be combined"):
@@ -375,11 +381,11 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     assert sum(found["template_part_points"]) == p.template_points
     ident = {"preset": dataclasses.asdict(get_preset("test")), "dataset_hash": "h", "category": "laptop",
              "part_names": [], "joint_type": [], "joint_parts": []}
-    for field in ("axis_init", "split_init", "split_labels"):
+    for field in ("axis_init", "split_init", "split_labels", "split_frame"):
         older = json.loads(json.dumps(ident))
         del older["preset"][field]  # as written before the field existed
         assert _identity_hash(older) == _identity_hash(ident)
     assert _identity_hash({**ident, "preset": dataclasses.asdict(p)}) != _identity_hash(ident)
-    for field in ("axis_init", "split_init"):
+    for field in ("axis_init", "split_init", "split_frame"):
         with pytest.raises(ConfigError, match=field):
             dataclasses.replace(TEST, **{field: "nope"})

@@ -84,6 +84,12 @@ class TrainConfig:
     (``sup_seg``, weight ``sup_weight``). Pseudo-labels from the unlabeled clouds (self-training, an addition to the
     paper; preset part ``split-labels``, with ``split-fit`` the split it reads); stored in the run folder
     (``split_labels.npy``) so that a resumed run trains on the same ones."""
+    split_frame: str = "stage1"
+    """The frame ``split_labels`` labels each training cloud in: "stage1", the cloud's stage-1 frame; "parts", the
+    cloud's base frame signed by its other parts (the base's principal axes, two of them signed towards the other
+    parts' centroid, :func:`scapo.methods.base_frame.parts_signed_axes`, from the cloud's stage-1-frame labels), the
+    template likewise, so that a part's side (an eyeglasses temple's left or right) is the same in every cloud where
+    the stage-1 frames scatter between half-turned branches (an addition to the paper, preset part ``split-parts``)."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)
@@ -123,6 +129,12 @@ class TrainConfig:
         if self.split_labels and "S" in str(self.supervision):
             raise ConfigError(f"preset {self.name!r}: split_labels (pseudo-labels) and segmentation supervision cannot "
                               "be combined: both train the skinning weights towards labels; choose one")
+        if self.split_frame not in ("stage1", "parts"):
+            raise ConfigError(f"preset {self.name!r}: split_frame must be 'stage1' or 'parts', got "
+                              f"{self.split_frame!r}")
+        if self.split_frame != "stage1" and not self.split_labels:
+            raise ConfigError(f"preset {self.name!r}: split_frame={self.split_frame!r} is the frame split_labels "
+                              "labels the clouds in; set split_labels too")
         if self.split_labels and not self.part_init:
             raise ConfigError(f"preset {self.name!r}: split_labels needs part_init (the split it labels the clouds "
                               "with)")
@@ -233,6 +245,9 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "split-labels":
             off["split_labels"] = True  # stage 2 trained towards its starting split's labels (TrainConfig.split_labels)
+            continue
+        if part == "split-parts":
+            off["split_frame"] = "parts"  # the pseudo-labels made in each cloud's parts-signed frame (split_frame)
             continue
         if part != "seg-gaussian":
             raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "

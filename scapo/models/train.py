@@ -160,7 +160,7 @@ INFERENCE_FIELDS = ("refine",)
 #: preset fields added after runs were trained, with the value those runs had: at that value a field is
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
-                "axis_init": "motion", "split_init": "rigid", "split_labels": False}
+                "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1"}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -336,10 +336,44 @@ class ScapoJob:
             enc = self.model.frame(X)
             canon.append(((X - enc.t[:, None]) @ apply_branch(enc.R, self.model.branch, self.model.branch_flip)).cpu())
         self.model.train()
-        labels = part_init.label_clouds(template, template_labels, torch.cat(canon), self.mcfg.num_parts)
+        canon = torch.cat(canon)
+        labels = part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts)
+        if self.preset.split_frame == "parts":
+            labels = self._parts_frame_labels(template, template_labels, canon, labels)
         data.tensors["part_label"] = labels
         if self.dist.is_main:
             np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
+
+    def _parts_frame_labels(self, template: torch.Tensor, template_labels: torch.Tensor, canon: torch.Tensor,
+                            labels: torch.Tensor) -> torch.Tensor:
+        """``TrainConfig.split_frame = "parts"``: the pseudo-labels made again with every cloud and the template in
+        its own base frame signed by its other parts (:func:`scapo.methods.base_frame.parts_signed_axes`, base = slot
+        0, from the stage-1-frame ``labels (B, N)``; the two signed ranks chosen over the clouds), centred on its
+        base's centroid. ``template (M, 3)``, ``template_labels (M,)``, ``canon (B, N, 3)`` stage-1-frame clouds ->
+        labels ``(B, N)`` int64. A cloud whose frame is not found keeps its stage-1-frame labels."""
+        from scapo.methods.base_frame import choose_signed_pair, parts_signed_axes
+        from scapo.models import part_init
+
+        pts, lab = canon.double().numpy(), labels.numpy()
+        pair = choose_signed_pair(pts, lab, 0, min_points=8)
+        E, ok = parts_signed_axes(pts, lab, pair, 0, min_points=8)
+        tE, tok = parts_signed_axes(template.double().numpy()[None], template_labels.numpy()[None], pair, 0, 8)
+        if not tok[0] or not ok.any():
+            return labels
+
+        def local(x: np.ndarray, lb: np.ndarray, e: np.ndarray) -> np.ndarray:
+            return (x - x[lb == 0].mean(0)) @ e
+
+        tpl = torch.from_numpy(local(template.double().numpy(), template_labels.numpy(), tE[0])).to(canon.dtype)
+        idx = np.flatnonzero(ok)
+        q = torch.from_numpy(np.stack([local(pts[i], lab[i], E[i]) for i in idx])).to(canon.dtype)
+        out = labels.clone()
+        out[torch.from_numpy(idx)] = part_init.label_clouds(tpl, template_labels, q, self.mcfg.num_parts)
+        if self.dist.is_main:
+            write_json(self.run / "split_frame.json", {"signed_ranks": list(pair), "clouds": int(len(pts)),
+                                                       "found": int(ok.sum()),
+                                                       "changed": round(float((out != labels).double().mean()), 4)})
+        return out
 
     def _load_split_labels(self, data: TrainingClouds) -> None:
         """On a resume inside stage 2, the pseudo-labels :meth:`_label_training_clouds` saved (nothing before it ran).
