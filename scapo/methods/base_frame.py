@@ -139,90 +139,37 @@ def base_axes(points: np.ndarray, part_label: np.ndarray, min_points: int = 16,
     return E, ok
 
 
-def _signed_candidates(points: np.ndarray, part_label: np.ndarray, slot: int, min_points: int):
-    """Per view the base's principal directions ``V (3, 3)`` (columns, largest variance first), the other parts'
-    centroid's offset along them in units of the base's spread ``(3,)`` (signed), and whether both sets have
-    ``min_points`` points."""
-    out = []
-    for x, lab in zip(points, part_label):
-        base, other = x[lab == int(slot)], x[(lab != int(slot)) & (lab >= 0)]
-        if len(base) < max(int(min_points), 4) or len(other) < max(int(min_points), 4):
-            out.append((np.eye(3), np.zeros(3), False))
-            continue
-        c = base.mean(0)
-        w, v = np.linalg.eigh(np.cov((base - c).T))
-        w, v = w[::-1], v[:, ::-1]
-        out.append((v, (v.T @ (other.mean(0) - c)) / np.sqrt(np.maximum(w, 1e-18)), True))
-    return out
-
-
 def choose_signed_pair(points: np.ndarray, part_label: np.ndarray, slot: int = 0,
                        min_points: int = 16) -> tuple[int, int]:
-    """The two ranks of the base's principal directions ``base_frame=parts`` signs (:func:`parts_signed_axes`), chosen
-    on training views with no labels: per view, the two ranks along which the other parts' centroid lies farthest
-    from the base's (in units of the base's spread along each); the pair most views give.
-
-    Args:
-        points: ``(V, N, 3)`` camera-frame clouds (metres). part_label: ``(V, N)`` int predicted parts (-1 none).
-        slot: the base's part slot. min_points: fewest points the base and the other parts need in a view.
-
-    Returns:
-        ``(i, j)`` with ``i < j`` in 0..2 (0 the largest variance).
+    """:func:`scapo.ops.signed_axes.choose_signed_pair` (the two ranks ``base_frame=parts`` signs, chosen on training
+    views with no labels): ``points (V, N, 3)`` camera frame (m), ``part_label (V, N)`` int -> ``(i, j)``, ``i < j``.
 
     Raises:
-        InputError: shapes that do not match, or no view with enough points of both.
+        InputError: shapes that do not match, or no view with enough points of the base and of the other parts.
     """
-    pts, lab = np.asarray(points, dtype=np.float64), np.asarray(part_label)
-    if pts.ndim != 3 or pts.shape[-1] != 3 or lab.shape != pts.shape[:2]:
-        raise InputError(f"scapo: choose_signed_pair needs points (V, N, 3) and part_label (V, N), got {pts.shape} "
-                         f"and {lab.shape}")
-    votes: dict[tuple[int, int], int] = {}
-    for _, off, ok in _signed_candidates(pts, lab, slot, min_points):
-        if ok:
-            pair = tuple(sorted(int(k) for k in np.argsort(-np.abs(off))[:2]))
-            votes[pair] = votes.get(pair, 0) + 1
-    if not votes:
-        raise InputError(f"scapo: no training view has {min_points} points of the base (slot {slot}) and of the "
-                         "other parts; base_frame=parts needs the base and its children segmented")
-    return max(sorted(votes), key=votes.__getitem__)
+    from scapo.ops import signed_axes
+
+    try:
+        return signed_axes.choose_signed_pair(points, part_label, slot, min_points)
+    except ValueError as e:
+        raise InputError(f"scapo: {e}") from None
 
 
 def parts_signed_axes(points: np.ndarray, part_label: np.ndarray, pair: tuple[int, int], slot: int = 0,
                       min_points: int = 16) -> tuple[np.ndarray, np.ndarray]:
-    """The base's principal axes with their signs from the other parts (``base_frame=parts``).
-
-    Per view: the principal directions of the points labelled ``slot`` (largest variance first); those of the ranks
-    in ``pair`` (:func:`choose_signed_pair`) each signed towards the centroid of the points of the other parts; the
-    third the cross product that makes the columns a rotation.
-
-    Args:
-        points: ``(V, N, 3)`` camera-frame clouds (metres). part_label: ``(V, N)`` int predicted parts (-1 none).
-        pair: the two signed ranks. slot, min_points: as :func:`choose_signed_pair`.
-
-    Returns:
-        ``E (V, 3, 3)`` float64 rotations (columns: the axes in rank order, camera frame; identity where not found)
-        and ``ok (V,)`` bool (both sets have ``min_points`` points and neither signed offset is zero).
+    """:func:`scapo.ops.signed_axes.parts_signed_axes` (``base_frame=parts``: the base's principal axes, two ranks
+    signed towards the other parts' centroid): ``points (V, N, 3)`` camera frame (m), ``part_label (V, N)`` int, the
+    ranks ``pair`` -> (``E (V, 3, 3)`` rotations, columns the axes in rank order; ``ok (V,)`` bool).
 
     Raises:
         InputError: shapes that do not match, non-finite points, or a pair that is not two distinct ranks in 0..2.
     """
-    pts, lab = np.asarray(points, dtype=np.float64), np.asarray(part_label)
-    i, j = (int(k) for k in pair)
-    if pts.ndim != 3 or pts.shape[-1] != 3 or lab.shape != pts.shape[:2] or not (0 <= i < j <= 2):
-        raise InputError(f"scapo: parts_signed_axes needs points (V, N, 3), part_label (V, N) and two ranks i < j in "
-                         f"0..2; got {pts.shape}, {lab.shape}, {pair}")
-    if not np.isfinite(pts).all():
-        raise InputError("scapo: parts_signed_axes got NaN or infinite points; drop them before predicting")
-    k = 3 - i - j
-    E = np.tile(np.eye(3), (len(pts), 1, 1))
-    ok = np.zeros(len(pts), dtype=bool)
-    for n, (v, off, found) in enumerate(_signed_candidates(pts, lab, slot, min_points)):
-        if not found or off[i] == 0 or off[j] == 0:
-            continue
-        e = v * np.sign(off)[None]
-        e[:, k] = np.cross(e[:, (k + 1) % 3], e[:, (k + 2) % 3])
-        E[n], ok[n] = e, True
-    return E, ok
+    from scapo.ops import signed_axes
+
+    try:
+        return signed_axes.parts_signed_axes(points, part_label, pair, slot, min_points)
+    except ValueError as e:
+        raise InputError(f"scapo: {e}") from None
 
 
 def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,

@@ -87,7 +87,7 @@ class TrainConfig:
     split_frame: str = "stage1"
     """The frame ``split_labels`` labels each training cloud in: "stage1", the cloud's stage-1 frame; "parts", the
     cloud's base frame signed by its other parts (the base's principal axes, two of them signed towards the other
-    parts' centroid, :func:`scapo.methods.base_frame.parts_signed_axes`, from the cloud's stage-1-frame labels), the
+    parts' centroid, :func:`scapo.ops.signed_axes.parts_signed_axes`, from the cloud's stage-1-frame labels), the
     template likewise, so that a part's side (an eyeglasses temple's left or right) is the same in every cloud where
     the stage-1 frames scatter between half-turned branches (an addition to the paper, preset part ``split-parts``)."""
     grad_clip: float = 10.0

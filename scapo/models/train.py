@@ -347,17 +347,18 @@ class ScapoJob:
     def _parts_frame_labels(self, template: torch.Tensor, template_labels: torch.Tensor, canon: torch.Tensor,
                             labels: torch.Tensor) -> torch.Tensor:
         """``TrainConfig.split_frame = "parts"``: the pseudo-labels made again with every cloud and the template in
-        its own base frame signed by its other parts (:func:`scapo.methods.base_frame.parts_signed_axes`, base = slot
+        its own base frame signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`, base = slot
         0, from the stage-1-frame ``labels (B, N)``; the two signed ranks chosen over the clouds), centred on its
         base's centroid. ``template (M, 3)``, ``template_labels (M,)``, ``canon (B, N, 3)`` stage-1-frame clouds ->
         labels ``(B, N)`` int64. A cloud whose frame is not found keeps its stage-1-frame labels."""
-        from scapo.methods.base_frame import choose_signed_pair, parts_signed_axes
         from scapo.models import part_init
+        from scapo.ops import signed_axes
 
         pts, lab = canon.double().numpy(), labels.numpy()
-        pair = choose_signed_pair(pts, lab, 0, min_points=8)
-        E, ok = parts_signed_axes(pts, lab, pair, 0, min_points=8)
-        tE, tok = parts_signed_axes(template.double().numpy()[None], template_labels.numpy()[None], pair, 0, 8)
+        pair = signed_axes.choose_signed_pair(pts, lab, 0, min_points=8)
+        E, ok = signed_axes.parts_signed_axes(pts, lab, pair, 0, min_points=8)
+        tE, tok = signed_axes.parts_signed_axes(template.double().numpy()[None], template_labels.numpy()[None], pair,
+                                              0, 8)
         if not tok[0] or not ok.any():
             return labels
 
