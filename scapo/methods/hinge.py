@@ -59,6 +59,7 @@ from __future__ import annotations
 import numpy as np
 
 from scapo.errors import ConfigError, InputError
+from scapo.ops.signed_axes import principal_axes
 
 #: Iterations of the line fit and re-split (fixed before any measurement, not tuned).
 HINGE_ITERS = 8
@@ -181,12 +182,6 @@ BAR_RATIO = 4.0
 BAR_MARGIN = 0.25
 
 
-def _principal(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Variances ``(3,)`` in descending order and the matching unit directions as columns ``(3, 3)`` of ``Q (n, 3)``."""
-    w, v = np.linalg.eigh(np.cov((Q - Q.mean(0)).T))
-    return w[::-1], v[:, ::-1]
-
-
 def bar_axis_choice(points: np.ndarray, part_label: np.ndarray, joint_type, joint_parts,
                     min_points: int = HINGE_MIN_POINTS) -> list[int | None]:
     """Per joint, the rank of the parent's principal direction that a bar-shaped child turns about (``bar_axes``;
@@ -220,14 +215,14 @@ def bar_axis_choice(points: np.ndarray, part_label: np.ndarray, joint_type, join
     for j in range(len(jt)):
         pa, ch = int(jp[j, 0]), int(jp[j, 1])
         cos2 = []
-        for b in range(len(pts)):
+        for b in range(len(pts) if int(jt[j]) == 0 else 0):  # a prismatic joint has no bar axis
             Qp, Qc = pts[b][lab[b] == pa], pts[b][lab[b] == ch]
-            if int(jt[j]) != 0 or len(Qp) < min_points or len(Qc) < min_points:
+            if len(Qp) < min_points or len(Qc) < min_points:
                 continue
-            wc, vc = _principal(Qc)
+            wc, vc = principal_axes(Qc)
             if wc[0] < BAR_RATIO * wc[1]:
                 continue
-            cos2.append((_principal(Qp)[1].T @ vc[:, 0]) ** 2)
+            cos2.append((principal_axes(Qp)[1].T @ vc[:, 0]) ** 2)
         if len(cos2) < 8:
             out.append(None)
             continue
@@ -254,7 +249,7 @@ def bar_axis(points: np.ndarray, part_label: np.ndarray, parent: int, rank: int,
     Q = np.asarray(points, dtype=np.float64)[np.asarray(part_label) == parent]
     if len(Q) < min_points:
         return ax
-    w, v = _principal(Q)
+    w, v = principal_axes(Q)
     near = [w[k] for k in (rank - 1, rank + 1) if 0 <= k < 3]
     if any(abs(w[rank] - x) < 0.1 * max(w[rank], x, 1e-18) for x in near):
         return ax

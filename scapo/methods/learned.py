@@ -310,6 +310,12 @@ def training_views(n: int, most: int = 512) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, min(n, int(most))).round().astype(int))
 
 
+def training_points(train: ArticulationDataset, most: int = 512) -> np.ndarray:
+    """The points ``(V, N, 3)`` of up to ``most`` evenly spaced views of ``train`` (:func:`training_views`)."""
+    pts = train.arrays(["points"])["points"]
+    return pts[training_views(len(pts), most)]
+
+
 def check_run_fits(run: Path, ident: dict, data: ArticulationDataset, cross_category: bool, todo: str) -> None:
     """Refuse to predict ``data`` with a run (identity ``ident``: category, part_names, joint_type,
     joint_parts) of another kinematic structure, or of another category unless ``cross_category``.
@@ -366,21 +372,18 @@ class LearnedMethod:
         self.load(f"--data {train.root} ")
         check_run_fits(self.run, self.identity, train, self.options.cross_category, f"train a run on this dataset "
                        f"first ('scapo train --method {self.spec.method} --data {train.root} --out RUN')")
-        if self.options.hinge_bar_axis:
-            from scapo.methods.hinge import bar_axis_choice
+        if self.options.hinge_bar_axis or self.options.hinge_frames:  # one one-pass of the training views for both
+            from scapo.methods.hinge import HingeFrames, bar_axis_choice
 
-            pts = train.arrays(["points"])["points"]
-            pts = pts[training_views(len(pts))]
-            self.bar_ranks = bar_axis_choice(pts, self._infer(pts)["part_label"], self.identity["joint_type"],
-                                             self.identity["joint_parts"])
-        if self.options.hinge_frames:
-            from scapo.methods.hinge import HingeFrames
-
-            pts = train.arrays(["points"])["points"]
-            pts = pts[training_views(len(pts))]
-            self.frames = HingeFrames(self.identity["joint_type"], self.identity["joint_parts"],
-                                      self.options.hinge_view_prior)
-            self.frames.fit(pts, self._hinged(pts, self._infer(pts)))
+            pts = training_points(train)
+            raw = self._infer(pts)
+            if self.options.hinge_bar_axis:
+                self.bar_ranks = bar_axis_choice(pts, raw["part_label"], self.identity["joint_type"],
+                                                 self.identity["joint_parts"])
+            if self.options.hinge_frames:
+                self.frames = HingeFrames(self.identity["joint_type"], self.identity["joint_parts"],
+                                          self.options.hinge_view_prior)
+                self.frames.fit(pts, self._hinged(pts, raw))
 
     def load(self, data_hint: str = "") -> LearnedMethod:
         """Load the finished run (no dataset needed; :func:`scapo.methods.load`); returns self.

@@ -17,7 +17,7 @@ from scapo.data.dataset import ArticulationDataset
 from scapo.errors import ConfigError
 from scapo.eval.predictions import Predictions
 from scapo.losses.supervised import supervision_marks
-from scapo.methods.learned import LearnedOptions, check_run_fits, post_suffix, training_views
+from scapo.methods.learned import LearnedOptions, check_run_fits, post_suffix, training_points, training_views
 from scapo.methods.registry import register_method
 from scapo.models.predict import Predictor
 from scapo.models.presets import ABLATIONS, PRESETS, get_preset
@@ -108,24 +108,22 @@ class SCAPOMethod:
         rc = self.predictor.refine
         if rc.steps > 0 and rc.starts == "octahedral" and rc.upright_deg > 0:
             self.predictor.fit_upright(train.arrays(["points"])["points"])
+        raw = None
+        if self.options.hinge_bar_axis or self.options.hinge_frames:  # one one-pass of the training views for both
+            pts = training_points(train)
+            raw = self.predictor.predict(pts, self.options.batch_size, False)
+        mc = self.predictor.model.cfg
         if self.options.hinge_bar_axis:  # before the base frame's fit, whose one-pass predictions take the step
             from scapo.methods.hinge import bar_axis_choice
 
-            pts = train.arrays(["points"])["points"]
-            pts = pts[training_views(len(pts))]
-            mc = self.predictor.model.cfg
-            o = self.predictor.predict(pts, self.options.batch_size, False)
-            self.bar_ranks = bar_axis_choice(pts, o["part_label"], mc.joint_types, mc.joint_parts)
+            self.bar_ranks = bar_axis_choice(pts, raw["part_label"], mc.joint_types, mc.joint_parts)
         if self.options.base_frame:
             self.fit_base_frame(train.arrays(["points"])["points"])
         if self.options.hinge_frames:
             from scapo.methods.hinge import HingeFrames
 
-            pts = train.arrays(["points"])["points"]
-            pts = pts[training_views(len(pts))]
-            mc = self.predictor.model.cfg
             self.frames = HingeFrames(mc.joint_types, mc.joint_parts, self.options.hinge_view_prior)
-            self.frames.fit(pts, self._one_pass(pts, False))
+            self.frames.fit(pts, self._hinged(pts, raw))
 
     def fit_base_frame(self, points, max_views: int = 512) -> tuple[np.ndarray, float]:
         """Fit the base-axes offset (``base_frame``) on training clouds ``(M, N, 3)`` (camera frame, metres; no
@@ -159,11 +157,6 @@ class SCAPOMethod:
         if self.options.base_frame == "parts":
             self.base_pair = choose_signed_pair(pts, o["part_label"], slot)
             E, ok = parts_signed_axes(pts, o["part_label"], self.base_pair, slot)
-            if not ok.any():
-                from scapo.errors import InputError
-
-                raise InputError("scapo: no training view has its base and other parts found; base_frame=parts "
-                                 "needs them segmented")
             self.base_offset, self.base_support, _ = fit_base_offset(pose[ok, slot, :3, :3], E[ok],
                                                                      group=np.eye(3)[None])
             return self.base_offset, self.base_support
@@ -174,7 +167,14 @@ class SCAPOMethod:
     def _one_pass(self, points, progress: bool) -> dict:
         """The network's prediction for ``points (B, N, 3)``, re-split about its hinges with ``hinge``
         (:mod:`scapo.methods.hinge`; before the base-axes snap, which reads the base's points)."""
-        o = self.predictor.predict(points, self.options.batch_size, progress)
+        return self._hinged(points, self.predictor.predict(points, self.options.batch_size, progress))
+
+    def _hinged(self, points, o: dict) -> dict:
+        """The hinge step on the network's one-pass prediction ``o`` of ``points (B, N, 3)`` (``o`` itself without
+        ``hinge``).
+
+        Raises:
+            ConfigError: ``hinge_bar_axis`` before ``fit`` chose the bar axes' ranks."""
         if self.options.hinge:
             from scapo.methods.hinge import hinge_prediction
 

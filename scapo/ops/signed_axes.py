@@ -11,6 +11,13 @@ from __future__ import annotations
 import numpy as np
 
 
+def principal_axes(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The variances ``(3,)``, largest first, and the matching unit directions as columns ``(3, 3)`` of the points
+    ``Q (n, 3)`` (``n >= 2``; float64)."""
+    w, v = np.linalg.eigh(np.cov((Q - Q.mean(0)).T))
+    return w[::-1], v[:, ::-1]
+
+
 def _signed_candidates(points: np.ndarray, part_label: np.ndarray, slot: int, min_points: int):
     """Per view the base's principal directions ``V (3, 3)`` (columns, largest variance first), the other parts'
     centroid's offset along them in units of the base's spread ``(3,)`` (signed), and whether both sets have
@@ -21,10 +28,8 @@ def _signed_candidates(points: np.ndarray, part_label: np.ndarray, slot: int, mi
         if len(base) < max(int(min_points), 4) or len(other) < max(int(min_points), 4):
             out.append((np.eye(3), np.zeros(3), False))
             continue
-        c = base.mean(0)
-        w, v = np.linalg.eigh(np.cov((base - c).T))
-        w, v = w[::-1], v[:, ::-1]
-        out.append((v, (v.T @ (other.mean(0) - c)) / np.sqrt(np.maximum(w, 1e-18)), True))
+        w, v = principal_axes(base)
+        out.append((v, (v.T @ (other.mean(0) - base.mean(0))) / np.sqrt(np.maximum(w, 1e-18)), True))
     return out
 
 
