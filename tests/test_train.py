@@ -340,7 +340,7 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     from scapo.models.train import _identity_hash
 
     p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True,
-                            split_frame="parts")
+                            split_frame="parts", frame_target=1.0)
     assert p.axis_init == "turn" and get_preset("test").axis_init == "motion"
     assert p.split_init == "fit" and get_preset("test").split_init == "rigid"
     trainer = Trainer(laptop_data, tmp_path / "t", p, progress=False)
@@ -363,6 +363,26 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
             trainer.job._load_split_labels(TrainingClouds(laptop_data, 32))
     made = json.loads((tmp_path / "t" / "split_frame.json").read_text())  # split_frame: each cloud's own frame
     assert len(made["signed_ranks"]) == 2 and 0 <= made["found"] <= made["clouds"] == len(saved)
+    # frame_target: each cloud's target frame (a rotation, or zeros where none) saved, logged, read back or refused
+    T = np.load(tmp_path / "t" / "frame_targets.npy", allow_pickle=False)
+    has = np.abs(T).sum((1, 2)) > 0
+    assert T.shape == (len(saved), 3, 3) and has.any()
+    assert np.allclose(T[has] @ T[has].transpose(0, 2, 1), np.eye(3), atol=1e-5)
+    assert np.allclose(np.linalg.det(T[has]), 1.0, atol=1e-5)
+    info = json.loads((tmp_path / "t" / "frame_target.json").read_text())
+    assert info["with_target"] == int(has.sum()) and info["clouds"] == len(saved)
+    assert "frame_target" in (tmp_path / "t" / "log.csv").read_text().splitlines()[0].split(",")
+    data = TrainingClouds(laptop_data, 32)
+    trainer.job._load_frame_targets(data)
+    assert np.allclose(data.tensors["frame_target"].numpy(), T, atol=1e-6) and data[0]["frame_target"].shape == (3, 3)
+    np.save(tmp_path / "t" / "frame_targets.npy", T[:3])
+    with pytest.raises(DatasetError, match="frame_targets.npy"):
+        trainer.job._load_frame_targets(TrainingClouds(laptop_data, 32))
+    with pytest.raises(ConfigError, match="set split_labels"):
+        dataclasses.replace(p, split_frame="stage1", split_labels=False)
+    with pytest.raises(ConfigError, match="frame_target"):
+        dataclasses.replace(p, frame_target=-1.0)
+    assert get_preset("cpu/split-fit/split-labels/frame-target").frame_target == 1.0
     with pytest.raises(ConfigError, match="set split_labels"):
         dataclasses.replace(p, split_labels=False)
     assert get_preset("cpu/split-fit/split-labels/split-parts").split_frame == "parts"
@@ -381,7 +401,7 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     assert sum(found["template_part_points"]) == p.template_points
     ident = {"preset": dataclasses.asdict(get_preset("test")), "dataset_hash": "h", "category": "laptop",
              "part_names": [], "joint_type": [], "joint_parts": []}
-    for field in ("axis_init", "split_init", "split_labels", "split_frame"):
+    for field in ("axis_init", "split_init", "split_labels", "split_frame", "frame_target"):
         older = json.loads(json.dumps(ident))
         del older["preset"][field]  # as written before the field existed
         assert _identity_hash(older) == _identity_hash(ident)
@@ -389,3 +409,53 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     for field in ("axis_init", "split_init", "split_frame"):
         with pytest.raises(ConfigError, match=field):
             dataclasses.replace(TEST, **{field: "nope"})
+
+
+def test_frame_target_angle_is_the_geodesic_angle_of_the_clouds_with_a_target():
+    """``TrainConfig.frame_target``'s term: the mean geodesic angle to the targets, a half turn scoring pi with a
+    gradient that moves the frame, clouds with an all-zero target (none found) left out."""
+    from scapo.models.train import frame_target_angle
+    from scapo.ops.so3 import exp_so3
+
+    axis = torch.tensor([[0.0, 0.0, 1.0]] * 3)
+    R = exp_so3(axis, torch.tensor([0.0, 0.5, 3.0]))
+    target = torch.eye(3).expand(3, 3, 3).clone()
+    assert abs(float(frame_target_angle(R, target)) - 3.5 / 3) < 2e-3  # the clamp keeps acos finite
+    target[2] = 0.0  # no target for the third cloud
+    assert abs(float(frame_target_angle(R, target)) - 0.25) < 2e-3
+    assert float(frame_target_angle(R, torch.zeros(3, 3, 3))) == 0.0
+    theta = torch.tensor([3.0], requires_grad=True)  # near a half turn the angle still pulls the frame back
+    frame_target_angle(exp_so3(axis[:1], theta), torch.eye(3)[None]).backward()
+    assert float(theta.grad) > 0.9
+
+
+def test_frame_targets_give_one_frame_where_the_stage1_frames_take_half_turned_branches(tmp_path):
+    """Hand-built glasses (a front bar, two temples behind it) seen under random rotations; the "stage-1 frames" are
+    the true frames turned by a half turn about the front's normal in a random half of the clouds (the branch a
+    near-symmetric front leaves open). The targets ``R_i E_i E_Y^T`` are the true frames up to one fixed rotation."""
+    import types
+
+    from scapo.models.train import ScapoJob
+    from scapo.ops.so3 import exp_so3
+
+    g = torch.Generator().manual_seed(0)
+    front = torch.rand(200, 3, generator=g) * torch.tensor([1.0, 0.3, 0.05]) - torch.tensor([0.5, 0.15, 0.0])
+    left = torch.rand(80, 3, generator=g) * torch.tensor([0.03, 0.03, 0.6]) + torch.tensor([-0.5, 0.0, 0.02])
+    right = torch.rand(80, 3, generator=g) * torch.tensor([0.03, 0.03, 0.6]) + torch.tensor([0.47, 0.0, 0.02])
+    obj = torch.cat([front, left, right])
+    lab = torch.cat([torch.zeros(200), torch.ones(80), torch.full((80,), 2)]).long()
+    B = 24
+    true = exp_so3(torch.nn.functional.normalize(torch.randn(B, 3, generator=g), dim=-1),
+                   torch.rand(B, generator=g) * 3.0)
+    half = exp_so3(torch.tensor([[0.0, 0.0, 1.0]]).expand(B, 3), torch.full((B,), torch.pi))
+    flip = torch.arange(B) % 2 == 1
+    branch = torch.where(flip[:, None, None], half, torch.eye(3).expand(B, 3, 3))
+    frames = true @ branch  # canonical -> camera, half of them half-turned
+    cam = obj[None] @ true.transpose(1, 2)
+    canon = cam @ frames  # each cloud in its own stage-1 frame
+    job = types.SimpleNamespace(dist=types.SimpleNamespace(is_main=True), run=tmp_path)
+    T = ScapoJob._frame_targets(job, obj, lab, canon, frames, lab.expand(B, -1))
+    offset = true.transpose(1, 2) @ T  # the same rotation for every cloud
+    assert torch.allclose(offset, offset[0].expand(B, 3, 3), atol=1e-4)
+    info = __import__("json").loads((tmp_path / "frame_target.json").read_text())
+    assert info["with_target"] == B and info["beyond_90_deg"] == 0.5

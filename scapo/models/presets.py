@@ -90,6 +90,15 @@ class TrainConfig:
     parts' centroid, :func:`scapo.ops.signed_axes.parts_signed_axes`, from the cloud's stage-1-frame labels), the
     template likewise, so that a part's side (an eyeglasses temple's left or right) is the same in every cloud where
     the stage-1 frames scatter between half-turned branches (an addition to the paper, preset part ``split-parts``)."""
+    frame_target: float = 0.0
+    """Weight of a stage-2 term that pulls each training cloud's frame (stage 1's, which stage 2 trains on) towards
+    the frame its base's axes give when signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`,
+    from the ``split_labels`` pseudo-labels, base = slot 0), carried into the template's: per cloud ``i`` the target
+    ``R_i E_i E_Y^T`` (``R_i`` its frame at the start of stage 2, ``E_i`` its and ``E_Y`` the template's signed base
+    axes in the stage-1 frames), the term the mean geodesic angle (rad) between the frame and the target. Where the
+    stage-1 frames scatter between half-turned branches of a near-symmetric shape (eyeglasses' front), the targets
+    are one frame up to the error of the pseudo-labels; 0 (default): off. Needs ``split_labels``; the targets are
+    stored in the run folder (``frame_targets.npy``) for a resume. An addition to the paper (issue 52)."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)
@@ -135,6 +144,11 @@ class TrainConfig:
         if self.split_frame != "stage1" and not self.split_labels:
             raise ConfigError(f"preset {self.name!r}: split_frame={self.split_frame!r} is the frame split_labels "
                               "labels the clouds in; set split_labels too")
+        if self.frame_target < 0 or self.frame_target != self.frame_target:
+            raise ConfigError(f"preset {self.name!r}: frame_target is a loss weight, >= 0; got {self.frame_target!r}")
+        if self.frame_target > 0 and not self.split_labels:
+            raise ConfigError(f"preset {self.name!r}: frame_target={self.frame_target} reads the split_labels "
+                              "pseudo-labels (the base and its other parts); set split_labels too")
         if self.split_labels and not self.part_init:
             raise ConfigError(f"preset {self.name!r}: split_labels needs part_init (the split it labels the clouds "
                               "with)")
@@ -212,7 +226,9 @@ def get_preset(name: str) -> TrainConfig:
     (:data:`PRINCIPAL_ON`), or the paper's regressed frame; a part ``axis-turn`` starts stage 2's revolute axes from
     the parts' turns (``TrainConfig.axis_init``); a part ``split-fit`` finds stage 2's starting split by fitting the
     template to the clouds (``TrainConfig.split_init``) and ``split-labels`` trains stage 2 towards that split's labels
-    of every training cloud (``TrainConfig.split_labels``); a part ``epochs-A-B`` trains stage 1 for A epochs and
+    of every training cloud (``TrainConfig.split_labels``), ``split-parts`` makes those labels in each cloud's
+    parts-signed frame (``TrainConfig.split_frame``) and ``frame-target`` pulls each cloud's frame towards that frame
+    (``TrainConfig.frame_target``, weight 1); a part ``epochs-A-B`` trains stage 1 for A epochs and
     stage 2 for B (:func:`scapo.registry.apply_schedule`; ``scapo bench table1 --budget-minutes``).
 
     Raises:
@@ -248,6 +264,9 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "split-parts":
             off["split_frame"] = "parts"  # the pseudo-labels made in each cloud's parts-signed frame (split_frame)
+            continue
+        if part == "frame-target":
+            off["frame_target"] = 1.0  # stage 2 pulls each cloud's frame to its parts-signed one (frame_target)
             continue
         if part != "seg-gaussian":
             raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "

@@ -37,7 +37,8 @@ STAGE2_TERMS = ("recon", "kp_seg", "seg", "shape_var", "dir_align", "joint_prox"
 
 
 def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict | None = None,
-               scale: torch.Tensor | None = None, sup_weight: float = 1.0, pairs: int = 0
+               scale: torch.Tensor | None = None, sup_weight: float = 1.0, pairs: int = 0,
+               frame_target: torch.Tensor | None = None, frame_weight: float = 0.0
                ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
     """One forward pass of a training step on normalised clouds ``X (B, N, 3)``: the unweighted loss
     terms of ``stage`` (1: stage-1 terms; 2: stage-1 and stage-2 terms) and their weighted total
@@ -48,7 +49,9 @@ def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict
     ``scale (B,)`` is the normalisation of ``X``); stage 2 then adds ``sup_seg`` (NLL of the skinning
     weights) and ``sup_joint`` (the camera-frame joints), weighted by ``sup_weight``. ``pairs``: the first
     ``2 pairs`` clouds are pairs of views of one instance (cloud ``i`` and ``i + pairs``) for ``L_view``
-    (``LossConfig.view_consist``; ``scale`` needed)."""
+    (``LossConfig.view_consist``; ``scale`` needed). ``frame_target (B, 3, 3)`` (``TrainConfig.frame_target``, stage
+    2): each cloud's target frame (canonical -> camera; all zeros: none), the term ``frame_target`` the mean geodesic
+    angle (rad, :func:`frame_target_angle`) of the clouds that have one, weighted by ``frame_weight``."""
     out = model(X, stage=stage)
     terms = stage1_terms(model, X, out, losses, align=stage == 1 or losses.align_in_stage2, scale=scale, pairs=pairs)
     if stage == 2:
@@ -68,7 +71,22 @@ def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict
                                             / scale[:, None, None], model.cfg.joint_types)
         terms.update(extra)
         total = total + sup_weight * sum(extra.values())
+    if stage == 2 and frame_target is not None and frame_weight > 0:
+        terms["frame_target"] = frame_target_angle(out.R, frame_target.to(X))
+        total = total + frame_weight * terms["frame_target"]
     return terms, total
+
+
+def frame_target_angle(R: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The mean geodesic angle (rad, scalar) between frames ``R (B, 3, 3)`` and targets ``(B, 3, 3)`` over the clouds
+    whose target is a rotation (an all-zero target: none; 0 when no cloud has one). The angle, not the chordal
+    distance, so that a frame half a turn from its target (the branch it is meant to leave) still gets a full
+    gradient. ``TrainConfig.frame_target``; an addition to the paper."""
+    has = target.flatten(1).abs().sum(-1) > 0
+    if not bool(has.any()):
+        return R.new_zeros(())
+    cos = ((R[has] * target[has]).sum((-2, -1)) - 1.0) / 2.0
+    return torch.arccos(cos.clamp(-1.0 + 1e-6, 1.0 - 1e-6)).mean()
 
 
 class TrainingClouds(CloudSet):
@@ -160,7 +178,8 @@ INFERENCE_FIELDS = ("refine",)
 #: preset fields added after runs were trained, with the value those runs had: at that value a field is
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
-                "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1"}
+                "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
+                "frame_target": 0.0}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -234,10 +253,11 @@ class ScapoJob:
             self._load_split_labels(data)
         view = ("view_consist",) if pc.losses.view_consist > 0 else ()  # logged only where on (older logs' columns)
         view += ("template",) if pc.losses.template > 0 else ()
+        target = ("frame_target",) if pc.frame_target > 0 else ()
         stages = [Stage(index=1, epochs=pc.stage1_epochs, lr=pc.lr_stage1, params=lambda: self._params(1),
                         losses=lambda batch, progress: self._losses(1, batch), terms=STAGE1_TERMS + view),
                   Stage(index=2, epochs=pc.stage2_epochs, lr=pc.lr_stage2, params=lambda: self._params(2),
-                        losses=lambda batch, progress: self._losses(2, batch), terms=STAGE2_TERMS + view,
+                        losses=lambda batch, progress: self._losses(2, batch), terms=STAGE2_TERMS + view + target,
                         on_start=lambda: self._init_template(data))]
         cfg = FitConfig(batch_size=pc.batch_size, weight_decay=pc.weight_decay, min_lr=pc.min_lr,
                         grad_clip=pc.grad_clip, max_steps_per_epoch=pc.max_steps_per_epoch, seed=pc.seed,
@@ -249,13 +269,14 @@ class ScapoJob:
 
     def _losses(self, stage: int, batch: dict) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         pc = self.preset
-        sup = {k: v for k, v in batch.items() if k not in ("points", "pair_points")}  # semi-supervised: labels
+        sup = {k: v for k, v in batch.items() if k not in ("points", "pair_points", "frame_target")}  # labels
         points, pairs = batch["points"], 0
         if "pair_points" in batch:  # L_view: the batch's clouds, then their partner views (cloud i, i + B)
             pairs = points.shape[0]
             points = torch.cat([points, batch["pair_points"]])
         X, scale = SCAPOModel.normalize(points)
-        return loss_terms(self.model, X, stage, pc.losses, sup, scale, pc.sup_weight, pairs=pairs)
+        return loss_terms(self.model, X, stage, pc.losses, sup, scale, pc.sup_weight, pairs=pairs,
+                          frame_target=batch.get("frame_target"), frame_weight=pc.frame_target)
 
     def _params(self, stage: int):
         if stage == 1:
@@ -329,12 +350,14 @@ class ScapoJob:
         from scapo.models import part_init
 
         template = self.model.y_base.detach().cpu()
-        canon = []
+        canon, frames = [], []
         self.model.eval()
         for k in range(0, len(data), 64):
             X, _ = SCAPOModel.normalize(data.clouds[k:k + 64].to(self.device))
             enc = self.model.frame(X)
-            canon.append(((X - enc.t[:, None]) @ apply_branch(enc.R, self.model.branch, self.model.branch_flip)).cpu())
+            R = apply_branch(enc.R, self.model.branch, self.model.branch_flip)
+            canon.append(((X - enc.t[:, None]) @ R).cpu())
+            frames.append(R.cpu())
         self.model.train()
         canon = torch.cat(canon)
         labels = part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts)
@@ -343,6 +366,49 @@ class ScapoJob:
         data.tensors["part_label"] = labels
         if self.dist.is_main:
             np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
+        if self.preset.frame_target > 0:
+            targets = self._frame_targets(template, template_labels, canon, torch.cat(frames), labels)
+            data.tensors["frame_target"] = targets
+            if self.dist.is_main:
+                np.save(self.run / self.FRAME_TARGETS, targets.numpy().astype(np.float64), allow_pickle=False)
+
+    FRAME_TARGETS = "frame_targets.npy"
+
+    def _frame_targets(self, template: torch.Tensor, template_labels: torch.Tensor, canon: torch.Tensor,
+                       frames: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
+        """``TrainConfig.frame_target``: per training cloud the frame ``R_i E_i E_Y^T`` ``(B, 3, 3)`` float32
+        (canonical -> camera; all zeros where the cloud's or the template's signed axes are not found), from its
+        stage-1 frame ``frames (B, 3, 3)``, its base's axes signed by its other parts in that frame ``E_i``
+        (:func:`scapo.ops.signed_axes.parts_signed_axes` of ``canon (B, N, 3)`` under ``labels (B, N)``, base = slot
+        0, the signed ranks chosen over the clouds) and the template's ``E_Y`` (``template (M, 3)``,
+        ``template_labels (M,)``): the frame in which the cloud's signed base axes are the template's. What was found
+        goes to ``frame_target.json`` in the run folder (the ranks, how many clouds have a target, and the share whose
+        target is within 15 / beyond 90 deg of its stage-1 frame)."""
+        from scapo.ops import signed_axes
+
+        pts, lab = canon.double().numpy(), labels.numpy()
+        out = torch.zeros(len(pts), 3, 3)
+        try:
+            pair = signed_axes.choose_signed_pair(pts, lab, 0, min_points=8)
+        except ValueError:
+            pair = None
+        if pair is not None:
+            E, ok = signed_axes.parts_signed_axes(pts, lab, pair, 0, min_points=8)
+            tE, tok = signed_axes.parts_signed_axes(template.double().numpy()[None], template_labels.numpy()[None],
+                                                  pair, 0, 8)
+            if tok[0]:
+                T = frames.double().numpy() @ E @ tE[0].T
+                out[torch.from_numpy(ok)] = torch.from_numpy(T[ok]).float()
+        has = out.flatten(1).abs().sum(-1) > 0
+        cos = ((out * frames).sum((-2, -1)) - 1.0) / 2.0
+        ang = torch.rad2deg(torch.arccos(cos.clamp(-1.0, 1.0)))[has]
+        if self.dist.is_main:
+            write_json(self.run / "frame_target.json",
+                       {"signed_ranks": None if pair is None else list(pair), "clouds": int(len(pts)),
+                        "with_target": int(has.sum()),
+                        "within_15_deg": round(float((ang <= 15).double().mean()), 4) if len(ang) else None,
+                        "beyond_90_deg": round(float((ang > 90).double().mean()), 4) if len(ang) else None})
+        return out
 
     def _parts_frame_labels(self, template: torch.Tensor, template_labels: torch.Tensor, canon: torch.Tensor,
                             labels: torch.Tensor) -> torch.Tensor:
@@ -377,10 +443,12 @@ class ScapoJob:
         return out
 
     def _load_split_labels(self, data: TrainingClouds) -> None:
-        """On a resume inside stage 2, the pseudo-labels :meth:`_label_training_clouds` saved (nothing before it ran).
+        """On a resume inside stage 2, the pseudo-labels :meth:`_label_training_clouds` saved (nothing before it ran),
+        and with ``frame_target`` the target frames.
 
         Raises:
-            DatasetError: the file is unreadable or does not match the training clouds."""
+            DatasetError: a file is unreadable or does not match the training clouds."""
+        self._load_frame_targets(data)
         path = self.run / self.SPLIT_LABELS
         if not path.is_file():
             return
@@ -394,6 +462,19 @@ class ScapoJob:
                                f"{tuple(data.clouds.shape[:2])} training clouds of {self.mcfg.num_parts} parts; delete "
                                "the run folder and train again")
         data.tensors["part_label"] = torch.from_numpy(labels.astype(np.int64))
+
+    def _load_frame_targets(self, data: TrainingClouds) -> None:
+        path = self.run / self.FRAME_TARGETS
+        if self.preset.frame_target <= 0 or not path.is_file():
+            return
+        try:
+            T = np.load(path, allow_pickle=False)  # plain numbers: no code runs from the file
+        except (OSError, ValueError) as e:
+            raise DatasetError(f"{path}: unreadable ({e}); delete the run folder and train again") from None
+        if T.shape != (len(data), 3, 3) or T.dtype.kind != "f" or not np.isfinite(T).all():
+            raise DatasetError(f"{path}: target frames of shape {T.shape} do not match the {len(data)} training "
+                               "clouds (or are not finite); delete the run folder and train again")
+        data.tensors["frame_target"] = torch.from_numpy(T.astype(np.float32))
 
     def _init_labels(self, data: TrainingClouds) -> torch.Tensor | None:
         """``part_label (M, N)`` of the training clouds for ``label_init`` without segmentation supervision (a
