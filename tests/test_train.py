@@ -383,6 +383,9 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     with pytest.raises(ConfigError, match="frame_target"):
         dataclasses.replace(p, frame_target=-1.0)
     assert get_preset("cpu/split-fit/split-labels/frame-target").frame_target == 1.0
+    assert get_preset("cpu/split-fit/split-labels/stage2-parts").stage2_frame == "parts"
+    with pytest.raises(ConfigError, match="stage2_frame"):
+        dataclasses.replace(p, stage2_frame="nope")
     with pytest.raises(ConfigError, match="set split_labels"):
         dataclasses.replace(p, split_labels=False)
     assert get_preset("cpu/split-fit/split-labels/split-parts").split_frame == "parts"
@@ -401,7 +404,7 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     assert sum(found["template_part_points"]) == p.template_points
     ident = {"preset": dataclasses.asdict(get_preset("test")), "dataset_hash": "h", "category": "laptop",
              "part_names": [], "joint_type": [], "joint_parts": []}
-    for field in ("axis_init", "split_init", "split_labels", "split_frame", "frame_target"):
+    for field in ("axis_init", "split_init", "split_labels", "split_frame", "frame_target", "stage2_frame"):
         older = json.loads(json.dumps(ident))
         del older["preset"][field]  # as written before the field existed
         assert _identity_hash(older) == _identity_hash(ident)
@@ -454,8 +457,51 @@ def test_frame_targets_give_one_frame_where_the_stage1_frames_take_half_turned_b
     cam = obj[None] @ true.transpose(1, 2)
     canon = cam @ frames  # each cloud in its own stage-1 frame
     job = types.SimpleNamespace(dist=types.SimpleNamespace(is_main=True), run=tmp_path)
-    T = ScapoJob._frame_targets(job, obj, lab, canon, frames, lab.expand(B, -1))
+    T, pair, tpl = ScapoJob._frame_targets(job, obj, lab, canon, frames, lab.expand(B, -1))
+    assert len(pair) == 2 and torch.allclose(tpl @ tpl.T, torch.eye(3), atol=1e-5)
     offset = true.transpose(1, 2) @ T  # the same rotation for every cloud
     assert torch.allclose(offset, offset[0].expand(B, 3, 3), atol=1e-4)
     info = __import__("json").loads((tmp_path / "frame_target.json").read_text())
     assert info["with_target"] == B and info["beyond_90_deg"] == 0.5
+
+
+def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_base_gives(laptop_data, tmp_path):
+    """``stage2_frame="parts"``: the run stores the template's signed base axes (a rotation) and ranks in the model,
+    stage 2 uses a cloud's given frame in place of its stage-1 one (zeros: its own), and prediction runs stage 2 again
+    in the frame read from the base it labels (:meth:`SCAPOModel.parts_frames`), which a model without the buffers
+    (older checkpoints) skips."""
+    from scapo.models.presets import get_preset
+    from scapo.models.scapo_model import SCAPOModel
+    from scapo.models.train import TrainingClouds
+
+    p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True,
+                            stage2_frame="parts")
+    trainer = Trainer(laptop_data, tmp_path / "t", p, progress=False)
+    trainer.train()
+    model = trainer.model
+    E = model.parts_frame
+    assert model.uses_parts_frame and torch.allclose(E @ E.T, torch.eye(3), atol=1e-5)
+    assert (tmp_path / "t" / "frame_targets.npy").is_file()
+    pts = TrainingClouds(laptop_data, 64).clouds[:4, :64]
+    X, _ = model.normalize(pts)
+    model.eval()
+    with torch.no_grad():
+        own = model(X, stage=2)
+        turned = torch.linalg.qr(torch.randn(3, 3, generator=torch.Generator().manual_seed(1)))[0]
+        turned = turned * torch.sign(torch.linalg.det(turned))
+        given = torch.zeros(4, 3, 3)
+        given[0] = turned
+        mixed = model(X, stage=2, frame=given)
+        assert torch.allclose(mixed.R[0], turned) and torch.allclose(mixed.R[1:], own.R[1:])
+        F = model.parts_frames(X, own.w.argmax(-1))
+        out = model.predict(pts)
+    found = F.flatten(1).abs().sum(-1) > 0
+    R = out["T_cam_obj"][:, :3, :3]
+    assert torch.allclose(R @ R.transpose(1, 2), torch.eye(3).expand(4, 3, 3), atol=1e-4)
+    if bool(found.any()):  # the frames read from the base: rotations E_i E_Y^T
+        assert torch.allclose(F[found] @ F[found].transpose(1, 2), torch.eye(3).expand(int(found.sum()), 3, 3),
+                              atol=1e-4)
+    state = {k: v for k, v in model.state_dict().items() if k not in ("parts_frame", "parts_pair")}
+    older = SCAPOModel(model.cfg)
+    older.load_checkpoint_state(state)  # a checkpoint from before the parts frame: off
+    assert not older.uses_parts_frame

@@ -99,6 +99,14 @@ class TrainConfig:
     stage-1 frames scatter between half-turned branches of a near-symmetric shape (eyeglasses' front), the targets
     are one frame up to the error of the pseudo-labels; 0 (default): off. Needs ``split_labels``; the targets are
     stored in the run folder (``frame_targets.npy``) for a resume. An addition to the paper (issue 52)."""
+    stage2_frame: str = "stage1"
+    """The frame stage 2 works in: "stage1", each cloud's stage-1 frame (the paper); "parts", the frame in which the
+    cloud's base axes signed by its other parts are the template's (:func:`scapo.ops.signed_axes.parts_signed_axes`,
+    base = slot 0): in training, each training cloud's target frame of ``frame_target`` (from the ``split_labels``
+    pseudo-labels), which replaces its stage-1 frame in stage 2; in prediction, read from the base stage 2 labels in a
+    first pass and stage 2 run again in it (:meth:`scapo.models.scapo_model.SCAPOModel.parts_frames`). Stage 1's frame
+    then needs to be right only up to the half-turned branches of a near-symmetric base. Needs ``split_labels``. An
+    addition to the paper (issue 52), preset part ``stage2-parts``."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)
@@ -148,6 +156,12 @@ class TrainConfig:
             raise ConfigError(f"preset {self.name!r}: frame_target is a loss weight, >= 0; got {self.frame_target!r}")
         if self.frame_target > 0 and not self.split_labels:
             raise ConfigError(f"preset {self.name!r}: frame_target={self.frame_target} reads the split_labels "
+                              "pseudo-labels (the base and its other parts); set split_labels too")
+        if self.stage2_frame not in ("stage1", "parts"):
+            raise ConfigError(f"preset {self.name!r}: stage2_frame must be 'stage1' or 'parts', got "
+                              f"{self.stage2_frame!r}")
+        if self.stage2_frame != "stage1" and not self.split_labels:
+            raise ConfigError(f"preset {self.name!r}: stage2_frame={self.stage2_frame!r} reads the split_labels "
                               "pseudo-labels (the base and its other parts); set split_labels too")
         if self.split_labels and not self.part_init:
             raise ConfigError(f"preset {self.name!r}: split_labels needs part_init (the split it labels the clouds "
@@ -228,7 +242,8 @@ def get_preset(name: str) -> TrainConfig:
     template to the clouds (``TrainConfig.split_init``) and ``split-labels`` trains stage 2 towards that split's labels
     of every training cloud (``TrainConfig.split_labels``), ``split-parts`` makes those labels in each cloud's
     parts-signed frame (``TrainConfig.split_frame``) and ``frame-target`` pulls each cloud's frame towards that frame
-    (``TrainConfig.frame_target``, weight 1); a part ``epochs-A-B`` trains stage 1 for A epochs and
+    (``TrainConfig.frame_target``, weight 1) and ``stage2-parts`` makes stage 2 work in that frame
+    (``TrainConfig.stage2_frame``); a part ``epochs-A-B`` trains stage 1 for A epochs and
     stage 2 for B (:func:`scapo.registry.apply_schedule`; ``scapo bench table1 --budget-minutes``).
 
     Raises:
@@ -267,6 +282,9 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "frame-target":
             off["frame_target"] = 1.0  # stage 2 pulls each cloud's frame to its parts-signed one (frame_target)
+            continue
+        if part == "stage2-parts":
+            off["stage2_frame"] = "parts"  # stage 2 works in each cloud's parts-signed frame (stage2_frame)
             continue
         if part != "seg-gaussian":
             raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "

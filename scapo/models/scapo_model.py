@@ -176,6 +176,11 @@ class SCAPOModel(nn.Module):
         # trainer at the start of stage 2 when TrainConfig.branch_flip is on
         self.register_buffer("branch", torch.zeros(3, 3))
         self.register_buffer("branch_flip", torch.eye(3))
+        # stage 2 in the frame read from the base's axes signed by the other parts (TrainConfig.stage2_frame =
+        # "parts"; zeros: off): the template's signed base axes E_Y (columns) and the two signed ranks, set by the
+        # trainer at the start of stage 2
+        self.register_buffer("parts_frame", torch.zeros(3, 3))
+        self.register_buffer("parts_pair", torch.tensor([1, 2]))
         if cfg.stage1_template:  # own generator: the other parameters' initialisation is unchanged
             g1 = torch.Generator().manual_seed(1)
             self.template_s1 = nn.Parameter(0.1 * torch.randn(cfg.template_points, 3, generator=g1))
@@ -187,10 +192,10 @@ class SCAPOModel(nn.Module):
 
     # ------------------------------------------------------------------ helpers
     def load_checkpoint_state(self, state: dict) -> None:
-        """``load_state_dict`` that accepts checkpoints from before the branch correction existed
-        (their missing ``branch``/``branch_flip`` buffers keep the "off" values)."""
+        """``load_state_dict`` that accepts checkpoints from before the branch correction or the parts frame existed
+        (their missing ``branch``/``branch_flip``/``parts_frame``/``parts_pair`` buffers keep the "off" values)."""
         state = dict(state)
-        for name in ("branch", "branch_flip"):
+        for name in ("branch", "branch_flip", "parts_frame", "parts_pair"):
             state.setdefault(name, getattr(self, name).detach().clone())
         self.load_state_dict(state)
 
@@ -245,12 +250,17 @@ class SCAPOModel(nn.Module):
         X_rec = S_dec @ enc.R.transpose(1, 2) + enc.t[:, None]  # rigid: R in SO(3) (Gram-Schmidt of R_raw)
         return Stage1Output(enc=enc, S_dec=S_dec, F_x=F_x, X_rec=X_rec)
 
-    def stage2(self, X: torch.Tensor, s1: Stage1Output) -> dict:
+    def stage2(self, X: torch.Tensor, s1: Stage1Output, frame: torch.Tensor | None = None) -> dict:
         """Joint-aware deformation given the stage-1 outputs (see module docstring): the fields of
-        :class:`~scapo.nn.outputs.SCAPOOutput` beyond :class:`~scapo.nn.outputs.Stage1Output`'s."""
+        :class:`~scapo.nn.outputs.SCAPOOutput` beyond :class:`~scapo.nn.outputs.Stage1Output`'s. ``frame (B, 3, 3)``:
+        the frames (canonical -> camera) stage 2 uses instead of stage 1's (branch-corrected) ones, for the clouds whose
+        ``frame`` is not all zeros (``TrainConfig.stage2_frame = "parts"``)."""
         cfg = self.cfg
         enc = s1.enc
         R, t = apply_branch(enc.R, self.branch, self.branch_flip), enc.t
+        if frame is not None:
+            given = (frame.flatten(1).abs().sum(-1) > 0)[:, None, None]
+            R = torch.where(given, frame.to(R), R)
         S_obj = (X - t[:, None]) @ R  # R^T (x - t) for row vectors
         K, V, log_s = self.keypoints(enc.code)
         delta = self.residual(s1.F_x).reshape(-1, cfg.template_points, 3)
@@ -288,14 +298,36 @@ class SCAPOModel(nn.Module):
             "S_x2y": S_x2y, "S_y2x": S_y2x,
         }
 
-    def forward(self, X: torch.Tensor, stage: int = 2) -> Stage1Output | SCAPOOutput:
+    def forward(self, X: torch.Tensor, stage: int = 2, frame: torch.Tensor | None = None
+                ) -> Stage1Output | SCAPOOutput:
         """Normalised points ``X (B, N, 3)`` -> :class:`~scapo.nn.outputs.Stage1Output` (``stage`` 1) or
-        :class:`~scapo.nn.outputs.SCAPOOutput` (2: both stages)."""
+        :class:`~scapo.nn.outputs.SCAPOOutput` (2: both stages; ``frame`` as :meth:`stage2`)."""
         s1 = self.stage1(X)
         if stage == 1:
             return s1
         return SCAPOOutput(**{f.name: getattr(s1, f.name) for f in dataclasses.fields(Stage1Output)},
-                           **self.stage2(X, s1))
+                           **self.stage2(X, s1, frame))
+
+    @property
+    def uses_parts_frame(self) -> bool:
+        """Whether stage 2 works in the parts-signed frame (``TrainConfig.stage2_frame = "parts"``)."""
+        return bool(self.parts_frame.abs().sum() > 0)
+
+    @torch.no_grad()
+    def parts_frames(self, X: torch.Tensor, labels: torch.Tensor, min_points: int = 8) -> torch.Tensor:
+        """The frames ``(B, 3, 3)`` (canonical -> camera) in which each cloud's base axes signed by its other parts are
+        the template's (``TrainConfig.stage2_frame = "parts"``): ``E_i E_Y^T``, with ``E_i`` the signed principal axes
+        (:func:`scapo.ops.signed_axes.parts_signed_axes`, ranks :attr:`parts_pair`) of the points of ``X (B, N, 3)``
+        labelled 0 (the base) by ``labels (B, N)`` int64 against the others, ``E_Y`` :attr:`parts_frame`. All zeros for
+        a cloud whose axes are not found (fewer than ``min_points`` base or other points): :meth:`stage2` then keeps
+        its stage-1 frame."""
+        from scapo.ops.signed_axes import parts_signed_axes
+
+        pair = tuple(int(k) for k in self.parts_pair)
+        E, ok = parts_signed_axes(X.detach().double().cpu().numpy(), labels.cpu().numpy(), pair, 0, min_points)
+        out = torch.from_numpy(E @ self.parts_frame.double().cpu().numpy().T).to(X)
+        out[torch.from_numpy(~ok).to(X.device)] = 0.0
+        return out
 
     # ------------------------------------------------------------------ inference
     @torch.no_grad()
@@ -324,6 +356,8 @@ class SCAPOModel(nn.Module):
         try:
             X, scale = self.normalize(points)
             out = self.forward(X, stage=2)
+            if self.uses_parts_frame:  # stage 2 again, in the frame the base it found gives (stage2_frame="parts")
+                out = self.forward(X, stage=2, frame=self.parts_frames(X, out.w.argmax(-1)))
         finally:
             self.train(was_training)
         enc = out.enc

@@ -38,7 +38,7 @@ STAGE2_TERMS = ("recon", "kp_seg", "seg", "shape_var", "dir_align", "joint_prox"
 
 def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict | None = None,
                scale: torch.Tensor | None = None, sup_weight: float = 1.0, pairs: int = 0,
-               frame_target: torch.Tensor | None = None, frame_weight: float = 0.0
+               frame_target: torch.Tensor | None = None, frame_weight: float = 0.0, frame: torch.Tensor | None = None
                ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
     """One forward pass of a training step on normalised clouds ``X (B, N, 3)``: the unweighted loss
     terms of ``stage`` (1: stage-1 terms; 2: stage-1 and stage-2 terms) and their weighted total
@@ -51,8 +51,10 @@ def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict
     ``2 pairs`` clouds are pairs of views of one instance (cloud ``i`` and ``i + pairs``) for ``L_view``
     (``LossConfig.view_consist``; ``scale`` needed). ``frame_target (B, 3, 3)`` (``TrainConfig.frame_target``, stage
     2): each cloud's target frame (canonical -> camera; all zeros: none), the term ``frame_target`` the mean geodesic
-    angle (rad, :func:`frame_target_angle`) of the clouds that have one, weighted by ``frame_weight``."""
-    out = model(X, stage=stage)
+    angle (rad, :func:`frame_target_angle`) of the clouds that have one, weighted by ``frame_weight``. ``frame (B, 3,
+    3)``: stage 2's frames where not all zeros (``TrainConfig.stage2_frame = "parts"``,
+    :meth:`~scapo.models.scapo_model.SCAPOModel.stage2`)."""
+    out = model(X, stage=stage) if stage == 1 or frame is None else model(X, stage=stage, frame=frame)
     terms = stage1_terms(model, X, out, losses, align=stage == 1 or losses.align_in_stage2, scale=scale, pairs=pairs)
     if stage == 2:
         terms.update(stage2_terms(model, X, out, losses))
@@ -179,7 +181,7 @@ INFERENCE_FIELDS = ("refine",)
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
-                "frame_target": 0.0}
+                "frame_target": 0.0, "stage2_frame": "stage1"}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -276,7 +278,8 @@ class ScapoJob:
             points = torch.cat([points, batch["pair_points"]])
         X, scale = SCAPOModel.normalize(points)
         return loss_terms(self.model, X, stage, pc.losses, sup, scale, pc.sup_weight, pairs=pairs,
-                          frame_target=batch.get("frame_target"), frame_weight=pc.frame_target)
+                          frame_target=batch.get("frame_target"), frame_weight=pc.frame_target,
+                          frame=batch.get("frame_target") if pc.stage2_frame == "parts" else None)
 
     def _params(self, stage: int):
         if stage == 1:
@@ -366,28 +369,34 @@ class ScapoJob:
         data.tensors["part_label"] = labels
         if self.dist.is_main:
             np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
-        if self.preset.frame_target > 0:
-            targets = self._frame_targets(template, template_labels, canon, torch.cat(frames), labels)
+        if self.preset.frame_target > 0 or self.preset.stage2_frame == "parts":
+            targets, pair, tE = self._frame_targets(template, template_labels, canon, torch.cat(frames), labels)
             data.tensors["frame_target"] = targets
+            if self.preset.stage2_frame == "parts" and tE is not None:  # stage 2 and prediction in that frame
+                self.model.parts_frame.copy_(tE.to(self.model.parts_frame))
+                self.model.parts_pair.copy_(torch.tensor(pair).to(self.model.parts_pair))
             if self.dist.is_main:
                 np.save(self.run / self.FRAME_TARGETS, targets.numpy().astype(np.float64), allow_pickle=False)
 
     FRAME_TARGETS = "frame_targets.npy"
 
     def _frame_targets(self, template: torch.Tensor, template_labels: torch.Tensor, canon: torch.Tensor,
-                       frames: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
-        """``TrainConfig.frame_target``: per training cloud the frame ``R_i E_i E_Y^T`` ``(B, 3, 3)`` float32
+                       frames: torch.Tensor, labels: torch.Tensor
+                       ) -> tuple[torch.Tensor, tuple[int, int] | None, torch.Tensor | None]:
+        """``TrainConfig.frame_target`` and ``stage2_frame = "parts"``: per training cloud the frame ``R_i E_i E_Y^T``
+        ``(B, 3, 3)`` float32
         (canonical -> camera; all zeros where the cloud's or the template's signed axes are not found), from its
         stage-1 frame ``frames (B, 3, 3)``, its base's axes signed by its other parts in that frame ``E_i``
         (:func:`scapo.ops.signed_axes.parts_signed_axes` of ``canon (B, N, 3)`` under ``labels (B, N)``, base = slot
         0, the signed ranks chosen over the clouds) and the template's ``E_Y`` (``template (M, 3)``,
-        ``template_labels (M,)``): the frame in which the cloud's signed base axes are the template's. What was found
+        ``template_labels (M,)``): the frame in which the cloud's signed base axes are the template's; also the signed
+        ranks and ``E_Y (3, 3)`` (None when not found). What was found
         goes to ``frame_target.json`` in the run folder (the ranks, how many clouds have a target, and the share whose
         target is within 15 / beyond 90 deg of its stage-1 frame)."""
         from scapo.ops import signed_axes
 
         pts, lab = canon.double().numpy(), labels.numpy()
-        out = torch.zeros(len(pts), 3, 3)
+        out, tpl = torch.zeros(len(pts), 3, 3), None
         try:
             pair = signed_axes.choose_signed_pair(pts, lab, 0, min_points=8)
         except ValueError:
@@ -397,6 +406,7 @@ class ScapoJob:
             tE, tok = signed_axes.parts_signed_axes(template.double().numpy()[None], template_labels.numpy()[None],
                                                   pair, 0, 8)
             if tok[0]:
+                tpl = torch.from_numpy(tE[0]).float()
                 T = frames.double().numpy() @ E @ tE[0].T
                 out[torch.from_numpy(ok)] = torch.from_numpy(T[ok]).float()
         has = out.flatten(1).abs().sum(-1) > 0
@@ -408,7 +418,7 @@ class ScapoJob:
                         "with_target": int(has.sum()),
                         "within_15_deg": round(float((ang <= 15).double().mean()), 4) if len(ang) else None,
                         "beyond_90_deg": round(float((ang > 90).double().mean()), 4) if len(ang) else None})
-        return out
+        return out, pair, tpl
 
     def _parts_frame_labels(self, template: torch.Tensor, template_labels: torch.Tensor, canon: torch.Tensor,
                             labels: torch.Tensor) -> torch.Tensor:
@@ -465,7 +475,7 @@ class ScapoJob:
 
     def _load_frame_targets(self, data: TrainingClouds) -> None:
         path = self.run / self.FRAME_TARGETS
-        if self.preset.frame_target <= 0 or not path.is_file():
+        if (self.preset.frame_target <= 0 and self.preset.stage2_frame != "parts") or not path.is_file():
             return
         try:
             T = np.load(path, allow_pickle=False)  # plain numbers: no code runs from the file
