@@ -154,6 +154,12 @@ class JointHead(nn.Module):
         return o[..., :3], d / (d.norm(dim=-1, keepdim=True) + 1e-8), o[..., 6], root
 
 
+#: ``TrainConfig.stage2_frame = "parts"``: how many times prediction reads the frame from the base stage 2 labels
+#: and runs stage 2 again in it (each pass labels the base in a better frame). Chosen on the eyeglasses' paper-rung
+#: val split (results/canonical_ladder/README.md, "Stage 2 in the parts-signed frame").
+PARTS_PASSES = 2
+
+
 class SCAPOModel(nn.Module):
     """The SCAPO network; see the module docstring for the data flow."""
 
@@ -356,8 +362,8 @@ class SCAPOModel(nn.Module):
         try:
             X, scale = self.normalize(points)
             out = self.forward(X, stage=2)
-            if self.uses_parts_frame:  # stage 2 again, in the frame the base it found gives (stage2_frame="parts")
-                out = self.forward(X, stage=2, frame=self.parts_frames(X, out.w.argmax(-1)))
+            for _ in range(PARTS_PASSES if self.uses_parts_frame else 0):  # stage 2 again, in the frame the base it
+                out = self.forward(X, stage=2, frame=self.parts_frames(X, out.w.argmax(-1)))  # found gives
         finally:
             self.train(was_training)
         enc = out.enc
