@@ -470,18 +470,28 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     stage 2 uses a cloud's given frame in place of its stage-1 one (zeros: its own), and prediction runs stage 2 again
     in the frame read from the base it labels (:meth:`SCAPOModel.parts_frames`), which a model without the buffers
     (older checkpoints) skips."""
+    import json
+
+    from scapo.errors import ConfigError
     from scapo.models.presets import get_preset
     from scapo.models.scapo_model import SCAPOModel
     from scapo.models.train import TrainingClouds
 
     p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True,
-                            stage2_frame="parts")
+                            stage2_frame="parts", split_frame="refit")
     trainer = Trainer(laptop_data, tmp_path / "t", p, progress=False)
     trainer.train()
     model = trainer.model
     E = model.parts_frame
     assert model.uses_parts_frame and torch.allclose(E @ E.T, torch.eye(3), atol=1e-5)
     assert (tmp_path / "t" / "frame_targets.npy").is_file()
+    labels = np.load(tmp_path / "t" / "split_labels.npy", allow_pickle=False)  # split_frame="refit": labelled again
+    assert labels.shape[0] == len(np.load(tmp_path / "t" / "frame_targets.npy")) and labels.max() < 2
+    refit = json.loads((tmp_path / "t" / "split_refit.json").read_text())
+    assert sum(refit["template_part_points"]) == p.template_points and 0 <= refit["labels_changed"] <= 1
+    assert get_preset("cpu/split-fit/split-labels/stage2-parts/split-refit").split_frame == "refit"
+    with pytest.raises(ConfigError, match="stage2_frame"):
+        dataclasses.replace(p, stage2_frame="stage1")
     pts = TrainingClouds(laptop_data, 64).clouds[:4, :64]
     X, _ = model.normalize(pts)
     model.eval()

@@ -89,7 +89,11 @@ class TrainConfig:
     cloud's base frame signed by its other parts (the base's principal axes, two of them signed towards the other
     parts' centroid, :func:`scapo.ops.signed_axes.parts_signed_axes`, from the cloud's stage-1-frame labels), the
     template likewise, so that a part's side (an eyeglasses temple's left or right) is the same in every cloud where
-    the stage-1 frames scatter between half-turned branches (an addition to the paper, preset part ``split-parts``)."""
+    the stage-1 frames scatter between half-turned branches (an addition to the paper, preset part ``split-parts``);
+    "refit" (with ``stage2_frame = "parts"``), the split fitted again, keypoint and joint heads included, on the
+    clouds in their ``stage2_frame`` target frames, the clouds labelled by it in those frames and the targets read
+    again from those labels (:meth:`scapo.models.train.ScapoJob._label_training_clouds`; preset part
+    ``split-refit``)."""
     frame_target: float = 0.0
     """Weight of a stage-2 term that pulls each training cloud's frame (stage 1's, which stage 2 trains on) towards
     the frame its base's axes give when signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`,
@@ -146,9 +150,12 @@ class TrainConfig:
         if self.split_labels and "S" in str(self.supervision):
             raise ConfigError(f"preset {self.name!r}: split_labels (pseudo-labels) and segmentation supervision cannot "
                               "be combined: both train the skinning weights towards labels; choose one")
-        if self.split_frame not in ("stage1", "parts"):
-            raise ConfigError(f"preset {self.name!r}: split_frame must be 'stage1' or 'parts', got "
+        if self.split_frame not in ("stage1", "parts", "refit"):
+            raise ConfigError(f"preset {self.name!r}: split_frame must be 'stage1', 'parts' or 'refit', got "
                               f"{self.split_frame!r}")
+        if self.split_frame == "refit" and self.stage2_frame != "parts":
+            raise ConfigError(f"preset {self.name!r}: split_frame='refit' fits the split again in stage2_frame="
+                              "'parts' frames; set stage2_frame='parts' too")
         if self.split_frame != "stage1" and not self.split_labels:
             raise ConfigError(f"preset {self.name!r}: split_frame={self.split_frame!r} is the frame split_labels "
                               "labels the clouds in; set split_labels too")
@@ -282,6 +289,9 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "frame-target":
             off["frame_target"] = 1.0  # stage 2 pulls each cloud's frame to its parts-signed one (frame_target)
+            continue
+        if part == "split-refit":
+            off["split_frame"] = "refit"  # the split fitted again in the stage2_frame target frames (split_frame)
             continue
         if part == "stage2-parts":
             off["stage2_frame"] = "parts"  # stage 2 works in each cloud's parts-signed frame (stage2_frame)

@@ -338,18 +338,24 @@ class ScapoJob:
             split = self._init_parts(sub, clouds.reshape(-1, 3), self.model.y_base.detach().cpu(), labels,
                                      sub_labels)
             if self.preset.split_labels:
-                self._label_training_clouds(data, split)
+                self._label_training_clouds(data, split, idx, max(1, clouds.shape[1] // 128))
         return labels[0] if labels is not None else None
 
     SPLIT_LABELS = "split_labels.npy"
 
     @torch.no_grad()
-    def _label_training_clouds(self, data: TrainingClouds, template_labels: torch.Tensor) -> None:
+    def _label_training_clouds(self, data: TrainingClouds, template_labels: torch.Tensor,
+                               idx: torch.Tensor | None = None, step: int = 1) -> None:
         """``TrainConfig.split_labels``: every training cloud, in its (branch-corrected) stage-1 frame, labelled by
         the template split stage 2 starts from, ``template_labels (M,)`` int64 (:meth:`_init_parts`'s;
         :func:`scapo.models.part_init.label_clouds`); the labels ``(M, N)``
         int64 become the clouds' ``part_label`` (so batches carry them and stage 2 adds ``sup_seg``) and are saved to
-        ``split_labels.npy`` in the run folder for a resume."""
+        ``split_labels.npy`` in the run folder for a resume.
+
+        ``split_frame = "refit"`` (with ``stage2_frame = "parts"``): once the target frames are found, the starting
+        split is fitted again (:meth:`_init_parts`, keypoint and joint heads included) on the clouds ``idx (64,)``
+        (every ``step``-th point) that :meth:`_init_template` fitted it on, now canonicalised by their target frames,
+        every cloud is labelled by it in its target frame, and the targets are read again from those labels."""
         from scapo.models import part_init
 
         template = self.model.y_base.detach().cpu()
@@ -366,17 +372,31 @@ class ScapoJob:
         labels = part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts)
         if self.preset.split_frame == "parts":
             labels = self._parts_frame_labels(template, template_labels, canon, labels)
-        data.tensors["part_label"] = labels
-        if self.dist.is_main:
-            np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
         if self.preset.frame_target > 0 or self.preset.stage2_frame == "parts":
-            targets, pair, tE = self._frame_targets(template, template_labels, canon, torch.cat(frames), labels)
+            frames = torch.cat(frames)
+            targets, pair, tE = self._frame_targets(template, template_labels, canon, frames, labels)
+            if self.preset.split_frame == "refit" and tE is not None and idx is not None:
+                has = (targets.flatten(1).abs().sum(-1) > 0)[:, None, None]
+                turned = torch.where(has, targets, frames)  # each cloud's target frame where it has one
+                canon = torch.bmm(canon, frames.transpose(1, 2) @ turned)  # (X - t) F = S R^T F
+                sub = canon[idx][:, ::step]
+                template_labels = self._init_parts(sub, canon[idx].reshape(-1, 3), template)
+                before, labels = labels, part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts)
+                if self.dist.is_main:
+                    write_json(self.run / "split_refit.json",
+                               {"template_part_points": torch.bincount(template_labels, minlength=self.mcfg.num_parts
+                                                                       ).tolist(),
+                                "labels_changed": round(float((labels != before).double().mean()), 4)})
+                targets, pair, tE = self._frame_targets(template, template_labels, canon, turned, labels)
             data.tensors["frame_target"] = targets
             if self.preset.stage2_frame == "parts" and tE is not None:  # stage 2 and prediction in that frame
                 self.model.parts_frame.copy_(tE.to(self.model.parts_frame))
                 self.model.parts_pair.copy_(torch.tensor(pair).to(self.model.parts_pair))
             if self.dist.is_main:
                 np.save(self.run / self.FRAME_TARGETS, targets.numpy().astype(np.float64), allow_pickle=False)
+        data.tensors["part_label"] = labels
+        if self.dist.is_main:
+            np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
 
     FRAME_TARGETS = "frame_targets.npy"
 
