@@ -288,3 +288,26 @@ def test_fit_template_parts_draws_temples_that_no_keypoint_cells_draw():
     assert _miou(plates["template_labels"], lp[0], 2) > 0.85
     with pytest.raises(ValueError, match="two clouds"):
         PI.choose_split(X[:1], T, K)
+
+
+def test_label_clouds_from_the_octahedral_starts_labels_a_cloud_turned_far_from_the_template():
+    """``TrainConfig.label_starts = "O"``: a cloud turned 90 deg about one axis and 180 deg about another from the
+    template (an L of a long bar and a short one, labelled by bar) is labelled right once the whole template's fit
+    starts from the best octahedral rotation; from the identity the part-by-part fit cannot undo the turn."""
+    from scapo.models.part_init import label_clouds, whole_template_start
+    from scapo.ops.groups import rotation_group
+    from scapo.ops.so3 import exp_so3
+
+    g = torch.Generator().manual_seed(0)
+    long = torch.rand(200, 3, generator=g) * torch.tensor([1.0, 0.06, 0.06])
+    short = torch.rand(80, 3, generator=g) * torch.tensor([0.06, 0.4, 0.06]) + torch.tensor([0.0, 0.06, 0.0])
+    template = torch.cat([long, short]) - torch.tensor([0.4, 0.1, 0.03])
+    labels = torch.cat([torch.zeros(200), torch.ones(80)]).long()
+    turn = exp_so3(torch.tensor([[0.0, 0.0, 1.0]]), torch.tensor([torch.pi / 2]))[0] @ \
+        exp_so3(torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([torch.pi]))[0]
+    cloud = (template @ turn.T)[None]
+    starts = torch.tensor(rotation_group("O"), dtype=torch.float32)
+    R, _ = whole_template_start(template, cloud, starts)
+    assert torch.allclose(R[0], turn, atol=1e-3)
+    assert float((label_clouds(template, labels, cloud, 2, starts=starts)[0] == labels).float().mean()) > 0.99
+    assert float((label_clouds(template, labels, cloud, 2)[0] == labels).float().mean()) < 0.9

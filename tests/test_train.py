@@ -382,6 +382,8 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
         dataclasses.replace(p, split_frame="stage1", split_labels=False)
     with pytest.raises(ConfigError, match="frame_target"):
         dataclasses.replace(p, frame_target=-1.0)
+    with pytest.raises(ConfigError, match="label_starts"):
+        dataclasses.replace(p, label_starts="Q")
     assert get_preset("cpu/split-fit/split-labels/frame-target").frame_target == 1.0
     assert get_preset("cpu/split-fit/split-labels/stage2-parts").stage2_frame == "parts"
     with pytest.raises(ConfigError, match="stage2_frame"):
@@ -404,7 +406,8 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     assert sum(found["template_part_points"]) == p.template_points
     ident = {"preset": dataclasses.asdict(get_preset("test")), "dataset_hash": "h", "category": "laptop",
              "part_names": [], "joint_type": [], "joint_parts": []}
-    for field in ("axis_init", "split_init", "split_labels", "split_frame", "frame_target", "stage2_frame"):
+    for field in ("axis_init", "split_init", "split_labels", "split_frame", "frame_target", "stage2_frame",
+                  "label_starts"):
         older = json.loads(json.dumps(ident))
         del older["preset"][field]  # as written before the field existed
         assert _identity_hash(older) == _identity_hash(ident)

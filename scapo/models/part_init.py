@@ -376,18 +376,45 @@ def register_template_parts(template: torch.Tensor, labels: torch.Tensor, clouds
     return R, t, dmin.reshape(B, P, M)
 
 
+def whole_template_start(template: torch.Tensor, clouds: torch.Tensor, starts: torch.Tensor, iters: int = 4,
+                         clip: float = 0.01) -> tuple[torch.Tensor, torch.Tensor]:
+    """The rigid motion ``(R (B, 3, 3), t (B, 3))`` of the whole ``template (M, 3)`` onto each of ``clouds (B, n, 3)``
+    that fits best among ``iters`` ICP steps (:func:`register_template_parts` with one part) from each rotation of
+    ``starts (K, 3, 3)``: the score is the two-sided mean squared nearest distance, each side clipped at ``clip``
+    (``TrainConfig.label_starts``; an addition to the paper)."""
+    B = clouds.shape[0]
+    one = torch.zeros(template.shape[0], dtype=torch.long, device=template.device)
+    best = torch.full((B,), float("inf"), dtype=template.dtype, device=template.device)
+    R = torch.eye(3, dtype=template.dtype, device=template.device).expand(B, 3, 3).clone()
+    t = torch.zeros(B, 3, dtype=template.dtype, device=template.device)
+    for g in starts.to(template):
+        Rg, tg, d2 = register_template_parts(template, one, clouds, 1, iters, clip, g.expand(B, 3, 3).clone(),
+                                             torch.zeros(B, 3, dtype=template.dtype, device=template.device))
+        posed = template[None] @ Rg.transpose(1, 2) + tg[:, None]
+        score = d2.clamp(max=clip).mean((1, 2)) + pairwise_sq_dist(clouds, posed).min(-1)[0].clamp(max=clip).mean(-1)
+        better = score < best
+        best = torch.where(better, score, best)
+        R[better], t[better] = Rg[better], tg[better]
+    return R, t
+
+
 def label_clouds(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Tensor, num_parts: int,
-                 R: torch.Tensor | None = None, t: torch.Tensor | None = None, iters: int = 6, chunk: int = 64
-                 ) -> torch.Tensor:
+                 R: torch.Tensor | None = None, t: torch.Tensor | None = None, iters: int = 6, chunk: int = 64,
+                 starts: torch.Tensor | None = None) -> torch.Tensor:
     """Label every point of ``clouds (B, n, 3)`` with the part of its nearest point of the template posed for that
     cloud, each part of ``template (M, 3)`` (split by ``labels (M,)``) at its motion (:func:`register_template_parts`
-    from ``R, t`` when given, else ``iters`` ICP steps from the identity), ``chunk`` clouds at a time -> ``(B, n)``
+    from ``R, t`` when given, else ``iters`` ICP steps from the identity, or with ``starts (K, 3, 3)`` from the whole
+    template's best fit among those rotations, :func:`whole_template_start`), ``chunk`` clouds at a time -> ``(B, n)``
     int64."""
     out = []
     P, M = num_parts, template.shape[0]
     for k in range(0, clouds.shape[0], chunk):
         C = clouds[k:k + chunk]
-        if R is None:
+        if R is None and starts is not None:
+            R0, t0 = whole_template_start(template, C, starts)
+            Rc, tc, _ = register_template_parts(template, labels, C, P, iters, R=R0.repeat_interleave(P, 0),
+                                                t=t0.repeat_interleave(P, 0))
+        elif R is None:
             Rc, tc, _ = register_template_parts(template, labels, C, P, iters)
         else:
             Rc, tc = R[k * P:(k + len(C)) * P], t[k * P:(k + len(C)) * P]

@@ -94,6 +94,11 @@ class TrainConfig:
     clouds in their ``stage2_frame`` target frames, the clouds labelled by it in those frames and the targets read
     again from those labels (:meth:`scapo.models.train.ScapoJob._label_training_clouds`; preset part
     ``split-refit``)."""
+    label_starts: str = ""
+    """Where ``split_labels``' part-by-part template fit to each training cloud starts: "" (default), the identity
+    (the cloud in its frame); "O", the whole template's best rigid fit from the 24 octahedral rotations
+    (:func:`scapo.models.part_init.whole_template_start`), for clouds whose frame is far from the template's. An
+    addition to the paper (issue 52)."""
     frame_target: float = 0.0
     """Weight of a stage-2 term that pulls each training cloud's frame (stage 1's, which stage 2 trains on) towards
     the frame its base's axes give when signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`,
@@ -159,6 +164,9 @@ class TrainConfig:
         if self.split_frame != "stage1" and not self.split_labels:
             raise ConfigError(f"preset {self.name!r}: split_frame={self.split_frame!r} is the frame split_labels "
                               "labels the clouds in; set split_labels too")
+        if self.label_starts not in ("", "T", "O", "I"):
+            raise ConfigError(f"preset {self.name!r}: label_starts must be '', 'T', 'O' or 'I', got "
+                              f"{self.label_starts!r}")
         if self.frame_target < 0 or self.frame_target != self.frame_target:
             raise ConfigError(f"preset {self.name!r}: frame_target is a loss weight, >= 0; got {self.frame_target!r}")
         if self.frame_target > 0 and not self.split_labels:

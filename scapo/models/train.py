@@ -181,7 +181,7 @@ INFERENCE_FIELDS = ("refine",)
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
-                "frame_target": 0.0, "stage2_frame": "stage1"}
+                "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": ""}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -369,7 +369,12 @@ class ScapoJob:
             frames.append(R.cpu())
         self.model.train()
         canon = torch.cat(canon)
-        labels = part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts)
+        starts = None
+        if self.preset.label_starts:
+            from scapo.ops.groups import rotation_group
+
+            starts = torch.tensor(rotation_group(self.preset.label_starts), dtype=template.dtype)
+        labels = part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts, starts=starts)
         if self.preset.split_frame == "parts":
             labels = self._parts_frame_labels(template, template_labels, canon, labels)
         if self.preset.frame_target > 0 or self.preset.stage2_frame == "parts":
@@ -381,7 +386,8 @@ class ScapoJob:
                 canon = torch.bmm(canon, frames.transpose(1, 2) @ turned)  # (X - t) F = S R^T F
                 sub = canon[idx][:, ::step]
                 template_labels = self._init_parts(sub, canon[idx].reshape(-1, 3), template)
-                before, labels = labels, part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts)
+                before, labels = labels, part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts,
+                                                                starts=starts)
                 if self.dist.is_main:
                     write_json(self.run / "split_refit.json",
                                {"template_part_points": torch.bincount(template_labels, minlength=self.mcfg.num_parts
