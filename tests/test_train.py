@@ -514,6 +514,21 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     if bool(found.any()):  # the frames read from the base: rotations E_i E_Y^T
         assert torch.allclose(F[found] @ F[found].transpose(1, 2), torch.eye(3).expand(int(found.sum()), 3, 3),
                               atol=1e-4)
+    # bench/parts_frame.py: the ground-truth diagnosis of such a run, pass by pass and on its training targets
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("parts_frame", Path(__file__).resolve().parents[1] / "bench" /
+                                                  "parts_frame.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    assert bench.main(["--data", str(laptop_data), "--run", f"r={tmp_path / 't'}", "--passes", "2", "--split", "test",
+                       "--out", str(tmp_path / "pf")]) == 0
+    diag = json.loads((tmp_path / "pf.json").read_text())["rows"]["r"]
+    assert [r["pass"] for r in diag["val"]] == [0, 1, 2, "true labels"]
+    assert all(0.0 <= r["frame"] <= 1.0 for r in diag["val"]) and diag["train"]["clouds"] == len(labels)
+    assert "mirror_exchanged_in" not in diag["train"]  # a laptop's base has one child
+    assert bench.main(["--data", str(laptop_data), "--run", "no-label", "--out", str(tmp_path / "pf2")]) == 2
     state = {k: v for k, v in model.state_dict().items() if k not in ("parts_frame", "parts_pair")}
     older = SCAPOModel(model.cfg)
     older.load_checkpoint_state(state)  # a checkpoint from before the parts frame: off
