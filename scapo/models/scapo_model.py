@@ -341,6 +341,10 @@ class SCAPOModel(nn.Module):
                 upright: torch.Tensor | None = None) -> dict:
         """Inference on camera-frame points ``(B, N, 3)`` float32, metres (SPEC section 6 outputs).
 
+        A model trained with ``TrainConfig.stage2_frame = "parts"`` (:attr:`uses_parts_frame`) runs stage 2
+        :data:`PARTS_PASSES` more times, each in the frame read from the base the pass before labels
+        (:meth:`parts_frames`); the outputs are those of the last pass.
+
         With ``refine`` (``steps > 0``) the pose, joint states and joints come from the test-time
         articulated refinement (:mod:`scapo.models.refine`, an addition to the paper): the frame and
         states are fitted to the observed points, the joints are the template's (``c_Y, d_Y``) and each
