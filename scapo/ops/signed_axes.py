@@ -33,12 +33,34 @@ def _signed_candidates(points: np.ndarray, part_label: np.ndarray, slot: int, mi
     return out
 
 
+def children_agreement(points: np.ndarray, part_label: np.ndarray, slot: int = 0,
+                       min_points: int = 16) -> tuple[np.ndarray, int]:
+    """Per rank of the base's principal directions, the share ``(3,)`` of views where every other part (each slot
+    with ``min_points`` points, at least two of them) lies on the same side of the base's centroid along it, and the
+    number of such views. A mirror pair (an eyeglasses' temples) straddles the axis its mirror plane is normal to, so
+    that axis has a low share and its sign, read from the parts' centroid, is a coin toss."""
+    agree, views = np.zeros(3), 0
+    for x, lab in zip(points, part_label):
+        base = x[lab == int(slot)]
+        kids = [x[lab == k] for k in np.unique(lab) if k >= 0 and k != int(slot) and (lab == k).sum() >= min_points]
+        if len(base) < max(int(min_points), 4) or len(kids) < 2:
+            continue
+        _, v = principal_axes(base)
+        sides = np.sign(np.stack([v.T @ (k.mean(0) - base.mean(0)) for k in kids]))
+        agree += (sides == sides[0]).all(0)
+        views += 1
+    return agree / max(views, 1), views
+
+
 def choose_signed_pair(points: np.ndarray, part_label: np.ndarray, slot: int = 0,
                        min_points: int = 16) -> tuple[int, int]:
     """The two ranks of the base's principal directions that ``base_frame=parts`` (:mod:`scapo.methods.base_frame`)
     and ``TrainConfig.split_frame = "parts"`` sign (:func:`parts_signed_axes`), chosen on training views with no
-    labels: per view, the two ranks along which the other parts' centroid lies farthest
-    from the base's (in units of the base's spread along each); the pair most views give.
+    labels. Where views show two or more other parts, the two ranks along which all the other parts lie on one side
+    of the base in the most views (:func:`children_agreement`; session 31: the rule below chose an eyeglasses front's
+    width, which the temples straddle, in 2 of 12 runs, and those runs' frames failed), unless the third rank ties the
+    second. Otherwise (a base with one child, a laptop) per view the two ranks along which the other parts' centroid
+    lies farthest from the base's (in units of the base's spread along each); the pair most views give.
 
     Args:
         points: ``(V, N, 3)`` camera-frame clouds (metres). part_label: ``(V, N)`` int predicted parts (-1 none).
@@ -54,6 +76,10 @@ def choose_signed_pair(points: np.ndarray, part_label: np.ndarray, slot: int = 0
     if pts.ndim != 3 or pts.shape[-1] != 3 or lab.shape != pts.shape[:2]:
         raise ValueError(f"choose_signed_pair needs points (V, N, 3) and part_label (V, N), got {pts.shape} "
                          f"and {lab.shape}")
+    share, views = children_agreement(pts, lab, slot, min_points)
+    order = np.argsort(-share, kind="stable")
+    if views and share[order[1]] > share[order[2]]:
+        return tuple(sorted(int(k) for k in order[:2]))
     votes: dict[tuple[int, int], int] = {}
     for _, off, ok in _signed_candidates(pts, lab, slot, min_points):
         if ok:
