@@ -32,11 +32,12 @@ A view with fewer than ``min_points`` base points keeps its frame.
 base's principal directions of two ranks are each signed towards the centroid of the points of the other parts (an
 eyeglasses front's normal towards its temples, its height towards the hinges above its centre; a laptop base's depth
 towards the hinge and its normal towards the open lid), the third by the right-hand rule. Which two ranks is chosen
-on the training split (:func:`choose_signed_pair`: the ranks along which the other parts lie farthest, in units of the
-base's spread, in most views). The axes then have no ambiguity left, so the offset is fitted with no group and each
-view's base rotation is ``E O^T`` whatever the network's frame: on the eyeglasses' paper rung, where SCAPO's frame
-scatters, this is what can give one frame (``results/canonical_ladder/README.md``, "The base's axes signed by the
-other parts").
+on the training split (:func:`choose_signed_pair`: with two or more other parts, the ranks along which all of them lie
+on one side of the base in most views, so that an axis a mirror pair straddles is not signed (session 31); with one,
+the ranks along which the other parts lie farthest, in units of the base's spread, in most views). The axes then have
+no ambiguity left, so the offset is fitted with no group and each view's base rotation is ``E O^T`` whatever the
+network's frame: on the eyeglasses' paper rung, where SCAPO's frame scatters, this is what can give one frame
+(``results/canonical_ladder/README.md``, "The base's axes signed by the other parts").
 """
 
 from __future__ import annotations
