@@ -33,19 +33,23 @@ def _signed_candidates(points: np.ndarray, part_label: np.ndarray, slot: int, mi
     return out
 
 
-def children_agreement(points: np.ndarray, part_label: np.ndarray, slot: int = 0,
-                       min_points: int = 16) -> tuple[np.ndarray, int]:
+def children_agreement(points: np.ndarray, part_label: np.ndarray, slot: int = 0, min_points: int = 16,
+                       candidates: list | None = None) -> tuple[np.ndarray, int]:
     """Per rank of the base's principal directions, the share ``(3,)`` of views where every other part (each slot
     with ``min_points`` points, at least two of them) lies on the same side of the base's centroid along it, and the
     number of such views. A mirror pair (an eyeglasses' temples) straddles the axis its mirror plane is normal to, so
-    that axis has a low share and its sign, read from the parts' centroid, is a coin toss."""
+    that axis has a low share and its sign, read from the parts' centroid, is a coin toss. ``candidates``: the views'
+    :func:`_signed_candidates` when already computed (their principal directions are reused)."""
+    if candidates is None:
+        candidates = _signed_candidates(points, part_label, slot, min_points)
     agree, views = np.zeros(3), 0
-    for x, lab in zip(points, part_label):
-        base = x[lab == int(slot)]
-        kids = [x[lab == k] for k in np.unique(lab) if k >= 0 and k != int(slot) and (lab == k).sum() >= min_points]
-        if len(base) < max(int(min_points), 4) or len(kids) < 2:
+    for (v, _, found), x, lab in zip(candidates, points, part_label):
+        if not found:  # fewer than min_points of the base or of the other parts
             continue
-        _, v = principal_axes(base)
+        kids = [x[lab == k] for k in np.unique(lab) if k >= 0 and k != int(slot) and (lab == k).sum() >= min_points]
+        if len(kids) < 2:
+            continue
+        base = x[lab == int(slot)]
         sides = np.sign(np.stack([v.T @ (k.mean(0) - base.mean(0)) for k in kids]))
         agree += (sides == sides[0]).all(0)
         views += 1
@@ -76,12 +80,13 @@ def choose_signed_pair(points: np.ndarray, part_label: np.ndarray, slot: int = 0
     if pts.ndim != 3 or pts.shape[-1] != 3 or lab.shape != pts.shape[:2]:
         raise ValueError(f"choose_signed_pair needs points (V, N, 3) and part_label (V, N), got {pts.shape} "
                          f"and {lab.shape}")
-    share, views = children_agreement(pts, lab, slot, min_points)
+    candidates = _signed_candidates(pts, lab, slot, min_points)  # one eigendecomposition per view for both rules
+    share, views = children_agreement(pts, lab, slot, min_points, candidates)
     order = np.argsort(-share, kind="stable")
     if views and share[order[1]] > share[order[2]]:
         return tuple(sorted(int(k) for k in order[:2]))
     votes: dict[tuple[int, int], int] = {}
-    for _, off, ok in _signed_candidates(pts, lab, slot, min_points):
+    for _, off, ok in candidates:
         if ok:
             pair = tuple(sorted(int(k) for k in np.argsort(-np.abs(off))[:2]))
             votes[pair] = votes.get(pair, 0) + 1
