@@ -419,22 +419,13 @@ class ScapoJob:
         ranks and ``E_Y (3, 3)`` (None when not found). What was found
         goes to ``frame_target.json`` in the run folder (the ranks, how many clouds have a target, and the share whose
         target is within 15 / beyond 90 deg of its stage-1 frame)."""
-        from scapo.ops import signed_axes
-
         pts, lab = canon.double().numpy(), labels.numpy()
         out, tpl = torch.zeros(len(pts), 3, 3), None
-        try:
-            pair = signed_axes.choose_signed_pair(pts, lab, 0, min_points=8)
-        except ValueError:
-            pair = None
-        if pair is not None:
-            E, ok = signed_axes.parts_signed_axes(pts, lab, pair, 0, min_points=8)
-            tE, tok = signed_axes.parts_signed_axes(template.double().numpy()[None], template_labels.numpy()[None],
-                                                  pair, 0, 8)
-            if tok[0]:
-                tpl = torch.from_numpy(tE[0]).float()
-                T = frames.double().numpy() @ E @ tE[0].T
-                out[torch.from_numpy(ok)] = torch.from_numpy(T[ok]).float()
+        pair, E, ok, tE = _signed_frames(template, template_labels, pts, lab)
+        if tE is not None:
+            tpl = torch.from_numpy(tE).float()
+            T = frames.double().numpy() @ E @ tE.T
+            out[torch.from_numpy(ok)] = torch.from_numpy(T[ok]).float()
         has = out.flatten(1).abs().sum(-1) > 0
         cos = ((out * frames).sum((-2, -1)) - 1.0) / 2.0
         ang = torch.rad2deg(torch.arccos(cos.clamp(-1.0, 1.0)))[has]
@@ -454,20 +445,16 @@ class ScapoJob:
         base's centroid. ``template (M, 3)``, ``template_labels (M,)``, ``canon (B, N, 3)`` stage-1-frame clouds ->
         labels ``(B, N)`` int64. A cloud whose frame is not found keeps its stage-1-frame labels."""
         from scapo.models import part_init
-        from scapo.ops import signed_axes
 
         pts, lab = canon.double().numpy(), labels.numpy()
-        pair = signed_axes.choose_signed_pair(pts, lab, 0, min_points=8)
-        E, ok = signed_axes.parts_signed_axes(pts, lab, pair, 0, min_points=8)
-        tE, tok = signed_axes.parts_signed_axes(template.double().numpy()[None], template_labels.numpy()[None], pair,
-                                              0, 8)
-        if not tok[0] or not ok.any():
+        pair, E, ok, tE = _signed_frames(template, template_labels, pts, lab)
+        if tE is None or not ok.any():
             return labels
 
         def local(x: np.ndarray, lb: np.ndarray, e: np.ndarray) -> np.ndarray:
             return (x - x[lb == 0].mean(0)) @ e
 
-        tpl = torch.from_numpy(local(template.double().numpy(), template_labels.numpy(), tE[0])).to(canon.dtype)
+        tpl = torch.from_numpy(local(template.double().numpy(), template_labels.numpy(), tE)).to(canon.dtype)
         idx = np.flatnonzero(ok)
         q = torch.from_numpy(np.stack([local(pts[i], lab[i], E[i]) for i in idx])).to(canon.dtype)
         out = labels.clone()
@@ -620,6 +607,26 @@ class ScapoJob:
                         "template_part_points": torch.bincount(found["template_labels"],
                                                                minlength=self.mcfg.num_parts).tolist()})
         return out
+
+
+def _signed_frames(template: torch.Tensor, template_labels: torch.Tensor, pts: np.ndarray, lab: np.ndarray,
+                   min_points: int = 8) -> tuple:
+    """The base axes signed by the other parts (:mod:`scapo.ops.signed_axes`, base = slot 0) of the stage-1-frame
+    clouds ``pts (B, N, 3)`` float64 under ``lab (B, N)`` and of ``template (M, 3)`` under ``template_labels (M,)``,
+    with the two signed ranks chosen over the clouds: ``(pair, E (B, 3, 3), ok (B,) bool, E_Y (3, 3))``; ``pair``
+    and ``E_Y`` None (``ok`` all False) when no cloud has enough points of the base and of the other parts, or the
+    template's axes are not found (``split_frame = "parts"``, ``frame_target``, ``stage2_frame = "parts"``)."""
+    from scapo.ops import signed_axes
+
+    none = (None, np.tile(np.eye(3), (len(pts), 1, 1)), np.zeros(len(pts), dtype=bool), None)
+    try:
+        pair = signed_axes.choose_signed_pair(pts, lab, 0, min_points=min_points)
+    except ValueError:
+        return none
+    E, ok = signed_axes.parts_signed_axes(pts, lab, pair, 0, min_points=min_points)
+    tE, tok = signed_axes.parts_signed_axes(template.double().numpy()[None], template_labels.numpy()[None], pair, 0,
+                                            min_points)
+    return (pair, E, ok, tE[0]) if tok[0] else (pair, E, ok, None)
 
 
 def _stored_preset(ident: dict) -> TrainConfig | None:
