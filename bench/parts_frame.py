@@ -38,16 +38,11 @@ def _rotations_as_poses(R) -> np.ndarray:
 
 
 def _common_inliers(R: np.ndarray, gt: np.ndarray, deg: float = CONSISTENCY_DEG) -> np.ndarray:
-    """``(B,)`` bool: the samples whose offset ``R^T R_gt`` is within ``deg`` of the offset most of them share (the
-    hypotheses are the samples' own offsets, every 5th)."""
-    off = np.einsum("bji,bjk->bik", R, gt)
-    best, keep = -1.0, np.zeros(len(R), dtype=bool)
-    for h in off[::5]:
-        ang = np.degrees(np.arccos(np.clip((np.einsum("bij,ij->b", off, h) - 1.0) / 2.0, -1.0, 1.0)))
-        inl = ang < deg
-        if inl.mean() > best:
-            best, keep = float(inl.mean()), inl
-    return keep
+    """``(B,)`` bool: the samples whose offset ``R^T R_gt`` is within ``deg`` of the offsets' robust mean
+    (:func:`scapo.eval.alignment.robust_rotation_mean`, the evaluator's alignment step)."""
+    from scapo.eval.alignment import robust_rotation_mean
+
+    return robust_rotation_mean(np.einsum("bji,bjk->bik", R, gt), inlier_deg=deg)[1]
 
 
 def _mirror_children(card: dict) -> tuple[int, int] | None:
