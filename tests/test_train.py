@@ -533,3 +533,54 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     older = SCAPOModel(model.cfg)
     older.load_checkpoint_state(state)  # a checkpoint from before the parts frame: off
     assert not older.uses_parts_frame
+
+
+def test_relabel_replaces_the_pseudo_labels_with_the_networks_own_and_resumes_the_same(laptop_data, tmp_path,
+                                                                                      small_part_search):
+    """``relabel``: before a stage-2 epoch of :func:`relabel_epochs` the training clouds' pseudo-labels (and
+    with ``stage2_frame="parts"`` their target frames) become what the network predicts for them; the relabelling
+    follows from the model's state alone, so a run interrupted in the relabelled epoch and resumed there ends with the
+    weights of a run that was not interrupted."""
+    import json
+
+    from scapo.errors import ConfigError
+    from scapo.models.presets import get_preset
+    from scapo.models.scapo_model import SCAPOModel
+    from scapo.models.train import TrainingClouds, relabel_epochs
+
+    p = dataclasses.replace(TEST, part_init=True, split_labels=True, stage2_frame="parts", relabel=1,
+                            stage2_epochs=3)
+    assert relabel_epochs(p) == [2] and relabel_epochs(dataclasses.replace(p, relabel=2, stage2_epochs=6)) == [2, 4]
+    a = Trainer(laptop_data, tmp_path / "a", p, progress=False)
+    a.train()
+    rows = json.loads((tmp_path / "a" / "relabel.json").read_text())["relabel"]
+    assert [r["epoch"] for r in rows] == [2] and 0 <= rows[0]["labels_changed"] <= 1
+    assert 0 <= rows[0]["not_found"] <= 1
+    labels = np.load(tmp_path / "a" / "split_labels.npy", allow_pickle=False)
+    data = TrainingClouds(laptop_data, 32)
+    assert labels.shape == tuple(data.clouds.shape[:2]) and labels.max() < 2
+    # what the relabelling does, checked on the finished model: the network's own labels and frames
+    a.job._load_split_labels(data)
+    a.job._relabel(data, 2)
+    X, _ = SCAPOModel.normalize(data.clouds)
+    model = a.model.eval()
+    with torch.no_grad():
+        own = model.passes(X).w.argmax(-1)
+        frames = model.parts_frames(X, own)
+    assert torch.equal(data.tensors["part_label"], own)
+    found = frames.flatten(1).abs().sum(-1) > 0
+    assert torch.allclose(data.tensors["frame_target"][found], frames[found])
+    a.job._relabel(data, 1)  # not a relabelling epoch: nothing changes
+    assert torch.equal(data.tensors["part_label"], own)
+    # interrupted in the relabelled epoch (after the relabelling ran), resumed: the same weights
+    interrupt_at(Trainer(laptop_data, tmp_path / "b", p, progress=False), 2, 2)
+    Trainer(laptop_data, tmp_path / "b", p, progress=False).train()
+    wa = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=False)["model"]
+    wb = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=False)["model"]
+    for k in wa:
+        torch.testing.assert_close(wa[k], wb[k], msg=k)
+    assert get_preset("cpu/split-fit/split-labels/relabel").relabel == 1
+    with pytest.raises(ConfigError, match="set split_labels"):
+        dataclasses.replace(p, split_labels=False, stage2_frame="stage1")
+    with pytest.raises(ConfigError, match="relabel"):
+        dataclasses.replace(p, relabel=-1)

@@ -110,6 +110,11 @@ class Stage:
             the log's header, written at the first step, holds the later stages' columns too).
         on_start: called once when the stage starts from its first epoch (not on a resume inside it),
             e.g. SCAPO's template initialisation before stage 2.
+        on_epoch: ``on_epoch(epoch)`` called before each of the stage's epochs (0-based), the first epoch after a
+            resume included, after the model, optimiser and schedule are loaded: e.g. SCAPO's relabelling of the
+            training clouds (``TrainConfig.relabel``). Whatever it changes must follow from the model's state at
+            that epoch alone, so that a run resumed at that epoch does the same; its time counts as the stage's
+            start-up (``timing.json``).
         schedule: ``"cosine"`` (annealed to ``FitConfig.min_lr`` over the stage) or ``"step"`` (multiplied by
             ``decay`` every ``decay_steps`` optimiser steps, as OP-Align's ``exp_decay`` schedule:
             ``options.py`` 121-127 of YC-Che/OP-Align).
@@ -122,6 +127,7 @@ class Stage:
     losses: LossFn
     terms: tuple[str, ...] = ()
     on_start: Callable[[], None] | None = None
+    on_epoch: Callable[[int], None] | None = None
     schedule: str = "cosine"
     decay: float = 0.5
     decay_steps: int = 5000
@@ -292,6 +298,10 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                 stage.on_start()
                 part["start_s"] += time.perf_counter() - ts
             for epoch in range(first, stage.epochs):
+                if stage.on_epoch is not None:
+                    ts = time.perf_counter()
+                    stage.on_epoch(epoch)
+                    part["start_s"] += time.perf_counter() - ts
                 ts = time.perf_counter()
                 run_epoch(job, stage, epoch, opt, sched, steps, folder, bar, device, ctx, columns, board)
                 _check_weights(job.model, stage.index, epoch)  # before the checkpoint: the last good one is kept

@@ -335,15 +335,26 @@ class SCAPOModel(nn.Module):
         out[torch.from_numpy(~ok).to(X.device)] = 0.0
         return out
 
+    @torch.no_grad()
+    def passes(self, X: torch.Tensor) -> SCAPOOutput:
+        """Both stages on normalised points ``X (B, N, 3)`` as prediction runs them (in the module's current mode):
+        one pass, then for a model trained with ``TrainConfig.stage2_frame = "parts"`` (:attr:`uses_parts_frame`)
+        stage 2 :data:`PARTS_PASSES` more times, each in the frame read from the base the pass before labels
+        (:meth:`parts_frames`); the last pass's :class:`~scapo.nn.outputs.SCAPOOutput`."""
+        out = self.forward(X, stage=2)
+        for _ in range(PARTS_PASSES if self.uses_parts_frame else 0):  # stage 2 again, in the frame the base it
+            out = self.forward(X, stage=2, frame=self.parts_frames(X, out.w.argmax(-1)))  # found gives
+        return out
+
     # ------------------------------------------------------------------ inference
     @torch.no_grad()
     def predict(self, points: torch.Tensor, refine: RefineConfig | None = None,
                 upright: torch.Tensor | None = None) -> dict:
         """Inference on camera-frame points ``(B, N, 3)`` float32, metres (SPEC section 6 outputs).
 
-        A model trained with ``TrainConfig.stage2_frame = "parts"`` (:attr:`uses_parts_frame`) runs stage 2
-        :data:`PARTS_PASSES` more times, each in the frame read from the base the pass before labels
-        (:meth:`parts_frames`); the outputs are those of the last pass.
+        The network's passes are :meth:`passes` (in eval mode): a model trained with ``TrainConfig.stage2_frame =
+        "parts"`` runs stage 2 :data:`PARTS_PASSES` more times in the frame read from the base it labels; the outputs
+        are those of the last pass.
 
         With ``refine`` (``steps > 0``) the pose, joint states and joints come from the test-time
         articulated refinement (:mod:`scapo.models.refine`, an addition to the paper): the frame and
@@ -365,9 +376,7 @@ class SCAPOModel(nn.Module):
         self.eval()
         try:
             X, scale = self.normalize(points)
-            out = self.forward(X, stage=2)
-            for _ in range(PARTS_PASSES if self.uses_parts_frame else 0):  # stage 2 again, in the frame the base it
-                out = self.forward(X, stage=2, frame=self.parts_frames(X, out.w.argmax(-1)))  # found gives
+            out = self.passes(X)
         finally:
             self.train(was_training)
         enc = out.enc

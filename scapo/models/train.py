@@ -181,7 +181,8 @@ INFERENCE_FIELDS = ("refine",)
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
-                "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": ""}
+                "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": "",
+                "relabel": 0}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -260,7 +261,8 @@ class ScapoJob:
                         losses=lambda batch, progress: self._losses(1, batch), terms=STAGE1_TERMS + view),
                   Stage(index=2, epochs=pc.stage2_epochs, lr=pc.lr_stage2, params=lambda: self._params(2),
                         losses=lambda batch, progress: self._losses(2, batch), terms=STAGE2_TERMS + view + target,
-                        on_start=lambda: self._init_template(data))]
+                        on_start=lambda: self._init_template(data),
+                        on_epoch=(lambda epoch: self._relabel(data, epoch)) if pc.relabel else None)]
         cfg = FitConfig(batch_size=pc.batch_size, weight_decay=pc.weight_decay, min_lr=pc.min_lr,
                         grad_clip=pc.grad_clip, max_steps_per_epoch=pc.max_steps_per_epoch, seed=pc.seed,
                         order="shuffle")
@@ -405,6 +407,63 @@ class ScapoJob:
             np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
 
     FRAME_TARGETS = "frame_targets.npy"
+
+    RELABEL = "relabel.json"
+
+    @torch.no_grad()
+    def _relabel(self, data: TrainingClouds, epoch: int) -> None:
+        """``TrainConfig.relabel``: before a stage-2 epoch of :func:`relabel_epochs`, every training cloud's
+        ``part_label`` ``(M, N)`` int64 becomes the argmax of the skinning weights the network predicts for it
+        (:meth:`SCAPOModel.passes` in eval mode, as ``scapo predict``), and with ``stage2_frame = "parts"`` its
+        ``frame_target`` ``(M, 3, 3)`` the frame :meth:`SCAPOModel.parts_frames` reads from those labels (a cloud whose
+        base axes are not found keeps its target). The result follows from the model's state at that epoch alone, so
+        a run resumed there relabels the same way; it replaces ``split_labels.npy`` and ``frame_targets.npy``, and
+        ``relabel.json`` in the run folder gets, per relabelling, the share of points whose label changed, of clouds
+        whose target moved by more than 15 / 90 deg, and of clouds whose axes were not found."""
+        if epoch not in relabel_epochs(self.preset):
+            return
+        labels, frames = [], []
+        was = self.model.training
+        self.model.eval()
+        try:
+            for k in range(0, len(data), 64):
+                X, _ = SCAPOModel.normalize(data.clouds[k:k + 64].to(self.device))
+                out = self.model.passes(X)
+                lab = out.w.argmax(-1)
+                labels.append(lab.cpu())
+                if self.preset.stage2_frame == "parts":
+                    frames.append(self.model.parts_frames(X, lab).cpu())
+        finally:
+            self.model.train(was)
+        labels = torch.cat(labels).long()
+        before = data.tensors["part_label"]
+        row = {"stage": 2, "epoch": int(epoch), "clouds": int(len(labels)),
+               "labels_changed": round(float((labels != before).double().mean()), 4)}
+        data.tensors["part_label"] = labels
+        if self.preset.stage2_frame == "parts":
+            old = data.tensors["frame_target"]
+            new = torch.cat(frames).to(old)
+            found = new.flatten(1).abs().sum(-1) > 0
+            had = old.flatten(1).abs().sum(-1) > 0
+            cos = (((new * old).sum((-2, -1)) - 1.0) / 2.0).clamp(-1.0, 1.0)
+            ang = torch.rad2deg(torch.arccos(cos))[found & had]
+            row.update({"not_found": round(float((~found).double().mean()), 4),
+                        "targets_moved_15_deg": round(float((ang > 15).double().mean()), 4) if len(ang) else None,
+                        "targets_moved_90_deg": round(float((ang > 90).double().mean()), 4) if len(ang) else None})
+            data.tensors["frame_target"] = torch.where(found[:, None, None], new, old)
+        if self.dist.is_main:
+            path = self.run / self.RELABEL
+            rows = []
+            if path.is_file():
+                try:
+                    rows = [r for r in json.loads(path.read_text()).get("relabel", []) if r.get("epoch") != epoch]
+                except (OSError, ValueError, AttributeError):
+                    rows = []  # a log only: a damaged one is written again
+            write_json(path, {"relabel": sorted(rows + [row], key=lambda r: r["epoch"])})
+            np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
+            if self.preset.stage2_frame == "parts":
+                np.save(self.run / self.FRAME_TARGETS, data.tensors["frame_target"].numpy().astype(np.float64),
+                        allow_pickle=False)
 
     def _frame_targets(self, template: torch.Tensor, template_labels: torch.Tensor, canon: torch.Tensor,
                        frames: torch.Tensor, labels: torch.Tensor
@@ -607,6 +666,14 @@ class ScapoJob:
                         "template_part_points": torch.bincount(found["template_labels"],
                                                                minlength=self.mcfg.num_parts).tolist()})
         return out
+
+
+def relabel_epochs(preset: TrainConfig) -> list[int]:
+    """The stage-2 epochs (0-based) before which :meth:`ScapoJob._relabel` relabels the training clouds:
+    ``preset.relabel`` of them, ``round(k E / (relabel + 1))`` for ``k = 1..relabel`` with ``E = preset.stage2_epochs``
+    (epoch 0, where the starting pseudo-labels are made, and repeats dropped)."""
+    n, E = preset.relabel, preset.stage2_epochs
+    return sorted({round(k * E / (n + 1)) for k in range(1, n + 1)} - {0})
 
 
 def _signed_frames(template: torch.Tensor, template_labels: torch.Tensor, pts: np.ndarray, lab: np.ndarray,
