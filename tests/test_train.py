@@ -572,6 +572,12 @@ def test_relabel_replaces_the_pseudo_labels_with_the_networks_own_and_resumes_th
     assert torch.allclose(data.tensors["frame_target"][found], frames[found])
     a.job._relabel(data, 1)  # not a relabelling epoch: nothing changes
     assert torch.equal(data.tensors["part_label"], own)
+    targets = torch.eye(3).expand(len(own), 3, 3).clone()  # relabel_frames=False: the labels change, targets stay
+    a.job.preset = dataclasses.replace(p, relabel_frames=False)
+    data.tensors["part_label"], data.tensors["frame_target"] = torch.zeros_like(own), targets.clone()
+    a.job._relabel(data, 2)
+    assert torch.equal(data.tensors["part_label"], own) and torch.equal(data.tensors["frame_target"], targets)
+    a.job.preset = p
     # interrupted in the relabelled epoch (after the relabelling ran), resumed: the same weights
     interrupt_at(Trainer(laptop_data, tmp_path / "b", p, progress=False), 2, 2)
     Trainer(laptop_data, tmp_path / "b", p, progress=False).train()

@@ -129,6 +129,10 @@ class TrainConfig:
     pseudo-labels on train). Needs ``split_labels``; the new labels and targets replace ``split_labels.npy`` and
     ``frame_targets.npy`` (a resume reads them), and what changed goes to ``relabel.json``. An addition to the paper
     (issue 52), preset part ``relabel``."""
+    relabel_frames: bool = True
+    """With ``relabel`` and ``stage2_frame = "parts"``: whether a relabelling also reads each training cloud's target
+    frame again from its new labels (True, the default) or keeps the targets read from the starting pseudo-labels
+    (False: only the labels that ``sup_seg`` trains towards change)."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)

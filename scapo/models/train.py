@@ -182,7 +182,7 @@ INFERENCE_FIELDS = ("refine",)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
                 "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": "",
-                "relabel": 0}
+                "relabel": 0, "relabel_frames": True}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -410,14 +410,21 @@ class ScapoJob:
 
     RELABEL = "relabel.json"
 
+    @property
+    def relabels_frames(self) -> bool:
+        """Whether :meth:`_relabel` reads the target frames again (``stage2_frame = "parts"`` and
+        ``relabel_frames``)."""
+        return self.preset.stage2_frame == "parts" and self.preset.relabel_frames
+
     @torch.no_grad()
     def _relabel(self, data: TrainingClouds, epoch: int) -> None:
         """``TrainConfig.relabel``: before a stage-2 epoch of :func:`relabel_epochs`, every training cloud's
         ``part_label`` ``(M, N)`` int64 becomes the argmax of the skinning weights the network predicts for it
-        (:meth:`SCAPOModel.passes` in eval mode, as ``scapo predict``), and with ``stage2_frame = "parts"`` its
-        ``frame_target`` ``(M, 3, 3)`` the frame :meth:`SCAPOModel.parts_frames` reads from those labels (a cloud whose
-        base axes are not found keeps its target). The result follows from the model's state at that epoch alone, so
-        a run resumed there relabels the same way; it replaces ``split_labels.npy`` and ``frame_targets.npy``, and
+        (:meth:`SCAPOModel.passes` in eval mode, as ``scapo predict``), and with ``stage2_frame = "parts"`` (and
+        ``relabel_frames``) its ``frame_target`` ``(M, 3, 3)`` the frame :meth:`SCAPOModel.parts_frames` reads from
+        those labels (a cloud whose base axes are not found keeps its target). The result follows from the model's
+        state at that epoch alone, so a run resumed there relabels the same way; it replaces ``split_labels.npy`` (and
+        ``frame_targets.npy``), and
         ``relabel.json`` in the run folder gets, per relabelling, the share of points whose label changed, of clouds
         whose target moved by more than 15 / 90 deg, and of clouds whose axes were not found."""
         if epoch not in relabel_epochs(self.preset):
@@ -431,7 +438,7 @@ class ScapoJob:
                 out = self.model.passes(X)
                 lab = out.w.argmax(-1)
                 labels.append(lab.cpu())
-                if self.preset.stage2_frame == "parts":
+                if self.relabels_frames:
                     frames.append(self.model.parts_frames(X, lab).cpu())
         finally:
             self.model.train(was)
@@ -440,7 +447,7 @@ class ScapoJob:
         row = {"stage": 2, "epoch": int(epoch), "clouds": int(len(labels)),
                "labels_changed": round(float((labels != before).double().mean()), 4)}
         data.tensors["part_label"] = labels
-        if self.preset.stage2_frame == "parts":
+        if self.relabels_frames:
             old = data.tensors["frame_target"]
             new = torch.cat(frames).to(old)
             found = new.flatten(1).abs().sum(-1) > 0
@@ -461,7 +468,7 @@ class ScapoJob:
                     rows = []  # a log only: a damaged one is written again
             write_json(path, {"relabel": sorted(rows + [row], key=lambda r: r["epoch"])})
             np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
-            if self.preset.stage2_frame == "parts":
+            if self.relabels_frames:
                 np.save(self.run / self.FRAME_TARGETS, data.tensors["frame_target"].numpy().astype(np.float64),
                         allow_pickle=False)
 
