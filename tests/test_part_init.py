@@ -311,3 +311,30 @@ def test_label_clouds_from_the_octahedral_starts_labels_a_cloud_turned_far_from_
     assert torch.allclose(R[0], turn, atol=1e-3)
     assert float((label_clouds(template, labels, cloud, 2, starts=starts)[0] == labels).float().mean()) > 0.99
     assert float((label_clouds(template, labels, cloud, 2)[0] == labels).float().mean()) < 0.9
+
+
+def test_label_clouds_from_joint_turns_labels_a_child_folded_against_its_base():
+    """``TrainConfig.label_starts = "A"``: a template bar with a child bar open at a right angle at one end, and a
+    cloud whose child is folded 90 deg about the hinge to lie along the base, 0.05 behind it. From the identity the
+    child's fit cannot make the turn, and the folded child's points go to the base; from the joint turns
+    (:func:`joint_turn_starts`) the child's fit is chosen by the two-sided fit of the posed template and the labels
+    are right."""
+    from scapo.models.part_init import joint_turn_starts, label_clouds
+
+    g = torch.Generator().manual_seed(0)
+    base = torch.rand(300, 3, generator=g) * torch.tensor([1.0, 0.02, 0.08])
+    child = torch.rand(200, 3, generator=g) * torch.tensor([0.02, 0.7, 0.02]) + torch.tensor([0.98, 0.05, 0.03])
+    template = torch.cat([base, child])
+    labels = torch.cat([torch.zeros(300), torch.ones(200)]).long()
+    pivot = torch.tensor([0.99, 0.05, 0.04])
+    fold = exp_so3(torch.tensor([0.0, 0.0, 1.0]), torch.tensor(torch.pi / 2))
+    cloud = torch.cat([base, (child - pivot) @ fold.T + pivot])[None]  # the child along -x, 0.05 behind the base
+    R, t = joint_turn_starts(template, labels, 2)
+    assert R.shape == (2, 13, 3, 3) and t.shape == (2, 13, 3)
+    assert torch.equal(R[0], torch.eye(3).expand(13, 3, 3)) and torch.allclose(R[1, 0], torch.eye(3))
+    assert torch.allclose(R[1] @ R[1].transpose(1, 2), torch.eye(3).expand(13, 3, 3), atol=1e-5)
+    own = label_clouds(template, labels, cloud, 2)[0]
+    turned = label_clouds(template, labels, cloud, 2, joint_starts=(R, t))[0]
+    assert float((turned == labels).float().mean()) > 0.97
+    assert float((own == labels).float().mean()) < 0.8
+    assert torch.equal(label_clouds(template, labels, template[None], 2, joint_starts=(R, t))[0], labels)

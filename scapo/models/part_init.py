@@ -28,6 +28,7 @@ import torch
 
 from scapo.ops.align import kabsch
 from scapo.ops.chamfer import pairwise_sq_dist, trimmed_one_sided_chamfer
+from scapo.ops.so3 import exp_so3
 
 EPS = 1e-9
 
@@ -398,16 +399,103 @@ def whole_template_start(template: torch.Tensor, clouds: torch.Tensor, starts: t
     return R, t
 
 
+#: ``label_starts = "A"``: the turns (deg) of each child part about each of the base's principal axes that
+#: :func:`joint_turn_starts` adds to its fit's identity start (fixed before any measurement, not tuned).
+JOINT_TURNS_DEG = (-90.0, -45.0, 45.0, 90.0)
+
+
+def joint_turn_starts(template: torch.Tensor, labels: torch.Tensor, num_parts: int, base: int = 0,
+                      turns_deg: tuple[float, ...] = JOINT_TURNS_DEG) -> tuple[torch.Tensor, torch.Tensor]:
+    """Starting motions for each part's fit that turn a child part about its joint, for clouds whose articulation is
+    far from the template's (an eyeglasses temple folded where the template's is open): per part ``p`` the identity
+    and, for every part but ``base``, the turns ``turns_deg`` about each of the base's three principal axes (of the
+    ``template (M, 3)`` points labelled ``base`` by ``labels (M,)``) through the child's attach point (its template
+    point nearest the base). The joint's axis is not known before stage 2, so every principal axis is tried.
+
+    Returns:
+        ``(R (P, K, 3, 3), t (P, K, 3))`` with ``K = 1 + 3 len(turns_deg)``; start 0 is the identity, and the base's
+        (and a part without points) starts are all the identity. Template units.
+    """
+    P, dt, dev = num_parts, template.dtype, template.device
+    K = 1 + 3 * len(turns_deg)
+    R = torch.eye(3, dtype=dt, device=dev).expand(P, K, 3, 3).clone()
+    t = torch.zeros(P, K, 3, dtype=dt, device=dev)
+    on_base = template[labels == base]
+    if on_base.shape[0] < 3:
+        return R, t
+    _, V = torch.linalg.eigh(torch.cov((on_base - on_base.mean(0)).T))
+    angles = torch.deg2rad(torch.tensor(turns_deg, dtype=dt, device=dev))
+    axes = V.T.repeat_interleave(len(turns_deg), 0)  # (3 T, 3): each principal axis with every turn
+    turn = exp_so3(axes, angles.repeat(3))
+    for p in range(P):
+        pts = template[labels == p]
+        if p == base or pts.shape[0] == 0:
+            continue
+        pivot = pts[pairwise_sq_dist(pts[None], on_base[None])[0].min(-1)[0].argmin()]
+        R[p, 1:] = turn
+        t[p, 1:] = pivot - turn @ pivot
+    return R, t
+
+
+def _posed(template: torch.Tensor, labels: torch.Tensor, R: torch.Tensor, t: torch.Tensor, B: int,
+           P: int) -> torch.Tensor:
+    """``template (M, 3)``, each point moved by its part's motion ``R (B P, 3, 3), t (B P, 3)`` -> ``(B, M, 3)``."""
+    M = template.shape[0]
+    moved = (template.expand(B * P, M, 3) @ R.transpose(1, 2) + t[:, None]).reshape(B, P, M, 3)
+    return moved.gather(1, labels.view(1, 1, M, 1).expand(B, 1, M, 3)).squeeze(1)
+
+
+def _two_sided(C: torch.Tensor, posed: torch.Tensor, clip: float) -> torch.Tensor:
+    """Two-sided mean squared nearest distance ``(B,)`` between ``C (B, n, 3)`` and ``posed (B, M, 3)``, each side's
+    distances clipped at ``clip``."""
+    d = pairwise_sq_dist(C, posed)
+    return d.min(-1)[0].clamp(max=clip).mean(-1) + d.min(-2)[0].clamp(max=clip).mean(-1)
+
+
+def refit_from_joint_starts(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Tensor, num_parts: int,
+                            R: torch.Tensor, t: torch.Tensor, starts: tuple[torch.Tensor, torch.Tensor],
+                            base: int = 0, iters: int = 6, clip: float = 0.01) -> tuple[torch.Tensor, torch.Tensor]:
+    """``label_starts = "A"``: each child part's motion on each cloud chosen among its fit from the motions ``R (B P,
+    3, 3), t (B P, 3)`` (:func:`register_template_parts` rows) and its fits from the ``starts`` of
+    :func:`joint_turn_starts` (each composed with the base's fitted motion), part by part in order: the candidate whose
+    posed template (the other parts at their chosen motions) is nearest the cloud both ways (:func:`_two_sided`; a
+    child fitted onto the base's points leaves the cloud's own child points unexplained). ``template (M, 3)``,
+    ``labels (M,)``, ``clouds (B, n, 3)`` -> the chosen ``(R, t)`` in the same layout."""
+    B, P = clouds.shape[0], num_parts
+    Rj, tj = starts
+    R, t = R.clone(), t.clone()
+    score = _two_sided(clouds, _posed(template, labels, R, t, B, P), clip)
+    rows = torch.arange(B, device=clouds.device) * P
+    Rb, tb = R[rows + base], t[rows + base]
+    for p in range(P):
+        if p == base:
+            continue
+        for k in range(1, Rj.shape[1]):
+            R0, t0 = R.clone(), t.clone()
+            R0[rows + p] = Rb @ Rj[p, k]  # the start in the cloud: the base's motion after the turn
+            t0[rows + p] = (Rb @ tj[p, k][:, None])[..., 0] + tb
+            Rk, tk, _ = register_template_parts(template, labels, clouds, P, iters, clip, R0, t0)
+            Rc, tc = R.clone(), t.clone()
+            Rc[rows + p], tc[rows + p] = Rk[rows + p], tk[rows + p]
+            new = _two_sided(clouds, _posed(template, labels, Rc, tc, B, P), clip)
+            better = new < score
+            score = torch.where(better, new, score)
+            R[rows[better] + p], t[rows[better] + p] = Rc[rows[better] + p], tc[rows[better] + p]
+    return R, t
+
+
 def label_clouds(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Tensor, num_parts: int,
                  R: torch.Tensor | None = None, t: torch.Tensor | None = None, iters: int = 6, chunk: int = 64,
-                 starts: torch.Tensor | None = None) -> torch.Tensor:
+                 starts: torch.Tensor | None = None, joint_starts: tuple[torch.Tensor, torch.Tensor] | None = None
+                 ) -> torch.Tensor:
     """Label every point of ``clouds (B, n, 3)`` with the part of its nearest point of the template posed for that
     cloud, each part of ``template (M, 3)`` (split by ``labels (M,)``) at its motion (:func:`register_template_parts`
     from ``R, t`` when given, else ``iters`` ICP steps from the identity, or with ``starts (K, 3, 3)`` from the whole
-    template's best fit among those rotations, :func:`whole_template_start`), ``chunk`` clouds at a time -> ``(B, n)``
-    int64."""
+    template's best fit among those rotations, :func:`whole_template_start`; with ``joint_starts``, the output of
+    :func:`joint_turn_starts`, each child part's motion then chosen among its fits from those turns too,
+    :func:`refit_from_joint_starts`), ``chunk`` clouds at a time -> ``(B, n)`` int64."""
     out = []
-    P, M = num_parts, template.shape[0]
+    P = num_parts
     for k in range(0, clouds.shape[0], chunk):
         C = clouds[k:k + chunk]
         if R is None and starts is not None:
@@ -418,8 +506,9 @@ def label_clouds(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Ten
             Rc, tc, _ = register_template_parts(template, labels, C, P, iters)
         else:
             Rc, tc = R[k * P:(k + len(C)) * P], t[k * P:(k + len(C)) * P]
-        moved = (template.expand(len(C) * P, M, 3) @ Rc.transpose(1, 2) + tc[:, None]).reshape(len(C), P, M, 3)
-        posed = moved.gather(1, labels.view(1, 1, M, 1).expand(len(C), 1, M, 3)).squeeze(1)  # each point its part
+        if joint_starts is not None:
+            Rc, tc = refit_from_joint_starts(template, labels, C, P, Rc, tc, joint_starts, iters=iters)
+        posed = _posed(template, labels, Rc, tc, len(C), P)  # each point at its part's motion
         out.append(labels[pairwise_sq_dist(C, posed).argmin(-1)])
     return torch.cat(out)
 

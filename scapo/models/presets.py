@@ -97,8 +97,11 @@ class TrainConfig:
     label_starts: str = ""
     """Where ``split_labels``' part-by-part template fit to each training cloud starts: "" (default), the identity
     (the cloud in its frame); "O", the whole template's best rigid fit from the 24 octahedral rotations
-    (:func:`scapo.models.part_init.whole_template_start`), for clouds whose frame is far from the template's. An
-    addition to the paper (issue 52)."""
+    (:func:`scapo.models.part_init.whole_template_start`), for clouds whose frame is far from the template's; "A", the
+    identity, and each child part also from turns of +-45 and +-90 deg about each of the base's principal axes
+    through its attach point, the fit whose posed template is nearest the cloud both ways
+    (:func:`scapo.models.part_init.refit_from_joint_starts`), for clouds whose articulation is far from the template's
+    (a folded eyeglasses temple where the template's is open). An addition to the paper (issue 52)."""
     frame_target: float = 0.0
     """Weight of a stage-2 term that pulls each training cloud's frame (stage 1's, which stage 2 trains on) towards
     the frame its base's axes give when signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`,
@@ -181,8 +184,8 @@ class TrainConfig:
         if self.split_frame != "stage1" and not self.split_labels:
             raise ConfigError(f"preset {self.name!r}: split_frame={self.split_frame!r} is the frame split_labels "
                               "labels the clouds in; set split_labels too")
-        if self.label_starts not in ("", "T", "O", "I"):
-            raise ConfigError(f"preset {self.name!r}: label_starts must be '', 'T', 'O' or 'I', got "
+        if self.label_starts not in ("", "T", "O", "I", "A"):
+            raise ConfigError(f"preset {self.name!r}: label_starts must be '', 'T', 'O', 'I' or 'A', got "
                               f"{self.label_starts!r}")
         if self.frame_target < 0 or self.frame_target != self.frame_target:
             raise ConfigError(f"preset {self.name!r}: frame_target is a loss weight, >= 0; got {self.frame_target!r}")

@@ -372,11 +372,18 @@ class ScapoJob:
         self.model.train()
         canon = torch.cat(canon)
         starts = None
-        if self.preset.label_starts:
+        if self.preset.label_starts and self.preset.label_starts != "A":
             from scapo.ops.groups import rotation_group
 
             starts = torch.tensor(rotation_group(self.preset.label_starts), dtype=template.dtype)
-        labels = part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts, starts=starts)
+
+        def joints(split: torch.Tensor):  # label_starts="A": each child part also from turns about its joint
+            if self.preset.label_starts != "A":
+                return None
+            return part_init.joint_turn_starts(template, split, self.mcfg.num_parts)
+
+        labels = part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts, starts=starts,
+                                        joint_starts=joints(template_labels))
         if self.preset.split_frame == "parts":
             labels = self._parts_frame_labels(template, template_labels, canon, labels)
         if self.preset.frame_target > 0 or self.preset.stage2_frame == "parts":
@@ -389,7 +396,7 @@ class ScapoJob:
                 sub = canon[idx][:, ::step]
                 template_labels = self._init_parts(sub, canon[idx].reshape(-1, 3), template)
                 before, labels = labels, part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts,
-                                                                starts=starts)
+                                                                starts=starts, joint_starts=joints(template_labels))
                 if self.dist.is_main:
                     write_json(self.run / "split_refit.json",
                                {"template_part_points": torch.bincount(template_labels, minlength=self.mcfg.num_parts
