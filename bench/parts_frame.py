@@ -12,7 +12,8 @@ For each run (trained with ``TrainConfig.stage2_frame = "parts"`` on DATA; issue
   pseudo-labels' (``split_labels.npy``) base accuracy in clouds whose target is in / off the common frame, the share of
   clouds whose two children of the base (a mirror pair: the eyeglasses' temples) are exchanged (more points in the
   exchanged slots than in the kept ones; in / off frame), and the run's signed ranks with, per rank, the share of
-  clouds where the other parts' centroid lies along it among the two farthest (the vote that chose the ranks).
+  clouds where the other parts' centroid lies along it among the two farthest (the vote that chose the ranks);
+- both, by quartile of the smallest joint state of the base's children (where the frame is lost: folded temples).
 
     python bench/parts_frame.py --data DATA --run LABEL=RUN [--run ...] [--passes 4] [--split val] --out OUT
 
@@ -50,6 +51,34 @@ def _mirror_children(card: dict) -> tuple[int, int] | None:
     return (kids[0], kids[1]) if len(kids) >= 2 else None
 
 
+def smallest_child_state(data: Path, split: str, card: dict) -> np.ndarray | None:
+    """``(B,)`` float64: per sample of ``split`` the smallest joint state (rad or m, from the rest state) among the
+    joints whose parent is the base (part 0), in the split's sample order; None without such a joint. An eyeglasses
+    temple is folded at 0."""
+    from scapo.data import load
+
+    joints = [j for j, (parent, _) in enumerate(card["joint_parts"]) if int(parent) == 0]
+    if not joints:
+        return None
+    q = np.asarray(load(data, split).manifest["joint_state"].tolist(), dtype=np.float64).reshape(-1, len(
+        card["joint_parts"]))
+    return q[:, joints].min(1)
+
+
+def by_state(state: np.ndarray | None, inl: np.ndarray, acc: np.ndarray, bins: int = 4) -> list[dict] | None:
+    """Per quantile bin of ``state (B,)`` (:func:`smallest_child_state`; ``bins`` bins over the split): the samples,
+    the bin's state range, the share in the common frame (``inl (B,)`` bool) and the mean base accuracy (``acc
+    (B,)``); None without a state."""
+    if state is None or len(state) == 0:
+        return None
+    edges = np.quantile(state, np.linspace(0.0, 1.0, bins + 1))
+    which = np.clip(np.searchsorted(edges, state, side="right") - 1, 0, bins - 1)
+    return [{"bin": b, "state_from": float(edges[b]), "state_to": float(edges[b + 1]),
+             "samples": int((which == b).sum()),
+             "in_frame": float(inl[which == b].mean()) if (which == b).any() else None,
+             "base_acc": float(acc[which == b].mean()) if (which == b).any() else None} for b in range(bins)]
+
+
 def val_passes(model, data: Path, passes: int, split: str = "val") -> list[dict]:
     """Rows per pass on one split, val by default (see the module docstring)."""
     import torch
@@ -74,6 +103,10 @@ def val_passes(model, data: Path, passes: int, split: str = "val") -> list[dict]
             rows.append({"pass": k, "frame": frame_consistency(_rotations_as_poses(out.R), gt),
                          "base_pose": frame_consistency(_rotations_as_poses(base), gt),
                          "base_label_acc": float(((labels == 0) == (true == 0)).float().mean())})
+        if passes > 0:  # the last pass by the children's smallest joint state (where the views it loses lie)
+            rows[-1]["by_state"] = by_state(smallest_child_state(data, split, load(data, split).card),
+                                            _common_inliers(out.R.double().numpy(), gt[:, :3, :3]),
+                                            ((labels == 0) == (true == 0)).double().mean(1).numpy())
         tf = model.parts_frames(X, true)
         found = tf.flatten(1).abs().sum(-1) > 0
         reach = frame_consistency(_rotations_as_poses(tf[found]), gt[found.numpy()])
@@ -121,6 +154,7 @@ def train_targets(run: Path, data: Path, card: dict) -> dict:
     offs = np.array([o for _, o, ok in _signed_candidates(a["points"].astype(np.float64), pl, 0, 8) if ok])
     top2 = np.argsort(-np.abs(offs), 1)[:, :2] if len(offs) else np.zeros((0, 2), dtype=int)
     out["rank_top2_share"] = [float((top2 == r).any(1).mean()) if len(top2) else None for r in range(3)]
+    out["by_state"] = by_state(smallest_child_state(data, "train", card), inl, base_acc)
     return out
 
 
@@ -207,6 +241,19 @@ def render(a, rows: dict) -> list[str]:
         lines.append(f"| {label} | {_f(t['targets_frame'])} | {_f(t['base_acc_in'], 3)} / {_f(t['base_acc_off'], 3)} "
                      f"| {_f(t.get('mirror_exchanged_in'))} / {_f(t.get('mirror_exchanged_off'))} | "
                      f"{tuple(r['signed_ranks'])} | {' / '.join(_f(x) for x in t['rank_top2_share'])} |")
+    states = [(label, r) for label, r in rows.items() if r["train"].get("by_state")]
+    if states:
+        lines += ["", "By the smallest joint state of the base's children (quartiles over each split; an eyeglasses "
+                  "temple is folded at 0): the share of samples in the common frame and the base accuracy, for the "
+                  "training targets and pseudo-labels and for the last val pass.", "",
+                  "| run | split | quartile | state range | samples | in frame | base acc. |",
+                  "|:--|:--|--:|:--|--:|--:|--:|"]
+        for label, r in states:
+            last = [p for p in r["val"] if p.get("by_state")]
+            for split, bins in (("train", r["train"]["by_state"]), (a.split, last[-1]["by_state"] if last else [])):
+                for b in bins:
+                    lines.append(f"| {label} | {split} | {b['bin'] + 1} | {b['state_from']:.3f}-{b['state_to']:.3f} "
+                                 f"| {b['samples']} | {_f(b['in_frame'])} | {_f(b['base_acc'], 3)} |")
     return lines
 
 

@@ -528,6 +528,9 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     assert [r["pass"] for r in diag["val"]] == [0, 1, 2, "true labels"]
     assert all(0.0 <= r["frame"] <= 1.0 for r in diag["val"]) and diag["train"]["clouds"] == len(labels)
     assert "mirror_exchanged_in" not in diag["train"]  # a laptop's base has one child
+    states = diag["train"]["by_state"]  # by quartile of the lid's joint state: every training cloud in one bin
+    assert len(states) == 4 and sum(b["samples"] for b in states) == len(labels)
+    assert all(b["state_from"] <= b["state_to"] for b in states) and diag["val"][-2]["by_state"] is not None
     assert bench.main(["--data", str(laptop_data), "--run", "no-label", "--out", str(tmp_path / "pf2")]) == 2
     state = {k: v for k, v in model.state_dict().items() if k not in ("parts_frame", "parts_pair")}
     older = SCAPOModel(model.cfg)
