@@ -35,6 +35,19 @@ def test_generate_predict_evaluate_round_trip(tmp_path, capsys):
     assert main(["preview", "--data", str(d), "--count", "2", "--out", str(tmp_path / "p.png")]) == 0
     assert (tmp_path / "p.png").stat().st_size > 10_000
     assert main(["predict", "--method", "nope", "--data", str(d), "--out", str(tmp_path / "x.npz")]) == 2
+    # LABEL=FILE: a file's predictions as a row of its own name (two variants of one method side by side)
+    from scapo.eval.predictions import Predictions
+
+    other = Predictions.load(tmp_path / "p.npz")
+    other.joint_state = other.joint_state + 0.1
+    other.save(tmp_path / "q.npz")
+    capsys.readouterr()
+    assert main(["evaluate", "--data", str(d), "--pred", f"first={tmp_path / 'p.npz'}", f"second={tmp_path / 'q.npz'}",
+                 "--out", str(tmp_path / "t2")]) == 0
+    table = (tmp_path / "t2" / "table1.md").read_text()
+    assert "| first |" in table and "| second |" in table and "| icp |" not in table
+    assert main(["evaluate", "--data", str(d), "--pred", f"a/b={tmp_path / 'p.npz'}"]) == 2
+    assert "LABEL a plain name" in capsys.readouterr().err
 
 
 def test_a_command_takes_its_commit_as_it_starts(capsys, monkeypatch):

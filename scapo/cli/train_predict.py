@@ -91,6 +91,8 @@ def cmd_evaluate(args) -> int:
     protocol = get_protocol(args.protocol).name  # an unknown name is refused before any work
     if args.twin_limit < 0:
         raise ConfigError(f"--twin-limit must be >= 0 (0: every sample), got {args.twin_limit}")
+    named = [_named_predictions(p) for p in args.pred]
+    args.pred = [path for path, _ in named]
     same = _duplicates(args.pred)
     if same:
         raise ConfigError(f"--pred {same[0]} and {same[1]} are the same predictions; give each file once (several "
@@ -103,7 +105,7 @@ def cmd_evaluate(args) -> int:
         check_own_files([Path(args.out) / f"{args.name}.{k}" for k in ("csv", "md", "tex")],
                         Path(args.out) / f"{args.name}.json", "table file",
                         "choose another --out folder or --name")
-    results = [evaluate(args.data, p, protocol=protocol, split=args.split) for p in args.pred]
+    results = [evaluate(args.data, preds, protocol=protocol, split=args.split) for _, preds in named]
     _one_file_per_run(results, args.pred)
     _print_summary(results, protocol)
     if args.out:
@@ -156,6 +158,28 @@ def _one_file_per_run(results, paths) -> None:
             raise ConfigError(f"--pred {seen[key]} and {path} are predictions of one run ({key[1]}) of {res.method}; "
                               "several files of one method count as its training seeds: give one file per seed")
         seen[key] = str(path)
+
+
+def _named_predictions(spec: Path) -> tuple[Path, object]:
+    """``scapo evaluate --pred``: ``FILE``, or ``LABEL=FILE`` (the file's predictions as the table row ``LABEL``, e.g.
+    two variants of one method side by side with the paired bootstrap; a path that exists is always a file) ->
+    ``(FILE, FILE or the relabelled Predictions)``.
+
+    Raises:
+        ConfigError: ``LABEL`` is not a plain name (letters, digits, '_', '-', '.', '+').
+        PredictionError: the file cannot be read as predictions (:meth:`Predictions.load`)."""
+    import dataclasses
+
+    from scapo.eval.predictions import Predictions
+
+    text = str(spec)
+    label, sep, rest = text.partition("=")
+    if spec.exists() or not sep or not rest:
+        return spec, spec
+    if not label or not all(c.isalnum() or c in "_-.+" for c in label):
+        raise ConfigError(f"--pred {text!r}: write FILE or LABEL=FILE with LABEL a plain name (letters, digits, '_', "
+                          "'-', '.', '+')")
+    return Path(rest), dataclasses.replace(Predictions.load(rest), method=label)
 
 
 def _duplicates(paths) -> tuple[str, str] | None:
@@ -239,7 +263,9 @@ def add_parsers(sub) -> None:
     sp = sub.add_parser("evaluate", help="score a predictions file on a dataset's test split")
     sp.add_argument("--data", type=Path, required=True)
     sp.add_argument("--pred", type=Path, required=True, nargs="+", action="extend",
-                    help="one or more prediction files (one row per method in the table)")
+                    help="one or more prediction files (one row per method in the table; several files of one "
+                    "method are its training seeds); LABEL=FILE names the file's row LABEL (e.g. two variants of "
+                    "one method)")
     sp.add_argument("--protocol", default="scapo", help="evaluation protocol: scapo (the paper's; default), op-align, "
                     "eap (those papers' released evaluation code), scapo-per-category")
     sp.add_argument("--split", default="test", choices=["test", "val"],
