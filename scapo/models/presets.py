@@ -101,7 +101,9 @@ class TrainConfig:
     identity, and each child part also from turns of +-45 and +-90 deg about each of the base's principal axes
     through its attach point, the fit whose posed template is nearest the cloud both ways
     (:func:`scapo.models.part_init.refit_from_joint_starts`), for clouds whose articulation is far from the template's
-    (a folded eyeglasses temple where the template's is open). An addition to the paper (issue 52)."""
+    (a folded eyeglasses temple where the template's is open; labelling takes about 25 times longer). An addition to
+    the paper (issue 52); "O" gave no gain and "A" a mixed result on the eyeglasses' paper rung
+    (results/canonical_ladder/README.md, sessions 31-32)."""
     frame_target: float = 0.0
     """Weight of a stage-2 term that pulls each training cloud's frame (stage 1's, which stage 2 trains on) towards
     the frame its base's axes give when signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`,
@@ -131,7 +133,9 @@ class TrainConfig:
     labels the clouds it has learnt from more consistently (issue 52: base accuracy 0.87 on val against 0.77 for the
     pseudo-labels on train). Needs ``split_labels``; the new labels and targets replace ``split_labels.npy`` and
     ``frame_targets.npy`` (a resume reads them), and what changed goes to ``relabel.json``. An addition to the paper
-    (issue 52), preset part ``relabel``."""
+    (issue 52), preset part ``relabel``; a negative result on the eyeglasses' paper rung (the targets read from the
+    network's labels halfway through stage 2 are one frame for fewer clouds; results/canonical_ladder/README.md,
+    session 32)."""
     relabel_frames: bool = True
     """With ``relabel`` and ``stage2_frame = "parts"``: whether a relabelling also reads each training cloud's target
     frame again from its new labels (True, the default) or keeps the targets read from the starting pseudo-labels

@@ -431,9 +431,9 @@ class ScapoJob:
         ``relabel_frames``) its ``frame_target`` ``(M, 3, 3)`` the frame :meth:`SCAPOModel.parts_frames` reads from
         those labels (a cloud whose base axes are not found keeps its target). The result follows from the model's
         state at that epoch alone, so a run resumed there relabels the same way; it replaces ``split_labels.npy`` (and
-        ``frame_targets.npy``), and
-        ``relabel.json`` in the run folder gets, per relabelling, the share of points whose label changed, of clouds
-        whose target moved by more than 15 / 90 deg, and of clouds whose axes were not found."""
+        ``frame_targets.npy``), and ``relabel.json`` in the run folder gets, per relabelling, the share of points
+        whose label changed, of clouds whose target moved by more than 15 / 90 deg, and of clouds whose axes were not
+        found (a run resumed at that epoch after the files were written compares against the relabelled ones)."""
         if epoch not in relabel_epochs(self.preset):
             return
         labels, frames = [], []
