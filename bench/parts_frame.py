@@ -86,7 +86,8 @@ def val_passes(model, data: Path, passes: int, split: str = "val") -> list[dict]
     from scapo.bench.ladder import frame_consistency
     from scapo.data import load
 
-    a = load(data, split).arrays(["points", "T_cam_obj", "part_label"])
+    d = load(data, split)
+    a = d.arrays(["points", "T_cam_obj", "part_label"])
     gt, true = a["T_cam_obj"], torch.from_numpy(a["part_label"])
     model.eval()
     rows = []
@@ -104,7 +105,7 @@ def val_passes(model, data: Path, passes: int, split: str = "val") -> list[dict]
                          "base_pose": frame_consistency(_rotations_as_poses(base), gt),
                          "base_label_acc": float(((labels == 0) == (true == 0)).float().mean())})
         if passes > 0:  # the last pass by the children's smallest joint state (where the views it loses lie)
-            rows[-1]["by_state"] = by_state(smallest_child_state(data, split, load(data, split).card),
+            rows[-1]["by_state"] = by_state(smallest_child_state(data, split, d.card),
                                             _common_inliers(out.R.double().numpy(), gt[:, :3, :3]),
                                             ((labels == 0) == (true == 0)).double().mean(1).numpy())
         tf = model.parts_frames(X, true)

@@ -468,15 +468,16 @@ def refit_from_joint_starts(template: torch.Tensor, labels: torch.Tensor, clouds
     rows = torch.arange(B, device=clouds.device) * P
     Rb, tb = R[rows + base], t[rows + base]
     for p in range(P):
-        if p == base:
+        part = template[labels == p]
+        if p == base or part.shape[0] == 0:
             continue
+        one = torch.zeros(part.shape[0], dtype=labels.dtype, device=labels.device)
         for k in range(1, Rj.shape[1]):
-            R0, t0 = R.clone(), t.clone()
-            R0[rows + p] = Rb @ Rj[p, k]  # the start in the cloud: the base's motion after the turn
-            t0[rows + p] = (Rb @ tj[p, k][:, None])[..., 0] + tb
-            Rk, tk, _ = register_template_parts(template, labels, clouds, P, iters, clip, R0, t0)
+            R0 = Rb @ Rj[p, k]  # the start in the cloud: the base's motion after the turn
+            t0 = (Rb @ tj[p, k][:, None])[..., 0] + tb
+            Rk, tk, _ = register_template_parts(part, one, clouds, 1, iters, clip, R0, t0)  # this part alone
             Rc, tc = R.clone(), t.clone()
-            Rc[rows + p], tc[rows + p] = Rk[rows + p], tk[rows + p]
+            Rc[rows + p], tc[rows + p] = Rk, tk
             new = _two_sided(clouds, _posed(template, labels, Rc, tc, B, P), clip)
             better = new < score
             score = torch.where(better, new, score)
