@@ -61,6 +61,16 @@ def trained_runs(trained_test_runs):
     return trained_test_runs
 
 
+def test_the_parts_axes_option_needs_a_run_trained_in_the_parts_frame(trained_runs):
+    """``scapo predict --option parts_axes=plane`` changes how a ``stage2_frame="parts"`` run's passes find the
+    base's directions; a run trained otherwise has no such passes and is refused with what to do."""
+    from scapo.errors import ConfigError
+    from scapo.methods.scapo import SCAPOMethod, SCAPOOptions
+
+    with pytest.raises(ConfigError, match="stage2_frame='parts'.*drop the option"):
+        SCAPOMethod(SCAPOOptions(run=trained_runs["scapo"], parts_axes="plane")).load()
+
+
 @pytest.mark.parametrize("name", ALL)
 def test_every_method_trains_predicts_and_is_scored(name, laptop_data, trained_runs, tmp_path):
     opts = {"run": trained_runs[name]} if name in trained_runs else dict(METHODS.get(name).quick_options)

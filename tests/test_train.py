@@ -493,8 +493,12 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     refit = json.loads((tmp_path / "t" / "split_refit.json").read_text())
     assert sum(refit["template_part_points"]) == p.template_points and 0 <= refit["labels_changed"] <= 1
     assert get_preset("cpu/split-fit/split-labels/stage2-parts/split-refit").split_frame == "refit"
+    assert get_preset("cpu/split-fit/split-labels/stage2-parts/parts-plane").parts_axes == "plane"
+    assert model.parts_axes == "pca"
     with pytest.raises(ConfigError, match="stage2_frame"):
         dataclasses.replace(p, stage2_frame="stage1")
+    with pytest.raises(ConfigError, match="parts_axes"):
+        dataclasses.replace(p, parts_axes="ransac")
     pts = TrainingClouds(laptop_data, 64).clouds[:4, :64]
     X, _ = model.normalize(pts)
     model.eval()
@@ -508,6 +512,11 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
         assert torch.allclose(mixed.R[0], turned) and torch.allclose(mixed.R[1:], own.R[1:])
         F = model.parts_frames(X, own.w.argmax(-1))
         out = model.predict(pts)
+        model.parts_plane.fill_(1)  # parts_axes="plane": the base's directions from its points on its plane
+        F_plane = model.parts_frames(X, own.w.argmax(-1))
+        model.parts_plane.fill_(0)
+    found_plane = F_plane.flatten(1).abs().sum(-1) > 0
+    assert model.parts_axes == "pca" and torch.equal(found_plane, F.flatten(1).abs().sum(-1) > 0)
     found = F.flatten(1).abs().sum(-1) > 0
     R = out["T_cam_obj"][:, :3, :3]
     assert torch.allclose(R @ R.transpose(1, 2), torch.eye(3).expand(4, 3, 3), atol=1e-4)
@@ -532,10 +541,10 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     assert len(states) == 4 and sum(b["samples"] for b in states) == len(labels)
     assert all(b["state_from"] <= b["state_to"] for b in states) and diag["val"][-2]["by_state"] is not None
     assert bench.main(["--data", str(laptop_data), "--run", "no-label", "--out", str(tmp_path / "pf2")]) == 2
-    state = {k: v for k, v in model.state_dict().items() if k not in ("parts_frame", "parts_pair")}
+    state = {k: v for k, v in model.state_dict().items() if k not in ("parts_frame", "parts_pair", "parts_plane")}
     older = SCAPOModel(model.cfg)
     older.load_checkpoint_state(state)  # a checkpoint from before the parts frame: off
-    assert not older.uses_parts_frame
+    assert not older.uses_parts_frame and older.parts_axes == "pca"
 
 
 def test_relabel_replaces_the_pseudo_labels_with_the_networks_own_and_resumes_the_same(laptop_data, tmp_path,

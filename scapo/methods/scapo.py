@@ -47,9 +47,16 @@ class SCAPOOptions(LearnedOptions):
     """The part slot ``base_frame`` takes as the base: "0" (default; the model's base slot), another slot number, or
     "auto": the slot whose predicted rotations spread least over the training views
     (:func:`scapo.methods.base_frame.choose_base_slot`; the snapped frame is then that slot's pose)."""
+    parts_axes: str = ""
+    """For a run trained with ``stage2_frame = "parts"``: how its prediction passes find the base's directions,
+    "pca" or "plane" (:attr:`scapo.models.presets.TrainConfig.parts_axes`; the label gets ``+parts-plane`` /
+    ``+parts-pca``); "" (default): as the run was trained. A diagnosis of the prediction step alone; a run of any
+    other kind refuses it."""
 
     def __post_init__(self):
         super().__post_init__()
+        if self.parts_axes not in ("", "pca", "plane"):
+            raise ConfigError(f"parts_axes must be '' (the run's), 'pca' or 'plane', got {self.parts_axes!r}")
         if self.base_frame not in ("", "principal", "parts"):
             raise ConfigError(f"base_frame must be '' (off), 'principal' or 'parts', got {self.base_frame!r}")
         if str(self.base_slot) != "auto" and not str(self.base_slot).isdigit():
@@ -78,7 +85,8 @@ class SCAPOMethod:
         if self.options.run is None:
             raise ConfigError("the scapo method needs a trained run: --run RUN (a folder written by 'scapo train')")
         self.run = Path(self.options.run)
-        self.label = str(self.options.label or ("scapo" + post_suffix(self.options)))
+        axes = f"+parts-{self.options.parts_axes}" if self.options.parts_axes else ""
+        self.label = str(self.options.label or ("scapo" + axes + post_suffix(self.options)))
         self.predictor: Predictor | None = None
         self.base_offset: np.ndarray | None = None
         """``(3, 3)`` the fitted base-axes offset (``base_frame``, :func:`.base_frame.fit_base_offset`)."""
@@ -216,6 +224,12 @@ class SCAPOMethod:
                                                             upright_deg=float(o.refine_upright_deg))
             except ValueError as e:
                 raise ConfigError(str(e)) from None
+        if o.parts_axes:
+            model = self.predictor.model
+            if not model.uses_parts_frame:
+                raise ConfigError(f"parts_axes={o.parts_axes} applies to a run trained with stage2_frame='parts'; "
+                                  f"{self.run} was not: drop the option")
+            model.parts_plane.fill_(int(o.parts_axes == "plane"))
         ident = self.predictor.identity
         self.trained_on = ident["dataset_hash"]
         sup = ident["preset"].get("supervision", "")

@@ -140,6 +140,13 @@ class TrainConfig:
     """With ``relabel`` and ``stage2_frame = "parts"``: whether a relabelling also reads each training cloud's target
     frame again from its new labels (True, the default) or keeps the targets read from the starting pseudo-labels
     (False: only the labels that ``sup_seg`` trains towards change)."""
+    parts_axes: str = "pca"
+    """With ``split_frame = "parts"``, ``frame_target`` or ``stage2_frame = "parts"``: how each cloud's (and the
+    template's) base directions are found before the other parts sign them
+    (:func:`scapo.ops.signed_axes.parts_signed_axes`): "pca" (default) the principal axes of all the points labelled base; "plane" those of its points on their
+    dominant plane (:func:`scapo.ops.signed_axes.plane_axes`), so that points of a child part the labels give the
+    base do not turn them (an addition to the paper, issue 52, preset part ``parts-plane``). Prediction uses the
+    same (the model's ``parts_plane`` buffer)."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)
@@ -196,6 +203,8 @@ class TrainConfig:
         if self.frame_target > 0 and not self.split_labels:
             raise ConfigError(f"preset {self.name!r}: frame_target={self.frame_target} reads the split_labels "
                               "pseudo-labels (the base and its other parts); set split_labels too")
+        if self.parts_axes not in ("pca", "plane"):
+            raise ConfigError(f"preset {self.name!r}: parts_axes must be 'pca' or 'plane', got {self.parts_axes!r}")
         if self.stage2_frame not in ("stage1", "parts"):
             raise ConfigError(f"preset {self.name!r}: stage2_frame must be 'stage1' or 'parts', got "
                               f"{self.stage2_frame!r}")
@@ -286,7 +295,8 @@ def get_preset(name: str) -> TrainConfig:
     parts-signed frame (``TrainConfig.split_frame``) and ``frame-target`` pulls each cloud's frame towards that frame
     (``TrainConfig.frame_target``, weight 1) and ``stage2-parts`` makes stage 2 work in that frame
     (``TrainConfig.stage2_frame``) and ``relabel`` relabels the training clouds once, halfway through stage 2, from
-    the network's own predictions (``TrainConfig.relabel``); a part ``epochs-A-B`` trains stage 1 for A epochs and
+    the network's own predictions (``TrainConfig.relabel``) and ``parts-plane`` finds the base's directions on its
+    dominant plane (``TrainConfig.parts_axes``); a part ``epochs-A-B`` trains stage 1 for A epochs and
     stage 2 for B (:func:`scapo.registry.apply_schedule`; ``scapo bench table1 --budget-minutes``).
 
     Raises:
@@ -331,6 +341,9 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "stage2-parts":
             off["stage2_frame"] = "parts"  # stage 2 works in each cloud's parts-signed frame (stage2_frame)
+            continue
+        if part == "parts-plane":
+            off["parts_axes"] = "plane"  # the base's directions from the points on its plane (parts_axes)
             continue
         if part == "relabel":
             off["relabel"] = 1  # stage 2 relabels the training clouds once, from its own predictions (relabel)

@@ -187,6 +187,9 @@ class SCAPOModel(nn.Module):
         # trainer at the start of stage 2
         self.register_buffer("parts_frame", torch.zeros(3, 3))
         self.register_buffer("parts_pair", torch.tensor([1, 2]))
+        # how parts_frames finds the base's directions: 0 the principal axes of its points, 1 those on its dominant
+        # plane (TrainConfig.parts_axes; scapo.ops.signed_axes.AXES), set by the trainer with parts_frame
+        self.register_buffer("parts_plane", torch.tensor(0))
         if cfg.stage1_template:  # own generator: the other parameters' initialisation is unchanged
             g1 = torch.Generator().manual_seed(1)
             self.template_s1 = nn.Parameter(0.1 * torch.randn(cfg.template_points, 3, generator=g1))
@@ -199,9 +202,10 @@ class SCAPOModel(nn.Module):
     # ------------------------------------------------------------------ helpers
     def load_checkpoint_state(self, state: dict) -> None:
         """``load_state_dict`` that accepts checkpoints from before the branch correction or the parts frame existed
-        (their missing ``branch``/``branch_flip``/``parts_frame``/``parts_pair`` buffers keep the "off" values)."""
+        (their missing ``branch``/``branch_flip``/``parts_frame``/``parts_pair``/``parts_plane`` buffers keep the "off"
+        values)."""
         state = dict(state)
-        for name in ("branch", "branch_flip", "parts_frame", "parts_pair"):
+        for name in ("branch", "branch_flip", "parts_frame", "parts_pair", "parts_plane"):
             state.setdefault(name, getattr(self, name).detach().clone())
         self.load_state_dict(state)
 
@@ -323,17 +327,23 @@ class SCAPOModel(nn.Module):
     def parts_frames(self, X: torch.Tensor, labels: torch.Tensor, min_points: int = 8) -> torch.Tensor:
         """The frames ``(B, 3, 3)`` (canonical -> camera) in which each cloud's base axes signed by its other parts are
         the template's (``TrainConfig.stage2_frame = "parts"``): ``E_i E_Y^T``, with ``E_i`` the signed principal axes
-        (:func:`scapo.ops.signed_axes.parts_signed_axes`, ranks :attr:`parts_pair`) of the points of ``X (B, N, 3)``
-        labelled 0 (the base) by ``labels (B, N)`` int64 against the others, ``E_Y`` :attr:`parts_frame`. All zeros for
-        a cloud whose axes are not found (fewer than ``min_points`` base or other points): :meth:`stage2` then keeps
-        its stage-1 frame."""
+        (:func:`scapo.ops.signed_axes.parts_signed_axes`, ranks :attr:`parts_pair`, the base's directions as
+        :attr:`parts_axes` says) of the points of ``X (B, N, 3)`` labelled 0 (the base) by ``labels (B, N)`` int64
+        against the others, ``E_Y`` :attr:`parts_frame`. All zeros for a cloud whose axes are not found (fewer than
+        ``min_points`` base or other points): :meth:`stage2` then keeps its stage-1 frame."""
         from scapo.ops.signed_axes import parts_signed_axes
 
         pair = tuple(int(k) for k in self.parts_pair)
-        E, ok = parts_signed_axes(X.detach().double().cpu().numpy(), labels.cpu().numpy(), pair, 0, min_points)
+        E, ok = parts_signed_axes(X.detach().double().cpu().numpy(), labels.cpu().numpy(), pair, 0, min_points,
+                                  self.parts_axes)
         out = torch.from_numpy(E @ self.parts_frame.double().cpu().numpy().T).to(X)
         out[torch.from_numpy(~ok).to(X.device)] = 0.0
         return out
+
+    @property
+    def parts_axes(self) -> str:
+        """How :meth:`parts_frames` finds the base's directions (``TrainConfig.parts_axes``): "pca" or "plane"."""
+        return "plane" if int(self.parts_plane) else "pca"
 
     @torch.no_grad()
     def passes(self, X: torch.Tensor) -> SCAPOOutput:

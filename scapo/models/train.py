@@ -182,7 +182,7 @@ INFERENCE_FIELDS = ("refine",)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
                 "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": "",
-                "relabel": 0, "relabel_frames": True}
+                "relabel": 0, "relabel_frames": True, "parts_axes": "pca"}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -407,6 +407,7 @@ class ScapoJob:
             if self.preset.stage2_frame == "parts" and tE is not None:  # stage 2 and prediction in that frame
                 self.model.parts_frame.copy_(tE.to(self.model.parts_frame))
                 self.model.parts_pair.copy_(torch.tensor(pair).to(self.model.parts_pair))
+                self.model.parts_plane.fill_(int(self.preset.parts_axes == "plane"))
             if self.dist.is_main:
                 np.save(self.run / self.FRAME_TARGETS, targets.numpy().astype(np.float64), allow_pickle=False)
         data.tensors["part_label"] = labels
@@ -494,7 +495,7 @@ class ScapoJob:
         target is within 15 / beyond 90 deg of its stage-1 frame)."""
         pts, lab = canon.double().numpy(), labels.numpy()
         out, tpl = torch.zeros(len(pts), 3, 3), None
-        pair, E, ok, tE = _signed_frames(template, template_labels, pts, lab)
+        pair, E, ok, tE = _signed_frames(template, template_labels, pts, lab, axes=self.preset.parts_axes)
         if tE is not None:
             tpl = torch.from_numpy(tE).float()
             T = frames.double().numpy() @ E @ tE.T
@@ -520,7 +521,7 @@ class ScapoJob:
         from scapo.models import part_init
 
         pts, lab = canon.double().numpy(), labels.numpy()
-        pair, E, ok, tE = _signed_frames(template, template_labels, pts, lab)
+        pair, E, ok, tE = _signed_frames(template, template_labels, pts, lab, axes=self.preset.parts_axes)
         if tE is None or not ok.any():
             return labels
 
@@ -691,22 +692,23 @@ def relabel_epochs(preset: TrainConfig) -> list[int]:
 
 
 def _signed_frames(template: torch.Tensor, template_labels: torch.Tensor, pts: np.ndarray, lab: np.ndarray,
-                   min_points: int = 8) -> tuple:
+                   min_points: int = 8, axes: str = "pca") -> tuple:
     """The base axes signed by the other parts (:mod:`scapo.ops.signed_axes`, base = slot 0) of the stage-1-frame
     clouds ``pts (B, N, 3)`` float64 under ``lab (B, N)`` and of ``template (M, 3)`` under ``template_labels (M,)``,
     with the two signed ranks chosen over the clouds: ``(pair, E (B, 3, 3), ok (B,) bool, E_Y (3, 3))``; ``pair``
     and ``E_Y`` None (``ok`` all False) when no cloud has enough points of the base and of the other parts, or the
-    template's axes are not found (``split_frame = "parts"``, ``frame_target``, ``stage2_frame = "parts"``)."""
+    template's axes are not found (``split_frame = "parts"``, ``frame_target``, ``stage2_frame = "parts"``).
+    ``axes``: how the base's directions are found (``TrainConfig.parts_axes``)."""
     from scapo.ops import signed_axes
 
     none = (None, np.tile(np.eye(3), (len(pts), 1, 1)), np.zeros(len(pts), dtype=bool), None)
     try:
-        pair = signed_axes.choose_signed_pair(pts, lab, 0, min_points=min_points)
+        pair = signed_axes.choose_signed_pair(pts, lab, 0, min_points=min_points, axes=axes)
     except ValueError:
         return none
-    E, ok = signed_axes.parts_signed_axes(pts, lab, pair, 0, min_points=min_points)
+    E, ok = signed_axes.parts_signed_axes(pts, lab, pair, 0, min_points=min_points, axes=axes)
     tE, tok = signed_axes.parts_signed_axes(template.double().numpy()[None], template_labels.numpy()[None], pair, 0,
-                                            min_points)
+                                            min_points, axes)
     return (pair, E, ok, tE[0]) if tok[0] else (pair, E, ok, None)
 
 
