@@ -145,8 +145,8 @@ class TrainConfig:
     template's) base directions are found before the other parts sign them
     (:func:`scapo.ops.signed_axes.parts_signed_axes`): "pca" (default) the principal axes of all the points labelled
     base; "plane" those of its points on their dominant plane (:func:`scapo.ops.signed_axes.plane_axes`), so that
-    points of a child part the labels give the base do not turn them (an addition to the paper, issue 52, preset part ``parts-plane``). Prediction uses the
-    same (the model's ``parts_plane`` buffer)."""
+    points of a child part the labels give the base do not turn them (an addition to the paper, issue 52, preset
+    part ``parts-plane``). Prediction uses the same (the model's ``parts_plane`` buffer)."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)
