@@ -358,3 +358,48 @@ def test_a_diagnosis_writes_its_markdown_and_a_record_of_its_inputs_or_refuses_a
     (tmp_path / "file").write_text("")
     with pytest.raises(OutputError, match="cannot"):
         write_diagnosis(tmp_path / "file" / "d", ["x"], {}, {})
+
+
+def test_the_sweep_reads_a_bar_childs_axis_in_the_base_frame_and_turns_it_into_each_view():
+    """``axis_sweep`` (:mod:`scapo.methods.sweep`): hand-built eyeglasses views (front, two temple bars opening
+    20-90 deg about the height axis z) under random camera rotations, with the true base poses: the temples' long
+    directions in the base frame sweep the plane normal to z, so the fitted axes are z within 2 deg, and each view's
+    axis becomes its base rotation of z, signed as the method's own; a wrong method axis is replaced. A joint whose
+    child has too few points keeps the method's axes; a child direction that does not move is read as the axis; the
+    step refuses to run unfitted."""
+    import torch
+
+    from scapo.errors import TrainingError
+    from scapo.methods.sweep import SweepAxes, sweep_axis
+    from scapo.ops.groups import random_rotation
+    from tests.test_frames import _glasses_view
+
+    rng = np.random.default_rng(2)
+    V = 24
+    Q = random_rotation(V, torch.float64, torch.Generator().manual_seed(3)).numpy()
+    views = [_glasses_view(rng, 20 + 70 * k / V) for k in range(V)]
+    pts = np.stack([v[0] for v in views]) @ Q.transpose(0, 2, 1) + np.array([0.0, 0.0, 0.8])
+    lab = np.stack([v[1] for v in views])
+    T = np.tile(np.eye(4), (V, 1, 1))
+    T[:, :3, :3] = Q
+    wrong = np.tile(np.array([0.0, 1.0, 0.0]), (V, 2, 1))  # the method's axes: the front's width
+    out = {"part_label": lab, "T_cam_obj": T, "joint_axis": np.einsum("vij,vkj->vki", Q, wrong)}
+    step = SweepAxes([0, 0], [(0, 1), (0, 2)])
+    with pytest.raises(TrainingError, match="fit"):
+        step(out)
+    step.fit(pts, out)
+    for a, found in zip(step.axes, step.info()):
+        assert abs(a[2]) > np.cos(np.radians(2.0)) and found["mode"] == "sweep" and found["views"] == V
+    new = step(out)["joint_axis"]
+    true = Q[:, :, 2]  # z in the camera
+    cos = np.abs((new * true[:, None]).sum(-1))
+    assert cos.min() > np.cos(np.radians(2.0))
+    assert ((new * out["joint_axis"]).sum(-1) >= 0).all() and np.allclose(np.linalg.norm(new, axis=-1), 1.0)
+    few = lab.copy()
+    few[few == 2] = 0  # no view shows the second temple
+    kept = SweepAxes([0, 0], [(0, 1), (0, 2)]).fit(pts, {**out, "part_label": few})
+    assert kept.axes[1] is None and np.array_equal(kept(out)["joint_axis"][:, 1], out["joint_axis"][:, 1])
+    still, info = sweep_axis(np.tile([0.0, 0.6, 0.8], (10, 1)) + rng.normal(0, 0.01, (10, 3)))
+    assert info["mode"] == "still" and abs(still @ [0.0, 0.6, 0.8]) > 0.99
+    with pytest.raises(ValueError, match="at least 2"):
+        sweep_axis(np.zeros((1, 3)))

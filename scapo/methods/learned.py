@@ -278,6 +278,11 @@ class LearnedOptions:
     """With ``hinge_frames``: choose each view's root part among its root joint's two parts by the training views'
     root orientation in the camera (a viewpoint prior fitted on the training split, used only where those views
     agree; :class:`scapo.methods.hinge.HingeFrames`); the label gets ``+view-prior``."""
+    axis_sweep: bool = False
+    """Replace each revolute axis by the one its child part sweeps about in the method's base frame over the
+    training views (:class:`scapo.methods.sweep.SweepAxes`, fitted on the training split's predictions after the
+    other steps; an addition to the paper offered to every trained method), turned into each view by its base
+    rotation; applied after the hinge steps and before ``refine``; the label gets ``+axis-sweep``."""
 
     def __post_init__(self):
         if self.batch_size < 1:
@@ -301,6 +306,8 @@ def post_suffix(options) -> str:
         hinge += "-bar" if getattr(options, "hinge_bar_axis", False) else ""
     if getattr(options, "hinge_frames", False):
         hinge += "+hinge-frames" + ("+view-prior" if getattr(options, "hinge_view_prior", False) else "")
+    if getattr(options, "axis_sweep", False):
+        hinge += "+axis-sweep"
     return ("+refine" if options.refine else "") + hinge
 
 
@@ -366,6 +373,8 @@ class LearnedMethod:
         self.frames = None
         self.bar_ranks: list | None = None
         """``hinge_bar_axis``: per joint the rank of :func:`scapo.methods.hinge.bar_axis_choice` (fitted in ``fit``)."""
+        self.sweep = None
+        """The ``axis_sweep`` step (:class:`scapo.methods.sweep.SweepAxes`), fitted on the training split."""
 
     def fit(self, train: ArticulationDataset) -> None:
         """Load the finished run (:meth:`load`) and check it against ``train``'s category and structure."""
@@ -384,6 +393,12 @@ class LearnedMethod:
                 self.frames = HingeFrames(self.identity["joint_type"], self.identity["joint_parts"],
                                           self.options.hinge_view_prior)
                 self.frames.fit(pts, self._hinged(pts, raw))
+        if self.options.axis_sweep:
+            from scapo.methods.sweep import SweepAxes
+
+            pts = training_points(train)
+            self.sweep = SweepAxes(self.identity["joint_type"], self.identity["joint_parts"])
+            self.sweep.fit(pts, self._steps(pts, self._infer(pts), sweep=False))
 
     def load(self, data_hint: str = "") -> LearnedMethod:
         """Load the finished run (no dataset needed; :func:`scapo.methods.load`); returns self.
@@ -473,6 +488,24 @@ class LearnedMethod:
         return hinge_prediction(points, o, self.identity["joint_type"], self.identity["joint_parts"],
                                 axis_from_planes=self.options.hinge_axis, bar_axes=self.bar_ranks)
 
+    def _steps(self, points: np.ndarray, o: dict, sweep: bool = True) -> dict:
+        """The prediction steps the options turn on, in order, on the one-pass outputs ``o`` of ``points (M, N, 3)``:
+        ``hinge``, ``hinge_frames``, then (with ``sweep``) ``axis_sweep``.
+
+        Raises:
+            TrainingError: a step fitted on the training split before :meth:`fit`."""
+        if self.options.hinge:
+            o = self._hinged(points, o)
+        if self.options.hinge_frames:
+            if self.frames is None:
+                raise TrainingError("hinge_frames needs its offsets fitted on the training split first: fit(train)")
+            o = self.frames(points, o)
+        if sweep and self.options.axis_sweep:
+            if self.sweep is None:
+                raise TrainingError("axis_sweep needs its axes fitted on the training split first: fit(train)")
+            o = self.sweep(o)
+        return o
+
     @torch.no_grad()
     def predict(self, dataset: ArticulationDataset) -> Predictions:
         """Predictions for every sample of ``dataset`` (batches of ``batch_size`` clouds, no gradient);
@@ -481,17 +514,16 @@ class LearnedMethod:
         M = len(a["points"])
         t0 = time.perf_counter()
         o = self._infer(a["points"], f"{self.spec.method} {dataset.split}" if self.options.progress else "")
+        o = self._steps(a["points"], o)
         info = {}
         if self.options.hinge:
             from scapo.methods.hinge import hinge_info
 
-            o = self._hinged(a["points"], o)
             info["hinge"] = hinge_info(o, self.options.hinge_axis, self.bar_ranks)
         if self.options.hinge_frames:
-            if self.frames is None:
-                raise TrainingError("hinge_frames needs its offsets fitted on the training split first: fit(train)")
-            o = self.frames(a["points"], o)
             info["hinge_frames"] = self.frames.info(o)
+        if self.options.axis_sweep:
+            info["axis_sweep"] = self.sweep.info()
         if self.options.refine:
             from scapo.methods.refine import refine_info, refine_prediction
 

@@ -96,6 +96,8 @@ class SCAPOMethod:
         self.base_pair: tuple[int, int] | None = None
         """``base_frame=parts``: the signed ranks of the base's axes (:func:`.base_frame.choose_signed_pair`)."""
         self.base_dispersion: np.ndarray | None = None
+        self.sweep = None
+        """The ``axis_sweep`` step (:class:`scapo.methods.sweep.SweepAxes`), fitted on the training split."""
         self.frames = None
         """The ``hinge_frames`` step (:class:`scapo.methods.hinge.HingeFrames`), fitted on the training split."""
         self.bar_ranks: list | None = None
@@ -132,6 +134,12 @@ class SCAPOMethod:
 
             self.frames = HingeFrames(mc.joint_types, mc.joint_parts, self.options.hinge_view_prior)
             self.frames.fit(pts, self._hinged(pts, raw))
+        if self.options.axis_sweep:  # after the other steps, on their outputs for the training views
+            from scapo.methods.sweep import SweepAxes
+
+            pts = training_points(train)
+            self.sweep = SweepAxes(mc.joint_types, mc.joint_parts)
+            self.sweep.fit(pts, self._base_frame(pts, self._one_pass(pts, False), sweep=False))
 
     def fit_base_frame(self, points, max_views: int = 512) -> tuple[np.ndarray, float]:
         """Fit the base-axes offset (``base_frame``) on training clouds ``(M, N, 3)`` (camera frame, metres; no
@@ -193,7 +201,20 @@ class SCAPOMethod:
                                  axis_from_planes=self.options.hinge_axis, bar_axes=self.bar_ranks)
         return o
 
-    def _base_frame(self, points, o: dict) -> dict:
+    def _base_frame(self, points, o: dict, sweep: bool = True) -> dict:
+        """The prediction steps after the hinge step: on the part rotations ``hinge_frames`` or ``base_frame`` (at
+        most one is set), then (with ``sweep``) the revolute axes' ``axis_sweep``.
+
+        Raises:
+            ConfigError: a step fitted on a training split before ``fit``."""
+        o = self._rotations(points, o)
+        if sweep and self.options.axis_sweep:
+            if self.sweep is None:
+                raise ConfigError("axis_sweep=true needs its axes fitted on a training split first: fit(train)")
+            o = self.sweep(o)
+        return o
+
+    def _rotations(self, points, o: dict) -> dict:
         """The prediction steps on the part rotations: ``hinge_frames`` or ``base_frame`` (at most one is set)."""
         if self.options.hinge_frames:
             if self.frames is None:
@@ -270,6 +291,8 @@ class SCAPOMethod:
             extra["hinge"] = hinge_info(o, self.options.hinge_axis, self.bar_ranks)
         if self.options.hinge_frames:
             extra["hinge_frames"] = self.frames.info(o)
+        if self.options.axis_sweep:
+            extra["axis_sweep"] = self.sweep.info()
         seconds = time.perf_counter() - t0
         M = len(a["points"])
         return Predictions(
