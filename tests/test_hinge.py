@@ -195,6 +195,9 @@ def test_the_hinge_axis_option_needs_the_hinge_step():
         LearnedOptions(run="r", hinge_bar_axis=True)
     assert post_suffix(LearnedOptions(run="r", hinge=True, hinge_bar_axis=True, hinge_frames=True)) == \
         "+hinge-bar+hinge-frames"
+    assert post_suffix(LearnedOptions(run="r", hinge=True, axis_sweep=True)) == "+hinge+axis-sweep"
+    with pytest.raises(ConfigError, match="axis_sweep"):  # two steps that both set the axes
+        LearnedOptions(run="r", hinge=True, hinge_bar_axis=True, axis_sweep=True)
 
 
 def _posed_slabs(rng, opening_deg, n=600):

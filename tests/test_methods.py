@@ -71,6 +71,22 @@ def test_the_parts_axes_option_needs_a_run_trained_in_the_parts_frame(trained_ru
         SCAPOMethod(SCAPOOptions(run=trained_runs["scapo"], parts_axes="plane")).load()
 
 
+@pytest.mark.parametrize("name", ["scapo", "op-align"])
+def test_the_axis_sweep_step_runs_on_a_trained_method_and_sets_only_the_revolute_axes(name, laptop_data,
+                                                                                     trained_runs, tmp_path):
+    """``axis_sweep=true``: fitted on the training split's one-pass predictions, it changes the joint axes (unit,
+    turned by each view's base rotation) and nothing else, and records what it found."""
+    plain = run_method(name, laptop_data, tmp_path / "a.npz", run=trained_runs[name])
+    swept = run_method(name, laptop_data, tmp_path / "b.npz", run=trained_runs[name], axis_sweep=True)
+    assert swept.method.endswith("+axis-sweep") and len(swept.info["axis_sweep"]) == 1
+    assert np.array_equal(plain.part_label, swept.part_label) and np.allclose(plain.T_cam_obj, swept.T_cam_obj)
+    assert np.allclose(np.linalg.norm(swept.joint_axis, axis=-1), 1.0, atol=1e-5)
+    found = swept.info["axis_sweep"][0]
+    if found["mode"] != "kept":  # the canonical axis, the same in every view's base frame
+        canon = np.einsum("bji,bkj->bki", swept.T_cam_obj[:, :3, :3], swept.joint_axis)[:, 0]
+        assert np.allclose(np.abs(canon @ np.array(found["axis"])), 1.0, atol=1e-3)
+
+
 @pytest.mark.parametrize("name", ALL)
 def test_every_method_trains_predicts_and_is_scored(name, laptop_data, trained_runs, tmp_path):
     opts = {"run": trained_runs[name]} if name in trained_runs else dict(METHODS.get(name).quick_options)

@@ -280,9 +280,10 @@ class LearnedOptions:
     agree; :class:`scapo.methods.hinge.HingeFrames`); the label gets ``+view-prior``."""
     axis_sweep: bool = False
     """Replace each revolute axis by the one its child part sweeps about in the method's base frame over the
-    training views (:class:`scapo.methods.sweep.SweepAxes`, fitted on the training split's predictions after the
-    other steps; an addition to the paper offered to every trained method), turned into each view by its base
-    rotation; applied after the hinge steps and before ``refine``; the label gets ``+axis-sweep``."""
+    training views (:class:`scapo.methods.sweep.SweepAxes`, fitted on the training split's one-pass predictions; an
+    addition to the paper offered to every trained method), turned into each view by its base
+    rotation; applied first, so that ``hinge`` fits its pivots and split about these axes (``hinge_axis`` and
+    ``hinge_bar_axis``, which set the axes again, are refused with it); the label gets ``+axis-sweep``."""
 
     def __post_init__(self):
         if self.batch_size < 1:
@@ -293,6 +294,9 @@ class LearnedOptions:
             raise ConfigError("hinge_bar_axis=true re-estimates the axes within the hinge step; give hinge=true too")
         if self.hinge_frames and not self.hinge:
             raise ConfigError("hinge_frames=true reads the hinge step's split and pivots; give hinge=true too")
+        if self.axis_sweep and (self.hinge_axis or self.hinge_bar_axis):
+            raise ConfigError("axis_sweep=true sets the revolute axes; hinge_axis and hinge_bar_axis set them again: "
+                              "give one of them")
         if self.hinge_view_prior and not self.hinge_frames:
             raise ConfigError("hinge_view_prior=true is part of the hinge_frames step; give hinge=true and "
                               "hinge_frames=true too")
@@ -381,11 +385,17 @@ class LearnedMethod:
         self.load(f"--data {train.root} ")
         check_run_fits(self.run, self.identity, train, self.options.cross_category, f"train a run on this dataset "
                        f"first ('scapo train --method {self.spec.method} --data {train.root} --out RUN')")
+        if self.options.axis_sweep:  # first: the other steps read its axes
+            from scapo.methods.sweep import SweepAxes
+
+            pts = training_points(train)
+            self.sweep = SweepAxes(self.identity["joint_type"], self.identity["joint_parts"])
+            self.sweep.fit(pts, self._infer(pts))
         if self.options.hinge_bar_axis or self.options.hinge_frames:  # one one-pass of the training views for both
             from scapo.methods.hinge import HingeFrames, bar_axis_choice
 
             pts = training_points(train)
-            raw = self._infer(pts)
+            raw = self._swept(self._infer(pts))
             if self.options.hinge_bar_axis:
                 self.bar_ranks = bar_axis_choice(pts, raw["part_label"], self.identity["joint_type"],
                                                  self.identity["joint_parts"])
@@ -393,12 +403,6 @@ class LearnedMethod:
                 self.frames = HingeFrames(self.identity["joint_type"], self.identity["joint_parts"],
                                           self.options.hinge_view_prior)
                 self.frames.fit(pts, self._hinged(pts, raw))
-        if self.options.axis_sweep:
-            from scapo.methods.sweep import SweepAxes
-
-            pts = training_points(train)
-            self.sweep = SweepAxes(self.identity["joint_type"], self.identity["joint_parts"])
-            self.sweep.fit(pts, self._steps(pts, self._infer(pts), sweep=False))
 
     def load(self, data_hint: str = "") -> LearnedMethod:
         """Load the finished run (no dataset needed; :func:`scapo.methods.load`); returns self.
@@ -488,22 +492,30 @@ class LearnedMethod:
         return hinge_prediction(points, o, self.identity["joint_type"], self.identity["joint_parts"],
                                 axis_from_planes=self.options.hinge_axis, bar_axes=self.bar_ranks)
 
-    def _steps(self, points: np.ndarray, o: dict, sweep: bool = True) -> dict:
+    def _swept(self, o: dict) -> dict:
+        """The ``axis_sweep`` step on the one-pass outputs ``o`` (``o`` itself without it).
+
+        Raises:
+            TrainingError: before :meth:`fit` fitted the axes on the training split."""
+        if not self.options.axis_sweep:
+            return o
+        if self.sweep is None:
+            raise TrainingError("axis_sweep needs its axes fitted on the training split first: fit(train)")
+        return self.sweep(o)
+
+    def _steps(self, points: np.ndarray, o: dict) -> dict:
         """The prediction steps the options turn on, in order, on the one-pass outputs ``o`` of ``points (M, N, 3)``:
-        ``hinge``, ``hinge_frames``, then (with ``sweep``) ``axis_sweep``.
+        ``axis_sweep``, ``hinge`` (its pivots and split about the swept axes), ``hinge_frames``.
 
         Raises:
             TrainingError: a step fitted on the training split before :meth:`fit`."""
+        o = self._swept(o)
         if self.options.hinge:
             o = self._hinged(points, o)
         if self.options.hinge_frames:
             if self.frames is None:
                 raise TrainingError("hinge_frames needs its offsets fitted on the training split first: fit(train)")
             o = self.frames(points, o)
-        if sweep and self.options.axis_sweep:
-            if self.sweep is None:
-                raise TrainingError("axis_sweep needs its axes fitted on the training split first: fit(train)")
-            o = self.sweep(o)
         return o
 
     @torch.no_grad()

@@ -119,10 +119,15 @@ class SCAPOMethod:
         if rc.steps > 0 and rc.starts == "octahedral" and rc.upright_deg > 0:
             self.predictor.fit_upright(train.arrays(["points"])["points"])
         raw = None
-        if self.options.hinge_bar_axis or self.options.hinge_frames:  # one one-pass of the training views for both
-            pts = training_points(train)
+        if self.options.hinge_bar_axis or self.options.hinge_frames or self.options.axis_sweep:  # one one-pass of
+            pts = training_points(train)  # the training views for all three
             raw = self.predictor.predict(pts, self.options.batch_size, False)
         mc = self.predictor.model.cfg
+        if self.options.axis_sweep:  # first: the other steps read its axes
+            from scapo.methods.sweep import SweepAxes
+
+            self.sweep = SweepAxes(mc.joint_types, mc.joint_parts).fit(pts, raw)
+            raw = self.sweep(raw)
         if self.options.hinge_bar_axis:  # before the base frame's fit, whose one-pass predictions take the step
             from scapo.methods.hinge import bar_axis_choice
 
@@ -134,12 +139,6 @@ class SCAPOMethod:
 
             self.frames = HingeFrames(mc.joint_types, mc.joint_parts, self.options.hinge_view_prior)
             self.frames.fit(pts, self._hinged(pts, raw))
-        if self.options.axis_sweep:  # after the other steps, on their outputs for the training views
-            from scapo.methods.sweep import SweepAxes
-
-            pts = training_points(train)
-            self.sweep = SweepAxes(mc.joint_types, mc.joint_parts)
-            self.sweep.fit(pts, self._base_frame(pts, self._one_pass(pts, False), sweep=False))
 
     def fit_base_frame(self, points, max_views: int = 512) -> tuple[np.ndarray, float]:
         """Fit the base-axes offset (``base_frame``) on training clouds ``(M, N, 3)`` (camera frame, metres; no
@@ -183,7 +182,18 @@ class SCAPOMethod:
     def _one_pass(self, points, progress: bool) -> dict:
         """The network's prediction for ``points (B, N, 3)``, re-split about its hinges with ``hinge``
         (:mod:`scapo.methods.hinge`; before the base-axes snap, which reads the base's points)."""
-        return self._hinged(points, self.predictor.predict(points, self.options.batch_size, progress))
+        return self._hinged(points, self._swept(self.predictor.predict(points, self.options.batch_size, progress)))
+
+    def _swept(self, o: dict) -> dict:
+        """The ``axis_sweep`` step on the network's one-pass prediction ``o`` (``o`` itself without it).
+
+        Raises:
+            ConfigError: before ``fit`` fitted the axes on a training split."""
+        if not self.options.axis_sweep:
+            return o
+        if self.sweep is None:
+            raise ConfigError("axis_sweep=true needs its axes fitted on a training split first: fit(train)")
+        return self.sweep(o)
 
     def _hinged(self, points, o: dict) -> dict:
         """The hinge step on the network's one-pass prediction ``o`` of ``points (B, N, 3)`` (``o`` itself without
@@ -201,20 +211,7 @@ class SCAPOMethod:
                                  axis_from_planes=self.options.hinge_axis, bar_axes=self.bar_ranks)
         return o
 
-    def _base_frame(self, points, o: dict, sweep: bool = True) -> dict:
-        """The prediction steps after the hinge step: on the part rotations ``hinge_frames`` or ``base_frame`` (at
-        most one is set), then (with ``sweep``) the revolute axes' ``axis_sweep``.
-
-        Raises:
-            ConfigError: a step fitted on a training split before ``fit``."""
-        o = self._rotations(points, o)
-        if sweep and self.options.axis_sweep:
-            if self.sweep is None:
-                raise ConfigError("axis_sweep=true needs its axes fitted on a training split first: fit(train)")
-            o = self.sweep(o)
-        return o
-
-    def _rotations(self, points, o: dict) -> dict:
+    def _base_frame(self, points, o: dict) -> dict:
         """The prediction steps on the part rotations: ``hinge_frames`` or ``base_frame`` (at most one is set)."""
         if self.options.hinge_frames:
             if self.frames is None:
