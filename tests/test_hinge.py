@@ -373,8 +373,9 @@ def test_the_sweep_reads_a_bar_childs_axis_in_the_base_frame_and_turns_it_into_e
     import torch
 
     from scapo.errors import TrainingError
-    from scapo.methods.sweep import SweepAxes, sweep_axis
+    from scapo.methods.sweep import SweepAxes
     from scapo.ops.groups import random_rotation
+    from scapo.ops.sweep import sweep_axis
     from tests.test_frames import _glasses_view
 
     rng = np.random.default_rng(2)

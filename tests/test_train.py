@@ -481,10 +481,17 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     from scapo.models.train import TrainingClouds
 
     p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True,
-                            stage2_frame="parts", split_frame="refit")
+                            stage2_frame="parts", split_frame="refit", axis_init="sweep")
     trainer = Trainer(laptop_data, tmp_path / "t", p, progress=False)
     trainer.train()
     model = trainer.model
+    swept = json.loads((tmp_path / "t" / "axis_sweep.json").read_text())["joints"]  # axis_init="sweep"
+    assert len(swept) == 1 and swept[0]["mode"] in ("sweep", "still", "kept")
+    if swept[0]["mode"] != "kept":
+        assert np.isclose(np.linalg.norm(swept[0]["axis"]), 1.0, atol=1e-3) and swept[0]["views"] >= 8
+    with pytest.raises(ConfigError, match="axis_init='sweep'"):
+        dataclasses.replace(p, stage2_frame="stage1", split_frame="stage1")
+    assert get_preset("cpu/split-fit/split-labels/stage2-parts/axis-sweep").axis_init == "sweep"
     E = model.parts_frame
     assert model.uses_parts_frame and torch.allclose(E @ E.T, torch.eye(3), atol=1e-5)
     assert (tmp_path / "t" / "frame_targets.npy").is_file()

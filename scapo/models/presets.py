@@ -69,7 +69,10 @@ class TrainConfig:
     """How stage 2's revolute axes start (with ``part_init``): "motion", from the parts registered rigidly across pairs
     of canonical training clouds (:func:`scapo.models.part_init.estimate_axes`); "turn", the direction the child's
     principal axes turn about across them (:func:`scapo.models.part_init.axis_from_turns`: a thin part's unseen roll
-    about its own length is not read as motion; an addition to the paper, preset part ``axis-turn``)."""
+    about its own length is not read as motion; an addition to the paper, preset part ``axis-turn``); "sweep" (with
+    ``stage2_frame = "parts"``), "turn" and then, once every training cloud has its parts-signed target frame, the
+    direction its pseudo-labelled child's length sweeps about over the clouds in those frames
+    (:func:`scapo.ops.sweep.sweep_axis`; an addition to the paper, preset part ``axis-sweep``)."""
     split_init: str = "rigid"
     """How stage 2's starting split is found (with ``part_init``): "rigid", the keypoint set whose nearest-keypoint
     split moves most rigidly across the canonical training clouds (:func:`scapo.models.part_init.initial_split`);
@@ -179,8 +182,9 @@ class TrainConfig:
             raise ConfigError(f"preset {self.name!r}: training seed must be an integer in [0, 2**32), got {self.seed}")
         if self.anchors not in ("", "T", "O", "I"):
             raise ConfigError(f"preset {self.name!r}: anchors must be '', 'T', 'O' or 'I', got {self.anchors!r}")
-        if self.axis_init not in ("motion", "turn"):
-            raise ConfigError(f"preset {self.name!r}: axis_init must be 'motion' or 'turn', got {self.axis_init!r}")
+        if self.axis_init not in ("motion", "turn", "sweep"):
+            raise ConfigError(f"preset {self.name!r}: axis_init must be 'motion', 'turn' or 'sweep', got "
+                              f"{self.axis_init!r}")
         if self.split_init not in ("rigid", "fit"):
             raise ConfigError(f"preset {self.name!r}: split_init must be 'rigid' or 'fit', got {self.split_init!r}")
         if self.split_labels and "S" in str(self.supervision):
@@ -208,6 +212,9 @@ class TrainConfig:
         if self.stage2_frame not in ("stage1", "parts"):
             raise ConfigError(f"preset {self.name!r}: stage2_frame must be 'stage1' or 'parts', got "
                               f"{self.stage2_frame!r}")
+        if self.axis_init == "sweep" and self.stage2_frame != "parts":
+            raise ConfigError(f"preset {self.name!r}: axis_init='sweep' reads the axes in the stage2_frame='parts' "
+                              "target frames; set stage2_frame='parts' too")
         if self.stage2_frame != "stage1" and not self.split_labels:
             raise ConfigError(f"preset {self.name!r}: stage2_frame={self.stage2_frame!r} reads the split_labels "
                               "pseudo-labels (the base and its other parts); set split_labels too")
@@ -289,7 +296,8 @@ def get_preset(name: str) -> TrainConfig:
     part ``seg-gaussian`` takes ``L_seg``'s targets from Gaussian parts (``LossConfig.seg_labels``); a part
     ``principal`` (``no-principal``) reads stage 1's frame from principal axes with a hypothesis set
     (:data:`PRINCIPAL_ON`), or the paper's regressed frame; a part ``axis-turn`` starts stage 2's revolute axes from
-    the parts' turns (``TrainConfig.axis_init``); a part ``split-fit`` finds stage 2's starting split by fitting the
+    the parts' turns (``TrainConfig.axis_init``; ``axis-sweep``: from the children's sweep in the parts-signed
+    frames); a part ``split-fit`` finds stage 2's starting split by fitting the
     template to the clouds (``TrainConfig.split_init``) and ``split-labels`` trains stage 2 towards that split's labels
     of every training cloud (``TrainConfig.split_labels``), ``split-parts`` makes those labels in each cloud's
     parts-signed frame (``TrainConfig.split_frame``) and ``frame-target`` pulls each cloud's frame towards that frame
@@ -341,6 +349,9 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "stage2-parts":
             off["stage2_frame"] = "parts"  # stage 2 works in each cloud's parts-signed frame (stage2_frame)
+            continue
+        if part == "axis-sweep":
+            off["axis_init"] = "sweep"  # stage 2's revolute axes from the children's sweep in the target frames
             continue
         if part == "parts-plane":
             off["parts_axes"] = "plane"  # the base's directions from the points on its plane (parts_axes)

@@ -404,6 +404,8 @@ class ScapoJob:
                                 "labels_changed": round(float((labels != before).double().mean()), 4)})
                 targets, pair, tE = self._frame_targets(template, template_labels, canon, turned, labels)
             data.tensors["frame_target"] = targets
+            if self.preset.axis_init == "sweep" and tE is not None:
+                self._sweep_axes(canon, frames, targets, labels)
             if self.preset.stage2_frame == "parts" and tE is not None:  # stage 2 and prediction in that frame
                 self.model.parts_frame.copy_(tE.to(self.model.parts_frame))
                 self.model.parts_pair.copy_(torch.tensor(pair).to(self.model.parts_pair))
@@ -415,6 +417,39 @@ class ScapoJob:
             np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
 
     FRAME_TARGETS = "frame_targets.npy"
+
+    @torch.no_grad()
+    def _sweep_axes(self, canon: torch.Tensor, frames: torch.Tensor, targets: torch.Tensor,
+                    labels: torch.Tensor) -> None:
+        """``TrainConfig.axis_init = "sweep"``: each revolute joint's starting axis (the joint head's bias) becomes the
+        direction its child's length sweeps about (:func:`scapo.ops.sweep.sweep_axis`) over the training clouds in
+        their target frames: ``canon (B, N, 3)`` (stage-1 canonical clouds) turned from their ``frames (B, 3, 3)``
+        into their ``targets (B, 3, 3)`` (all zeros: the cloud is skipped), its child's points those its
+        pseudo-labels ``labels (B, N)`` give (at least :data:`scapo.ops.sweep.MIN_POINTS`), signed as the axis it
+        replaces. A joint with fewer than :data:`scapo.ops.sweep.MIN_VIEWS` such clouds keeps its axis. What was
+        found goes to ``axis_sweep.json`` in the run folder."""
+        from scapo.ops.sweep import MIN_VIEWS, child_directions, sweep_axis
+
+        has = targets.flatten(1).abs().sum(-1) > 0
+        turned = torch.bmm(canon[has], frames[has].transpose(1, 2) @ targets[has]).double().numpy()
+        lab = labels[has].numpy()
+        eye = np.tile(np.eye(3), (len(turned), 1, 1))
+        jb = self.model.joints.joint_bias()
+        found = []
+        for j, ((_, child), kind) in enumerate(zip(self.mcfg.joint_parts, self.mcfg.joint_types)):
+            u = child_directions(turned, lab, eye, child) if kind == 0 else np.zeros((0, 3))
+            if len(u) < MIN_VIEWS:
+                found.append({"joint": j, "views": int(len(u)), "mode": "kept"})
+                continue
+            axis, info = sweep_axis(u)
+            old = jb[j, 3:6].detach().double().cpu().numpy()
+            axis = axis if float(axis @ old) >= 0 else -axis
+            cos = float(abs(axis @ old) / max(np.linalg.norm(old), 1e-12))
+            jb[j, 3:6] = torch.from_numpy(axis).to(jb)
+            found.append({"joint": j, **info, "axis": [round(float(x), 4) for x in axis],
+                          "turned_from_deg": round(float(np.degrees(np.arccos(min(cos, 1.0)))), 2)})
+        if self.dist.is_main:
+            write_json(self.run / "axis_sweep.json", {"joints": found})
 
     RELABEL = "relabel.json"
 
@@ -649,7 +684,7 @@ class ScapoJob:
         kb[:, :3] = K.to(kb)
         axes = part_init.estimate_axes(clouds, K, self.mcfg.joint_types, self.mcfg.joint_parts, generator=g,
                                        labels=fit_split)
-        if self.preset.axis_init == "turn":
+        if self.preset.axis_init in ("turn", "sweep"):  # "sweep": turn first, the sweep once the target frames exist
             split = cloud_labels if cloud_labels is not None else fit_split if fit_split is not None else \
                 part_init.nearest_keypoint(clouds, K.expand(len(clouds), *K.shape))
             axes = part_init.estimate_axes_turn(clouds, split, self.mcfg.joint_types, self.mcfg.joint_parts, axes)
