@@ -548,10 +548,11 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     assert len(states) == 4 and sum(b["samples"] for b in states) == len(labels)
     assert all(b["state_from"] <= b["state_to"] for b in states) and diag["val"][-2]["by_state"] is not None
     assert bench.main(["--data", str(laptop_data), "--run", "no-label", "--out", str(tmp_path / "pf2")]) == 2
-    state = {k: v for k, v in model.state_dict().items() if k not in ("parts_frame", "parts_pair", "parts_plane")}
+    state = {k: v for k, v in model.state_dict().items()
+             if k not in ("parts_frame", "parts_pair", "parts_plane", "joints.axis_frozen")}
     older = SCAPOModel(model.cfg)
     older.load_checkpoint_state(state)  # a checkpoint from before the parts frame: off
-    assert not older.uses_parts_frame and older.parts_axes == "pca"
+    assert not older.uses_parts_frame and older.parts_axes == "pca" and not older.joints.axis_frozen.any()
 
 
 def test_relabel_replaces_the_pseudo_labels_with_the_networks_own_and_resumes_the_same(laptop_data, tmp_path,
@@ -609,3 +610,32 @@ def test_relabel_replaces_the_pseudo_labels_with_the_networks_own_and_resumes_th
         dataclasses.replace(p, split_labels=False, stage2_frame="stage1")
     with pytest.raises(ConfigError, match="relabel"):
         dataclasses.replace(p, relabel=-1)
+
+
+def test_a_frozen_joint_axis_stays_at_its_bias_while_the_rest_of_the_head_trains():
+    """``TrainConfig.axis_fixed``: after :meth:`JointHead.freeze_axis` the frozen joint's axis is its bias direction
+    for every shape and does not move under optimisation; the other joint's axis and every pivot still train; a
+    checkpoint from before the flag loads with no axis frozen; ``axis_fixed`` needs ``axis_init="sweep"``."""
+    from scapo.errors import ConfigError
+    from scapo.models.presets import get_preset
+    from scapo.models.scapo_model import JointHead
+
+    torch.manual_seed(0)
+    head = JointHead(2, (16, 32))
+    head.freeze_axis(0)
+    bias0 = head.joint_bias()[0, 3:6].detach().clone()
+    opt = torch.optim.AdamW(head.parameters(), lr=1e-2, weight_decay=0.0)
+    shapes = torch.randn(4, 50, 3)
+    before = head(shapes)
+    for _ in range(5):
+        opt.zero_grad()
+        pivot, axis, state, _ = head(shapes)
+        (pivot.square().sum() + (axis - torch.tensor([1.0, 0.0, 0.0])).square().sum() + state.square().sum()).backward()
+        opt.step()
+    after = head(torch.randn(3, 50, 3))
+    assert torch.allclose(after[1][:, 0], (bias0 / bias0.norm()).expand(3, 3), atol=1e-6)
+    assert torch.equal(head.joint_bias()[0, 3:6], bias0)
+    assert not torch.allclose(before[1][:, 1], head(shapes)[1][:, 1]) and not torch.allclose(before[0], head(shapes)[0])
+    with pytest.raises(ConfigError, match="axis_fixed"):
+        dataclasses.replace(get_preset("cpu"), axis_fixed=True)
+    assert get_preset("cpu/split-fit/split-labels/stage2-parts/axis-sweep/axis-fixed").axis_fixed

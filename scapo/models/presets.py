@@ -73,6 +73,11 @@ class TrainConfig:
     ``stage2_frame = "parts"``), "turn" and then, once every training cloud has its parts-signed target frame, the
     direction its pseudo-labelled child's length sweeps about over the clouds in those frames
     (:func:`scapo.ops.sweep.sweep_axis`; an addition to the paper, preset part ``axis-sweep``)."""
+    axis_fixed: bool = False
+    """With ``axis_init = "sweep"``: each revolute axis the sweep finds is held there through stage 2 (the joint
+    head's axis outputs no longer depend on the shape nor train: one direction of the canonical frame for the
+    category; :meth:`scapo.models.scapo_model.JointHead.freeze_axis`; an addition to the paper, preset part
+    ``axis-fixed``). Off: the paper's per-instance regressed axis, started there."""
     split_init: str = "rigid"
     """How stage 2's starting split is found (with ``part_init``): "rigid", the keypoint set whose nearest-keypoint
     split moves most rigidly across the canonical training clouds (:func:`scapo.models.part_init.initial_split`);
@@ -212,6 +217,9 @@ class TrainConfig:
         if self.stage2_frame not in ("stage1", "parts"):
             raise ConfigError(f"preset {self.name!r}: stage2_frame must be 'stage1' or 'parts', got "
                               f"{self.stage2_frame!r}")
+        if self.axis_fixed and self.axis_init != "sweep":
+            raise ConfigError(f"preset {self.name!r}: axis_fixed holds the axes axis_init='sweep' finds; set "
+                              "axis_init='sweep' too")
         if self.axis_init == "sweep" and self.stage2_frame != "parts":
             raise ConfigError(f"preset {self.name!r}: axis_init='sweep' reads the axes in the stage2_frame='parts' "
                               "target frames; set stage2_frame='parts' too")
@@ -297,7 +305,7 @@ def get_preset(name: str) -> TrainConfig:
     ``principal`` (``no-principal``) reads stage 1's frame from principal axes with a hypothesis set
     (:data:`PRINCIPAL_ON`), or the paper's regressed frame; a part ``axis-turn`` starts stage 2's revolute axes from
     the parts' turns (``TrainConfig.axis_init``; ``axis-sweep``: from the children's sweep in the parts-signed
-    frames); a part ``split-fit`` finds stage 2's starting split by fitting the
+    frames; ``axis-fixed``: held there); a part ``split-fit`` finds stage 2's starting split by fitting the
     template to the clouds (``TrainConfig.split_init``) and ``split-labels`` trains stage 2 towards that split's labels
     of every training cloud (``TrainConfig.split_labels``), ``split-parts`` makes those labels in each cloud's
     parts-signed frame (``TrainConfig.split_frame``) and ``frame-target`` pulls each cloud's frame towards that frame
@@ -352,6 +360,9 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "axis-sweep":
             off["axis_init"] = "sweep"  # stage 2's revolute axes from the children's sweep in the target frames
+            continue
+        if part == "axis-fixed":
+            off["axis_fixed"] = True  # the swept axes held through stage 2 (axis_fixed)
             continue
         if part == "parts-plane":
             off["parts_axes"] = "plane"  # the base's directions from the points on its plane (parts_axes)

@@ -140,6 +140,23 @@ class JointHead(nn.Module):
             bias = torch.zeros(num_joints, 7)
             bias[:, 3:6] = torch.tensor([0.0, 1.0, 0.0])
             self.out[-1].bias.copy_(torch.cat([bias.reshape(-1), torch.zeros(int(root))]))
+        # per joint 1 where its axis is held at the bias (TrainConfig.axis_fixed): the axis outputs' weights are zero
+        # and their gradients (weights and bias) are zeroed, so the axis is one direction of the canonical frame
+        self.register_buffer("axis_frozen", torch.zeros(num_joints))
+        self.out[-1].weight.register_hook(lambda g: g * self._axis_mask()[:, None])
+        self.out[-1].bias.register_hook(lambda g: g * self._axis_mask())
+
+    def _axis_mask(self) -> torch.Tensor:
+        """``(J * 7 + root,)`` 0 at the output rows of frozen axes, else 1."""
+        keep = torch.ones(self.J, 7, device=self.axis_frozen.device)
+        keep[:, 3:6] = (1.0 - self.axis_frozen)[:, None]
+        return torch.cat([keep.reshape(-1), torch.ones(int(self.root), device=keep.device)])
+
+    @torch.no_grad()
+    def freeze_axis(self, j: int) -> None:
+        """Hold joint ``j``'s axis at its bias from now on (``TrainConfig.axis_fixed``)."""
+        self.axis_frozen[j] = 1.0
+        self.out[-1].weight[j * 7 + 3: j * 7 + 6] = 0.0
 
     def joint_bias(self) -> torch.Tensor:
         """View ``(J, 7)`` of the output bias (pivot, axis, state per joint), for initialisation."""
@@ -205,8 +222,8 @@ class SCAPOModel(nn.Module):
         (their missing ``branch``/``branch_flip``/``parts_frame``/``parts_pair``/``parts_plane`` buffers keep the "off"
         values)."""
         state = dict(state)
-        for name in ("branch", "branch_flip", "parts_frame", "parts_pair", "parts_plane"):
-            state.setdefault(name, getattr(self, name).detach().clone())
+        for name in ("branch", "branch_flip", "parts_frame", "parts_pair", "parts_plane", "joints.axis_frozen"):
+            state.setdefault(name, self.get_buffer(name).detach().clone())
         self.load_state_dict(state)
 
     @staticmethod

@@ -182,7 +182,7 @@ INFERENCE_FIELDS = ("refine",)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
                 "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": "",
-                "relabel": 0, "relabel_frames": True, "parts_axes": "pca"}
+                "relabel": 0, "relabel_frames": True, "parts_axes": "pca", "axis_fixed": False}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -426,8 +426,8 @@ class ScapoJob:
         their target frames: ``canon (B, N, 3)`` (stage-1 canonical clouds) turned from their ``frames (B, 3, 3)``
         into their ``targets (B, 3, 3)`` (all zeros: the cloud is skipped), its child's points those its
         pseudo-labels ``labels (B, N)`` give (at least :data:`scapo.ops.sweep.MIN_POINTS`), signed as the axis it
-        replaces. A joint with fewer than :data:`scapo.ops.sweep.MIN_VIEWS` such clouds keeps its axis. What was
-        found goes to ``axis_sweep.json`` in the run folder."""
+        replaces, and with ``axis_fixed`` held there. A joint with fewer than :data:`scapo.ops.sweep.MIN_VIEWS` such
+        clouds keeps its axis. What was found goes to ``axis_sweep.json`` in the run folder."""
         from scapo.ops.sweep import MIN_VIEWS, child_directions, sweep_axis
 
         has = targets.flatten(1).abs().sum(-1) > 0
@@ -446,8 +446,11 @@ class ScapoJob:
             axis = axis if float(axis @ old) >= 0 else -axis
             cos = float(abs(axis @ old) / max(np.linalg.norm(old), 1e-12))
             jb[j, 3:6] = torch.from_numpy(axis).to(jb)
+            if self.preset.axis_fixed:
+                self.model.joints.freeze_axis(j)
             found.append({"joint": j, **info, "axis": [round(float(x), 4) for x in axis],
-                          "turned_from_deg": round(float(np.degrees(np.arccos(min(cos, 1.0)))), 2)})
+                          "turned_from_deg": round(float(np.degrees(np.arccos(min(cos, 1.0)))), 2),
+                          "fixed": bool(self.preset.axis_fixed)})
         if self.dist.is_main:
             write_json(self.run / "axis_sweep.json", {"joints": found})
 
