@@ -459,7 +459,8 @@ def test_frame_targets_give_one_frame_where_the_stage1_frames_take_half_turned_b
     frames = true @ branch  # canonical -> camera, half of them half-turned
     cam = obj[None] @ true.transpose(1, 2)
     canon = cam @ frames  # each cloud in its own stage-1 frame
-    job = types.SimpleNamespace(dist=types.SimpleNamespace(is_main=True), run=tmp_path)
+    job = types.SimpleNamespace(dist=types.SimpleNamespace(is_main=True), run=tmp_path,
+                                preset=types.SimpleNamespace(parts_axes="pca"))
     T, pair, tpl = ScapoJob._frame_targets(job, obj, lab, canon, frames, lab.expand(B, -1))
     assert len(pair) == 2 and torch.allclose(tpl @ tpl.T, torch.eye(3), atol=1e-5)
     offset = true.transpose(1, 2) @ T  # the same rotation for every cloud
