@@ -385,17 +385,17 @@ class LearnedMethod:
         self.load(f"--data {train.root} ")
         check_run_fits(self.run, self.identity, train, self.options.cross_category, f"train a run on this dataset "
                        f"first ('scapo train --method {self.spec.method} --data {train.root} --out RUN')")
+        if self.options.axis_sweep or self.options.hinge_bar_axis or self.options.hinge_frames:  # one one-pass of
+            pts = training_points(train)  # the training views for all three
+            raw = self._infer(pts)
         if self.options.axis_sweep:  # first: the other steps read its axes
             from scapo.methods.sweep import SweepAxes
 
-            pts = training_points(train)
-            self.sweep = SweepAxes(self.identity["joint_type"], self.identity["joint_parts"])
-            self.sweep.fit(pts, self._infer(pts))
-        if self.options.hinge_bar_axis or self.options.hinge_frames:  # one one-pass of the training views for both
+            self.sweep = SweepAxes(self.identity["joint_type"], self.identity["joint_parts"]).fit(pts, raw)
+            raw = self.sweep(raw)
+        if self.options.hinge_bar_axis or self.options.hinge_frames:
             from scapo.methods.hinge import HingeFrames, bar_axis_choice
 
-            pts = training_points(train)
-            raw = self._swept(self._infer(pts))
             if self.options.hinge_bar_axis:
                 self.bar_ranks = bar_axis_choice(pts, raw["part_label"], self.identity["joint_type"],
                                                  self.identity["joint_parts"])
