@@ -403,6 +403,7 @@ class ScapoJob:
                                                                        ).tolist(),
                                 "labels_changed": round(float((labels != before).double().mean()), 4)})
                 targets, pair, tE = self._frame_targets(template, template_labels, canon, turned, labels)
+                frames = turned  # canon is now in these frames (for axis_init='sweep' below)
             data.tensors["frame_target"] = targets
             if self.preset.axis_init == "sweep" and tE is not None:
                 self._sweep_axes(canon, frames, targets, labels)
