@@ -143,8 +143,8 @@ class JointHead(nn.Module):
         # per joint 1 where its axis is held at the bias (TrainConfig.axis_fixed): the axis outputs' weights are zero
         # and their gradients (weights and bias) are zeroed, so the axis is one direction of the canonical frame
         self.register_buffer("axis_frozen", torch.zeros(num_joints))
-        self.out[-1].weight.register_hook(lambda g: g * self._axis_mask()[:, None])
-        self.out[-1].bias.register_hook(lambda g: g * self._axis_mask())
+        self.out[-1].weight.register_hook(lambda g: g * self._axis_mask()[:, None] if self.axis_frozen.any() else g)
+        self.out[-1].bias.register_hook(lambda g: g * self._axis_mask() if self.axis_frozen.any() else g)
 
     def _axis_mask(self) -> torch.Tensor:
         """``(J * 7 + root,)`` 0 at the output rows of frozen axes, else 1."""
