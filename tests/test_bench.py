@@ -437,6 +437,27 @@ def test_ablation_presets():
     assert q.losses.disabled == () and q.root_motion == get_preset("cpu").root_motion
 
 
+def test_scapo_has_an_eyeglasses_preset_that_the_tables_pick_and_the_laptop_does_not():
+    """``cpu-eyeglasses`` is ``cpu`` with the ladder's eyeglasses parts (chosen on val), picked by
+    :func:`method_preset` for eyeglasses only; its ablations and schedules stack on it like any preset's."""
+    import dataclasses
+
+    from scapo.bench.cells import method_preset
+    from scapo.models.presets import EYEGLASSES_PARTS, get_preset
+
+    eye, parts = get_preset("cpu-eyeglasses"), get_preset("cpu/" + "/".join(EYEGLASSES_PARTS))
+    assert eye.name == "cpu-eyeglasses" and dataclasses.replace(parts, name=eye.name) == eye
+    assert (eye.split_init, eye.split_labels, eye.stage2_frame, eye.split_frame, eye.parts_axes, eye.axis_init,
+            eye.axis_fixed, eye.losses.disabled) == ("fit", True, "parts", "refit", "plane", "sweep", True,
+                                                       ("dir_align",))
+    assert method_preset("scapo", "cpu", "eyeglasses") == "cpu-eyeglasses"
+    assert method_preset("scapo", "cpu", "laptop") == "cpu" and method_preset("npcs", "cpu", "eyeglasses") == "cpu"
+    assert method_preset("scapo", "cpu/no-shape_var", "eyeglasses") == "cpu-eyeglasses/no-shape_var"
+    six = get_preset("cpu-eyeglasses/epochs-6-5")
+    assert (six.stage1_epochs, six.stage2_epochs, six.axis_init) == (6, 5, "sweep")
+    assert table1_cells(["scapo"], ["eyeglasses", "laptop"], "cpu", [0])[0].preset == "cpu-eyeglasses"
+
+
 def test_finished_only_writes_the_done_cells_and_lists_the_missing(bench, monkeypatch, tmp_path):
     work, _, _, results = bench
     _forbid(monkeypatch, "train_method", "run_method")
