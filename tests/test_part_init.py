@@ -338,3 +338,20 @@ def test_label_clouds_from_joint_turns_labels_a_child_folded_against_its_base():
     assert float((turned == labels).float().mean()) > 0.97
     assert float((own == labels).float().mean()) < 0.8
     assert torch.equal(label_clouds(template, labels, template[None], 2, joint_starts=(R, t))[0], labels)
+
+
+def test_split_init_fitted_takes_the_most_rigid_fit_even_where_the_keypoint_split_scores_as_well():
+    """``TrainConfig.split_init = "fitted"`` (``choose_split(keypoint_split=False)``): clouds that never move make
+    every split perfectly rigid (all scores 0); "fit" keeps the keypoint split (scored first), "fitted" takes a fit."""
+    from scapo.models.presets import get_preset
+
+    Xp, lp = hinged_plates(B=12, n=100)
+    still = Xp[:1].expand(6, -1, -1).contiguous()
+    Kp = torch.stack([still[0][lp[0] == p].mean(0) for p in range(2)])
+    fit = PI.choose_split(still, still[0], Kp, starts=2, pairs=16)
+    fitted = PI.choose_split(still, still[0], Kp, starts=2, pairs=16, keypoint_split=False)
+    assert max(fit["scores"]) < 1e-8 and fit["source"] == "keypoints" and fit["chosen"] == 0
+    assert fitted["source"] == "fit" and fitted["chosen"] >= 1 and fitted["scores"] == fit["scores"]
+    assert fitted["scores"][fitted["chosen"]] == min(fitted["scores"][1:])
+    assert get_preset("cpu/split-fit/split-fitted").split_init == "fitted"
+    assert get_preset("cpu-eyeglasses/split-fitted").split_labels

@@ -549,21 +549,24 @@ def fit_template_parts(template: torch.Tensor, clouds: torch.Tensor, labels: tor
 
 
 def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, starts: int = 24, pairs: int = 128,
-                 seed: int = 0, rounds: int = 8) -> dict:
+                 seed: int = 0, rounds: int = 8, keypoint_split: bool = True) -> dict:
     """The most rigid of the keypoint split and template splits found by fitting (``TrainConfig.split_init="fit"``).
 
     Candidates: the split by nearest keypoint ``K (P, 3)`` (:func:`initial_split`'s choice) and
     :func:`fit_template_parts` started from it and from ``starts`` random keypoint sets (``P`` template points drawn at
     random). Each is scored as :func:`initial_split` scores keypoints, by :func:`part_rigidity_residual` over ``pairs``
     random pairs of the ``clouds (B, n, 3)`` (the same pairs for every candidate), the clouds labelled by the
-    candidate; the lowest wins. With the frame given (``bench/split_init_diagnosis.py``, three seeds, no labels used),
+    candidate; the lowest wins. With ``keypoint_split=False`` (``TrainConfig.split_init="fitted"``) the keypoint split
+    is scored but cannot win: the lowest of the fits does (the keypoint split still wins when no fit keeps ``P`` parts).
+    With the frame given (``bench/split_init_diagnosis.py``, three seeds, no labels used),
     on eyeglasses the chosen split's mean IoU with the true parts is about twice the keypoint split's (about 0.7
     against 0.3, on complete clouds and on the paper's partial views); the figures per seed and the laptop's are in
     ``results/canonical_ladder/split_init/``.
 
     Args:
         clouds: ``(B, n, 3)`` canonical training clouds (``B >= 2``). template: ``(M, 3)`` one of them (stage 2's
-            ``Y_base``). K: ``(P, 3)`` the keypoint split's keypoints. starts, pairs, seed, rounds: as above.
+            ``Y_base``). K: ``(P, 3)`` the keypoint split's keypoints. starts, pairs, seed, rounds,
+            keypoint_split: as above.
 
     Returns:
         dict with ``template_labels (M,)`` and ``cloud_labels (B, n)`` (int64) of the winner, ``source`` ("keypoints"
@@ -589,7 +592,8 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
         if len(torch.unique(lab)) == P:  # a fit that emptied a part is not a split into P parts
             cands.append((lab, cl, "fit"))
     scores = [score(cl) for _, cl, _ in cands]
-    best = min(range(len(cands)), key=scores.__getitem__)
+    eligible = range(1 if len(cands) > 1 and not keypoint_split else 0, len(cands))
+    best = min(eligible, key=scores.__getitem__)
     return {"template_labels": cands[best][0], "cloud_labels": cands[best][1], "source": cands[best][2],
             "scores": scores, "chosen": best}
 

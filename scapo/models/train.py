@@ -680,7 +680,7 @@ class ScapoJob:
         K, _ = part_init.initial_split(clouds, pool, self.mcfg.num_parts, seed=self.preset.seed)
         K = part_init.part_centroids(template, K)
         tpl_split = fit_split = None
-        if self.preset.split_init == "fit" and labels is None:
+        if self.preset.split_init in ("fit", "fitted") and labels is None:
             tpl_split, fit_split, K = self._fit_split(clouds, template, K)
         if labels is not None:
             K = labelled_centroids(K, template, *labels)
@@ -703,13 +703,15 @@ class ScapoJob:
     def _fit_split(self, clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor
                    ) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
         """``TrainConfig.split_init = "fit"``: :func:`~scapo.models.part_init.choose_split` between the keypoint
-        split ``K (P, 3)`` of ``template (M, 3)`` and template splits fitted to the canonical ``clouds (B, n, 3)``. A
+        split ``K (P, 3)`` of ``template (M, 3)`` and template splits fitted to the canonical ``clouds (B, n, 3)``
+        (``"fitted"``: among the fitted splits only). A
         fitted split wins -> (its template labels ``(M,)``, its cloud labels ``(B, n)``, keypoints at its parts'
         template centroids ``(P, 3)``), the base first; the keypoint split wins -> ``(None, None, K)``. What was found
         goes to ``split_init.json`` in the run folder."""
         from scapo.models import part_init
 
-        found = part_init.choose_split(clouds, template, K, seed=self.preset.seed)
+        found = part_init.choose_split(clouds, template, K, seed=self.preset.seed,
+                                      keypoint_split=self.preset.split_init != "fitted")
         out: tuple = (None, None, K)
         if found["source"] == "fit":
             perm, C = part_init.base_first_labels(template, found["template_labels"], self.mcfg.num_parts)
