@@ -448,7 +448,7 @@ def test_scapo_has_an_eyeglasses_preset_that_the_tables_pick_and_the_laptop_does
     eye, parts = get_preset("cpu-eyeglasses"), get_preset("cpu/" + "/".join(EYEGLASSES_PARTS))
     assert eye.name == "cpu-eyeglasses" and dataclasses.replace(parts, name=eye.name) == eye
     assert (eye.split_init, eye.split_labels, eye.stage2_frame, eye.split_frame, eye.parts_axes, eye.axis_init,
-            eye.axis_fixed, eye.losses.disabled) == ("fit", True, "parts", "refit", "plane", "sweep", True,
+            eye.axis_fixed, eye.losses.disabled) == ("fitted", True, "parts", "refit", "plane", "sweep", True,
                                                        ("dir_align",))
     assert method_preset("scapo", "cpu", "eyeglasses") == "cpu-eyeglasses"
     assert method_preset("scapo", "cpu", "laptop") == "cpu" and method_preset("npcs", "cpu", "eyeglasses") == "cpu"
