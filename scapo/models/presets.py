@@ -401,7 +401,6 @@ def get_preset(name: str) -> TrainConfig:
                    **off)
 
 
-
 #: The parts of ``cpu`` that make SCAPO's per-category preset for eyeglasses (``cpu-eyeglasses``): stage 2's split
 #: chosen among template fits, never the keypoint split (``split-fitted``: on the ladder's data it chose as
 #: ``split-fit`` did on all three seeds; on two other eyeglasses datasets it kept the seeds where the keypoint split had
