@@ -402,16 +402,12 @@ def get_preset(name: str) -> TrainConfig:
 
 
 #: The parts of ``cpu`` that make SCAPO's per-category preset for eyeglasses (``cpu-eyeglasses``): stage 2's split
-#: chosen among template fits, never the keypoint split (``split-fitted``: on the ladder's data it chose as
-#: ``split-fit`` did on all three seeds; on two other eyeglasses datasets it kept the seeds where the keypoint split had
-#: won from losing the frame, results/canonical_ladder/stage2_parts/scale/), and trained towards as pseudo-labels,
+#: chosen among template fits, never the keypoint split (``split-fitted``), and trained towards as pseudo-labels,
 #: stage 2 in each cloud's parts-signed frame with the split fitted again there, the base's directions from its
 #: dominant plane, the revolute axes from the temples' sweep and held there, ``L_dir_align`` off. Chosen on the val
-#: split of the eyeglasses' paper-regime ladder rung, one switch at a time over three seeds
-#: (results/canonical_ladder/README.md, sessions 29-33: val frame consistency 0.90 / 0.90 / 0.92, S 61.2, median D 6.4
-#: and median R 13.0 against 0.81 / 0.85 / 0.81, 53.7, 65.3 and 16.7 for the parts-signed frame alone); each part has
-#: its own ablation row there. On the laptop the same parts are worse (frame 0.19 / 0.12 / 0.15 against 0.42 / 0.42 /
-#: 0.12), so the laptop keeps ``cpu``.
+#: split of the eyeglasses' paper-regime ladder rung, one switch at a time over three seeds, each part with its own
+#: ablation row (results/canonical_ladder/README.md, sessions 29-34; ``split-fitted``: stage2_parts/scale/). On the
+#: laptop the same parts are worse (stage2_parts/laptop_paper/), so the laptop keeps ``cpu``.
 EYEGLASSES_PARTS = ("split-fitted", "split-labels", "stage2-parts", "split-refit", "parts-plane", "axis-sweep",
                     "axis-fixed", "no-dir_align")
 PRESETS.add("cpu-eyeglasses", replace(get_preset("cpu/" + "/".join(EYEGLASSES_PARTS)), name="cpu-eyeglasses"))
