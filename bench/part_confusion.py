@@ -62,11 +62,19 @@ def diagnose(data: Path, preds, split: str, bins: list[float]) -> dict:
     card = load(data, split).card
     rows = np.flatnonzero(preds.split == split)
     gt = prediction_arrays(data, preds, ("part_label", "joint_state"))
-    labels, state = gt["part_label"][rows], gt["joint_state"][rows]
-    pred = preds.part_label[rows]
+    return score_labels(preds.part_label[rows], gt["part_label"][rows], gt["joint_state"][rows], card, bins)
+
+
+def score_labels(pred, labels, state, card: dict, bins: list[float]) -> dict:
+    """The rows (see the module docstring) of part labels ``pred (V, N)`` int (-1: none) against the true ``labels
+    (V, N)`` int and joint states ``state (V, J)`` (rad or m) of a dataset whose card is ``card``; ``bins``: the
+    joint-state bin edges (deg for revolute joints, m for prismatic ones). Also used for stage 2's pseudo-labels on
+    the training split (``bench/pseudo_label_confusion.py``)."""
+    import numpy as np
+
     P = len(card["part_names"])
     perm, miou = best_assignment(pred, labels, P)
-    out = {"views": int(len(rows)), "assignment": list(perm), "mean_iou": round(miou, 4),
+    out = {"views": int(len(pred)), "assignment": list(perm), "mean_iou": round(miou, 4),
            "part_iou": [round(float(iou(pred == perm[p], labels == p).mean()), 4) for p in range(P)],
            "confusion": confusion(pred, labels, perm, P).round(4).tolist(), "by_state": {}, "mirror_pairs": []}
     jt, jp = card["joint_type"], card["joint_parts"]

@@ -330,3 +330,37 @@ def test_part_confusion_refuses_bad_bins_and_missing_inputs(tmp_path, capsys):
         assert "--bins" in capsys.readouterr().err
     assert mod.main(["--data", str(tmp_path / "none"), "--pred", pred, "--out", str(tmp_path / "o")]) == 2
     assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
+
+
+def test_pseudo_label_confusion_scores_a_runs_split_labels(laptop_data, tmp_path, capsys):
+    """A run's split_labels.npy that is the training split's truth with the two parts exchanged in every other view
+    scores half right under the one best assignment and is written with its sha256; a run without the file, labels
+    of the wrong shape and bad --bins end in a scapo: message with nothing written."""
+    import json
+
+    from scapo.data import load
+
+    mod = _bench_script("pseudo_label_confusion")
+    truth = load(laptop_data, "train").arrays(["part_label"])["part_label"]
+    labels = truth.copy()
+    labels[::2] = np.where(truth[::2] >= 0, 1 - truth[::2], -1)  # base <-> lid in every other view
+    run = tmp_path / "run"
+    run.mkdir()
+    np.save(run / "split_labels.npy", labels)
+    out = tmp_path / "res" / "plc"
+    assert mod.main(["--data", str(laptop_data), "--run", f"r={run}", "--out", str(out)]) == 0
+    rec = json.loads(out.with_suffix(".json").read_text())
+    row = rec["rows"]["r"]
+    assert row["views"] == len(truth) and row["confusion"][0][1] == pytest.approx(0.5, abs=0.1)
+    assert rec["predictions"]["r"]["file"].endswith("split_labels.npy") and "Pseudo-label" in out.with_suffix(
+        ".md").read_text()
+    capsys.readouterr()
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    assert mod.main(["--data", str(laptop_data), "--run", f"b={bad}", "--out", str(tmp_path / "o")]) == 2
+    assert "has no split_labels.npy" in capsys.readouterr().err
+    np.save(bad / "split_labels.npy", labels[:, :5])
+    assert mod.main(["--data", str(laptop_data), "--run", f"b={bad}", "--out", str(tmp_path / "o")]) == 2
+    assert "the dataset the run was trained on" in capsys.readouterr().err
+    assert mod.main(["--bins", "3,1", "--data", str(laptop_data), "--run", f"r={run}", "--out", str(tmp_path / "o")]) == 2
+    assert "--bins" in capsys.readouterr().err and not (tmp_path / "o.md").exists()

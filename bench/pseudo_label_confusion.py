@@ -1,0 +1,100 @@
+"""Which parts SCAPO's stage-2 pseudo-labels confuse: the ``split_labels.npy`` of runs trained with preset part
+``split-labels`` (every training cloud labelled by the template fitted part by part, the labels stage 2 trains its
+skinning weights towards) scored against the training split's true part labels, as ``bench/part_confusion.py``
+scores a predictions file (no training; the true labels are read only here, never by the run).
+
+Per run: the one assignment of label slots to the true parts with the best mean IoU over the training split, the
+confusion matrix, the child IoU by joint state, and for mirror pairs (e.g. the eyeglasses' temples) whether the
+exchange is a view-level swap or points mixed within views (see ``bench/part_confusion.py``).
+
+    python bench/pseudo_label_confusion.py --data DATA --run LABEL=RUN_FOLDER [--run ...] --out results/.../NAME \\
+        [--bins 0,20,50,180]
+
+Writes ``<out>.{md,json}`` with provenance (commit, dataset hash, each ``split_labels.npy``'s sha256). Exit status 2
+after a ``scapo:`` message: a missing dataset or run folder, a run without ``split_labels.npy``, labels whose shape is
+not the training split's ``(clouds, points)``, bad ``--bins``, or an output that cannot be written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+from pathlib import Path
+
+
+def _part_confusion():
+    """``bench/part_confusion.py`` as a module (bench scripts are not a package)."""
+    path = Path(__file__).resolve().parent / "part_confusion.py"
+    spec = importlib.util.spec_from_file_location("part_confusion", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def score_run(data: Path, run: Path, bins: list[float], pc=None) -> dict:
+    """The rows of ``bench/part_confusion.py`` for ``run``'s ``split_labels.npy (clouds, points)`` int64 against the
+    true labels of ``data``'s training split.
+
+    Raises:
+        DatasetError: the run has no ``split_labels.npy``, or its shape is not the training split's part labels'."""
+    import numpy as np
+
+    from scapo.data import load
+    from scapo.errors import DatasetError
+
+    pc = pc or _part_confusion()
+    f = Path(run) / "split_labels.npy"
+    if not f.is_file():
+        raise DatasetError(f"{run} has no split_labels.npy: give a run trained with preset part split-labels")
+    try:
+        pred = np.load(f, allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise DatasetError(f"{f} cannot be read as a numpy array ({e}); train the run again") from None
+    ds = load(data, "train")
+    gt = ds.arrays(["part_label", "joint_state"])
+    if pred.shape != gt["part_label"].shape:
+        raise DatasetError(f"{f} holds labels of shape {pred.shape}, the training split of {data} "
+                           f"{gt['part_label'].shape}: give the dataset the run was trained on")
+    return pc.score_labels(pred, gt["part_label"], gt["joint_state"], ds.card, bins)
+
+
+def main(argv=None) -> int:
+    from scapo.bench.diagnosis import finish_diagnosis
+    from scapo.errors import ScapoError
+
+    pc = _part_confusion()
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", required=True)
+    ap.add_argument("--run", action="append", default=[], help="LABEL=RUN_FOLDER (a scapo train output)")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--bins", default="0,20,50,180", help="joint-state bin edges (deg or m)")
+    a = ap.parse_args(argv)
+    runs = [r.partition("=") for r in a.run]
+    bad = [f for f in [a.data] if not Path(f).is_dir()] + [f for _, _, f in runs if not Path(f).is_dir()]
+    if bad or not runs or any(not label for label, _, _ in runs):
+        print(f"scapo: {bad[0] if bad else 'no --run LABEL=RUN_FOLDER'}: give a dataset folder (--data) and run "
+              "folders (--run LABEL=FOLDER)", file=sys.stderr)
+        return 2
+    bins = pc.bin_edges(a.bins)
+    if bins is None:
+        print(f"scapo: --bins {a.bins!r}: give two or more increasing numbers, e.g. 0,20,50,180", file=sys.stderr)
+        return 2
+    try:
+        from scapo.data import load
+
+        rows = {label: score_run(Path(a.data), Path(f), bins, pc) for label, _, f in runs}
+        card = load(a.data, "train").card
+    except ScapoError as e:
+        print(f"scapo: {e}", file=sys.stderr)
+        return 2
+    a.split = "train"
+    lines = pc.render(a, rows, card)
+    lines[0] = lines[0].replace("# Part confusion", "# Pseudo-label confusion (split_labels.npy)")
+    files = [(label, "=", str(Path(f) / "split_labels.npy")) for label, _, f in runs]
+    command = "python bench/pseudo_label_confusion.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    return finish_diagnosis(a, files, lines, rows, card, command)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
