@@ -5,7 +5,9 @@ scores a predictions file (no training; the true labels are read only here, neve
 
 Per run: the one assignment of label slots to the true parts with the best mean IoU over the training split, the
 confusion matrix, the child IoU by joint state, and for mirror pairs (e.g. the eyeglasses' temples) whether the
-exchange is a view-level swap or points mixed within views (see ``bench/part_confusion.py``).
+exchange is a view-level swap or points mixed within views (see ``bench/part_confusion.py``). Where the run wrote
+``template_split.npz`` (the training sample stage 2's template came from and its split), also that split against the
+true parts of the template's points.
 
     python bench/pseudo_label_confusion.py --data DATA --run LABEL=RUN_FOLDER [--run ...] --out results/.../NAME \\
         [--bins 0,20,50,180]
@@ -56,7 +58,63 @@ def score_run(data: Path, run: Path, bins: list[float], pc=None) -> dict:
     if pred.shape != gt["part_label"].shape:
         raise DatasetError(f"{f} holds labels of shape {pred.shape}, the training split of {data} "
                            f"{gt['part_label'].shape}: give the dataset the run was trained on")
-    return pc.score_labels(pred, gt["part_label"], gt["joint_state"], ds.card, bins)
+    row = pc.score_labels(pred, gt["part_label"], gt["joint_state"], ds.card, bins)
+    row["template"] = score_template(Path(run), gt["part_label"], len(ds.card["part_names"]), pc)
+    return row
+
+
+def score_template(run: Path, truth, num_parts: int, pc) -> dict | None:
+    """The template's split against the true labels of its points, from the run's ``template_split.npz`` (written by
+    the trainer since this script's commit; None for a run without it): the training sample it came from, the true
+    parts' point counts, and per split (``labels``, the start; ``labels_refit``, the split fitted again) its parts'
+    point counts, the one best slot assignment's mean IoU over parts and the confusion (rows: true parts).
+
+    Raises:
+        DatasetError: a file that cannot be read, or whose sample or point indices are not in the training split."""
+    import numpy as np
+
+    from scapo.errors import DatasetError
+
+    f = run / "template_split.npz"
+    if not f.is_file():
+        return None
+    try:
+        with np.load(f, allow_pickle=False) as z:
+            rec = {k: z[k] for k in z.files}
+        sample, points = int(rec["sample"]), rec["points"].astype(np.int64)
+        true = truth[sample][points]
+    except (OSError, ValueError, KeyError, IndexError) as e:
+        raise DatasetError(f"{f} cannot be read or does not index the training split ({e}); give the dataset the "
+                           "run was trained on") from None
+    out = {"sample": sample, "true_part_points": np.bincount(true[true >= 0], minlength=num_parts).tolist()}
+    for key in ("labels", "labels_refit"):
+        if key in rec and rec[key].shape == true.shape:
+            lab = rec[key][None]
+            perm, miou = pc.best_assignment(lab, true[None], num_parts)
+            out[key] = {"part_points": np.bincount(rec[key][rec[key] >= 0], minlength=num_parts).tolist(),
+                        "mean_iou": round(miou, 4), "assignment": list(perm),
+                        "confusion": pc.confusion(lab, true[None], perm, num_parts).round(4).tolist()}
+    return out
+
+
+def template_lines(rows: dict, card: dict) -> list[str]:
+    """Markdown lines for the runs whose template split was scored (:func:`score_template`)."""
+    names = card["part_names"]
+    lines = []
+    for label, r in rows.items():
+        t = r.get("template")
+        if not t:
+            continue
+        if not lines:
+            lines = ["## The template's split against its points' true parts", "",
+                     "| run | split | training sample | true points per part | split's points per part | mean IoU | "
+                     "confusion (rows true: " + ", ".join(names) + ") |", "|:--|:--|--:|:--|:--|--:|:--|"]
+        for key in ("labels", "labels_refit"):
+            if key in t:
+                conf = "; ".join(" ".join(f"{v:.2f}" for v in row) for row in t[key]["confusion"])
+                lines.append(f"| {label} | {'start' if key == 'labels' else 'refit'} | {t['sample']} | "
+                             f"{t['true_part_points']} | {t[key]['part_points']} | {t[key]['mean_iou']:.3f} | {conf} |")
+    return [*lines, ""] if lines else []
 
 
 def main(argv=None) -> int:
@@ -89,7 +147,7 @@ def main(argv=None) -> int:
         print(f"scapo: {e}", file=sys.stderr)
         return 2
     a.split = "train"
-    lines = pc.render(a, rows, card)
+    lines = pc.render(a, rows, card) + template_lines(rows, card)
     lines[0] = lines[0].replace("# Part confusion", "# Pseudo-label confusion (split_labels.npy)")
     files = [(label, "=", str(Path(f) / "split_labels.npy")) for label, _, f in runs]
     command = "python bench/pseudo_label_confusion.py " + " ".join(sys.argv[1:] if argv is None else argv)

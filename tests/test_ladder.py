@@ -347,11 +347,17 @@ def test_pseudo_label_confusion_scores_a_runs_split_labels(laptop_data, tmp_path
     run = tmp_path / "run"
     run.mkdir()
     np.save(run / "split_labels.npy", labels)
+    points = np.arange(0, truth.shape[1], 2)  # the template: every other point of sample 3, its split the truth
+    np.savez(run / "template_split.npz", sample=np.int64(3), points=points, labels=truth[3][points],
+             labels_refit=1 - truth[3][points])
     out = tmp_path / "res" / "plc"
     assert mod.main(["--data", str(laptop_data), "--run", f"r={run}", "--out", str(out)]) == 0
     rec = json.loads(out.with_suffix(".json").read_text())
     row = rec["rows"]["r"]
     assert row["views"] == len(truth) and row["confusion"][0][1] == pytest.approx(0.5, abs=0.1)
+    t = row["template"]
+    assert t["sample"] == 3 and t["labels"]["mean_iou"] == 1.0 and t["labels_refit"]["mean_iou"] == 1.0
+    assert t["labels_refit"]["assignment"] == [1, 0] and sum(t["true_part_points"]) == len(points)
     assert rec["predictions"]["r"]["file"].endswith("split_labels.npy") and "Pseudo-label" in out.with_suffix(
         ".md").read_text()
     capsys.readouterr()

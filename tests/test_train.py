@@ -361,6 +361,11 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
             (tmp_path / "t" / "split_labels.npy").write_bytes(bad)
         with pytest.raises(DatasetError, match="split_labels.npy"):
             trainer.job._load_split_labels(TrainingClouds(laptop_data, 32))
+    with np.load(tmp_path / "t" / "template_split.npz") as z:  # where the template came from, and its split
+        M = trainer.job.mcfg.template_points
+        assert 0 <= int(z["sample"]) < len(saved) and z["points"].shape == z["labels"].shape == (M,)
+        assert 0 <= z["points"].min() and z["points"].max() < data.clouds.shape[1] and 0 <= z["labels"].min()
+        assert len(np.unique(z["points"])) == M and "labels_refit" not in z.files  # split_frame="parts": no refit
     made = json.loads((tmp_path / "t" / "split_frame.json").read_text())  # split_frame: each cloud's own frame
     assert len(made["signed_ranks"]) == 2 and 0 <= made["found"] <= made["clouds"] == len(saved)
     # frame_target: each cloud's target frame (a rotation, or zeros where none) saved, logged, read back or refused

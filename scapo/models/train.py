@@ -242,6 +242,7 @@ class ScapoJob:
         self.dist = ctx
         self.card = load(self.data, "train").card
         self.mcfg = model_config(self.card, self.preset)
+        self._template_record: dict[str, np.ndarray] = {}  # template_split.npz (see _save_template_record)
         with torch.random.fork_rng(devices=[]):  # the caller's global RNG is left as it was
             torch.manual_seed(self.preset.seed)  # parameter initialisation is part of the run's identity
             self.model = SCAPOModel(self.mcfg).to(self.device)
@@ -325,6 +326,9 @@ class ScapoJob:
             S = clouds.reshape(-1, 3).numpy()
         fps = farthest_point_indices(S, M, rng)
         self.model.y_base.copy_(torch.from_numpy(S[fps]).to(self.model.y_base))
+        # where the template came from (a diagnosis reads the true labels of its points; training never does)
+        self._template_record = {} if medoid is None else {"sample": np.int64(idx[medoid]),
+                                                           "points": np.asarray(fps, dtype=np.int64)}
         labels = None
         part_label = data.extra.get("part_label")
         if part_label is None:
@@ -339,9 +343,29 @@ class ScapoJob:
                 sub_labels = part_label[idx].long()[:, :: max(1, clouds.shape[1] // 128)]
             split = self._init_parts(sub, clouds.reshape(-1, 3), self.model.y_base.detach().cpu(), labels,
                                      sub_labels)
+            if self._template_record:
+                self._template_record["labels"] = split.numpy().astype(np.int64)
             if self.preset.split_labels:
                 self._label_training_clouds(data, split, idx, max(1, clouds.shape[1] // 128))
+        if self._template_record and self.dist.is_main:
+            self._save_template_record()
         return labels[0] if labels is not None else None
+
+    TEMPLATE_SPLIT = "template_split.npz"
+
+    def _save_template_record(self) -> None:
+        """Write ``template_split.npz`` to the run folder: the training sample stage 2's template was drawn from
+        (``sample``, int64, an index into the training split), its points' indices in that cloud (``points (M,)``
+        int64), the split stage 2 starts from (``labels (M,)`` int64) and, with ``split_frame = "refit"``, the split
+        fitted again (``labels_refit (M,)``). Not read by training or prediction: ``bench/pseudo_label_confusion.py``
+        scores the template's split against the true labels of those points (issue 52's diagnosis)."""
+        import io
+
+        from scapo.files import atomic_write_bytes
+
+        buf = io.BytesIO()
+        np.savez(buf, **self._template_record)
+        atomic_write_bytes(self.run / self.TEMPLATE_SPLIT, buf.getvalue())
 
     SPLIT_LABELS = "split_labels.npy"
 
@@ -397,6 +421,8 @@ class ScapoJob:
                 template_labels = self._init_parts(sub, canon[idx].reshape(-1, 3), template)
                 before, labels = labels, part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts,
                                                                 starts=starts, joint_starts=joints(template_labels))
+                if self._template_record:
+                    self._template_record["labels_refit"] = template_labels.numpy().astype(np.int64)
                 if self.dist.is_main:
                     write_json(self.run / "split_refit.json",
                                {"template_part_points": torch.bincount(template_labels, minlength=self.mcfg.num_parts
