@@ -7,7 +7,8 @@ Per run: the one assignment of label slots to the true parts with the best mean 
 confusion matrix, the child IoU by joint state, and for mirror pairs (e.g. the eyeglasses' temples) whether the
 exchange is a view-level swap or points mixed within views (see ``bench/part_confusion.py``). Where the run wrote
 ``template_split.npz`` (the training sample stage 2's template came from and its split), also that split against the
-true parts of the template's points.
+true parts of the template's points; where it wrote ``frame_targets.npy`` (preset part ``stage2-parts``), the frame
+consistency of the frames its pseudo-labels were made in.
 
     python bench/pseudo_label_confusion.py --data DATA --run LABEL=RUN_FOLDER [--run ...] --out results/.../NAME \\
         [--bins 0,20,50,180]
@@ -60,7 +61,38 @@ def score_run(data: Path, run: Path, bins: list[float], pc=None) -> dict:
                            f"{gt['part_label'].shape}: give the dataset the run was trained on")
     row = pc.score_labels(pred, gt["part_label"], gt["joint_state"], ds.card, bins)
     row["template"] = score_template(Path(run), gt["part_label"], len(ds.card["part_names"]), pc)
+    row["frame_targets"] = score_frame_targets(Path(run), ds.arrays(["T_cam_obj"])["T_cam_obj"])
     return row
+
+
+def score_frame_targets(run: Path, gt_T) -> dict | None:
+    """The object-frame consistency (:func:`scapo.bench.ladder.frame_consistency`, strict) of the frames the run's
+    pseudo-labels were made in and stage 2 trains in (``frame_targets.npy (clouds, 3, 3)`` float64, canonical ->
+    camera, zeros where a cloud has none; preset part ``stage2-parts``) against the training split's true object
+    rotations ``gt_T (clouds, 4, 4)``; None for a run without the file.
+
+    Raises:
+        DatasetError: a file that cannot be read or whose shape is not ``(clouds, 3, 3)``."""
+    import numpy as np
+
+    from scapo.bench.ladder import frame_consistency
+    from scapo.errors import DatasetError
+
+    f = run / "frame_targets.npy"
+    if not f.is_file():
+        return None
+    try:
+        F = np.load(f, allow_pickle=False).astype(np.float64)
+    except (OSError, ValueError) as e:
+        raise DatasetError(f"{f} cannot be read as a numpy array ({e}); train the run again") from None
+    if F.shape != (len(gt_T), 3, 3):
+        raise DatasetError(f"{f} holds frames of shape {F.shape}, not ({len(gt_T)}, 3, 3): give the dataset the run "
+                           "was trained on")
+    has = np.abs(F).sum((1, 2)) > 0
+    T = np.tile(np.eye(4), (int(has.sum()), 1, 1))
+    T[:, :3, :3] = F[has]
+    return {"with_target": round(float(has.mean()), 4),
+            "consistency": round(frame_consistency(T, gt_T[has]), 4) if has.any() else None}
 
 
 def score_template(run: Path, truth, num_parts: int, pc) -> dict | None:
@@ -98,15 +130,27 @@ def score_template(run: Path, truth, num_parts: int, pc) -> dict | None:
 
 
 def template_lines(rows: dict, card: dict) -> list[str]:
-    """Markdown lines for the runs whose template split was scored (:func:`score_template`)."""
+    """Markdown lines for the runs whose frame targets (:func:`score_frame_targets`) and template split
+    (:func:`score_template`) were scored."""
     names = card["part_names"]
     lines = []
+    ft = {label: r["frame_targets"] for label, r in rows.items() if r.get("frame_targets")}
+    if ft:
+        lines = ["## The frames the pseudo-labels were made in (`frame_targets.npy`)", "",
+                 "Object-frame consistency against the true object rotations (share within 15 deg of one common "
+                 "offset; 1: one canonical frame), over the clouds with a target.", "",
+                 "| run | clouds with a target | frame consistency |", "|:--|--:|--:|"]
+        for label, v in ft.items():
+            cons = "-" if v["consistency"] is None else f"{v['consistency']:.3f}"
+            lines.append(f"| {label} | {v['with_target']:.3f} | {cons} |")
+        lines.append("")
+    start = len(lines)
     for label, r in rows.items():
         t = r.get("template")
         if not t:
             continue
-        if not lines:
-            lines = ["## The template's split against its points' true parts", "",
+        if len(lines) == start:
+            lines += ["## The template's split against its points' true parts", "",
                      "| run | split | training sample | true points per part | split's points per part | mean IoU | "
                      "confusion (rows true: " + ", ".join(names) + ") |", "|:--|:--|--:|:--|:--|--:|:--|"]
         for key in ("labels", "labels_refit"):
@@ -114,7 +158,7 @@ def template_lines(rows: dict, card: dict) -> list[str]:
                 conf = "; ".join(" ".join(f"{v:.2f}" for v in row) for row in t[key]["confusion"])
                 lines.append(f"| {label} | {'start' if key == 'labels' else 'refit'} | {t['sample']} | "
                              f"{t['true_part_points']} | {t[key]['part_points']} | {t[key]['mean_iou']:.3f} | {conf} |")
-    return [*lines, ""] if lines else []
+    return [*lines, ""] if len(lines) > start else lines
 
 
 def main(argv=None) -> int:

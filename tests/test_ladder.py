@@ -350,6 +350,9 @@ def test_pseudo_label_confusion_scores_a_runs_split_labels(laptop_data, tmp_path
     points = np.arange(0, truth.shape[1], 2)  # the template: every other point of sample 3, its split the truth
     np.savez(run / "template_split.npz", sample=np.int64(3), points=points, labels=truth[3][points],
              labels_refit=1 - truth[3][points])
+    R = load(laptop_data, "train").arrays(["T_cam_obj"])["T_cam_obj"][:, :3, :3].copy()
+    R[1] = 0.0  # a cloud without a target; the others the true rotations turned by one offset: one frame
+    np.save(run / "frame_targets.npy", R @ np.diag([1.0, -1.0, -1.0]))
     out = tmp_path / "res" / "plc"
     assert mod.main(["--data", str(laptop_data), "--run", f"r={run}", "--out", str(out)]) == 0
     rec = json.loads(out.with_suffix(".json").read_text())
@@ -358,6 +361,7 @@ def test_pseudo_label_confusion_scores_a_runs_split_labels(laptop_data, tmp_path
     t = row["template"]
     assert t["sample"] == 3 and t["labels"]["mean_iou"] == 1.0 and t["labels_refit"]["mean_iou"] == 1.0
     assert t["labels_refit"]["assignment"] == [1, 0] and sum(t["true_part_points"]) == len(points)
+    assert row["frame_targets"] == {"with_target": round(1 - 1 / len(truth), 4), "consistency": 1.0}
     assert rec["predictions"]["r"]["file"].endswith("split_labels.npy") and "Pseudo-label" in out.with_suffix(
         ".md").read_text()
     capsys.readouterr()
