@@ -27,18 +27,15 @@ Writes ``<out>.{md,json}`` with provenance (commit, dataset hash).
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import sys
 from pathlib import Path
 
 
 def _split_diagnosis():
-    path = Path(__file__).resolve().parent / "split_init_diagnosis.py"
-    spec = importlib.util.spec_from_file_location("split_init_diagnosis", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    from scapo.bench.diagnosis import bench_script
+
+    return bench_script("split_init_diagnosis", Path(__file__).resolve().parent)
 
 
 def angle_deg(u, v) -> float:

@@ -21,18 +21,15 @@ not the training split's ``(clouds, points)``, bad ``--bins``, or an output that
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
 from pathlib import Path
 
 
 def _part_confusion():
     """``bench/part_confusion.py`` as a module (bench scripts are not a package)."""
-    path = Path(__file__).resolve().parent / "part_confusion.py"
-    spec = importlib.util.spec_from_file_location("part_confusion", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    from scapo.bench.diagnosis import bench_script
+
+    return bench_script("part_confusion", Path(__file__).resolve().parent)
 
 
 def score_run(data: Path, run: Path, bins: list[float], pc=None) -> dict:

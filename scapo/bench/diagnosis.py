@@ -11,6 +11,23 @@ from collections.abc import Sequence
 from pathlib import Path
 
 
+def bench_script(name: str, folder: str | Path):
+    """The bench script ``<folder>/<name>.py`` loaded as a module (the scripts in ``bench/`` are not a package; one
+    diagnosis reuses another's functions this way).
+
+    Raises:
+        FileNotFoundError: no such script."""
+    import importlib.util
+
+    path = Path(folder) / f"{name}.py"
+    if not path.is_file():
+        raise FileNotFoundError(f"no bench script {path}")
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def diagnosis_args(argv, description: str, options: Sequence[tuple[str, dict]] = ()):
     """Parse ``--data DATA --pred LABEL=FILE [--pred ...] [--split val|test] --out NAME``, and a diagnosis's own
     ``options``: ``(flag, argparse keyword arguments)`` pairs, e.g. ``("--rounds", {"type": int, "default": 3})``.
