@@ -49,7 +49,7 @@ def score_run(data: Path, run: Path, bins: list[float], pc=None) -> dict:
         raise DatasetError(f"{run} has no split_labels.npy: give a run trained with preset part split-labels")
     try:
         pred = np.load(f, allow_pickle=False)
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, EOFError) as e:
         raise DatasetError(f"{f} cannot be read as a numpy array ({e}); train the run again") from None
     ds = load(data, "train")
     gt = ds.arrays(["part_label", "joint_state"])
@@ -80,7 +80,7 @@ def score_frame_targets(run: Path, gt_T) -> dict | None:
         return None
     try:
         F = np.load(f, allow_pickle=False).astype(np.float64)
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, EOFError) as e:
         raise DatasetError(f"{f} cannot be read as a numpy array ({e}); train the run again") from None
     if F.shape != (len(gt_T), 3, 3):
         raise DatasetError(f"{f} holds frames of shape {F.shape}, not ({len(gt_T)}, 3, 3): give the dataset the run "
@@ -100,6 +100,8 @@ def score_template(run: Path, truth, num_parts: int, pc) -> dict | None:
 
     Raises:
         DatasetError: a file that cannot be read, or whose sample or point indices are not in the training split."""
+    import zipfile
+
     import numpy as np
 
     from scapo.errors import DatasetError
@@ -112,7 +114,7 @@ def score_template(run: Path, truth, num_parts: int, pc) -> dict | None:
             rec = {k: z[k] for k in z.files}
         sample, points = int(rec["sample"]), rec["points"].astype(np.int64)
         true = truth[sample][points]
-    except (OSError, ValueError, KeyError, IndexError) as e:
+    except (OSError, ValueError, EOFError, KeyError, IndexError, zipfile.BadZipFile) as e:
         raise DatasetError(f"{f} cannot be read or does not index the training split ({e}); give the dataset the "
                            "run was trained on") from None
     out = {"sample": sample, "true_part_points": np.bincount(true[true >= 0], minlength=num_parts).tolist()}

@@ -372,5 +372,9 @@ def test_pseudo_label_confusion_scores_a_runs_split_labels(laptop_data, tmp_path
     np.save(bad / "split_labels.npy", labels[:, :5])
     assert mod.main(["--data", str(laptop_data), "--run", f"b={bad}", "--out", str(tmp_path / "o")]) == 2
     assert "the dataset the run was trained on" in capsys.readouterr().err
+    np.save(bad / "split_labels.npy", labels)
+    (bad / "template_split.npz").write_bytes(b"PK\x03\x04 not a zip")  # a corrupt archive
+    assert mod.main(["--data", str(laptop_data), "--run", f"b={bad}", "--out", str(tmp_path / "o")]) == 2
+    assert "template_split.npz cannot be read" in capsys.readouterr().err
     assert mod.main(["--bins", "3,1", "--data", str(laptop_data), "--run", f"r={run}", "--out", str(tmp_path / "o")]) == 2
     assert "--bins" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
