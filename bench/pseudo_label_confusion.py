@@ -52,13 +52,13 @@ def score_run(data: Path, run: Path, bins: list[float], pc=None) -> dict:
     except (OSError, ValueError, EOFError) as e:
         raise DatasetError(f"{f} cannot be read as a numpy array ({e}); train the run again") from None
     ds = load(data, "train")
-    gt = ds.arrays(["part_label", "joint_state"])
+    gt = ds.arrays(["part_label", "joint_state", "T_cam_obj"])
     if pred.shape != gt["part_label"].shape:
         raise DatasetError(f"{f} holds labels of shape {pred.shape}, the training split of {data} "
                            f"{gt['part_label'].shape}: give the dataset the run was trained on")
     row = pc.score_labels(pred, gt["part_label"], gt["joint_state"], ds.card, bins)
     row["template"] = score_template(Path(run), gt["part_label"], len(ds.card["part_names"]), pc)
-    row["frame_targets"] = score_frame_targets(Path(run), ds.arrays(["T_cam_obj"])["T_cam_obj"])
+    row["frame_targets"] = score_frame_targets(Path(run), gt["T_cam_obj"])
     return row
 
 
