@@ -548,8 +548,52 @@ def fit_template_parts(template: torch.Tensor, clouds: torch.Tensor, labels: tor
     return labels, label_clouds(template, labels, clouds, num_parts, R, t, chunk=clouds.shape[0])
 
 
+#: ``TrainConfig.split_overseg``'s largest cluster count: the groupings of 7 clusters into 3 parts are 301 fits.
+MAX_OVERSEG_CLUSTERS = 7
+
+
+def set_partitions(items: int, blocks: int) -> list[tuple[int, ...]]:
+    """Every way to put ``items`` labelled items into exactly ``blocks`` unlabelled non-empty groups, each as a tuple of
+    group indices per item numbered by first appearance (restricted growth strings): the Stirling number of the second
+    kind ``S(items, blocks)`` of them (``S(6, 3) = 90``). Empty where ``blocks`` is not in ``[1, items]``."""
+    out: list[tuple[int, ...]] = []
+
+    def grow(prefix: list[int], used: int) -> None:
+        if len(prefix) == items:
+            if used == blocks:
+                out.append(tuple(prefix))
+            return
+        if blocks - used > items - len(prefix):  # too few items left to open the missing groups
+            return
+        for b in range(min(used + 1, blocks)):
+            grow(prefix + [b], max(used, b + 1))
+
+    if 1 <= blocks <= items:
+        grow([], 0)
+    return out
+
+
+def overseg_starts(template: torch.Tensor, num_parts: int, clusters: int, seed: int = 0) -> list[torch.Tensor]:
+    """Starting splits of ``template (M, 3)`` from an over-segmentation (``TrainConfig.split_overseg``, an addition to
+    the paper): :func:`kmeans` into ``clusters`` clusters (one k-means++ seeding from ``seed``, its own generator), then
+    every grouping of the clusters into ``num_parts`` parts (:func:`set_partitions`) -> a list of ``S(clusters,
+    num_parts)`` label tensors ``(M,)`` int64. Random keypoint starts rarely draw a part made of the template's far
+    ends (an eyeglasses temple on either side of the front); groups of clusters can (results/canonical_ladder/
+    stage2_parts/scale/, session 36).
+
+    Raises:
+        ValueError: ``clusters`` outside ``[num_parts, MAX_OVERSEG_CLUSTERS]`` or above the template's points."""
+    if not num_parts <= clusters <= min(MAX_OVERSEG_CLUSTERS, template.shape[0]):
+        raise ValueError(f"an over-segmentation into {clusters} clusters needs num_parts ({num_parts}) <= clusters <= "
+                         f"{min(MAX_OVERSEG_CLUSTERS, template.shape[0])}")
+    centres = kmeans(template, clusters, 1, generator=torch.Generator().manual_seed(seed))[0]
+    cluster = nearest_keypoint(template, centres)
+    return [torch.tensor(g, dtype=torch.long, device=template.device)[cluster]
+            for g in set_partitions(clusters, num_parts)]
+
+
 def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, starts: int = 24, pairs: int = 128,
-                 seed: int = 0, rounds: int = 8, keypoint_split: bool = True) -> dict:
+                 seed: int = 0, rounds: int = 8, keypoint_split: bool = True, overseg: int = 0) -> dict:
     """The most rigid of the keypoint split and template splits found by fitting (``TrainConfig.split_init="fit"``).
 
     Candidates: the split by nearest keypoint ``K (P, 3)`` (:func:`initial_split`'s choice) and
@@ -558,7 +602,9 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
     random pairs of the ``clouds (B, n, 3)`` (the same pairs for every candidate), the clouds labelled by the
     candidate; the lowest wins. With ``keypoint_split=False`` (``TrainConfig.split_init="fitted"``) the keypoint split
     is scored but cannot win: the lowest of the fits does (the keypoint split still wins when no fit keeps ``P`` parts).
-    With the frame given (``bench/split_init_diagnosis.py``, three seeds, no labels used),
+    With ``overseg`` (``TrainConfig.split_overseg``, 0: off) the fits from :func:`overseg_starts` (the template in
+    ``overseg`` k-means clusters, every grouping into ``P`` parts) are candidates too, after the others (which stay as
+    they were). With the frame given (``bench/split_init_diagnosis.py``, three seeds, no labels used),
     on eyeglasses the chosen split's mean IoU with the true parts is about twice the keypoint split's (about 0.7
     against 0.3, on complete clouds and on the paper's partial views); the figures per seed and the laptop's are in
     ``results/canonical_ladder/split_init/``.
@@ -566,14 +612,14 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
     Args:
         clouds: ``(B, n, 3)`` canonical training clouds (``B >= 2``). template: ``(M, 3)`` one of them (stage 2's
             ``Y_base``). K: ``(P, 3)`` the keypoint split's keypoints. starts, pairs, seed, rounds,
-            keypoint_split: as above.
+            keypoint_split, overseg: as above.
 
     Returns:
         dict with ``template_labels (M,)`` and ``cloud_labels (B, n)`` (int64) of the winner, ``source`` ("keypoints"
         or "fit"), ``scores`` (keypoint split first, then the fits, floats) and ``chosen`` (its index).
 
     Raises:
-        ValueError: fewer than two clouds.
+        ValueError: fewer than two clouds; ``overseg`` not 0 and outside :func:`overseg_starts`'s range.
     """
     B, P = clouds.shape[0], K.shape[0]
     if B < 2:
@@ -590,6 +636,10 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
         Kr = K if k == 0 else template[torch.randperm(len(template), generator=g)[:P]]
         lab, cl = fit_template_parts(template, clouds, nearest_keypoint(template, Kr), P, rounds=rounds)
         if len(torch.unique(lab)) == P:  # a fit that emptied a part is not a split into P parts
+            cands.append((lab, cl, "fit"))
+    for start in overseg_starts(template, P, overseg, seed) if overseg else []:
+        lab, cl = fit_template_parts(template, clouds, start, P, rounds=rounds)
+        if len(torch.unique(lab)) == P:
             cands.append((lab, cl, "fit"))
     scores = [score(cl) for _, cl, _ in cands]
     eligible = range(1 if len(cands) > 1 and not keypoint_split else 0, len(cands))

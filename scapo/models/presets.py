@@ -88,6 +88,13 @@ class TrainConfig:
     when no fit keeps every part; preset part ``split-fitted``): on eyeglasses data other than the one "fit" was chosen
     on, the keypoint split, whose Voronoi cells cannot hold a folded temple, sometimes wins the score and the
     pseudo-labels built on it lose the frame (results/canonical_ladder/stage2_parts/scale/, session 34)."""
+    split_overseg: int = 0
+    """With ``split_init`` "fit" or "fitted": the template is also cut into this many k-means clusters and every
+    grouping of them into the category's parts starts a fit (:func:`scapo.models.part_init.overseg_starts`; 6 gives 90
+    more fits on three parts, 31 on two). 0: off, the keypoint and random starts only. At most
+    :data:`scapo.models.part_init.MAX_OVERSEG_CLUSTERS`. An addition to the paper, preset part ``split-overseg``; on
+    the eyeglasses' stage-2 start it finds splits more rigid than the random starts' (results/canonical_ladder/
+    stage2_parts/scale/, session 36)."""
     split_labels: bool = False
     """At the start of stage 2, label every training cloud with stage 2's starting split (the template, split as it
     starts, fitted part by part to the cloud in its stage-1 frame: :func:`scapo.models.part_init.label_clouds`) and
@@ -196,6 +203,9 @@ class TrainConfig:
         if self.split_init not in ("rigid", "fit", "fitted"):
             raise ConfigError(f"preset {self.name!r}: split_init must be 'rigid', 'fit' or 'fitted', got "
                               f"{self.split_init!r}")
+        if self.split_overseg and not (isinstance(self.split_overseg, int) and 2 <= self.split_overseg <= 7):
+            raise ConfigError(f"preset {self.name!r}: split_overseg must be 0 (off) or a cluster count in [2, 7], got "
+                              f"{self.split_overseg!r}")
         if self.split_labels and "S" in str(self.supervision):
             raise ConfigError(f"preset {self.name!r}: split_labels (pseudo-labels) and segmentation supervision cannot "
                               "be combined: both train the skinning weights towards labels; choose one")
@@ -310,7 +320,8 @@ def get_preset(name: str) -> TrainConfig:
     (:data:`PRINCIPAL_ON`), or the paper's regressed frame; a part ``axis-turn`` starts stage 2's revolute axes from
     the parts' turns (``TrainConfig.axis_init``; ``axis-sweep``: from the children's sweep in the parts-signed
     frames; ``axis-fixed``: held there); a part ``split-fit`` finds stage 2's starting split by fitting the
-    template to the clouds (``TrainConfig.split_init``; ``split-fitted``: only among the fits) and ``split-labels``
+    template to the clouds (``TrainConfig.split_init``; ``split-fitted``: only among the fits; ``split-overseg``: also
+    from groupings of 6 template clusters, ``TrainConfig.split_overseg``) and ``split-labels``
     trains stage 2 towards that split's labels
     of every training cloud (``TrainConfig.split_labels``), ``split-parts`` makes those labels in each cloud's
     parts-signed frame (``TrainConfig.split_frame``) and ``frame-target`` pulls each cloud's frame towards that frame
@@ -347,6 +358,9 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "split-fit":
             off["split_init"] = "fit"  # stage 2's split from template fits (TrainConfig.split_init)
+            continue
+        if part == "split-overseg":
+            off["split_overseg"] = 6  # more split-fit starts: groupings of 6 template clusters (split_overseg)
             continue
         if part == "split-fitted":
             off["split_init"] = "fitted"  # stage 2's split the most rigid template fit, never the keypoint split

@@ -182,7 +182,8 @@ INFERENCE_FIELDS = ("refine",)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
                 "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": "",
-                "relabel": 0, "relabel_frames": True, "parts_axes": "pca", "axis_fixed": False}
+                "relabel": 0, "relabel_frames": True, "parts_axes": "pca", "axis_fixed": False,
+                "split_overseg": 0}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -737,7 +738,8 @@ class ScapoJob:
         from scapo.models import part_init
 
         found = part_init.choose_split(clouds, template, K, seed=self.preset.seed,
-                                      keypoint_split=self.preset.split_init != "fitted")
+                                      keypoint_split=self.preset.split_init != "fitted",
+                                      overseg=self.preset.split_overseg)
         out: tuple = (None, None, K)
         if found["source"] == "fit":
             perm, C = part_init.base_first_labels(template, found["template_labels"], self.mcfg.num_parts)
