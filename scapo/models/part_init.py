@@ -607,9 +607,9 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
     ``overseg`` k-means clusters, every grouping into ``P`` parts) are candidates too, after the others (which stay as
     they were). ``extra_starts``, template label tensors ``(M,)`` int64 (``TrainConfig.refit_keep``: the split stage 2
     started from), start fits after those. With the frame given (``bench/split_init_diagnosis.py``, three seeds, no
-    labels used), on eyeglasses the chosen split's mean IoU with the true parts is about twice the keypoint split's (about 0.7
-    against 0.3, on complete clouds and on the paper's partial views); the figures per seed and the laptop's are in
-    ``results/canonical_ladder/split_init/``.
+    labels used), on eyeglasses the chosen split's mean IoU with the true parts is about twice the keypoint split's
+    (about 0.7 against 0.3, on complete clouds and on the paper's partial views); the figures per seed and the laptop's
+    are in ``results/canonical_ladder/split_init/``.
 
     Args:
         clouds: ``(B, n, 3)`` canonical training clouds (``B >= 2``). template: ``(M, 3)`` one of them (stage 2's
