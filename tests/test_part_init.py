@@ -396,6 +396,13 @@ def test_overseg_starts_let_the_split_fit_find_temples_that_its_keypoint_start_m
     assert get_preset("cpu-eyeglasses/split-overseg").split_overseg == 6
     with pytest.raises(ConfigError, match="split_overseg"):
         dataclasses_replace(get_preset("cpu-eyeglasses"), split_overseg=9)
+    with pytest.raises(ConfigError, match="split_init 'fit' or 'fitted' too"):
+        get_preset("cpu/split-overseg")
+    from scapo.models.train import _check
+
+    with pytest.raises(ConfigError, match="cannot be grouped into the 3 parts of eyeglasses"):
+        _check(dataclasses_replace(get_preset("cpu-eyeglasses"), split_overseg=2),
+               {"part_names": ["frame", "left_temple", "right_temple"], "category": "eyeglasses"}, 100)
 
 
 def dataclasses_replace(cfg, **kw):

@@ -210,6 +210,9 @@ class TrainConfig:
         if self.split_overseg and not (isinstance(self.split_overseg, int) and 2 <= self.split_overseg <= 7):
             raise ConfigError(f"preset {self.name!r}: split_overseg must be 0 (off) or a cluster count in [2, 7], got "
                               f"{self.split_overseg!r}")
+        if self.split_overseg and self.split_init == "rigid":
+            raise ConfigError(f"preset {self.name!r}: split_overseg adds starts to the split fit; set split_init 'fit' "
+                              "or 'fitted' too (preset part split-fit or split-fitted)")
         if self.split_labels and "S" in str(self.supervision):
             raise ConfigError(f"preset {self.name!r}: split_labels (pseudo-labels) and segmentation supervision cannot "
                               "be combined: both train the skinning weights towards labels; choose one")

@@ -801,8 +801,14 @@ def _check(preset: TrainConfig, card: dict, clouds: int) -> None:
 
     Raises:
         ConfigError: more template points than that cloud or union has; pairs of views (``losses.view_consist``) with
-            labels (a supervised setting or ``split_labels``), which cover the first view of each pair only."""
+            labels (a supervised setting or ``split_labels``), which cover the first view of each pair only;
+            ``split_overseg`` clusters fewer than the category's parts."""
     from scapo.errors import ConfigError
+
+    parts = len(card.get("part_names", ()))
+    if preset.split_overseg and preset.split_overseg < parts:
+        raise ConfigError(f"split_overseg {preset.split_overseg} clusters cannot be grouped into the {parts} parts of "
+                          f"{card.get('category', 'this category')}; set split_overseg to at least {parts} (or 0: off)")
 
     if preset.losses.view_consist > 0 and preset.supervision:
         raise ConfigError("losses.view_consist (pairs of views) and a supervised setting cannot be combined yet: the "
