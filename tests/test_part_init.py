@@ -409,24 +409,3 @@ def dataclasses_replace(cfg, **kw):
     import dataclasses
 
     return dataclasses.replace(cfg, **kw)
-
-
-def test_refit_keep_adds_the_starting_split_as_a_start_of_the_fit():
-    """``TrainConfig.refit_keep``: the split stage 2 started from (here the true split of the folding glasses) starts
-    one more fit (``choose_split(extra_starts=...)``), after the others; it wins where it is the most rigid, so the
-    refit cannot end less rigid than that split's fit. The switch needs the refit."""
-    from scapo.errors import ConfigError
-    from scapo.models.presets import get_preset
-
-    X, lab = folding_glasses(B=8, n=120)
-    X = X - X.mean(1, keepdim=True)
-    T, Tl = X[0], lab[0]
-    front = T[Tl == 0]
-    K = front[torch.argsort(front[:, 1])[torch.tensor([5, 30, 55])]]
-    without = PI.choose_split(X, T, K, starts=0, pairs=32, keypoint_split=False)
-    kept = PI.choose_split(X, T, K, starts=0, pairs=32, keypoint_split=False, extra_starts=(Tl,))
-    assert len(kept["scores"]) == 3 and kept["scores"][:2] == without["scores"] and kept["chosen"] == 2
-    assert kept["scores"][2] < min(without["scores"][1:]) and _miou(kept["template_labels"], Tl, 3) > 0.75
-    assert get_preset("cpu-eyeglasses/refit-keep").refit_keep
-    with pytest.raises(ConfigError, match="refit_keep needs split_frame"):
-        get_preset("cpu/refit-keep")

@@ -593,8 +593,7 @@ def overseg_starts(template: torch.Tensor, num_parts: int, clusters: int, seed: 
 
 
 def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, starts: int = 24, pairs: int = 128,
-                 seed: int = 0, rounds: int = 8, keypoint_split: bool = True, overseg: int = 0,
-                 extra_starts: tuple[torch.Tensor, ...] = ()) -> dict:
+                 seed: int = 0, rounds: int = 8, keypoint_split: bool = True, overseg: int = 0) -> dict:
     """The most rigid of the keypoint split and template splits found by fitting (``TrainConfig.split_init="fit"``).
 
     Candidates: the split by nearest keypoint ``K (P, 3)`` (:func:`initial_split`'s choice) and
@@ -605,8 +604,7 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
     is scored but cannot win: the lowest of the fits does (the keypoint split still wins when no fit keeps ``P`` parts).
     With ``overseg`` (``TrainConfig.split_overseg``, 0: off) the fits from :func:`overseg_starts` (the template in
     ``overseg`` k-means clusters, every grouping into ``P`` parts) are candidates too, after the others (which stay as
-    they were). ``extra_starts``, template label tensors ``(M,)`` int64 (``TrainConfig.refit_keep``: the split stage 2
-    started from), start fits after those. With the frame given (``bench/split_init_diagnosis.py``, three seeds, no
+    they were). With the frame given (``bench/split_init_diagnosis.py``, three seeds, no
     labels used), on eyeglasses the chosen split's mean IoU with the true parts is about twice the keypoint split's
     (about 0.7 against 0.3, on complete clouds and on the paper's partial views); the figures per seed and the laptop's
     are in ``results/canonical_ladder/split_init/``.
@@ -614,7 +612,7 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
     Args:
         clouds: ``(B, n, 3)`` canonical training clouds (``B >= 2``). template: ``(M, 3)`` one of them (stage 2's
             ``Y_base``). K: ``(P, 3)`` the keypoint split's keypoints. starts, pairs, seed, rounds,
-            keypoint_split, overseg, extra_starts: as above.
+            keypoint_split, overseg: as above.
 
     Returns:
         dict with ``template_labels (M,)`` and ``cloud_labels (B, n)`` (int64) of the winner, ``source`` ("keypoints"
@@ -639,7 +637,7 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
         lab, cl = fit_template_parts(template, clouds, nearest_keypoint(template, Kr), P, rounds=rounds)
         if len(torch.unique(lab)) == P:  # a fit that emptied a part is not a split into P parts
             cands.append((lab, cl, "fit"))
-    for start in [*(overseg_starts(template, P, overseg, seed) if overseg else []), *extra_starts]:
+    for start in overseg_starts(template, P, overseg, seed) if overseg else []:
         lab, cl = fit_template_parts(template, clouds, start, P, rounds=rounds)
         if len(torch.unique(lab)) == P:
             cands.append((lab, cl, "fit"))

@@ -112,10 +112,6 @@ class TrainConfig:
     clouds in their ``stage2_frame`` target frames, the clouds labelled by it in those frames and the targets read
     again from those labels (:meth:`scapo.models.train.ScapoJob._label_training_clouds`; preset part
     ``split-refit``)."""
-    refit_keep: bool = False
-    """With ``split_frame = "refit"``: the refit's candidate splits also include the fit started from the split stage 2
-    started from (:func:`scapo.models.part_init.choose_split`'s ``extra_starts``), so that the refit keeps a split the
-    target frames make more rigid than its other fits (an addition to the paper, preset part ``refit-keep``)."""
     label_starts: str = ""
     """Where ``split_labels``' part-by-part template fit to each training cloud starts: "" (default), the identity
     (the cloud in its frame); "O", the whole template's best rigid fit from the 24 octahedral rotations
@@ -222,9 +218,6 @@ class TrainConfig:
         if self.split_frame == "refit" and self.stage2_frame != "parts":
             raise ConfigError(f"preset {self.name!r}: split_frame='refit' fits the split again in stage2_frame="
                               "'parts' frames; set stage2_frame='parts' too")
-        if self.refit_keep and self.split_frame != "refit":
-            raise ConfigError(f"preset {self.name!r}: refit_keep needs split_frame 'refit' (the split fitted again in "
-                              f"the target frames), got split_frame {self.split_frame!r}")
         if self.split_frame != "stage1" and not self.split_labels:
             raise ConfigError(f"preset {self.name!r}: split_frame={self.split_frame!r} is the frame split_labels "
                               "labels the clouds in; set split_labels too")
@@ -383,9 +376,6 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "frame-target":
             off["frame_target"] = 1.0  # stage 2 pulls each cloud's frame to its parts-signed one (frame_target)
-            continue
-        if part == "refit-keep":
-            off["refit_keep"] = True  # the refit also starts from the split stage 2 started from (refit_keep)
             continue
         if part == "split-refit":
             off["split_frame"] = "refit"  # the split fitted again in the stage2_frame target frames (split_frame)

@@ -183,7 +183,7 @@ ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "lab
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
                 "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": "",
                 "relabel": 0, "relabel_frames": True, "parts_axes": "pca", "axis_fixed": False,
-                "split_overseg": 0, "refit_keep": False}
+                "split_overseg": 0}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -419,8 +419,7 @@ class ScapoJob:
                 turned = torch.where(has, targets, frames)  # each cloud's target frame where it has one
                 canon = torch.bmm(canon, frames.transpose(1, 2) @ turned)  # (X - t) F = S R^T F
                 sub = canon[idx][:, ::step]
-                template_labels = self._init_parts(sub, canon[idx].reshape(-1, 3), template,
-                                                   start=template_labels if self.preset.refit_keep else None)
+                template_labels = self._init_parts(sub, canon[idx].reshape(-1, 3), template)
                 before, labels = labels, part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts,
                                                                 starts=starts, joint_starts=joints(template_labels))
                 if self._template_record:
@@ -681,8 +680,7 @@ class ScapoJob:
 
     @torch.no_grad()
     def _init_parts(self, clouds: torch.Tensor, union: torch.Tensor, template: torch.Tensor,
-                    labels: tuple | None = None, cloud_labels: torch.Tensor | None = None,
-                    start: torch.Tensor | None = None) -> torch.Tensor:
+                    labels: tuple | None = None, cloud_labels: torch.Tensor | None = None) -> torch.Tensor:
         """Keypoint and joint heads start from the most rigid split (:mod:`scapo.models.part_init`) of
         the canonical ``clouds (B, n, 3)``, candidates drawn from their ``union (U, 3)``: keypoints at
         the part centroids of ``template (M, 3)`` under that split; each joint's pivot at the boundary
@@ -700,9 +698,8 @@ class ScapoJob:
         or by ``cloud_labels (B, n)`` int64 when given (``label_init``: the labels' split, a diagnosis).
 
         ``TrainConfig.split_init`` "fit": the split is :meth:`_fit_split`'s choice, and the pivots and axes are read
-        from it; ``start (M,)`` int64 (``TrainConfig.refit_keep``), a template split whose fit is a candidate too.
-        Returns the template's split stage 2 starts from, ``(M,)`` int64 (the fitted one, or the template by nearest
-        keypoint)."""
+        from it. Returns the template's split stage 2 starts from, ``(M,)`` int64 (the fitted one, or the template by
+        nearest keypoint)."""
         from scapo.models import part_init
 
         g = torch.Generator().manual_seed(self.preset.seed)
@@ -711,7 +708,7 @@ class ScapoJob:
         K = part_init.part_centroids(template, K)
         tpl_split = fit_split = None
         if self.preset.split_init in ("fit", "fitted") and labels is None:
-            tpl_split, fit_split, K = self._fit_split(clouds, template, K, start)
+            tpl_split, fit_split, K = self._fit_split(clouds, template, K)
         if labels is not None:
             K = labelled_centroids(K, template, *labels)
         kb = self.model.keypoints.net[-1].bias.view(self.mcfg.num_parts, -1)
@@ -730,11 +727,11 @@ class ScapoJob:
         return tpl_split if tpl_split is not None else part_init.nearest_keypoint(template, K)
 
     @torch.no_grad()
-    def _fit_split(self, clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor,
-                   start: torch.Tensor | None = None) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
+    def _fit_split(self, clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor
+                   ) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
         """``TrainConfig.split_init = "fit"``: :func:`~scapo.models.part_init.choose_split` between the keypoint
         split ``K (P, 3)`` of ``template (M, 3)`` and template splits fitted to the canonical ``clouds (B, n, 3)``
-        (``"fitted"``: among the fitted splits only), and the fit from ``start (M,)`` when given. A
+        (``"fitted"``: among the fitted splits only). A
         fitted split wins -> (its template labels ``(M,)``, its cloud labels ``(B, n)``, keypoints at its parts'
         template centroids ``(P, 3)``), the base first; the keypoint split wins -> ``(None, None, K)``. What was found
         goes to ``split_init.json`` in the run folder."""
@@ -742,8 +739,7 @@ class ScapoJob:
 
         found = part_init.choose_split(clouds, template, K, seed=self.preset.seed,
                                       keypoint_split=self.preset.split_init != "fitted",
-                                      overseg=self.preset.split_overseg,
-                                      extra_starts=() if start is None else (start.to(template.device),))
+                                      overseg=self.preset.split_overseg)
         out: tuple = (None, None, K)
         if found["source"] == "fit":
             perm, C = part_init.base_first_labels(template, found["template_labels"], self.mcfg.num_parts)
