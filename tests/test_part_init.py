@@ -1,5 +1,6 @@
 """Data-driven stage-2 initialisation (scapo.models.part_init) on synthetic hinged plates."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -395,17 +396,12 @@ def test_overseg_starts_let_the_split_fit_find_temples_that_its_keypoint_start_m
         PI.choose_split(X, T, K, overseg=PI.MAX_OVERSEG_CLUSTERS + 1)
     assert get_preset("cpu-eyeglasses/split-overseg").split_overseg == 6
     with pytest.raises(ConfigError, match="split_overseg"):
-        dataclasses_replace(get_preset("cpu-eyeglasses"), split_overseg=9)
+        dataclasses.replace(get_preset("cpu-eyeglasses"), split_overseg=9)
     with pytest.raises(ConfigError, match="split_init 'fit' or 'fitted' too"):
         get_preset("cpu/split-overseg")
     from scapo.models.train import _check
 
     with pytest.raises(ConfigError, match="cannot be grouped into the 3 parts of eyeglasses"):
-        _check(dataclasses_replace(get_preset("cpu-eyeglasses"), split_overseg=2),
+        _check(dataclasses.replace(get_preset("cpu-eyeglasses"), split_overseg=2),
                {"part_names": ["frame", "left_temple", "right_temple"], "category": "eyeglasses"}, 100)
 
-
-def dataclasses_replace(cfg, **kw):
-    import dataclasses
-
-    return dataclasses.replace(cfg, **kw)

@@ -203,9 +203,12 @@ class TrainConfig:
         if self.split_init not in ("rigid", "fit", "fitted"):
             raise ConfigError(f"preset {self.name!r}: split_init must be 'rigid', 'fit' or 'fitted', got "
                               f"{self.split_init!r}")
-        if self.split_overseg and not (isinstance(self.split_overseg, int) and 2 <= self.split_overseg <= 7):
-            raise ConfigError(f"preset {self.name!r}: split_overseg must be 0 (off) or a cluster count in [2, 7], got "
-                              f"{self.split_overseg!r}")
+        if self.split_overseg:
+            from scapo.models.part_init import MAX_OVERSEG_CLUSTERS
+
+            if not (isinstance(self.split_overseg, int) and 2 <= self.split_overseg <= MAX_OVERSEG_CLUSTERS):
+                raise ConfigError(f"preset {self.name!r}: split_overseg must be 0 (off) or a cluster count in [2, "
+                                  f"{MAX_OVERSEG_CLUSTERS}], got {self.split_overseg!r}")
         if self.split_overseg and self.split_init == "rigid":
             raise ConfigError(f"preset {self.name!r}: split_overseg adds starts to the split fit; set split_init 'fit' "
                               "or 'fitted' too (preset part split-fit or split-fitted)")
