@@ -405,3 +405,45 @@ def test_overseg_starts_let_the_split_fit_find_temples_that_its_keypoint_start_m
         _check(dataclasses.replace(get_preset("cpu-eyeglasses"), split_overseg=2),
                {"part_names": ["frame", "left_temple", "right_temple"], "category": "eyeglasses"}, 100)
 
+
+
+def test_label_clouds_retries_only_the_worst_fitted_clouds_and_keeps_the_better_fit():
+    """``TrainConfig.label_retry``: of clouds of the L-shaped template, some in the template's frame (the fit from
+    the identity labels them right) and some turned far from it (it does not), the worst-fitted share is fitted
+    again from the octahedral starts and keeps the better fit: every cloud is then labelled right, the turned ones
+    were the ones retried, and the record says so. A cloud already fitted well keeps its fit. Bad settings are
+    refused, in the preset as in the function."""
+    from scapo.errors import ConfigError
+    from scapo.models.part_init import label_clouds
+    from scapo.models.presets import get_preset
+    from scapo.ops.groups import rotation_group
+    from scapo.ops.so3 import exp_so3
+
+    g = torch.Generator().manual_seed(0)
+    long = torch.rand(200, 3, generator=g) * torch.tensor([1.0, 0.06, 0.06])
+    short = torch.rand(80, 3, generator=g) * torch.tensor([0.06, 0.4, 0.06]) + torch.tensor([0.0, 0.06, 0.0])
+    template = torch.cat([long, short]) - torch.tensor([0.4, 0.1, 0.03])
+    labels = torch.cat([torch.zeros(200), torch.ones(80)]).long()
+    turn = exp_so3(torch.tensor([[0.0, 0.0, 1.0]]), torch.tensor([torch.pi / 2]))[0] @ \
+        exp_so3(torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([torch.pi]))[0]
+    turned = torch.tensor([False, True, False, False, True, False, False, False, True, False])
+    clouds = torch.stack([template @ turn.T if t else template for t in turned])
+    clouds = clouds + 0.002 * torch.randn(clouds.shape, generator=g)
+    starts = torch.tensor(rotation_group("O"), dtype=torch.float32)
+    plain = label_clouds(template, labels, clouds, 2)
+    right = (plain == labels).float().mean(1)
+    assert (right[~turned] > 0.99).all() and (right[turned] < 0.9).all()  # the identity fit fails the turned ones
+    rec: dict = {}
+    out = label_clouds(template, labels, clouds, 2, starts=starts, retry=0.4, record=rec, chunk=3)
+    assert ((out == labels).float().mean(1) > 0.99).all()
+    assert rec == {"retried": 0.4, "kept_retry": 0.75}  # 4 retried: the 3 turned ones win, the 4th keeps its fit
+    assert torch.equal(out[~turned], plain[~turned])
+    with pytest.raises(ValueError, match="retry needs starts"):
+        label_clouds(template, labels, clouds, 2, retry=0.4)
+    with pytest.raises(ValueError, match="retry needs starts"):
+        label_clouds(template, labels, clouds, 2, starts=starts, retry=1.5)
+    assert get_preset("cpu-eyeglasses/label-retry").label_retry == 0.4
+    with pytest.raises(ConfigError, match="label_retry fits"):
+        dataclasses.replace(get_preset("cpu"), label_retry=0.4)  # no label_starts group, no split_labels
+    with pytest.raises(ConfigError, match="share of the training clouds"):
+        dataclasses.replace(get_preset("cpu-eyeglasses/label-retry"), label_retry=2.0)

@@ -122,6 +122,15 @@ class TrainConfig:
     (a folded eyeglasses temple where the template's is open; labelling takes about 25 times longer). An addition to
     the paper (issue 52); "O" gave no gain and "A" a mixed result on the eyeglasses' paper rung
     (results/canonical_ladder/README.md, sessions 31-32)."""
+    label_retry: float = 0.0
+    """With ``split_labels`` and a rotation group in ``label_starts`` ("T", "O" or "I"): the share of the training
+    clouds, those whose part-by-part template fit from the identity scores worst, that are fitted again from the
+    group's best whole-template start, each keeping the better-scoring of its two fits
+    (:func:`scapo.models.part_init.label_clouds` ``retry``; preset part ``label-retry``: "O" and 0.4). An addition to
+    the paper (issue 52, session 37): on the table's eyeglasses data a fifth of the clouds get labels no better than
+    chance, those whose frame at stage 2's start is far from the template's; the starts rescue half of their base
+    (results/canonical_ladder/stage2_parts/scale/README.md, section 10). 0 (default): every cloud fitted once, as
+    ``label_starts`` says."""
     frame_target: float = 0.0
     """Weight of a stage-2 term that pulls each training cloud's frame (stage 1's, which stage 2 trains on) towards
     the frame its base's axes give when signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`,
@@ -227,6 +236,14 @@ class TrainConfig:
         if self.label_starts not in ("", "T", "O", "I", "A"):
             raise ConfigError(f"preset {self.name!r}: label_starts must be '', 'T', 'O', 'I' or 'A', got "
                               f"{self.label_starts!r}")
+        if isinstance(self.label_retry, bool) or not (isinstance(self.label_retry, (int, float))
+                                                      and 0.0 <= self.label_retry <= 1.0):
+            raise ConfigError(f"preset {self.name!r}: label_retry is a share of the training clouds in [0, 1], got "
+                              f"{self.label_retry!r}")
+        if self.label_retry and (self.label_starts not in ("T", "O", "I") or not self.split_labels):
+            raise ConfigError(f"preset {self.name!r}: label_retry fits the worst-fitted clouds again from a rotation "
+                              "group's starts; set label_starts to 'T', 'O' or 'I' and split_labels too (preset part "
+                              "label-retry with split-labels)")
         if self.frame_target < 0 or self.frame_target != self.frame_target:
             raise ConfigError(f"preset {self.name!r}: frame_target is a loss weight, >= 0; got {self.frame_target!r}")
         if self.frame_target > 0 and not self.split_labels:
@@ -329,8 +346,10 @@ def get_preset(name: str) -> TrainConfig:
     template to the clouds (``TrainConfig.split_init``; ``split-fitted``: only among the fits; ``split-overseg``: also
     from groupings of 6 template clusters, ``TrainConfig.split_overseg``) and ``split-labels``
     trains stage 2 towards that split's labels
-    of every training cloud (``TrainConfig.split_labels``), ``split-parts`` makes those labels in each cloud's
-    parts-signed frame (``TrainConfig.split_frame``) and ``frame-target`` pulls each cloud's frame towards that frame
+    of every training cloud (``TrainConfig.split_labels``; ``label-retry``: the worst-fitted 40 % of them labelled
+    again from the best of the 24 octahedral starts, ``TrainConfig.label_retry``), ``split-parts`` makes those
+    labels in each cloud's parts-signed frame (``TrainConfig.split_frame``) and ``frame-target`` pulls each cloud's
+    frame towards that frame
     (``TrainConfig.frame_target``, weight 1) and ``stage2-parts`` makes stage 2 work in that frame
     (``TrainConfig.stage2_frame``) and ``relabel`` relabels the training clouds once, halfway through stage 2, from
     the network's own predictions (``TrainConfig.relabel``) and ``parts-plane`` finds the base's directions on its
@@ -394,6 +413,10 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "parts-plane":
             off["parts_axes"] = "plane"  # the base's directions from the points on its plane (parts_axes)
+            continue
+        if part == "label-retry":
+            off["label_starts"] = "O"  # the worst-fitted clouds labelled again from the best of 24 starts (label_retry)
+            off["label_retry"] = 0.4
             continue
         if part == "relabel":
             off["relabel"] = 1  # stage 2 relabels the training clouds once, from its own predictions (relabel)

@@ -183,7 +183,7 @@ ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "lab
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
                 "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": "",
                 "relabel": 0, "relabel_frames": True, "parts_axes": "pca", "axis_fixed": False,
-                "split_overseg": 0}
+                "split_overseg": 0, "label_retry": 0.0}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -407,8 +407,19 @@ class ScapoJob:
                 return None
             return part_init.joint_turn_starts(template, split, self.mcfg.num_parts)
 
-        labels = part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts, starts=starts,
-                                        joint_starts=joints(template_labels))
+        retried: list[dict] = []
+
+        def label(split: torch.Tensor, clouds: torch.Tensor) -> torch.Tensor:
+            rec: dict = {}
+            out = part_init.label_clouds(template, split, clouds, self.mcfg.num_parts, starts=starts,
+                                         joint_starts=joints(split), retry=self.preset.label_retry, record=rec)
+            if rec:
+                retried.append(rec)
+                if self.dist.is_main:
+                    write_json(self.run / "label_retry.json", {"calls": retried})
+            return out
+
+        labels = label(template_labels, canon)
         if self.preset.split_frame == "parts":
             labels = self._parts_frame_labels(template, template_labels, canon, labels)
         if self.preset.frame_target > 0 or self.preset.stage2_frame == "parts":
@@ -420,8 +431,7 @@ class ScapoJob:
                 canon = torch.bmm(canon, frames.transpose(1, 2) @ turned)  # (X - t) F = S R^T F
                 sub = canon[idx][:, ::step]
                 template_labels = self._init_parts(sub, canon[idx].reshape(-1, 3), template)
-                before, labels = labels, part_init.label_clouds(template, template_labels, canon, self.mcfg.num_parts,
-                                                                starts=starts, joint_starts=joints(template_labels))
+                before, labels = labels, label(template_labels, canon)
                 if self._template_record:
                     self._template_record["labels_refit"] = template_labels.numpy().astype(np.int64)
                 if self.dist.is_main:
