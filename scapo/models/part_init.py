@@ -497,7 +497,7 @@ def label_clouds(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Ten
     :func:`refit_from_joint_starts`), ``chunk`` clouds at a time -> ``(B, n)`` int64.
 
     ``retry`` in (0, 1] with ``starts`` (``TrainConfig.label_retry``): every cloud is first fitted from the identity;
-    the ``retry`` share of the clouds whose fit is worst (:func:`_two_sided` score, clipped at ``clip``) is fitted
+    the ``retry`` share of the clouds whose fit is worst (:func:`_two_sided` score, clipped at 0.01) is fitted
     again from the whole template's best start among ``starts`` (:func:`whole_template_start` on every
     :data:`RETRY_STRIDE`-th point of the cloud, then the part-by-part fit on all of them), and each of those clouds
     keeps whichever of its two fits scores lower (a minimum over hypotheses; an addition to the paper, session 37:
