@@ -291,12 +291,9 @@ def test_fit_template_parts_draws_temples_that_no_keypoint_cells_draw():
         PI.choose_split(X[:1], T, K)
 
 
-def test_label_clouds_from_the_octahedral_starts_labels_a_cloud_turned_far_from_the_template():
-    """``TrainConfig.label_starts = "O"``: a cloud turned 90 deg about one axis and 180 deg about another from the
-    template (an L of a long bar and a short one, labelled by bar) is labelled right once the whole template's fit
-    starts from the best octahedral rotation; from the identity the part-by-part fit cannot undo the turn."""
-    from scapo.models.part_init import label_clouds, whole_template_start
-    from scapo.ops.groups import rotation_group
+def _turned_l():
+    """An L of a long bar and a short one (points ``(280, 3)``, labelled by bar) and a turn far from the identity
+    (90 deg about z after 180 deg about x): the generator that drew it, the template, its labels and the turn."""
     from scapo.ops.so3 import exp_so3
 
     g = torch.Generator().manual_seed(0)
@@ -306,6 +303,17 @@ def test_label_clouds_from_the_octahedral_starts_labels_a_cloud_turned_far_from_
     labels = torch.cat([torch.zeros(200), torch.ones(80)]).long()
     turn = exp_so3(torch.tensor([[0.0, 0.0, 1.0]]), torch.tensor([torch.pi / 2]))[0] @ \
         exp_so3(torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([torch.pi]))[0]
+    return g, template, labels, turn
+
+
+def test_label_clouds_from_the_octahedral_starts_labels_a_cloud_turned_far_from_the_template():
+    """``TrainConfig.label_starts = "O"``: a cloud turned 90 deg about one axis and 180 deg about another from the
+    template (an L of a long bar and a short one, labelled by bar) is labelled right once the whole template's fit
+    starts from the best octahedral rotation; from the identity the part-by-part fit cannot undo the turn."""
+    from scapo.models.part_init import label_clouds, whole_template_start
+    from scapo.ops.groups import rotation_group
+
+    g, template, labels, turn = _turned_l()
     cloud = (template @ turn.T)[None]
     starts = torch.tensor(rotation_group("O"), dtype=torch.float32)
     R, _ = whole_template_start(template, cloud, starts)
@@ -417,15 +425,8 @@ def test_label_clouds_retries_only_the_worst_fitted_clouds_and_keeps_the_better_
     from scapo.models.part_init import label_clouds
     from scapo.models.presets import get_preset
     from scapo.ops.groups import rotation_group
-    from scapo.ops.so3 import exp_so3
 
-    g = torch.Generator().manual_seed(0)
-    long = torch.rand(200, 3, generator=g) * torch.tensor([1.0, 0.06, 0.06])
-    short = torch.rand(80, 3, generator=g) * torch.tensor([0.06, 0.4, 0.06]) + torch.tensor([0.0, 0.06, 0.0])
-    template = torch.cat([long, short]) - torch.tensor([0.4, 0.1, 0.03])
-    labels = torch.cat([torch.zeros(200), torch.ones(80)]).long()
-    turn = exp_so3(torch.tensor([[0.0, 0.0, 1.0]]), torch.tensor([torch.pi / 2]))[0] @ \
-        exp_so3(torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([torch.pi]))[0]
+    g, template, labels, turn = _turned_l()
     turned = torch.tensor([False, True, False, False, True, False, False, False, True, False])
     clouds = torch.stack([template @ turn.T if t else template for t in turned])
     clouds = clouds + 0.002 * torch.randn(clouds.shape, generator=g)
