@@ -564,13 +564,7 @@ def _label_with_retry(template: torch.Tensor, labels: torch.Tensor, clouds: torc
         tall[sel[better]] = tc.reshape(-1, P, 3)[better]
     if record is not None:
         record.update({"retried": round(n / B, 4), "kept_retry": round(kept / n, 4)})
-    out = []
-    for k in range(0, B, chunk):
-        C = clouds[k:k + chunk]
-        posed = _posed(template, labels, Rall[k:k + chunk].reshape(-1, 3, 3), tall[k:k + chunk].reshape(-1, 3),
-                       len(C), P)
-        out.append(labels[pairwise_sq_dist(C, posed).argmin(-1)])
-    return torch.cat(out)
+    return label_clouds(template, labels, clouds, P, R=Rall.reshape(-1, 3, 3), t=tall.reshape(-1, 3), chunk=chunk)
 
 
 def fit_template_parts(template: torch.Tensor, clouds: torch.Tensor, labels: torch.Tensor, num_parts: int,
