@@ -385,22 +385,22 @@ def test_table3_reuses_table1s_scapo_cell_and_names_the_ablations(bench, monkeyp
 
 
 def test_cells_and_their_errors():
-    cells = table1_cells(["icp", "scapo"], ["laptop", "safe"], "cpu", [0, 1, 2], {"safe": [0]}, refine_rows=False)
+    cells = table1_cells(["icp", "scapo"], ["oven", "safe"], "cpu", [0, 1, 2], {"safe": [0]}, refine_rows=False)
     assert [c.key for c in cells] == ["icp", "scapo_cpu_s0", "scapo_cpu_s1", "scapo_cpu_s2", "icp", "scapo_cpu_s0"]
-    assert [c.category for c in cells] == ["laptop"] * 4 + ["safe"] * 2
+    assert [c.category for c in cells] == ["oven"] * 4 + ["safe"] * 2
     with_refine = table1_cells(["icp", "scapo"], ["safe"], "cpu", [0])
     assert [c.key for c in with_refine] == ["icp", "scapo_cpu_s0", "scapo+refine_cpu_s0"]
-    t3 = table3_cells(["laptop"], "cpu", [0])
+    t3 = table3_cells(["oven"], "cpu", [0])
     assert [c.label for c in t3] == ["scapo", "scapo-no-shape_var", "scapo-no-dir_align", "scapo-no-joint_prox",
                                      "scapo-no-joint_boundary"]
     assert t3[1].preset == "cpu/no-shape_var" and t3[1].key == "scapo-no-shape_var_cpu+no-shape_var_s0"
-    parts = table1_cells(["icp", "scapo"], ["laptop"], "cpu", [0, 1], refine_rows=False, parts=["scapo/principal"])
+    parts = table1_cells(["icp", "scapo"], ["oven"], "cpu", [0, 1], refine_rows=False, parts=["scapo/principal"])
     assert [(c.label, c.preset) for c in parts[3:]] == [("scapo-principal", "cpu/principal")] * 2
     for bad, msg in (("scapo", "METHOD/PART"), ("icp/principal", "not trained"), ("npcs/principal", "not among"),
                      ("scapo/nope", "nope")):
         with pytest.raises((ConfigError, UnknownNameError), match=msg):
             table1_cells(["icp", "scapo"], ["laptop"], "cpu", [0], parts=[bad])
-    rows = table1_cells(["icp", "scapo"], ["laptop"], "cpu", [0, 1], refine_rows=False,
+    rows = table1_cells(["icp", "scapo"], ["oven"], "cpu", [0, 1], refine_rows=False,
                         option_rows=["scapo:base-frame:base_frame=principal"])
     assert [(c.label, c.run_key, dict(c.options)) for c in rows[3:]] == [
         ("scapo-base-frame", f"scapo_cpu_s{s}", {"base_frame": "principal", "refine_steps": 0}) for s in (0, 1)]
@@ -437,25 +437,38 @@ def test_ablation_presets():
     assert q.losses.disabled == () and q.root_motion == get_preset("cpu").root_motion
 
 
-def test_scapo_has_an_eyeglasses_preset_that_the_tables_pick_and_the_laptop_does_not():
-    """``cpu-eyeglasses`` is ``cpu`` with the ladder's eyeglasses parts (chosen on val), picked by
-    :func:`method_preset` for eyeglasses only; its ablations and schedules stack on it like any preset's."""
+def test_scapo_has_eyeglasses_and_laptop_presets_that_the_tables_pick():
+    """``cpu-eyeglasses`` is ``cpu`` with the ladder's eyeglasses parts (chosen on val), and ``cpu-laptop`` the same
+    recipe (chosen on the laptop's val split), picked by :func:`method_preset` for their category only; ablations and
+    schedules stack on them like any preset's; the semi-supervised ``/sj`` (Table 2) keeps its base preset, which the
+    recipe's pseudo-labels could not be combined with."""
     import dataclasses
 
     from scapo.bench.cells import method_preset
-    from scapo.models.presets import EYEGLASSES_PARTS, get_preset
+    from scapo.models.presets import EYEGLASSES_PARTS, LAPTOP_PARTS, get_preset
 
     eye, parts = get_preset("cpu-eyeglasses"), get_preset("cpu/" + "/".join(EYEGLASSES_PARTS))
     assert eye.name == "cpu-eyeglasses" and dataclasses.replace(parts, name=eye.name) == eye
     assert (eye.split_init, eye.split_labels, eye.stage2_frame, eye.split_frame, eye.parts_axes, eye.axis_init,
             eye.axis_fixed, eye.losses.disabled) == ("fitted", True, "parts", "refit", "plane", "sweep", True,
                                                        ("dir_align",))
+    lap = get_preset("cpu-laptop")
+    assert lap.name == "cpu-laptop" and dataclasses.replace(get_preset("cpu/" + "/".join(LAPTOP_PARTS)),
+                                                           name=lap.name) == lap
+    assert dataclasses.replace(lap, name=eye.name) == eye  # one recipe, two names
     assert method_preset("scapo", "cpu", "eyeglasses") == "cpu-eyeglasses"
-    assert method_preset("scapo", "cpu", "laptop") == "cpu" and method_preset("npcs", "cpu", "eyeglasses") == "cpu"
+    assert method_preset("scapo", "cpu", "laptop") == "cpu-laptop"
+    assert method_preset("scapo", "cpu", "oven") == "cpu" and method_preset("npcs", "cpu", "eyeglasses") == "cpu"
     assert method_preset("scapo", "cpu/no-shape_var", "eyeglasses") == "cpu-eyeglasses/no-shape_var"
+    assert method_preset("scapo", "cpu/sj", "laptop") == "cpu/sj"  # cpu-laptop/sj is refused by TrainConfig
+    get_preset(method_preset("scapo", "cpu/sj", "laptop"))
+    with pytest.raises(ConfigError, match="no preset 'nope'"):
+        method_preset("scapo", "nope/sj", "laptop")
     six = get_preset("cpu-eyeglasses/epochs-6-5")
     assert (six.stage1_epochs, six.stage2_epochs, six.axis_init) == (6, 5, "sweep")
-    assert table1_cells(["scapo"], ["eyeglasses", "laptop"], "cpu", [0])[0].preset == "cpu-eyeglasses"
+    cells = table1_cells(["scapo"], ["eyeglasses", "laptop", "oven"], "cpu", [0])
+    assert {(c.category, c.preset) for c in cells} == {("eyeglasses", "cpu-eyeglasses"), ("laptop", "cpu-laptop"),
+                                                       ("oven", "cpu")}
 
 
 def test_finished_only_writes_the_done_cells_and_lists_the_missing(bench, monkeypatch, tmp_path):

@@ -103,13 +103,21 @@ class Cell:
 def method_preset(method: str, preset: str, category: str) -> str:
     """The preset ``method`` trains with on ``category`` when the bench asks for ``preset``: the
     per-category preset ``<preset>-<category>`` when the method registers one (chosen on the
-    validation split; see the method's preset definitions), else ``preset`` itself.
+    validation split; see the method's preset definitions), else ``preset`` itself. A semi-supervised preset
+    (a part ``sj``, ``s`` or ``j``) is kept as asked: the per-category presets are self-supervised recipes.
 
     Raises:
         UnknownNameError: unknown method. ConfigError: a trained method without that preset.
     """
+    from scapo.registry import parse_preset
+
     entry = METHODS.get(method)
-    if "/" in preset:  # a modified preset (an ablation, the semi-supervised /sj): of the method's base preset
+    if parse_preset(preset).supervision:  # the semi-supervised setting (Table 2's /sj rows): the labels do what a
+        base = preset.partition("/")[0]  # per-category preset's pseudo-labels do, and a preset cannot have both
+        if base not in entry.presets:  # (TrainConfig refuses split_labels with S), so the base preset as asked
+            raise ConfigError(f"method {method!r} has no preset {base!r}; its presets: {', '.join(entry.presets)}")
+        return preset
+    if "/" in preset:  # a modified preset (an ablation): of the method's per-category base preset
         base, _, mods = preset.partition("/")
         return f"{method_preset(method, base, category)}/{mods}"
     if f"{preset}-{category}" in entry.presets:

@@ -452,9 +452,14 @@ def get_preset(name: str) -> TrainConfig:
 #: dominant plane, the revolute axes from the temples' sweep and held there, ``L_dir_align`` off. Chosen on the val
 #: split of the eyeglasses' paper-regime ladder rung, one switch at a time over three seeds, each part with its own
 #: ablation row (results/canonical_ladder/README.md, sessions 29-34; ``split-fitted``: stage2_parts/scale/). On the
-#: laptop the same parts are worse (stage2_parts/laptop_paper/), so the laptop keeps ``cpu``. ``split-overseg`` (more
+#: laptop an early subset of these parts was worse (stage2_parts/laptop_paper/, session 31). ``split-overseg`` (more
 #: starts for the split fit, session 36) was chosen on the val split of Table 1's eyeglasses data against the table's
 #: own cells (stage2_parts/scale/, section 7); ``--set split_overseg=0`` is its ablation.
 EYEGLASSES_PARTS = ("split-fitted", "split-overseg", "split-labels", "stage2-parts", "split-refit", "parts-plane",
                     "axis-sweep", "axis-fixed", "no-dir_align")
 PRESETS.add("cpu-eyeglasses", replace(get_preset("cpu/" + "/".join(EYEGLASSES_PARTS)), name="cpu-eyeglasses"))
+#: The parts of ``cpu`` that make SCAPO's per-category preset for the laptop (``cpu-laptop``): the whole eyeglasses
+#: recipe, as it stands since session 36. Chosen in session 38 on the val split of Table 1's paper-regime laptop data
+#: against ``cpu``, three seeds each at the table's schedule (results/canonical_ladder/stage2_parts/laptop_table/).
+LAPTOP_PARTS = EYEGLASSES_PARTS
+PRESETS.add("cpu-laptop", replace(get_preset("cpu/" + "/".join(LAPTOP_PARTS)), name="cpu-laptop"))
