@@ -5,7 +5,7 @@
 # method's clouds/s measured once per dataset: `scapo bench table1 --budget-minutes`). On a 2-core machine: the
 # datasets first, then two chains side by side (one torch thread each; the speeds are measured as the chains start,
 # with the other core busy), then the table from every finished cell. Each method trains with its per-category preset
-# where it registers one (SCAPO on eyeglasses: cpu-eyeglasses, scapo.models.presets.EYEGLASSES_PARTS). Resumable; run
+# where it registers one (SCAPO: cpu-eyeglasses and cpu-laptop, scapo.models.presets.EYEGLASSES_PARTS). Resumable; run
 # it from a clean worktree of the commit the table records (SCAPO= its scapo, PYTHONPATH= the worktree).
 #   BUDGET=5 WORK=bench_work/table1_paper bash bench/table1_paper_two_categories.sh
 #   FINISH=1 bash bench/table1_paper_two_categories.sh        # the table of the finished cells, into results/
