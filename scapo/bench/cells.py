@@ -46,6 +46,7 @@ from scapo.eval import EvalResult, Predictions, evaluate
 from scapo.files import atomic_write_bytes, write_json
 from scapo.methods import METHODS, run_method, train_method
 from scapo.provenance import provenance
+from scapo.registry import parse_preset
 
 
 @dataclass(frozen=True)
@@ -109,8 +110,6 @@ def method_preset(method: str, preset: str, category: str) -> str:
     Raises:
         UnknownNameError: unknown method. ConfigError: a trained method without that preset.
     """
-    from scapo.registry import parse_preset
-
     entry = METHODS.get(method)
     if parse_preset(preset).supervision:  # the semi-supervised setting (Table 2's /sj rows): the labels do what a
         base = preset.partition("/")[0]  # per-category preset's pseudo-labels do, and a preset cannot have both
