@@ -483,7 +483,7 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
 
     from scapo.errors import ConfigError
     from scapo.models.presets import get_preset
-    from scapo.models.scapo_model import SCAPOModel
+    from scapo.models.scapo_model import PARTS_PASSES, SCAPOModel
     from scapo.models.train import TrainingClouds
 
     p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True,
@@ -525,6 +525,12 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
         assert torch.allclose(mixed.R[0], turned) and torch.allclose(mixed.R[1:], own.R[1:])
         F = model.parts_frames(X, own.w.argmax(-1))
         out = model.predict(pts)
+        looped = own  # passes() runs stage 1 once; the same outputs as one forward() per pass
+        for _ in range(PARTS_PASSES):
+            looped = model(X, stage=2, frame=model.parts_frames(X, looped.w.argmax(-1)))
+        shared = model.passes(X)
+        assert PARTS_PASSES > 0 and torch.equal(shared.w, looped.w) and torch.equal(shared.R, looped.R)
+        assert torch.equal(shared.T_x, looped.T_x) and torch.equal(shared.Y_star, looped.Y_star)
         model.parts_plane.fill_(1)  # parts_axes="plane": the base's directions from its points on its plane
         F_plane = model.parts_frames(X, own.w.argmax(-1))
         model.parts_plane.fill_(0)

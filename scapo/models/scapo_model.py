@@ -332,6 +332,10 @@ class SCAPOModel(nn.Module):
         s1 = self.stage1(X)
         if stage == 1:
             return s1
+        return self._both(X, s1, frame)
+
+    def _both(self, X: torch.Tensor, s1: Stage1Output, frame: torch.Tensor | None = None) -> SCAPOOutput:
+        """Stage 2 on ``X`` after stage 1's output ``s1``, joined with it into one :class:`SCAPOOutput`."""
         return SCAPOOutput(**{f.name: getattr(s1, f.name) for f in dataclasses.fields(Stage1Output)},
                            **self.stage2(X, s1, frame))
 
@@ -367,10 +371,12 @@ class SCAPOModel(nn.Module):
         """Both stages on normalised points ``X (B, N, 3)`` as prediction runs them (in the module's current mode):
         one pass, then for a model trained with ``TrainConfig.stage2_frame = "parts"`` (:attr:`uses_parts_frame`)
         stage 2 :data:`PARTS_PASSES` more times, each in the frame read from the base the pass before labels
-        (:meth:`parts_frames`); the last pass's :class:`~scapo.nn.outputs.SCAPOOutput`."""
-        out = self.forward(X, stage=2)
+        (:meth:`parts_frames`); the last pass's :class:`~scapo.nn.outputs.SCAPOOutput`. Stage 1 runs once: its
+        output does not depend on the frame, so the passes share it (the same outputs as :meth:`forward` per pass)."""
+        s1 = self.stage1(X)
+        out = self._both(X, s1)
         for _ in range(PARTS_PASSES if self.uses_parts_frame else 0):  # stage 2 again, in the frame the base it
-            out = self.forward(X, stage=2, frame=self.parts_frames(X, out.w.argmax(-1)))  # found gives
+            out = self._both(X, s1, self.parts_frames(X, out.w.argmax(-1)))  # found gives
         return out
 
     # ------------------------------------------------------------------ inference
