@@ -310,8 +310,10 @@ def test_the_base_frame_option_is_checked():
     assert SCAPOOptions(run="r", base_frame="parts", base_slot="auto").base_frame == "parts"
     with pytest.raises(ConfigError, match="base_slot"):
         SCAPOOptions(run="r", base_frame="principal", base_slot="lid")
-    with pytest.raises(ConfigError, match="base_slot"):  # a slot choice without the snap does nothing: refused
-        SCAPOOptions(run="r", base_slot="auto")
+    assert SCAPOMethod(SCAPOOptions(run="r", base_slot="auto")).label == "scapo+slot-auto"  # the object frame alone
+    assert SCAPOMethod(SCAPOOptions(run="r", base_frame="parts", base_slot="1")).label == "scapo"
+    with pytest.raises(ConfigError, match="hinge_frames"):  # the hinge frames choose their own base slot
+        SCAPOOptions(run="r", hinge_frames=True, hinge=True, hinge_axis=True, base_slot="auto")
     m = SCAPOMethod(SCAPOOptions(run="r", base_frame="principal"))
     with pytest.raises(ConfigError, match="fit"):  # no offset fitted on a training split
         m._base_frame(None, {})

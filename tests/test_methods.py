@@ -184,6 +184,35 @@ def test_scapo_snaps_its_frame_to_base_axes_signed_by_the_other_parts(laptop_dat
     assert math.isfinite(evaluate(laptop_data, tmp_path / "p.npz").summary["R"])
 
 
+def test_scapo_takes_its_object_frame_from_the_base_slot_chosen_on_the_training_split(laptop_data, trained_runs,
+                                                                                      tmp_path):
+    """``base_slot`` without ``base_frame``: the object frame ``T_cam_obj`` is the chosen slot's pose (``auto``: the
+    slot whose training-view rotations spread least; ``1``: slot 1), and nothing else changes."""
+    plain = run_method("scapo", laptop_data, tmp_path / "a.npz", run=trained_runs["scapo"], refine_steps=0)
+    auto = run_method("scapo", laptop_data, tmp_path / "b.npz", run=trained_runs["scapo"], refine_steps=0,
+                      base_slot="auto")
+    one = run_method("scapo", laptop_data, tmp_path / "c.npz", run=trained_runs["scapo"], refine_steps=0,
+                     base_slot="1")
+    from scapo.methods.scapo import SCAPOMethod, SCAPOOptions
+
+    info = auto.info["object_slot"]
+    assert auto.method == "scapo+slot-auto" and one.method == "scapo+slot-1" and info["option"] == "auto"
+    disp = info["dispersion"]  # the least spread (rounded in the record), or slot 0 kept by the bootstrap's guard
+    assert len(disp) == 2 and (disp[info["slot"]] <= min(disp) + 1e-4 or info["slot"] == 0)
+    assert np.allclose(auto.T_cam_obj, plain.part_pose[:, info["slot"]], atol=1e-6)
+    assert np.allclose(one.T_cam_obj, plain.part_pose[:, 1], atol=1e-6)
+    for p in (auto, one):
+        assert np.allclose(p.part_pose, plain.part_pose, atol=1e-6) and (p.part_label == plain.part_label).all()
+        assert np.allclose(p.joint_axis, plain.joint_axis, atol=1e-6)
+    assert "object_slot" not in plain.info and "base_frame" not in auto.info
+    m = SCAPOMethod(SCAPOOptions(run=trained_runs["scapo"], base_slot="auto")).load()
+    with pytest.raises(ConfigError, match="fit"):  # the slot is chosen on a training split first
+        m._base_frame(None, {})
+    with pytest.raises(ConfigError, match="part slots 0-1"):
+        SCAPOMethod(SCAPOOptions(run=trained_runs["scapo"], base_slot="5")).load().fit_base_slot(
+            np.random.default_rng(0).normal(size=(2, 64, 3)) * 0.1)
+
+
 @pytest.mark.parametrize("name", ["scapo", "npcs"])
 def test_a_trained_method_reads_its_part_rotations_from_its_hinges(name, laptop_data, trained_runs, tmp_path):
     """``hinge_frames=true``: offsets fitted on the training split, then the part rotations from the hinges; for a

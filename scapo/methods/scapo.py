@@ -44,9 +44,13 @@ class SCAPOOptions(LearnedOptions):
     centroid (:func:`scapo.methods.base_frame.parts_signed_axes`), the network's frame used for nothing but the
     offset; "" (default): the network's frame."""
     base_slot: str = "0"
-    """The part slot ``base_frame`` takes as the base: "0" (default; the model's base slot), another slot number, or
-    "auto": the slot whose predicted rotations spread least over the training views
-    (:func:`scapo.methods.base_frame.choose_base_slot`; the snapped frame is then that slot's pose)."""
+    """The part slot taken as the base: "0" (default; the model's base slot), another slot number, or "auto": the
+    slot whose predicted camera-frame rotations spread least over up to 512 training views
+    (:func:`scapo.methods.base_frame.choose_base_slot`: a base turns with the viewpoint alone, a child also with its
+    joint; no labels). With ``base_frame`` the snap works on that slot and the snapped frame is its pose; without it
+    the object frame ``T_cam_obj`` is that slot's pose and nothing else changes (part labels, part poses and joints
+    stay as the network gives them; the label gets ``+slot-<option>``): an object frame on the part that acts as the
+    base when the network's slot 0 holds a child (an addition to the paper, session 39)."""
     parts_axes: str = ""
     """For a run trained with ``stage2_frame = "parts"``: how its prediction passes find the base's directions,
     "pca" or "plane" (:attr:`scapo.models.presets.TrainConfig.parts_axes`; the label gets ``+parts-plane`` /
@@ -64,8 +68,8 @@ class SCAPOOptions(LearnedOptions):
         if self.hinge_frames and self.base_frame:
             raise ConfigError(f"hinge_frames=true and base_frame={self.base_frame} both set the part rotations; give "
                               "one")
-        if str(self.base_slot) != "0" and not self.base_frame:
-            raise ConfigError(f"base_slot={self.base_slot} applies to base_frame=principal or parts; give both")
+        if self.hinge_frames and str(self.base_slot) != "0":
+            raise ConfigError(f"hinge_frames=true chooses its own base slot; drop base_slot={self.base_slot}")
         if self.refine_steps is not None and self.refine_steps < 0:
             raise ConfigError(f"refine_steps must be >= 0, got {self.refine_steps}")
         if self.refine and self.refine_steps:
@@ -86,7 +90,8 @@ class SCAPOMethod:
             raise ConfigError("the scapo method needs a trained run: --run RUN (a folder written by 'scapo train')")
         self.run = Path(self.options.run)
         axes = f"+parts-{self.options.parts_axes}" if self.options.parts_axes else ""
-        self.label = str(self.options.label or ("scapo" + axes + post_suffix(self.options)))
+        slot = f"+slot-{self.options.base_slot}" if self.object_slot_only else ""
+        self.label = str(self.options.label or ("scapo" + axes + post_suffix(self.options) + slot))
         self.predictor: Predictor | None = None
         self.base_offset: np.ndarray | None = None
         """``(3, 3)`` the fitted base-axes offset (``base_frame``, :func:`.base_frame.fit_base_offset`)."""
@@ -102,6 +107,11 @@ class SCAPOMethod:
         """The ``hinge_frames`` step (:class:`scapo.methods.hinge.HingeFrames`), fitted on the training split."""
         self.bar_ranks: list | None = None
         """``hinge_bar_axis``: per joint the rank of :func:`scapo.methods.hinge.bar_axis_choice` (fitted in ``fit``)."""
+
+    @property
+    def object_slot_only(self) -> bool:
+        """Whether ``base_slot`` sets the object frame alone (a slot other than 0 or "auto", without ``base_frame``)."""
+        return str(self.options.base_slot) != "0" and not self.options.base_frame
 
     def fit(self, train: ArticulationDataset) -> None:
         """Load the run and check that it was trained on this dataset's category and kinematic structure.
@@ -134,6 +144,8 @@ class SCAPOMethod:
             self.bar_ranks = bar_axis_choice(pts, raw["part_label"], mc.joint_types, mc.joint_parts)
         if self.options.base_frame:
             self.fit_base_frame(train.arrays(["points"])["points"])
+        elif self.object_slot_only:
+            self.fit_base_slot(train.arrays(["points"])["points"])
         if self.options.hinge_frames:
             from scapo.methods.hinge import HingeFrames
 
@@ -149,13 +161,30 @@ class SCAPOMethod:
             ConfigError: not loaded, or a base slot the model does not have. InputError: the network labels no
             training view's points as the base.
         """
-        from scapo.methods.base_frame import (
-            base_axes,
-            choose_base_slot,
-            choose_signed_pair,
-            fit_base_offset,
-            parts_signed_axes,
-        )
+        from scapo.methods.base_frame import base_axes, choose_signed_pair, fit_base_offset, parts_signed_axes
+
+        pts, o = self.fit_base_slot(points, max_views)
+        pose, slot = np.asarray(o["part_pose"]), self.base_slot
+        if self.options.base_frame == "parts":
+            self.base_pair = choose_signed_pair(pts, o["part_label"], slot)
+            E, ok = parts_signed_axes(pts, o["part_label"], self.base_pair, slot)
+            self.base_offset, self.base_support, _ = fit_base_offset(pose[ok, slot, :3, :3], E[ok],
+                                                                     group=np.eye(3)[None])
+            return self.base_offset, self.base_support
+        E, ok = base_axes(pts, o["part_label"], slot=slot)
+        self.base_offset, self.base_support, _ = fit_base_offset(pose[ok, slot, :3, :3], E[ok])
+        return self.base_offset, self.base_support
+
+    def fit_base_slot(self, points, max_views: int = 512) -> tuple[np.ndarray, dict]:
+        """Choose the base slot (``base_slot``; "auto": :func:`~scapo.methods.base_frame.choose_base_slot` on the
+        network's one-pass part poses) from training clouds ``(M, N, 3)`` (camera frame, metres; no labels), of which
+        up to ``max_views`` evenly spaced ones are read. Sets :attr:`base_slot` and :attr:`base_dispersion` (each
+        slot's rotation dispersion); returns those clouds and their one-pass prediction.
+
+        Raises:
+            ConfigError: not loaded, or a base slot the model does not have.
+        """
+        from scapo.methods.base_frame import choose_base_slot
 
         if self.predictor is None:
             raise ConfigError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
@@ -169,15 +198,7 @@ class SCAPOMethod:
             if slot >= pose.shape[1]:
                 raise ConfigError(f"base_slot={slot}: the model has part slots 0-{pose.shape[1] - 1}")
         self.base_slot = slot
-        if self.options.base_frame == "parts":
-            self.base_pair = choose_signed_pair(pts, o["part_label"], slot)
-            E, ok = parts_signed_axes(pts, o["part_label"], self.base_pair, slot)
-            self.base_offset, self.base_support, _ = fit_base_offset(pose[ok, slot, :3, :3], E[ok],
-                                                                     group=np.eye(3)[None])
-            return self.base_offset, self.base_support
-        E, ok = base_axes(pts, o["part_label"], slot=slot)
-        self.base_offset, self.base_support, _ = fit_base_offset(pose[ok, slot, :3, :3], E[ok])
-        return self.base_offset, self.base_support
+        return pts, o
 
     def _one_pass(self, points, progress: bool) -> dict:
         """The network's prediction for ``points (B, N, 3)``, re-split about its hinges with ``hinge``
@@ -217,6 +238,11 @@ class SCAPOMethod:
             if self.frames is None:
                 raise ConfigError("hinge_frames=true needs its offsets fitted on a training split first: fit(train)")
             return self.frames(np.asarray(points), o)
+        if self.object_slot_only:  # the object frame on the chosen slot; nothing else changes
+            if self.base_dispersion is None:
+                raise ConfigError(f"base_slot={self.options.base_slot} needs its slot chosen on a training split "
+                                  "first: fit(train) or fit_base_slot(points)")
+            return {**o, "T_cam_obj": np.asarray(o["part_pose"])[:, self.base_slot].copy()}
         if not self.options.base_frame:
             return o
         if self.base_offset is None:
@@ -318,7 +344,10 @@ class SCAPOMethod:
                                      "snap_deg_median": round(float(np.median(o["base_snap_deg"])), 2),
                                      "mode": self.options.base_frame,
                                      **({"signed_ranks": list(self.base_pair)} if self.base_pair else {})}}
-                     if self.options.base_frame else {})},
+                     if self.options.base_frame else {}),
+                  **({"object_slot": {"slot": self.base_slot, "option": str(self.options.base_slot),
+                                      "dispersion": np.round(self.base_dispersion, 4).tolist()}}
+                     if self.object_slot_only else {})},
         )
 
 
