@@ -3,9 +3,9 @@
 For each file, on one split (val by default): the share of samples whose object-frame offset ``R_pred^T R_gt`` lies
 within 15 deg of the offset most of them share (:func:`scapo.bench.ladder.split_consistency`; 1 is one canonical
 frame), strict and against the category's declared symmetric ground truth, as the ladder's cells report it; the
-share of views whose base slot (``info["hinge_frames"]["base"]`` or ``info["base_frame"]["slot"]``, else slot 0)
-holds mostly points of the true base (the root part, label 0), a ground-truth diagnosis of the base/child exchange;
-and the file's ``info["hinge_frames"]`` summary where it has one (the base slot, the view prior's use and swaps).
+share of views whose base slot (``info["hinge_frames"]["base"]``, ``info["base_frame"]["slot"]`` or
+``info["object_slot"]["slot"]`` (``base_slot`` alone), else slot 0) holds mostly points of the true base (the root
+part, label 0), a ground-truth diagnosis of the base/child exchange; and the file's ``info["hinge_frames"]`` summary where it has one (the base slot, the view prior's use and swaps).
 
     python bench/frame_consistency.py --data DATA --pred LABEL=PREDICTIONS.npz [--pred ...] --out results/.../NAME
 
@@ -18,15 +18,18 @@ from pathlib import Path
 
 
 def base_on_base(data: Path, preds, split: str) -> float:
-    """Share of ``split``'s samples whose base slot (the ``hinge_frames`` or ``base_frame`` step's, else 0) gives more
-    than half of its points to the true root part (label 0); NaN when the slot is empty in every sample."""
+    """Share of ``split``'s samples whose base slot (the ``hinge_frames``, ``base_frame`` or ``object_slot`` step's,
+    else 0) gives more than half of its points to the true root part (label 0); NaN when the slot is empty in every
+    sample."""
     import numpy as np
 
     from scapo.methods.hinge import prediction_arrays
 
     rows = np.flatnonzero(preds.split == split)
     gt = prediction_arrays(data, preds, ("part_label",))["part_label"][rows]
-    base = (preds.info.get("hinge_frames") or {}).get("base", (preds.info.get("base_frame") or {}).get("slot", 0))
+    info = preds.info
+    base = (info.get("hinge_frames") or {}).get("base", (info.get("base_frame") or info.get("object_slot") or {})
+                                                 .get("slot", 0))
     mine = preds.part_label[rows] == base
     n = mine.sum(1)
     share = (mine & (gt == 0)).sum(1) / np.maximum(n, 1)
