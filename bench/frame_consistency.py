@@ -5,7 +5,8 @@ within 15 deg of the offset most of them share (:func:`scapo.bench.ladder.split_
 frame), strict and against the category's declared symmetric ground truth, as the ladder's cells report it; the
 share of views whose base slot (``info["hinge_frames"]["base"]``, ``info["base_frame"]["slot"]`` or
 ``info["object_slot"]["slot"]`` (``base_slot`` alone), else slot 0) holds mostly points of the true base (the root
-part, label 0), a ground-truth diagnosis of the base/child exchange; and the file's ``info["hinge_frames"]`` summary where it has one (the base slot, the view prior's use and swaps).
+part, label 0), a ground-truth diagnosis of the base/child exchange; and the file's ``info["hinge_frames"]``
+summary where it has one (the base slot, the view prior's use and swaps).
 
     python bench/frame_consistency.py --data DATA --pred LABEL=PREDICTIONS.npz [--pred ...] --out results/.../NAME
 
