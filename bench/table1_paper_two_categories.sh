@@ -70,7 +70,9 @@ mkdir -p "$work"
 OMP_NUM_THREADS=1 "$scapo" "${common[@]}" --out "$work/out_a" --methods "${CHAIN_A:-scapo,op-align}" "${parts[@]}" \
   > "$work/chain_a.log" 2>&1 &
 a=$!
-sleep 5
+# each chain checks the datasets under their folders' lock first: start chain B once chain A has (a fixed pause lost
+# that race on a loaded machine in session 39, and chain A stopped at its start)
+until grep -q "datasets ready" "$work/chain_a.log" 2>/dev/null || ! kill -0 $a 2>/dev/null; do sleep 2; done
 OMP_NUM_THREADS=1 "$scapo" "${common[@]}" --out "$work/out_b" --methods "${CHAIN_B:-npcs,eap,icp}" \
   > "$work/chain_b.log" 2>&1 &
 b=$!
