@@ -3,8 +3,9 @@
 # OP-Align-style, SCAPO), 150 instances (30 test) x 8 views, 64 views per training instance, training seeds 0,1,2,
 # one-pass rows only, every training run at the equal budget of BUDGET core-minutes of one CPU core (epochs from each
 # method's clouds/s measured once per dataset: `scapo bench table1 --budget-minutes`). On a 2-core machine: the
-# datasets first, then two chains side by side (one torch thread each; the speeds are measured as the chains start,
-# with the other core busy), then the table from every finished cell. Each method trains with its per-category preset
+# datasets and the speeds first (one method at a time, one torch thread; about 35 minutes for the eight; run nothing
+# else meanwhile, since the epochs follow the speeds), then two chains side by side (one torch thread each), then the
+# table from every finished cell. Each method trains with its per-category preset
 # where it registers one (SCAPO: cpu-eyeglasses and cpu-laptop, scapo.models.presets.EYEGLASSES_PARTS). Resumable; run
 # it from a clean worktree of the commit the table records (SCAPO= its scapo, PYTHONPATH= the worktree).
 #   BUDGET=5 WORK=bench_work/table1_paper bash bench/table1_paper_two_categories.sh
