@@ -448,3 +448,54 @@ def test_label_clouds_retries_only_the_worst_fitted_clouds_and_keeps_the_better_
         dataclasses.replace(get_preset("cpu"), label_retry=0.4)  # no label_starts group, no split_labels
     with pytest.raises(ConfigError, match="share of the training clouds"):
         dataclasses.replace(get_preset("cpu-eyeglasses/label-retry"), label_retry=2.0)
+
+
+def test_label_clouds_fits_on_every_strided_point_and_labels_every_point(monkeypatch):
+    """``TrainConfig.label_stride`` (``label_clouds(fit_stride=...)``): the part motions are fitted on every s-th
+    point of each cloud and every point is labelled. On clouds of the L-shaped template (points in random order,
+    slightly noisy, the child bar turned a little), fits on every 4th point give the same labels as on all points for
+    all but a few points, in each labelling path (from the identity, with retries from the octahedral starts, with
+    the joint turns); stride 1 is the plain fit; a stride that is not an int >= 1 is refused, in the preset too."""
+    from scapo.errors import ConfigError
+    from scapo.models.part_init import joint_turn_starts, label_clouds
+    from scapo.models.presets import get_preset
+    from scapo.ops.groups import rotation_group
+
+    g, template, labels, turn = _turned_l()
+    clouds = []
+    for i in range(6):
+        bend = exp_so3(torch.tensor([0.0, 0.0, 1.0]), torch.tensor(0.05 * i))
+        child = (template[labels == 1] - template[200]) @ bend.T + template[200]
+        cloud = torch.cat([template[labels == 0], child]) + 0.002 * torch.randn(280, 3, generator=g)
+        clouds.append(cloud @ turn.T if i == 5 else cloud)  # one cloud turned far: the retry path's
+    truth = labels.expand(6, -1)
+    order = torch.randperm(280, generator=g)
+    clouds, truth = torch.stack(clouds)[:, order], truth[:, order]
+    starts = torch.tensor(rotation_group("O"), dtype=torch.float32)
+    seen = []  # the clouds' point counts every fit reads
+    fit = PI.register_template_parts
+
+    def counted(template_, labels_, clouds_, *args, **kw):
+        seen.append(clouds_.shape[1])
+        return fit(template_, labels_, clouds_, *args, **kw)
+
+    monkeypatch.setattr(PI, "register_template_parts", counted)
+    for kw in ({}, {"starts": starts, "retry": 0.34}, {"joint_starts": joint_turn_starts(template, labels, 2)}):
+        seen.clear()
+        full = label_clouds(template, labels, clouds, 2, **kw)
+        assert set(seen) == ({280, 70} if "retry" in kw else {280})  # a retry's start search: every 4th point
+        seen.clear()
+        strided = label_clouds(template, labels, clouds, 2, fit_stride=4, **kw)
+        assert set(seen) == {70}  # every 4th point, the retries' start search included
+        seen.clear()
+        assert strided.shape == full.shape == (6, 280)
+        assert float((strided == full).float().mean()) > 0.98, kw
+        assert torch.equal(label_clouds(template, labels, clouds, 2, fit_stride=1, **kw), full)
+        ok = slice(None) if "retry" in kw else slice(0, 5)  # only the retry path labels the turned cloud right
+        assert float((strided[ok] == truth[ok]).float().mean()) > 0.97, kw
+    for bad in (0, 2.0, True):
+        with pytest.raises(ValueError, match="fit_stride"):
+            label_clouds(template, labels, clouds, 2, fit_stride=bad)
+    assert get_preset("cpu-laptop").label_stride == 1
+    with pytest.raises(ConfigError, match="label_stride"):
+        dataclasses.replace(get_preset("cpu-laptop"), label_stride=0)

@@ -412,7 +412,7 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     ident = {"preset": dataclasses.asdict(get_preset("test")), "dataset_hash": "h", "category": "laptop",
              "part_names": [], "joint_type": [], "joint_parts": []}
     for field in ("axis_init", "split_init", "split_labels", "split_frame", "frame_target", "stage2_frame",
-                  "label_starts"):
+                  "label_starts", "label_stride"):
         older = json.loads(json.dumps(ident))
         del older["preset"][field]  # as written before the field existed
         assert _identity_hash(older) == _identity_hash(ident)
@@ -487,7 +487,7 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     from scapo.models.train import TrainingClouds
 
     p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True,
-                            stage2_frame="parts", split_frame="refit", axis_init="sweep")
+                            stage2_frame="parts", split_frame="refit", axis_init="sweep", label_stride=2)
     trainer = Trainer(laptop_data, tmp_path / "t", p, progress=False)
     trainer.train()
     model = trainer.model
@@ -503,6 +503,7 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     assert (tmp_path / "t" / "frame_targets.npy").is_file()
     labels = np.load(tmp_path / "t" / "split_labels.npy", allow_pickle=False)  # split_frame="refit": labelled again
     assert labels.shape[0] == len(np.load(tmp_path / "t" / "frame_targets.npy")) and labels.max() < 2
+    assert labels.shape == tuple(TrainingClouds(laptop_data, 64).clouds.shape[:2])  # label_stride=2: every point
     refit = json.loads((tmp_path / "t" / "split_refit.json").read_text())
     assert sum(refit["template_part_points"]) == p.template_points and 0 <= refit["labels_changed"] <= 1
     assert get_preset("cpu/split-fit/split-labels/stage2-parts/split-refit").split_frame == "refit"

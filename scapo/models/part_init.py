@@ -488,7 +488,7 @@ def refit_from_joint_starts(template: torch.Tensor, labels: torch.Tensor, clouds
 def label_clouds(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Tensor, num_parts: int,
                  R: torch.Tensor | None = None, t: torch.Tensor | None = None, iters: int = 6, chunk: int = 64,
                  starts: torch.Tensor | None = None, joint_starts: tuple[torch.Tensor, torch.Tensor] | None = None,
-                 retry: float = 0.0, record: dict | None = None) -> torch.Tensor:
+                 retry: float = 0.0, record: dict | None = None, fit_stride: int = 1) -> torch.Tensor:
     """Label every point of ``clouds (B, n, 3)`` with the part of its nearest point of the template posed for that
     cloud, each part of ``template (M, 3)`` (split by ``labels (M,)``) at its motion (:func:`register_template_parts`
     from ``R, t`` when given, else ``iters`` ICP steps from the identity, or with ``starts (K, 3, 3)`` from the whole
@@ -504,25 +504,37 @@ def label_clouds(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Ten
     on the table's eyeglasses data the clouds labelled at random are those whose frame is far from the template's,
     and their identity fit is the worse, ``results/canonical_ladder/stage2_parts/scale/README.md``, section 10).
     ``record``, when given, gets ``{"retried", "kept_retry"}``: the shares of the clouds fitted again and of those
-    whose second fit was kept."""
+    whose second fit was kept.
+
+    ``fit_stride`` (``TrainConfig.label_stride``): the motions are fitted (and scored, and retried) on every
+    ``fit_stride``-th point of each cloud, ``clouds[:, ::fit_stride]``, and every point is then labelled from the
+    template posed by them; 1 (default) fits on all points. The fits' cost falls by about that factor.
+
+    Raises:
+        ValueError: ``retry`` without ``starts``, with ``R``/``t`` or ``joint_starts``, or outside (0, 1];
+            ``fit_stride`` not an int >= 1."""
+    if isinstance(fit_stride, bool) or not isinstance(fit_stride, int) or fit_stride < 1:
+        raise ValueError(f"label_clouds: fit_stride is a point stride, an int >= 1; got {fit_stride!r}")
     if retry:
         if starts is None or R is not None or joint_starts is not None or not 0.0 < float(retry) <= 1.0:
             raise ValueError("label_clouds: retry needs starts, no R/t, no joint_starts and a share in (0, 1]")
-        return _label_with_retry(template, labels, clouds, num_parts, iters, chunk, starts, float(retry), record)
+        return _label_with_retry(template, labels, clouds, num_parts, iters, chunk, starts, float(retry), record,
+                                 fit_stride=fit_stride)
     out = []
     P = num_parts
     for k in range(0, clouds.shape[0], chunk):
         C = clouds[k:k + chunk]
+        Cf = C[:, ::fit_stride]  # the points the motions are fitted on
         if R is None and starts is not None:
-            R0, t0 = whole_template_start(template, C, starts)
-            Rc, tc, _ = register_template_parts(template, labels, C, P, iters, R=R0.repeat_interleave(P, 0),
+            R0, t0 = whole_template_start(template, Cf, starts)
+            Rc, tc, _ = register_template_parts(template, labels, Cf, P, iters, R=R0.repeat_interleave(P, 0),
                                                 t=t0.repeat_interleave(P, 0))
         elif R is None:
-            Rc, tc, _ = register_template_parts(template, labels, C, P, iters)
+            Rc, tc, _ = register_template_parts(template, labels, Cf, P, iters)
         else:
             Rc, tc = R[k * P:(k + len(C)) * P], t[k * P:(k + len(C)) * P]
         if joint_starts is not None:
-            Rc, tc = refit_from_joint_starts(template, labels, C, P, Rc, tc, joint_starts, iters=iters)
+            Rc, tc = refit_from_joint_starts(template, labels, Cf, P, Rc, tc, joint_starts, iters=iters)
         posed = _posed(template, labels, Rc, tc, len(C), P)  # each point at its part's motion
         out.append(labels[pairwise_sq_dist(C, posed).argmin(-1)])
     return torch.cat(out)
@@ -536,8 +548,10 @@ RETRY_STRIDE = 4
 
 def _label_with_retry(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Tensor, P: int, iters: int,
                       chunk: int, starts: torch.Tensor, retry: float, record: dict | None,
-                      clip: float = 0.01) -> torch.Tensor:
-    """:func:`label_clouds` with ``retry`` (see there): ``(B, n)`` int64 labels of ``clouds (B, n, 3)``."""
+                      clip: float = 0.01, fit_stride: int = 1) -> torch.Tensor:
+    """:func:`label_clouds` with ``retry`` (see there): ``(B, n)`` int64 labels of ``clouds (B, n, 3)``, the motions
+    fitted and scored on ``clouds[:, ::fit_stride]``."""
+    full, clouds = clouds, clouds[:, ::fit_stride]
     B = clouds.shape[0]
     fits, scores = [], []
     for k in range(0, B, chunk):
@@ -554,7 +568,8 @@ def _label_with_retry(template: torch.Tensor, labels: torch.Tensor, clouds: torc
     for k in range(0, n, chunk):
         sel = worst[k:k + chunk]
         C = clouds[sel]
-        R0, t0 = whole_template_start(template, C[:, ::RETRY_STRIDE], starts)
+        # the start search reads about as many points as without fit_stride
+        R0, t0 = whole_template_start(template, C[:, ::max(1, RETRY_STRIDE // fit_stride)], starts)
         Rc, tc, _ = register_template_parts(template, labels, C, P, iters, R=R0.repeat_interleave(P, 0),
                                             t=t0.repeat_interleave(P, 0))
         s2 = _two_sided(C, _posed(template, labels, Rc, tc, len(C), P), clip)
@@ -564,7 +579,7 @@ def _label_with_retry(template: torch.Tensor, labels: torch.Tensor, clouds: torc
         tall[sel[better]] = tc.reshape(-1, P, 3)[better]
     if record is not None:
         record.update({"retried": round(n / B, 4), "kept_retry": round(kept / n, 4)})
-    return label_clouds(template, labels, clouds, P, R=Rall.reshape(-1, 3, 3), t=tall.reshape(-1, 3), chunk=chunk)
+    return label_clouds(template, labels, full, P, R=Rall.reshape(-1, 3, 3), t=tall.reshape(-1, 3), chunk=chunk)
 
 
 def fit_template_parts(template: torch.Tensor, clouds: torch.Tensor, labels: torch.Tensor, num_parts: int,

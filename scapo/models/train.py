@@ -183,7 +183,7 @@ ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "lab
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
                 "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": "",
                 "relabel": 0, "relabel_frames": True, "parts_axes": "pca", "axis_fixed": False,
-                "split_overseg": 0, "label_retry": 0.0}
+                "split_overseg": 0, "label_retry": 0.0, "label_stride": 1}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -382,15 +382,20 @@ class ScapoJob:
         ``split_frame = "refit"`` (with ``stage2_frame = "parts"``): once the target frames are found, the starting
         split is fitted again (:meth:`_init_parts`, keypoint and joint heads included) on the clouds ``idx (64,)``
         (every ``step``-th point) that :meth:`_init_template` fitted it on, now canonicalised by their target frames,
-        every cloud is labelled by it in its target frame, and the targets are read again from those labels."""
+        every cloud is labelled by it in its target frame, and the targets are read again from those labels.
+
+        ``TrainConfig.label_stride`` ``s`` > 1: each cloud's stage-1 frame is read from every ``s``-th of its
+        (normalised) points and the template's part motions are fitted on those points
+        (:func:`scapo.models.part_init.label_clouds` ``fit_stride``); every point is still labelled."""
         from scapo.models import part_init
 
         template = self.model.y_base.detach().cpu()
+        stride = int(self.preset.label_stride)
         canon, frames = [], []
         self.model.eval()
         for k in range(0, len(data), 64):
             X, _ = SCAPOModel.normalize(data.clouds[k:k + 64].to(self.device))
-            enc = self.model.frame(X)
+            enc = self.model.frame(X[:, ::stride])
             R = apply_branch(enc.R, self.model.branch, self.model.branch_flip)
             canon.append(((X - enc.t[:, None]) @ R).cpu())
             frames.append(R.cpu())
@@ -412,7 +417,8 @@ class ScapoJob:
         def label(split: torch.Tensor, clouds: torch.Tensor) -> torch.Tensor:
             rec: dict = {}
             out = part_init.label_clouds(template, split, clouds, self.mcfg.num_parts, starts=starts,
-                                         joint_starts=joints(split), retry=self.preset.label_retry, record=rec)
+                                         joint_starts=joints(split), retry=self.preset.label_retry, record=rec,
+                                         fit_stride=stride)
             if rec:
                 retried.append(rec)
                 if self.dist.is_main:
@@ -608,7 +614,8 @@ class ScapoJob:
         idx = np.flatnonzero(ok)
         q = torch.from_numpy(np.stack([local(pts[i], lab[i], E[i]) for i in idx])).to(canon.dtype)
         out = labels.clone()
-        out[torch.from_numpy(idx)] = part_init.label_clouds(tpl, template_labels, q, self.mcfg.num_parts)
+        out[torch.from_numpy(idx)] = part_init.label_clouds(tpl, template_labels, q, self.mcfg.num_parts,
+                                                            fit_stride=int(self.preset.label_stride))
         if self.dist.is_main:
             write_json(self.run / "split_frame.json", {"signed_ranks": list(pair), "clouds": int(len(pts)),
                                                        "found": int(ok.sum()),
