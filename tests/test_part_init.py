@@ -499,3 +499,6 @@ def test_label_clouds_fits_on_every_strided_point_and_labels_every_point(monkeyp
     assert get_preset("cpu-laptop").label_stride == 1
     with pytest.raises(ConfigError, match="label_stride"):
         dataclasses.replace(get_preset("cpu-laptop"), label_stride=0)
+    with pytest.raises(ConfigError, match="set split_labels too"):
+        dataclasses.replace(get_preset("cpu"), label_stride=2)
+    assert dataclasses.replace(get_preset("cpu-laptop"), label_stride=4).label_stride == 4

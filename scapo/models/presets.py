@@ -137,10 +137,11 @@ class TrainConfig:
     """With ``split_labels``: the pseudo-labelling at the start of stage 2 reads each training cloud's stage-1 frame
     from every ``label_stride``-th of its points and fits the template's part motions on those points
     (:func:`scapo.models.part_init.label_clouds` ``fit_stride``); every point is still labelled, from the template
-    posed by those motions. 1 (default): all points, as the network is trained on ``train_points`` subsets of them.
-    A cost setting, not a method change (an addition to the paper; session 40): on Table 1's 1024-point clouds the
-    labelling took about 460 s of a ``cpu-laptop`` run's 1,075 s, more than its 900 optimiser steps, and the encoder's
-    neighbour search grows as the square of the points."""
+    posed by those motions. 1 (default): all points. A cost setting (an addition to the paper, session 40; the
+    network itself trains on ``train_points`` subsets): on Table 1's 1024-point laptop clouds this work took 461 s of
+    a ``cpu-laptop`` run's 1,075 s, more than its 900 optimiser steps; at 4 the frames cost 9.7x and the labels 4.5x
+    less, and the pseudo-labels' accuracy against the true parts fell from 0.730 to 0.707 on a finished run's model
+    (results/perf/label_stride/). Not set by any preset."""
     frame_target: float = 0.0
     """Weight of a stage-2 term that pulls each training cloud's frame (stage 1's, which stage 2 trains on) towards
     the frame its base's axes give when signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`,
@@ -257,6 +258,9 @@ class TrainConfig:
         if isinstance(self.label_stride, bool) or not isinstance(self.label_stride, int) or self.label_stride < 1:
             raise ConfigError(f"preset {self.name!r}: label_stride is a point stride, an int >= 1; got "
                               f"{self.label_stride!r}")
+        if self.label_stride > 1 and not self.split_labels:
+            raise ConfigError(f"preset {self.name!r}: label_stride={self.label_stride} thins the split_labels "
+                              "pseudo-labelling; set split_labels too (preset part split-labels)")
         if self.frame_target < 0 or self.frame_target != self.frame_target:
             raise ConfigError(f"preset {self.name!r}: frame_target is a loss weight, >= 0; got {self.frame_target!r}")
         if self.frame_target > 0 and not self.split_labels:
