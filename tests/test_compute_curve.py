@@ -48,6 +48,7 @@ def test_compute_curve_end_to_end(tmp_path, capsys):
     (["--rungs", "one,paper"], "one rung"),
     (["--rungs", "bogus"], "unknown rung"),
     (["--methods", "nosuch"], "nosuch"),
+    (["--from-table", "--rungs", "one"], "single views"),
 ])
 def test_compute_curve_refuses_bad_arguments(tmp_path, capsys, args, match):
     from scapo.cli.main import main
@@ -56,3 +57,53 @@ def test_compute_curve_refuses_bad_arguments(tmp_path, capsys, args, match):
     err = capsys.readouterr().err
     assert match in err and "Traceback" not in err
     assert not (tmp_path / "w").exists()  # refused before any work
+
+
+def test_from_table_uses_the_tables_presets_speeds_and_finished_runs(tmp_path, capsys):
+    """``--from-table``: the table's per-category preset (SCAPO on the laptop: ``cpu-laptop``) and uncharged one-time
+    cost (hand-built speeds: 16 clouds/s at batch 16, 10 steps an epoch; SCAPO's 10 + 10 epochs take 200 s, so one
+    core-minute buys 3 + 3 whatever its 600 s of pseudo-labelling; NPCS's 10 take 100 s: 6); the table's finished
+    run of the same preset and seed is copied to the cell's run (an unfinished one, or one of another schedule, is
+    not); a work folder without the table's dataset is refused with the command that renders it."""
+    from scapo.bench.cells import Cell
+    from scapo.bench.compute import _reuse_table_run, _table_dataset, _table_presets
+    from scapo.bench.experiments import dataset_dir
+    from scapo.bench.ladder import cells_dir, rung_config
+    from scapo.errors import ConfigError
+
+    kw = {"viewpoints": "paper", "train_views": 4}
+    data = dataset_dir(tmp_path, "laptop", 10, 2, 0, kw)
+    base = {"batch_size": 16, "train_clouds": 160, "max_steps_per_epoch": 0, "stage1_epoch_s": 0.0,
+            "stage1_clouds_per_s": 16.0}
+    speeds = {"scapo_cpu-laptop": {**base, "method": "scapo", "stage1_epochs": 10, "stage2_epochs": 10,
+                                   "stage2_clouds_per_s": 16.0, "stage2_epoch_s": 0.0, "fixed_s": 600.0},
+              "npcs_cpu": {**base, "method": "npcs", "stage1_epochs": 10, "iterations": 0, "fixed_s": 0.0}}
+    for key, row in speeds.items():
+        path = tmp_path / "speeds" / f"{data.name}_{key}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps([row]))
+    presets = _table_presets(["scapo", "npcs"], "laptop", 1.0, "cpu", tmp_path, 10, 2, 4, 0, "paper")
+    assert {m: v[1]["preset"] for m, v in presets.items()} == {"scapo": "cpu-laptop/epochs-3-3",
+                                                                "npcs": "cpu/epochs-6"}
+    assert (presets["scapo"][0].stage1_epochs, presets["scapo"][0].stage2_epochs) == (3, 3)
+
+    for seed, preset, finished in ((0, "cpu-laptop/epochs-3-3", True), (1, "cpu-laptop/epochs-3-3", False),
+                                   (2, "cpu-laptop/epochs-9-9", True)):
+        run = data / f"run_{Cell('scapo', 'laptop', seed, preset).run_key}"
+        run.mkdir(parents=True)
+        (run / "checkpoint.pt").write_bytes(b"weights")
+        if finished:
+            (run / "timing.json").write_text("{}")
+    work = tmp_path / "compute" / "b1"
+    for seed in (0, 1, 2):
+        _reuse_table_run(data, work, "laptop", "paper", "scapo", seed, "cpu-laptop/epochs-3-3")
+    cells = cells_dir(work, "laptop", "paper")
+    assert (cells / "scapo_s0_run" / "checkpoint.pt").read_bytes() == b"weights"
+    assert not (cells / "scapo_s1_run").exists() and not (cells / "scapo_s2_run").exists()
+    assert "reusing the table's finished run" in capsys.readouterr().out
+    (cells / "scapo_s0_run" / "checkpoint.pt").write_bytes(b"resumed")  # a cell's own run is never replaced
+    _reuse_table_run(data, work, "laptop", "paper", "scapo", 0, "cpu-laptop/epochs-3-3")
+    assert (cells / "scapo_s0_run" / "checkpoint.pt").read_bytes() == b"resumed"
+
+    with pytest.raises(ConfigError, match="not a finished dataset.*bench table1 --data-only"):
+        _table_dataset(tmp_path, "laptop", "paper", 10, 2, 4, 0, rung_config("laptop", "paper", 10, 2, 4, 0))

@@ -18,6 +18,16 @@ last and never recomputed; an unfinished cell's training resumes from its run fo
 (``--methods``) after ``--data-only`` has rendered the dataset and measured every method's speed alone; each writes
 the table of every finished cell at its end (``--finished-only`` writes it alone).
 
+``from_table`` (``scapo bench compute --from-table``): the curve of the table's own cells. The work folder is a
+``scapo bench table1 --budget-minutes`` work folder (:func:`scapo.bench.experiments.budget_cells`), whose dataset
+(``<work>/<category>_i<I>_v<V>_t<T>_s<seed>[_paper]``), measured speeds (``<work>/speeds/``) and budget rule are used:
+each method trains with the preset the table gives it on that category (a per-category preset where the method
+registers one, :func:`scapo.bench.cells.method_preset`) and the epochs that fill the budget's optimisation, the
+one-time costs uncharged (``charge_fixed=False``), so a curve cell is the table's cell at another budget. A cell
+whose run the table has already trained (same preset, schedule and seed, ``<dataset>/run_<key>``, finished) starts
+from a copy of that run (the engine checks its identity) and is only predicted and scored on val. Cells:
+``<work>/compute/b<budget>/<category>/<rung>/``.
+
 Outputs: ``<out>/accuracy_vs_compute.{md,csv,json,png}``.
 """
 
@@ -37,6 +47,7 @@ from scapo.bench.ladder import (
     _fmt,
     _training_presets,
     _upgrade,
+    cells_dir,
     rung_config,
     rung_dir,
 )
@@ -161,7 +172,7 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
                       instances: int = 60, views: int = 8, train_views: int = 16, data_seed: int = 1,
                       preset: str = "cpu", protocol: str = "scapo", workers: int = 1,
                       command: str = "scapo bench compute", dry_run: bool = False, data_only: bool = False,
-                      finished_only: bool = False) -> list[Path]:
+                      finished_only: bool = False, from_table: bool = False) -> list[Path]:
     """Run (or resume) the accuracy-against-compute cells and write ``<out>/accuracy_vs_compute.{md,csv,json,png}``.
 
     Cells run budget by budget (smallest first), method by method, so an interrupted curve has its cheap points.
@@ -176,8 +187,9 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
 
     Raises:
         ConfigError: an untrained or unknown method, a budget <= 0 or repeated, an unknown rung, a negative seed,
-            no finished cell with ``finished_only``. OutputError: an unwritable work or output folder.
-            Otherwise as generation, training and evaluation.
+            no finished cell with ``finished_only``; with ``from_table``, a rung other than ``paper``/``sphere`` or
+            no finished table dataset of these settings in ``work``. OutputError: an unwritable work or output
+            folder. Otherwise as generation, training and evaluation.
     """
     from scapo.data import generate
     from scapo.provenance import device_description
@@ -186,17 +198,29 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
     _check(methods, budgets, seeds, rung)
     if instances < 10:
         raise ConfigError(f"--instances must be >= 10 (a val and a test split of their own), got {instances}")
+    if from_table and rung not in ("paper", "sphere"):
+        raise ConfigError(f"--from-table: the tables render single views (rung paper or sphere), not rung {rung!r}")
     work = check_output_dir(work, "compute curve work folder")
     if not data_only:
         check_output_dir(out, "compute curve output folder")
     cfg = rung_config(category, rung, instances, views, train_views, data_seed)
     data = rung_dir(work, category, rung, instances, views, train_views, data_seed)
+    if from_table:
+        data = _table_dataset(work, category, rung, instances, views, train_views, data_seed, cfg)
     name = ("accuracy_vs_compute" if (category, rung) == ("laptop", "paper")
             else f"accuracy_vs_compute_{category}_{rung}")
     meta = {"name": name, "category": category, "rung": rung, "methods": methods, "budgets": budgets, "seeds": seeds,
             "split": "val", "dataset": data.name, "instances": instances, "views": views, "train_views": train_views,
             "data_seed": data_seed, "preset": preset, "protocol": protocol, "command": command,
-            "machine": device_description("cpu")}
+            "machine": device_description("cpu"), "from_table": bool(from_table)}
+    if from_table:
+        meta["note"] = (f"The table's cells at other budgets (`--from-table`): each method trains with the preset "
+                        f"`scapo bench table1` gives it on {category} (a per-category preset where the method has "
+                        "one; the rows' `budget_values` name it with its schedule) and the epochs that fill the "
+                        "budget's optimisation from the table's measured speeds, one-time costs (SCAPO's pseudo-labels "
+                        "between its stages, EAP-style's joint estimation) not charged, as in the table; a cell at "
+                        "the table's own budget and seed is the table's run, predicted and scored on val.")
+
     cells = [(b, m, s) for b in sorted(budgets) for m in methods for s in seeds]
     print(f"scapo bench compute: {category}, rung {rung}; methods {', '.join(methods)}; budgets "
           f"{', '.join(f'{b:g}' for b in sorted(budgets))} core-minutes; seeds {seeds}", flush=True)
@@ -207,17 +231,80 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
     if not finished_only:
         if not _finished_dataset(data, cfg):
             generate(cfg, data, workers=workers, progress=False)
-        presets = {b: _training_presets(methods, data, b, preset, work) for b in budgets}
+        if from_table:
+            presets = {b: _table_presets(methods, category, b, preset, work, instances, views, train_views, data_seed,
+                                         rung) for b in budgets}
+        else:
+            presets = {b: _training_presets(methods, data, b, preset, work) for b in budgets}
         if data_only:
             return []
         for b, m, s in cells:
             pc, values = presets[b][m]
             t0 = time.perf_counter()
+            if from_table:
+                _reuse_table_run(data, budget_dir(work, b), category, rung, m, s, values["preset"])
             rec = _cell(data, budget_dir(work, b), category, rung, m, s, pc, values, protocol)
             print(f"  {b:6g} min  {m:9s} seed {s}: frame consistency sym {_fmt(rec['frame_consistency_sym'], 2)}, "
                   f"S {_fmt(rec['S'])}, R sym median {_fmt(rec['R_sym_median'])}, steps "
                   f"{rec['wall'].get('train_steps')} ({time.perf_counter() - t0:.0f} s)", flush=True)
     return _write_finished(work, data, meta, cells, Path(out), preset)
+
+
+def _table_kwargs(rung: str, train_views: int) -> dict:
+    """The ``data_kwargs`` of ``scapo bench table1`` for the dataset of ``rung`` (its viewpoints, training views)."""
+    return {"viewpoints": rung, "train_views": train_views}
+
+
+def _table_dataset(work: Path, category: str, rung: str, instances: int, views: int, train_views: int, data_seed: int,
+                   cfg) -> Path:
+    """The finished dataset of a ``scapo bench table1`` work folder that is exactly the rung's ``cfg``.
+
+    Raises:
+        ConfigError: a rung the tables do not render (only ``paper`` and ``sphere``), or no such finished dataset."""
+    from scapo.bench.experiments import dataset_dir
+
+    if rung not in ("paper", "sphere"):
+        raise ConfigError(f"--from-table: the tables render single views (rung paper or sphere), not rung {rung!r}")
+    data = dataset_dir(work, category, instances, views, data_seed, _table_kwargs(rung, train_views))
+    if not _finished_dataset(data, cfg):
+        raise ConfigError(f"--from-table: {data} is not a finished dataset of {category}, rung {rung}, {instances} "
+                          f"instances, {views} views ({train_views} per training instance), data seed {data_seed}; "
+                          f"give the table's --work and its --instances/--views/--train-views/--seed, or render it "
+                          f"with 'scapo bench table1 --data-only --viewpoints {rung} --categories {category}'")
+    return data
+
+
+def _table_presets(methods: Sequence[str], category: str, budget: float, preset: str, work: Path, instances: int,
+                   views: int, train_views: int, data_seed: int, rung: str) -> dict:
+    """Per method, the preset object and ``{"preset": name}`` that ``scapo bench table1 --budget-minutes budget``
+    trains it with on ``category`` (its per-category preset and the schedule part that fills the budget, from the
+    table's measured speeds in ``<work>/speeds/``, measured there first when missing)."""
+    from scapo.bench.cells import Cell, method_preset
+    from scapo.bench.experiments import budget_cells
+    from scapo.methods import METHODS
+
+    cells = [Cell(m, category, seed=0, preset=method_preset(m, preset, category)) for m in methods]
+    budgeted, _ = budget_cells(cells, budget, work, instances, views, data_seed, _table_kwargs(rung, train_views))
+    return {c.method: (METHODS.get(c.method).preset(c.preset), {"preset": c.preset}) for c in budgeted}
+
+
+def _reuse_table_run(data: Path, work: Path, category: str, rung: str, method: str, seed: int, preset: str) -> None:
+    """Copy the table's finished run of ``method`` at ``preset`` and ``seed`` (``<data>/run_<key>``) to the cell's
+    run folder when the cell has neither a record nor a run yet: the cell is then only predicted and scored."""
+    import shutil
+
+    from scapo.bench.cells import Cell
+
+    cells = cells_dir(work, category, rung)
+    run = cells / f"{method}_s{seed}_run"
+    table_run = data / f"run_{Cell(method, category, seed=seed, preset=preset).run_key}"
+    if (cells / f"{method}_s{seed}.json").is_file() or run.exists() or not (table_run / "timing.json").is_file():
+        return
+    print(f"  reusing the table's finished run {table_run.name}", flush=True)
+    tmp = run.with_name(run.name + ".copying")
+    shutil.rmtree(tmp, ignore_errors=True)
+    shutil.copytree(table_run, tmp)
+    tmp.rename(run)
 
 
 def _write_finished(work: Path, data: Path, meta: dict, cells, out: Path, preset: str) -> list[Path]:

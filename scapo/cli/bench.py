@@ -93,13 +93,18 @@ def cmd_bench_compute(args) -> int:
     if len(rungs) != 1:
         raise ConfigError(f"bench compute: give one rung (--rungs paper), got {','.join(rungs)}")
     cmd = "scapo bench compute " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "scapo bench compute"
+    train_views = args.train_views  # the tables' default with --from-table (64 per training instance in the paper's
+    if train_views is None:  # viewpoints, else --views), the ladder's 16 otherwise
+        train_views = (64 if rungs[0] == "paper" else args.views or 8) if args.from_table else 16
     paths = run_compute_curve(args.category, args.methods if args.methods is not None else list(LADDER_METHODS),
                               args.budgets if args.budgets is not None else list(COMPUTE_BUDGETS), args.seeds,
-                              work=args.work / "ladder", out=args.out or Path("results"), rung=rungs[0],
-                              instances=args.instances or 60, views=args.views or 8,
-                              train_views=16 if args.train_views is None else args.train_views, data_seed=args.seed,
-                              preset=args.preset, workers=max(args.workers), command=cmd, dry_run=args.dry_run,
-                              data_only=args.data_only, finished_only=args.finished_only)
+                              work=args.work if args.from_table else args.work / "ladder",
+                              out=args.out or Path("results"), rung=rungs[0],
+                              instances=args.instances or (150 if args.from_table else 60), views=args.views or 8,
+                              train_views=train_views,
+                              data_seed=args.seed, preset=args.preset, workers=max(args.workers), command=cmd,
+                              dry_run=args.dry_run, data_only=args.data_only, finished_only=args.finished_only,
+                              from_table=args.from_table)
     for p in paths:
         print(f"wrote {p}")
     return 0
@@ -317,6 +322,12 @@ def add_parsers(sub) -> None:
                     help="table1/3: training seeds for one category instead of --seeds (e.g. safe=0); repeatable")
     sp.add_argument("--work", type=Path, default=Path("bench_work"), help="table1/3: datasets, runs, predictions, "
                     "cell records")
+    sp.add_argument("--from-table", action="store_true",
+                    help="compute: the curve of a table's own cells: --work is a 'bench table1 --budget-minutes' work "
+                         "folder whose dataset (default --instances 150, --views 8, --train-views 64 in the paper's "
+                         "viewpoints), measured speeds, per-category presets and budget rule (one-time costs "
+                         "uncharged) are used; a cell at the table's own budget and seed starts from the table's "
+                         "finished run")
     sp.add_argument("--dry-run", action="store_true", help="table1/3: list the cells and which are done; compute "
                     "nothing")
     sp.add_argument("--finished-only", action="store_true", help="table1/2/3: train and predict nothing; write the "
