@@ -327,8 +327,11 @@ def test_the_view_prior_gives_back_the_base_slot_a_view_gave_to_the_lid_and_stay
     gt, truth = test["part_label"].copy(), test["part_pose"].copy()
     test["part_label"][:3] = 1 - gt[:3]  # three views give the base's slot to the lid, and their poses follow
     test["part_pose"][:3] = truth[:3, ::-1]
+    test["joint_state"] = np.full((6, 1), 0.7)
+    test["joint_state"][:3] = -0.7  # the exchanged views' joint: the base seen turning from the lid
     res = step(tp, test)
     assert res["frame_swapped"].tolist() == [True] * 3 + [False] * 3 and (res["part_label"] == gt).all()
+    assert np.allclose(res["joint_state"], 0.7)  # the exchange gives the lid's turn from the base back
     for i in range(6):
         for p in range(2):
             assert _angle_deg(res["part_pose"][i, p, :3, :3], truth[i, p, :3, :3]) < 2.0, (i, p)

@@ -236,7 +236,7 @@ def test_a_trained_method_reads_its_part_rotations_from_its_hinges(name, laptop_
         return
     post = hinge_frame_predictions(laptop_data, hinged, view_prior=prior)
     assert post.method == preds.method and np.allclose(post.part_pose, preds.part_pose, atol=1e-4)
-    assert (post.part_label == preds.part_label).all()
+    assert (post.part_label == preds.part_label).all() and np.allclose(post.joint_state, preds.joint_state)
     with pytest.raises(PredictionError, match="already"):
         hinge_frame_predictions(laptop_data, post)
 
