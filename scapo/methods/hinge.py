@@ -807,6 +807,97 @@ def hinge_frame_predictions(dataset, preds, view_prior: bool = False):
                        dataset_hash=p.dataset_hash, info={**p.info, "hinge_frames": step.info(o)}, **kw)
 
 
+#: :func:`label_view_prior` reads every this-th point of each view (fixed before any measurement).
+LABEL_PRIOR_STRIDE = 4
+
+
+def _start_hinges(pts: np.ndarray, lab: np.ndarray, jt: np.ndarray, jp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A starting axis and pivot ``(B, J, 3)`` per view and joint from labelled points alone, for
+    :func:`hinge_prediction`: the axis where the two parts' least-variance planes meet (else the pair's largest
+    principal direction, else z), the pivot halfway between the two parts' centroids."""
+    B, J = len(pts), len(jt)
+    axis = np.tile(np.array([0.0, 0.0, 1.0]), (B, J, 1))
+    pivot = np.zeros((B, J, 3))
+    for b in range(B):
+        for j in range(J):
+            pa, ch = int(jp[j, 0]), int(jp[j, 1])
+            Qp, Qc = pts[b][lab[b] == pa], pts[b][lab[b] == ch]
+            if len(Qp) < HINGE_MIN_POINTS or len(Qc) < HINGE_MIN_POINTS:
+                continue
+            pivot[b, j] = (Qp.mean(0) + Qc.mean(0)) / 2
+            n = [np.linalg.eigh(np.cov((Q - Q.mean(0)).T))[1][:, 0] for Q in (Qp, Qc)]
+            a = np.cross(n[0], n[1])
+            if np.linalg.norm(a) < 0.1:
+                Q = np.concatenate([Qp, Qc])
+                a = np.linalg.eigh(np.cov((Q - Q.mean(0)).T))[1][:, -1]
+            axis[b, j] = a / np.linalg.norm(a)
+    return axis, pivot
+
+
+def label_view_prior(points: np.ndarray, part_label: np.ndarray, joint_type, joint_parts,
+                     stride: int = LABEL_PRIOR_STRIDE) -> tuple[np.ndarray, dict]:
+    """Which views' pseudo-labels to exchange between the base and its revolute child, by the viewpoint prior of
+    :class:`HingeFrames` (``view_prior``) read from the labels alone (``TrainConfig.label_view_prior``; an addition
+    to the paper, issue 52, session 41).
+
+    SCAPO's stage-2 pseudo-labels split a laptop's views well but give the base's slot to the lid in a quarter to a
+    third of them (the base and lid are exchanged by a half-turn, which the stage-1 frame does not tell apart), and
+    the network learns those exchanges (``results/canonical_ladder/stage2_parts/laptop_table/slot_identity/``). Each
+    view's hinge is found from its labels (a starting axis and pivot from the two parts' planes and centroids, then
+    :func:`hinge_prediction` with ``axis_from_planes``), each part's axes from it (:func:`part_axes`), and, as the
+    prediction-time view prior does, the one base orientation most views reach with either of their two splits;
+    a view whose exchanged split lies nearer it is exchanged. Nothing is exchanged when too few views agree (views
+    from the whole sphere) or the object has no revolute joint from its base.
+
+    Args:
+        points: ``(B, N, 3)`` the training clouds in the camera frame (any common scale). part_label: ``(B, N)``
+            their pseudo-labels (slots). joint_type ``(J,)``, joint_parts ``(J, 2)``: the model's joints.
+        stride: every ``stride``-th point is read.
+
+    Returns:
+        ``swapped (B,)`` bool and an info dict: ``used`` (the prior found), ``train_share`` (the views that reach it),
+        ``swapped_share``, ``pair`` (the base joint's two slots, or None).
+
+    Raises:
+        InputError: mismatched shapes or non-finite points.
+    """
+    pts = np.asarray(points, dtype=np.float64)[:, ::int(stride)]
+    lab = np.asarray(part_label).astype(np.int64)[:, ::int(stride)]
+    jt = np.asarray(joint_type).reshape(-1)
+    jp = np.asarray(joint_parts).reshape(-1, 2)
+    if pts.ndim != 3 or pts.shape[-1] != 3 or lab.shape != pts.shape[:2]:
+        raise InputError(f"label_view_prior needs points (B, N, 3) and part_label (B, N); got {pts.shape}, "
+                         f"{lab.shape}")
+    if not np.isfinite(pts).all():
+        raise InputError("label_view_prior got NaN or infinite points")
+    B = len(pts)
+    none = np.zeros(B, dtype=bool)
+    if not (jt == 0).any():
+        return none, {"used": False, "train_share": None, "swapped_share": 0.0, "pair": None}
+    step = HingeFrames(jt, jp, view_prior=True)
+    pair = step._root_pair()
+    if pair is None:
+        return none, {"used": False, "train_share": None, "swapped_share": 0.0, "pair": None}
+    axis, pivot = _start_hinges(pts, lab, jt, jp)
+    P = int(max(int(jp.max()) + 1, int(lab.max()) + 1))
+    out = hinge_prediction(pts, {"part_label": lab, "joint_axis": axis, "joint_pivot": pivot}, jt, jp,
+                           axis_from_planes=True)
+    out = {"part_label": out["part_label"], "joint_axis": out["joint_axis"], "joint_pivot": out["joint_pivot"],
+           "part_pose": np.tile(np.eye(4), (B, P, 1, 1))}
+    E, ok = part_axes(pts, out, jt, jp)
+    other = step._fit_prior(pts, out, E, ok)
+    _, _, _, swapped = step._choose_root(pts, out, E, ok, other)
+    share = step.prior_share
+    return swapped, {"used": step.prior is not None, "train_share": None if share != share else round(share, 4),
+                     "swapped_share": round(float(swapped.mean()), 4), "pair": [int(pair[0]), int(pair[1])]}
+
+
+def exchange_pair(part_label: np.ndarray, swapped: np.ndarray, pair) -> np.ndarray:
+    """``part_label (B, N)`` with the two slots of ``pair`` exchanged in the ``swapped (B,)`` views."""
+    lab = np.asarray(part_label)
+    return np.where(np.asarray(swapped, dtype=bool)[:, None], _swap_pair(lab, int(pair[0]), int(pair[1])), lab)
+
+
 def prediction_arrays(dataset, p, fields=("points",)) -> dict[str, np.ndarray]:
     """The dataset's ``fields`` (e.g. ``points``, or ground truth such as ``part_label``) for each sample of
     predictions ``p``, in the predictions' order (every split they name).
