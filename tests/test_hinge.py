@@ -75,7 +75,7 @@ def test_the_hinge_prediction_skips_prismatic_joints_and_checks_its_input():
         hinge_fit(pts, lab, pivot, np.zeros(3), 0, 1)
 
 
-@pytest.mark.parametrize("script", ["hinge_diagnosis", "frame_consistency", "compute_hinge"])
+@pytest.mark.parametrize("script", ["hinge_diagnosis", "frame_consistency", "compute_hinge", "slot_identity"])
 def test_the_hinge_diagnosis_and_the_frame_consistency_refuse_missing_inputs(script, tmp_path, capsys):
     import importlib.util
     from pathlib import Path
@@ -449,3 +449,42 @@ def test_the_label_view_prior_exchanges_back_the_views_whose_labels_gave_the_lid
     assert not swapped.any() and info["pair"] is None
     with pytest.raises(InputError, match="part_label"):
         label_view_prior(pts, lab[:, :10], [0], [[0, 1]])
+
+
+def test_slot_identity_tells_a_right_split_with_exchanged_slots_from_a_wrong_one(laptop_data, tmp_path):
+    """``bench/slot_identity.py`` on hand-made labels of the training split: pseudo-labels right in every view but with
+    base and lid exchanged in a third of the views score 1 per view and 2/3 for the best single permutation; a network
+    that follows them in all but one view is counted so; a run without ``split_labels.npy`` is refused."""
+    import importlib.util
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from scapo.data import load
+    from scapo.errors import PredictionError
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "slot_identity.py"
+    spec = importlib.util.spec_from_file_location("slot_identity", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    tr = load(laptop_data, "train")
+    gt = tr.arrays(["part_label"])["part_label"]
+    V = len(gt)
+    flip = np.arange(V) % 3 == 0
+    pseudo = np.where(flip[:, None], 1 - gt, gt)
+    run = tmp_path / "run"
+    run.mkdir()
+    np.save(run / "split_labels.npy", pseudo)
+    net = pseudo.copy()
+    net[1] = 1 - net[1]  # the network leaves the pseudo-labels' permutation in one view
+    keys = list(tr.keys())
+    preds = SimpleNamespace(method="scapo", info={"run": str(run)}, part_label=net[::-1].copy(),
+                            instance_id=np.array([k[0] for k in keys])[::-1], view_id=np.array([k[1] for k in keys])[::-1],
+                            split=np.array(["train"] * V))
+    r = mod.slot_identity(laptop_data, preds)
+    assert r["views"] == V and r["pseudo_per_view_best"] == 1.0 and r["perms"] == [[0, 1], [1, 0]]
+    assert r["pseudo_best_single_perm"] == pytest.approx(1 - flip.mean(), abs=1e-4)
+    assert r["pseudo_perm_shares"] == [pytest.approx(1 - flip.mean(), abs=1e-4), pytest.approx(flip.mean(), abs=1e-4)]
+    assert r["net_follows_pseudo"] == pytest.approx(1 - 1 / V, abs=1e-4)
+    (run / "split_labels.npy").unlink()
+    with pytest.raises(PredictionError, match="split_labels.npy"):
+        mod.slot_identity(laptop_data, preds)
