@@ -105,5 +105,15 @@ def test_from_table_uses_the_tables_presets_speeds_and_finished_runs(tmp_path, c
     _reuse_table_run(data, work, "laptop", "paper", "scapo", 0, "cpu-laptop/epochs-3-3")
     assert (cells / "scapo_s0_run" / "checkpoint.pt").read_bytes() == b"resumed"
 
+    from scapo.bench.compute import write_curve
+
+    rec = {"method": "scapo", "budget_min": 1.0, "seed": 0, "wall": {"train_steps": 6}, "provenance": {"commit": "c"},
+           "dataset_hash": "h", "budget_values": {"preset": "cpu-laptop/epochs-3-3"}, "frame_consistency_sym": 0.5,
+           "S": 80.0, "R_sym_median": 5.0}
+    meta = {"name": "curve", "category": "laptop", "rung": "paper", "split": "val", "dataset": data.name,
+            "instances": 10, "views": 2, "train_views": 4, "data_seed": 0, "preset": "cpu", "protocol": "scapo",
+            "command": "scapo bench compute --from-table", "from_table": True}
+    write_curve([rec], tmp_path / "o", meta)
+    assert "presets scapo cpu-laptop (the table's" in (tmp_path / "o" / "curve.md").read_text()
     with pytest.raises(ConfigError, match="not a finished dataset.*bench table1 --data-only"):
         _table_dataset(tmp_path, "laptop", "paper", 10, 2, 4, 0, rung_config("laptop", "paper", 10, 2, 4, 0))

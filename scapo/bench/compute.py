@@ -122,6 +122,10 @@ def write_curve(records: Sequence[dict], out: Path, meta: dict, name: str = "acc
              _fmt(r["resampling_deg"]), _fmt(r["S"]), _fmt(r["D"]), _fmt(r["D_median"]), _fmt(r["R"]),
              _fmt(r["R_median"]), _fmt(r["R_sym"]), _fmt(r["R_sym_median"]), _fmt(r["R_sym_over90"])] for r in flat]
     commits = sorted({r["commit"] for r in flat})
+    named = sorted({f"{r['method']} {r['budget_values']['preset'].split('/')[0]}" for r in records
+                    if isinstance(r.get("budget_values"), dict) and "preset" in r["budget_values"]})
+    presets = (f"presets {', '.join(named)} (the table's; each row's schedule in its budget_values)"
+               if meta.get("from_table") and named else f"preset {meta['preset']!r}")
     md = [f"# Accuracy against training compute: {meta['category']}, rung {meta['rung']!r} ({meta['split']} split)",
           "",
           "Each cell trains from scratch for its budget (core-minutes of one torch thread, turned into epochs from "
@@ -135,7 +139,7 @@ def write_curve(records: Sequence[dict], out: Path, meta: dict, name: str = "acc
           f"![curves]({meta['name']}.png)", "",
           f"Provenance: commits {', '.join(commits) or '-'}; dataset `{meta['dataset']}` ({meta['instances']} "
           f"instances, {meta['views']} views per val/test instance, {meta['train_views']} per training instance, data "
-          f"seed {meta['data_seed']}), preset {meta['preset']!r}, protocol {meta['protocol']!r}; machine "
+          f"seed {meta['data_seed']}), {presets}, protocol {meta['protocol']!r}; machine "
           f"{meta.get('machine', '-')}; written by `{meta['command']}`."
           + (f" Not computed yet: {', '.join(meta['missing'])}." if meta.get("missing") else ""), ""]
     paths = [out / f"{meta['name']}.md", out / f"{meta['name']}.json", out / f"{meta['name']}.csv",
