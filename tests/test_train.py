@@ -509,6 +509,7 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     assert sum(refit["template_part_points"]) == p.template_points and 0 <= refit["labels_changed"] <= 1
     prior = json.loads((tmp_path / "t" / "label_view_prior.json").read_text())["calls"]  # label_view_prior: each
     assert len(prior) == 2 and all(0 <= c["swapped_share"] <= 1 and c["pair"] == [0, 1] for c in prior)  # labelling
+    assert get_preset("cpu-laptop/label-view-prior").label_view_prior and not get_preset("cpu-laptop").label_view_prior
     with pytest.raises(ConfigError, match="label_view_prior exchanges the split_labels"):
         dataclasses.replace(TEST, label_view_prior=True)
     assert get_preset("cpu/split-fit/split-labels/stage2-parts/split-refit").split_frame == "refit"

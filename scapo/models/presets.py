@@ -377,7 +377,8 @@ def get_preset(name: str) -> TrainConfig:
     from groupings of 6 template clusters, ``TrainConfig.split_overseg``) and ``split-labels``
     trains stage 2 towards that split's labels
     of every training cloud (``TrainConfig.split_labels``; ``label-retry``: the worst-fitted 40 % of them labelled
-    again from the best of the 24 octahedral starts, ``TrainConfig.label_retry``), ``split-parts`` makes those
+    again from the best of the 24 octahedral starts, ``TrainConfig.label_retry``; ``label-view-prior``: their
+    base/child exchanges undone by the viewpoint prior, ``TrainConfig.label_view_prior``), ``split-parts`` makes those
     labels in each cloud's parts-signed frame (``TrainConfig.split_frame``) and ``frame-target`` pulls each cloud's
     frame towards that frame
     (``TrainConfig.frame_target``, weight 1) and ``stage2-parts`` makes stage 2 work in that frame
@@ -447,6 +448,9 @@ def get_preset(name: str) -> TrainConfig:
         if part == "label-retry":
             off["label_starts"] = "O"  # the worst-fitted clouds labelled again from the best of 24 starts (label_retry)
             off["label_retry"] = 0.4
+            continue
+        if part == "label-view-prior":
+            off["label_view_prior"] = True  # the labels' base/child exchanges undone by the viewpoint prior
             continue
         if part == "relabel":
             off["relabel"] = 1  # stage 2 relabels the training clouds once, from its own predictions (relabel)
