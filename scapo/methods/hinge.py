@@ -841,8 +841,9 @@ def label_view_prior(points: np.ndarray, part_label: np.ndarray, joint_type, joi
     to the paper, issue 52, session 41).
 
     SCAPO's stage-2 pseudo-labels split a laptop's views well but give the base's slot to the lid in a quarter to a
-    third of them (the base and lid are exchanged by a half-turn, which the stage-1 frame does not tell apart), and
-    the network learns those exchanges (``results/canonical_ladder/stage2_parts/laptop_table/slot_identity/``). Each
+    third of them (the base and lid are exchanged by a half-turn, which the stage-1 frame does not tell apart;
+    ``results/canonical_ladder/stage2_parts/laptop_table/slot_identity/``; undoing it did not change the network's
+    slots, ``.../label_view_prior/``). Each
     view's hinge is found from its labels (a starting axis and pivot from the two parts' planes and centroids, then
     :func:`hinge_prediction` with ``axis_from_planes``), each part's axes from it (:func:`part_axes`), and, as the
     prediction-time view prior does, the one base orientation most views reach with either of their two splits;

@@ -148,8 +148,9 @@ class TrainConfig:
     labels and the camera-frame clouds alone (:func:`scapo.methods.hinge.label_view_prior`; the views' split, the
     labels' exchanges and the prior's share go to ``label_view_prior.json`` in the run folder). An addition to the
     paper (issue 52, session 41): on Table 1's laptop the pseudo-labels give the lid the base's slot in 26-36 % of the
-    training views and the network follows them in 87-94 % of the views
-    (results/canonical_ladder/stage2_parts/laptop_table/slot_identity/). Off (default) in every preset."""
+    training views (results/canonical_ladder/stage2_parts/laptop_table/slot_identity/); with this part they do in
+    3-4 %, but the network's slots and frame do not change (val, three seeds: a negative result, the slot order
+    comes from the stage-1 frame; .../laptop_table/label_view_prior/). Off (default) in every preset."""
     frame_target: float = 0.0
     """Weight of a stage-2 term that pulls each training cloud's frame (stage 1's, which stage 2 trains on) towards
     the frame its base's axes give when signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`,
