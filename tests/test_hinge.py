@@ -425,7 +425,7 @@ def test_the_label_view_prior_exchanges_back_the_views_whose_labels_gave_the_lid
     def views(rng, k, sphere):
         pts, labs = [], []
         for _ in range(k):
-            p, lab, R, t, _ = _posed_slabs(rng, rng.uniform(50, 140), n=400)
+            p, lab, R, t, _ = _posed_slabs(rng, rng.uniform(50, 140), n=240)
             R2 = Rotation.random(random_state=rng).as_matrix() if sphere else \
                 Rotation.from_rotvec(rng.normal(0, 0.3, 3)).as_matrix()
             pts.append(((p - t) @ R) @ R2.T + t)
@@ -433,16 +433,16 @@ def test_the_label_view_prior_exchanges_back_the_views_whose_labels_gave_the_lid
         return np.stack(pts), np.stack(labs)
 
     rng = np.random.default_rng(5)
-    pts, gt = views(rng, 40, False)
+    pts, gt = views(rng, 24, False)
     lab = gt.copy()
-    flip = np.zeros(40, dtype=bool)
+    flip = np.zeros(24, dtype=bool)
     flip[::4] = True  # a quarter of the views give the base's slot to the lid
     lab[flip] = 1 - gt[flip]
     swapped, info = label_view_prior(pts, lab, [0], [[0, 1]])
     assert info["used"] and info["pair"] == [0, 1] and info["train_share"] > 0.7
     assert (swapped == flip).all() and info["swapped_share"] == 0.25
     assert (exchange_pair(lab, swapped, info["pair"]) == gt).all()
-    sp, slab = views(rng, 40, True)
+    sp, slab = views(rng, 24, True)
     swapped, info = label_view_prior(sp, slab, [0], [[0, 1]])
     assert not info["used"] and not swapped.any()
     swapped, info = label_view_prior(pts, lab, [1], [[0, 1]])  # a drawer: no hinge
