@@ -412,45 +412,6 @@ def test_the_sweep_reads_a_bar_childs_axis_in_the_base_frame_and_turns_it_into_e
         sweep_axis(np.zeros((1, 3)))
 
 
-def test_the_label_view_prior_exchanges_back_the_views_whose_labels_gave_the_lid_the_base_slot():
-    """``label_view_prior`` (``TrainConfig.label_view_prior``), from labels and points alone: under the paper's narrow
-    viewpoints, the views whose pseudo-labels gave the lid the base's slot are the ones it exchanges (and the
-    exchange restores the labels); views from the whole sphere reach no prior and nothing is exchanged; an object
-    without a revolute joint is left alone; bad shapes are refused."""
-    from scipy.spatial.transform import Rotation
-
-    from scapo.errors import InputError
-    from scapo.methods.hinge import exchange_pair, label_view_prior
-
-    def views(rng, k, sphere):
-        pts, labs = [], []
-        for _ in range(k):
-            p, lab, R, t, _ = _posed_slabs(rng, rng.uniform(50, 140), n=240)
-            R2 = Rotation.random(random_state=rng).as_matrix() if sphere else \
-                Rotation.from_rotvec(rng.normal(0, 0.3, 3)).as_matrix()
-            pts.append(((p - t) @ R) @ R2.T + t)
-            labs.append(lab)
-        return np.stack(pts), np.stack(labs)
-
-    rng = np.random.default_rng(5)
-    pts, gt = views(rng, 24, False)
-    lab = gt.copy()
-    flip = np.zeros(24, dtype=bool)
-    flip[::4] = True  # a quarter of the views give the base's slot to the lid
-    lab[flip] = 1 - gt[flip]
-    swapped, info = label_view_prior(pts, lab, [0], [[0, 1]])
-    assert info["used"] and info["pair"] == [0, 1] and info["train_share"] > 0.7
-    assert (swapped == flip).all() and info["swapped_share"] == 0.25
-    assert (exchange_pair(lab, swapped, info["pair"]) == gt).all()
-    sp, slab = views(rng, 24, True)
-    swapped, info = label_view_prior(sp, slab, [0], [[0, 1]])
-    assert not info["used"] and not swapped.any()
-    swapped, info = label_view_prior(pts, lab, [1], [[0, 1]])  # a drawer: no hinge
-    assert not swapped.any() and info["pair"] is None
-    with pytest.raises(InputError, match="part_label"):
-        label_view_prior(pts, lab[:, :10], [0], [[0, 1]])
-
-
 def test_slot_identity_tells_a_right_split_with_exchanged_slots_from_a_wrong_one(laptop_data, tmp_path):
     """``bench/slot_identity.py`` on hand-made labels of the training split: pseudo-labels right in every view but with
     base and lid exchanged in a third of the views score 1 per view and 2/3 for the best single permutation; a network

@@ -412,7 +412,7 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     ident = {"preset": dataclasses.asdict(get_preset("test")), "dataset_hash": "h", "category": "laptop",
              "part_names": [], "joint_type": [], "joint_parts": []}
     for field in ("axis_init", "split_init", "split_labels", "split_frame", "frame_target", "stage2_frame",
-                  "label_starts", "label_stride", "label_view_prior"):
+                  "label_starts", "label_stride"):
         older = json.loads(json.dumps(ident))
         del older["preset"][field]  # as written before the field existed
         assert _identity_hash(older) == _identity_hash(ident)
@@ -487,8 +487,7 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     from scapo.models.train import TrainingClouds
 
     p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True,
-                            stage2_frame="parts", split_frame="refit", axis_init="sweep", label_stride=2,
-                            label_view_prior=True)
+                            stage2_frame="parts", split_frame="refit", axis_init="sweep", label_stride=2)
     trainer = Trainer(laptop_data, tmp_path / "t", p, progress=False)
     trainer.train()
     model = trainer.model
@@ -507,11 +506,6 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     assert labels.shape == tuple(TrainingClouds(laptop_data, 64).clouds.shape[:2])  # label_stride=2: every point
     refit = json.loads((tmp_path / "t" / "split_refit.json").read_text())
     assert sum(refit["template_part_points"]) == p.template_points and 0 <= refit["labels_changed"] <= 1
-    prior = json.loads((tmp_path / "t" / "label_view_prior.json").read_text())["calls"]  # label_view_prior: each
-    assert len(prior) == 2 and all(0 <= c["swapped_share"] <= 1 and c["pair"] == [0, 1] for c in prior)  # labelling
-    assert get_preset("cpu-laptop/label-view-prior").label_view_prior and not get_preset("cpu-laptop").label_view_prior
-    with pytest.raises(ConfigError, match="label_view_prior exchanges the split_labels"):
-        dataclasses.replace(TEST, label_view_prior=True)
     assert get_preset("cpu/split-fit/split-labels/stage2-parts/split-refit").split_frame == "refit"
     assert get_preset("cpu/split-fit/split-labels/stage2-parts/parts-plane").parts_axes == "plane"
     assert model.parts_axes == "pca"

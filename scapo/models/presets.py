@@ -142,15 +142,6 @@ class TrainConfig:
     a ``cpu-laptop`` run's 1,075 s, more than its 900 optimiser steps; at 4 the frames cost 9.7x and the labels 4.5x
     less, and the pseudo-labels' accuracy against the true parts fell from 0.730 to 0.707 on a finished run's model
     (results/perf/label_stride/). Not set by any preset."""
-    label_view_prior: bool = False
-    """With ``split_labels``: after each pseudo-labelling, the views whose labels give the base's slot to its revolute
-    child are exchanged back, by the viewpoint prior of the prediction-time ``hinge_view_prior`` read from the
-    labels and the camera-frame clouds alone (:func:`scapo.methods.hinge.label_view_prior`; the views' split, the
-    labels' exchanges and the prior's share go to ``label_view_prior.json`` in the run folder). An addition to the
-    paper (issue 52, session 41): on Table 1's laptop the pseudo-labels give the lid the base's slot in 26-36 % of the
-    training views (results/canonical_ladder/stage2_parts/laptop_table/slot_identity/); with this part they do in
-    3-4 %, but the network's slots and frame do not change (val, three seeds: a negative result, the slot order
-    comes from the stage-1 frame; .../laptop_table/label_view_prior/). Off (default) in every preset."""
     frame_target: float = 0.0
     """Weight of a stage-2 term that pulls each training cloud's frame (stage 1's, which stage 2 trains on) towards
     the frame its base's axes give when signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`,
@@ -270,11 +261,6 @@ class TrainConfig:
         if self.label_stride > 1 and not self.split_labels:
             raise ConfigError(f"preset {self.name!r}: label_stride={self.label_stride} thins the split_labels "
                               "pseudo-labelling; set split_labels too (preset part split-labels)")
-        if not isinstance(self.label_view_prior, bool):
-            raise ConfigError(f"preset {self.name!r}: label_view_prior is true or false, got {self.label_view_prior!r}")
-        if self.label_view_prior and not self.split_labels:
-            raise ConfigError(f"preset {self.name!r}: label_view_prior exchanges the split_labels pseudo-labels; set "
-                              "split_labels too (preset part split-labels)")
         if self.frame_target < 0 or self.frame_target != self.frame_target:
             raise ConfigError(f"preset {self.name!r}: frame_target is a loss weight, >= 0; got {self.frame_target!r}")
         if self.frame_target > 0 and not self.split_labels:
@@ -378,8 +364,7 @@ def get_preset(name: str) -> TrainConfig:
     from groupings of 6 template clusters, ``TrainConfig.split_overseg``) and ``split-labels``
     trains stage 2 towards that split's labels
     of every training cloud (``TrainConfig.split_labels``; ``label-retry``: the worst-fitted 40 % of them labelled
-    again from the best of the 24 octahedral starts, ``TrainConfig.label_retry``; ``label-view-prior``: their
-    base/child exchanges undone by the viewpoint prior, ``TrainConfig.label_view_prior``), ``split-parts`` makes those
+    again from the best of the 24 octahedral starts, ``TrainConfig.label_retry``), ``split-parts`` makes those
     labels in each cloud's parts-signed frame (``TrainConfig.split_frame``) and ``frame-target`` pulls each cloud's
     frame towards that frame
     (``TrainConfig.frame_target``, weight 1) and ``stage2-parts`` makes stage 2 work in that frame
@@ -449,9 +434,6 @@ def get_preset(name: str) -> TrainConfig:
         if part == "label-retry":
             off["label_starts"] = "O"  # the worst-fitted clouds labelled again from the best of 24 starts (label_retry)
             off["label_retry"] = 0.4
-            continue
-        if part == "label-view-prior":
-            off["label_view_prior"] = True  # the labels' base/child exchanges undone by the viewpoint prior
             continue
         if part == "relabel":
             off["relabel"] = 1  # stage 2 relabels the training clouds once, from its own predictions (relabel)

@@ -183,7 +183,7 @@ ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "lab
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
                 "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": "",
                 "relabel": 0, "relabel_frames": True, "parts_axes": "pca", "axis_fixed": False,
-                "split_overseg": 0, "label_retry": 0.0, "label_stride": 1, "label_view_prior": False}
+                "split_overseg": 0, "label_retry": 0.0, "label_stride": 1}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -413,7 +413,6 @@ class ScapoJob:
             return part_init.joint_turn_starts(template, split, self.mcfg.num_parts)
 
         retried: list[dict] = []
-        priors: list[dict] = []
 
         def label(split: torch.Tensor, clouds: torch.Tensor) -> torch.Tensor:
             rec: dict = {}
@@ -424,8 +423,6 @@ class ScapoJob:
                 retried.append(rec)
                 if self.dist.is_main:
                     write_json(self.run / "label_retry.json", {"calls": retried})
-            if self.preset.label_view_prior:
-                out = self._label_view_prior(data, out, priors)
             return out
 
         labels = label(template_labels, canon)
@@ -464,21 +461,6 @@ class ScapoJob:
             np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
 
     FRAME_TARGETS = "frame_targets.npy"
-
-    def _label_view_prior(self, data: TrainingClouds, labels: torch.Tensor, calls: list[dict]) -> torch.Tensor:
-        """``TrainConfig.label_view_prior``: ``labels (M, N)`` int64 with the base joint's two slots exchanged in the
-        views :func:`scapo.methods.hinge.label_view_prior` chooses from the camera-frame clouds; each call's info
-        (and the share of views exchanged) is appended to ``calls`` and written to ``label_view_prior.json``."""
-        from scapo.methods.hinge import exchange_pair, label_view_prior
-
-        swapped, info = label_view_prior(data.clouds.double().numpy(), labels.numpy(), self.mcfg.joint_types,
-                                         self.mcfg.joint_parts)
-        calls.append(info)
-        if self.dist.is_main:
-            write_json(self.run / "label_view_prior.json", {"calls": calls})
-        if not swapped.any():
-            return labels
-        return torch.from_numpy(exchange_pair(labels.numpy(), swapped, info["pair"]).astype(np.int64))
 
     @torch.no_grad()
     def _sweep_axes(self, canon: torch.Tensor, frames: torch.Tensor, targets: torch.Tensor,
