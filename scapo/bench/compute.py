@@ -208,9 +208,8 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
     if not data_only:
         check_output_dir(out, "compute curve output folder")
     cfg = rung_config(category, rung, instances, views, train_views, data_seed)
-    data = rung_dir(work, category, rung, instances, views, train_views, data_seed)
-    if from_table:
-        data = _table_dataset(work, category, rung, instances, views, train_views, data_seed, cfg)
+    data = (_table_dataset(work, category, rung, instances, views, train_views, data_seed, cfg) if from_table
+            else rung_dir(work, category, rung, instances, views, train_views, data_seed))
     name = ("accuracy_vs_compute" if (category, rung) == ("laptop", "paper")
             else f"accuracy_vs_compute_{category}_{rung}")
     meta = {"name": name, "category": category, "rung": rung, "methods": methods, "budgets": budgets, "seeds": seeds,
@@ -261,14 +260,13 @@ def _table_kwargs(rung: str, train_views: int) -> dict:
 
 def _table_dataset(work: Path, category: str, rung: str, instances: int, views: int, train_views: int, data_seed: int,
                    cfg) -> Path:
-    """The finished dataset of a ``scapo bench table1`` work folder that is exactly the rung's ``cfg``.
+    """The finished dataset of a ``scapo bench table1`` work folder that is exactly the rung's ``cfg`` (a single-view
+    rung, ``paper`` or ``sphere``: :func:`run_compute_curve` refuses the others first).
 
     Raises:
-        ConfigError: a rung the tables do not render (only ``paper`` and ``sphere``), or no such finished dataset."""
+        ConfigError: no such finished dataset."""
     from scapo.bench.experiments import dataset_dir
 
-    if rung not in ("paper", "sphere"):
-        raise ConfigError(f"--from-table: the tables render single views (rung paper or sphere), not rung {rung!r}")
     data = dataset_dir(work, category, instances, views, data_seed, _table_kwargs(rung, train_views))
     if not _finished_dataset(data, cfg):
         raise ConfigError(f"--from-table: {data} is not a finished dataset of {category}, rung {rung}, {instances} "
