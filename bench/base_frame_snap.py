@@ -71,7 +71,7 @@ def _base_labels(src: str, pred: dict, gt: dict, slot: int) -> np.ndarray:
 def main(argv=None) -> int:
     from scapo.bench.ladder import frame_consistency
     from scapo.data import load
-    from scapo.eval.evaluator import declared_rotations
+    from scapo.eval.evaluator import object_frame_twins
     from scapo.methods import load_run
     from scapo.methods.base_frame import base_axes, choose_base_slot, fit_base_offset, rotation_dispersion, snap_to_base
     from scapo.provenance import provenance
@@ -88,7 +88,7 @@ def main(argv=None) -> int:
             return 2
     train, val = load(a.data, "train"), load(a.data, "val")
     A, B = train.arrays(), val.arrays()
-    sym = declared_rotations(val.card)
+    gt_T = object_frame_twins(val)  # (M, K, 4, 4): the declared symmetric ground truths
     R_gt = np.asarray(B["T_cam_obj"], dtype=np.float64)[:, :3, :3]
     lines = [f"# The base part's principal axes as the canonical frame ({Path(a.data).name}, val, "
              f"{len(B['points'])} views)", "",
@@ -110,7 +110,7 @@ def main(argv=None) -> int:
         label, _, run = spec.partition("=")
         m = load_run(run, refine_steps=0)
         ot, ov = m.predict_points(A["points"]), m.predict_points(B["points"])
-        before = frame_consistency(np.asarray(ov["T_cam_obj"]), B["T_cam_obj"], symmetries=sym)
+        before = frame_consistency(np.asarray(ov["T_cam_obj"]), gt_T)
         auto, disp = choose_base_slot(np.asarray(ot["part_pose"]))
         is_base = [float(np.mean([_majority(n, g) == 0 for n, g in zip(ot["part_label"] == s, A["part_label"])]))
                    for s in range(len(disp))]
@@ -124,7 +124,7 @@ def main(argv=None) -> int:
                 E, ok = base_axes(A["points"], lt, slot=slot)
                 O, support, _ = fit_base_offset(np.asarray(ot["part_pose"])[ok, slot, :3, :3], E[ok])
                 sv = snap_to_base(B["points"], {**ov, "part_label": lv}, O, slot=slot)
-                after = frame_consistency(sv["T_cam_obj"], B["T_cam_obj"], symmetries=sym)
+                after = frame_consistency(sv["T_cam_obj"], gt_T)
                 tag = f"{slot}" + (" (auto)" if slot == auto else "")
                 rows.append({"run": label, "run_path": run, "base_points": src, "slot": slot, "auto_slot": auto,
                              "dispersion": disp.round(4).tolist(), "support": support, "before": before,

@@ -60,7 +60,7 @@ def spread(data: Path, predictions: Path) -> dict:
     """The spread statistics of one cell's val predictions (see the module docstring)."""
     from scapo.data import load
     from scapo.eval import Predictions
-    from scapo.eval.evaluator import declared_rotations
+    from scapo.eval.evaluator import object_frame_twins
 
     val = load(data, "val")
     arrays = val.arrays(["T_cam_obj", "points"])
@@ -72,9 +72,10 @@ def spread(data: Path, predictions: Path) -> dict:
     order = np.array([keys[(int(p.instance_id[i]), int(p.view_id[i]))] for i in rows])
     O = np.einsum("nji,njk->nik", gt[order][:, :3, :3], p.T_cam_obj[rows][:, :3, :3].astype(np.float64))
     M = mean_rotation(O)
-    sym = declared_rotations(val.card)
-    if len(sym) > 1:  # each sample against the declared symmetric ground truth that fits the common offset best
-        cands = np.stack([np.einsum("ij,njk->nik", S, O) for S in sym])
+    twins = object_frame_twins(val)[order]  # (n, K, 4, 4): the declared symmetric ground truths
+    if twins.shape[1] > 1:  # each sample against the declared symmetric ground truth that fits the common offset best
+        pred_R = p.T_cam_obj[rows][:, :3, :3].astype(np.float64)
+        cands = np.stack([np.einsum("nji,njk->nik", twins[:, k, :3, :3], pred_R) for k in range(twins.shape[1])])
         d = np.stack([angles(c, M) for c in cands])
         O = cands[d.argmin(0), np.arange(len(O))]
         M = mean_rotation(O)

@@ -154,9 +154,43 @@ def test_frame_consistency_on_hand_built_offsets():
     scattered = pred.copy()
     scattered[:, :3, :3] = random_rotation(M, seed=4).numpy()
     assert frame_consistency(scattered, gt) < 0.2
+    # a second valid ground truth per sample (a symmetric category's twin, its own rotation per sample): the samples
+    # predicted in their twin's frame agree only when the twins are given
+    twin_gt = gt.copy()
+    twin_gt[:, :3, :3] = random_rotation(M, seed=5).numpy()
+    mixed = pred.copy()
+    mixed[::2, :3, :3] = twin_gt[::2, :3, :3] @ offset.T
+    assert frame_consistency(mixed, gt) == pytest.approx(0.5, abs=0.03)
+    assert frame_consistency(mixed, np.stack([gt, twin_gt], 1)) == 1.0
     with pytest.raises(ValueError):
         frame_consistency(pred[:, :3], gt[:, :3])
+    with pytest.raises(ValueError):
+        frame_consistency(pred, np.stack([gt, twin_gt], 1)[:-1])
     assert np.isnan(frame_consistency(np.zeros((0, 4, 4)), np.zeros((0, 4, 4))))
+
+
+def test_a_cells_consistency_is_scored_again_when_it_predates_the_twin_object_frame(tmp_path, monkeypatch):
+    """``_upgrade``: a record of a category that declares a symmetry, written before ``CONSISTENCY_VERSION`` 2, gets
+    its two frame-consistency shares again from its own predictions (its resampling column kept); a current record,
+    or one of a category without a symmetry, is returned as it is."""
+    import scapo.bench.ladder as ladder
+    from scapo.eval import Predictions
+
+    calls = []
+    monkeypatch.setattr(ladder, "split_consistency", lambda data, preds: calls.append(preds) or (0.25, 0.75))
+    monkeypatch.setattr(Predictions, "load", staticmethod(lambda path: "predictions"))
+    for name, card in (("sym", {"symmetry": {"parts": [1, 0]}}), ("plain", {})):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "card.json").write_text(json.dumps(card))
+    old = {"frame_consistency": 0.2, "frame_consistency_sym": 0.3, "resampling_deg": 4.0}
+    for name in ("sym", "plain"):
+        (tmp_path / f"{name}_s0.json").write_text(json.dumps(old))
+    assert ladder._upgrade(tmp_path / "plain_s0.json", tmp_path / "plain", "npcs", None) == old and not calls
+    rec = ladder._upgrade(tmp_path / "sym_s0.json", tmp_path / "sym", "npcs", None)
+    assert calls == ["predictions"] and rec["frame_consistency"] == 0.25 and rec["frame_consistency_sym"] == 0.75
+    assert rec["resampling_deg"] == 4.0 and rec["consistency_version"] == ladder.CONSISTENCY_VERSION == 2
+    assert json.loads((tmp_path / "sym_s0.json").read_text()) == rec  # written back
+    assert ladder._upgrade(tmp_path / "sym_s0.json", tmp_path / "sym", "npcs", None) == rec and len(calls) == 1
 
 
 def test_parse_variant():

@@ -115,6 +115,30 @@ def test_op_align_forgives_the_laptops_declared_exchange_of_base_and_lid_and_sca
     assert op["D"] == pytest.approx(0.0, abs=1e-5) and op["twin_rate"] == pytest.approx(100.0 * swap.mean())
     sc = evaluate(out, preds, protocol="scapo")
     assert (sc.per_sample["R"][swap] > 150).all() and (sc.per_sample["R"][~swap] < 1e-5).all()
+    _twin_frame_consistency(out, preds, swap)
+
+
+def _twin_frame_consistency(out, preds, swap):
+    """A prediction in the twin's order and poses has one canonical frame. The laptop's twin object frame is the lid's
+    pose turned by the symmetry, which moves with the joint state: the symmetry-aware share counts every sample,
+    while the rest-state turn of the base's frame (``T_cam_obj S^-1``) does not."""
+    from scapo.bench.ladder import frame_consistency, split_consistency
+    from scapo.eval.evaluator import declared_rotations, object_frame_twins
+
+    ds = load(out, "test")
+    n = len(ds)
+    assert np.ptp(ds.arrays(["joint_state"])["joint_state"]) > 0.2  # the states differ between views
+    strict, sym = split_consistency(out, preds, "test")
+    assert sym == 1.0 and strict == pytest.approx(1.0 - swap.mean(), abs=1e-9)
+    twins = object_frame_twins(ds)
+    assert twins.shape == (n, 2, 4, 4)
+    assert np.allclose(twins[swap, 1], preds.T_cam_obj[swap], atol=1e-5)  # the exchanged samples' twins
+    assert np.allclose(twins[~swap, 0], preds.T_cam_obj[~swap], atol=1e-5)  # the others' own
+    rest_turn = twins[:, :1].copy()
+    rest_turn[:, 0, :3, :3] = rest_turn[:, 0, :3, :3] @ declared_rotations(ds.card)[1].T
+    assert frame_consistency(preds.T_cam_obj, np.concatenate([twins[:, :1], rest_turn], 1)) < 1.0
+    ds.card = {k: v for k, v in ds.card.items() if k != "symmetry"}  # a category without a declared symmetry
+    assert object_frame_twins(ds).shape == (n, 1, 4, 4)  # the sample's own ground truth only
 
 
 @pytest.mark.parametrize("category", ["laptop", "basket"])

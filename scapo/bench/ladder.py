@@ -70,10 +70,14 @@ CELL_OPTIONS = {"scapo": {"refine_steps": 0}}
 BREAK = 0.9
 #: Inlier threshold of :func:`frame_consistency` (the evaluator's alignment uses the same).
 CONSISTENCY_DEG = 15.0
+#: Version of the cells' frame consistency: 2 takes a symmetric category's twin object frame from the twin ground
+#: truth (:func:`scapo.eval.evaluator.object_frame_twins`; the laptop's follows the lid's state); 1 (records without
+#: the field) turned the base's frame by the symmetry's rest-state rotation. :func:`_upgrade` rescores version-1
+#: records of symmetric categories from their predictions.
+CONSISTENCY_VERSION = 2
 
 
-def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = CONSISTENCY_DEG,
-                      symmetries: np.ndarray | None = None) -> float:
+def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = CONSISTENCY_DEG) -> float:
     """Share of samples whose object-frame rotation offset agrees with the one frame most of them agree on.
 
     For each sample the offset ``O = R_pred^T R_gt`` maps the ground-truth object frame into the method's canonical
@@ -85,28 +89,32 @@ def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = 
     frame: its share is that of samples within ``inlier_deg`` of one common offset, near the identity.
 
     Args:
-        pred_T, gt_T: ``(M, 4, 4)`` float64 predicted and ground-truth ``T_cam_obj`` of the same samples.
-        symmetries: ``(K, 3, 3)`` rotations of the object's declared symmetries, identity first
-            (:func:`scapo.eval.evaluator.declared_rotations`); a sample then agrees when any of its symmetric ground
-            truths ``R_gt S_k^T`` does (the symmetry-aware share, beside the strict one of ``None``).
+        pred_T: ``(M, 4, 4)`` float64 predicted ``T_cam_obj``.
+        gt_T: ``(M, 4, 4)`` ground-truth ``T_cam_obj`` of the same samples (the strict share), or ``(M, K, 4, 4)``:
+            each sample's K valid ground truths, its own first, then its twins under the category's declared
+            symmetries (:func:`scapo.eval.evaluator.object_frame_twins`); a sample then agrees when any of them does
+            (the symmetry-aware share).
 
     Returns:
         The share in [0, 1] (NaN for no samples).
 
     Raises:
-        ValueError: arrays that are not two ``(M, 4, 4)`` of one ``M``.
+        ValueError: arrays that are not ``(M, 4, 4)`` and ``(M, 4, 4)`` or ``(M, K, 4, 4)`` of one ``M``.
     """
     from scapo.ops.rigid import project_to_so3
 
     pred_T, gt_T = np.asarray(pred_T, dtype=np.float64), np.asarray(gt_T, dtype=np.float64)
-    if pred_T.shape != gt_T.shape or pred_T.ndim != 3 or pred_T.shape[1:] != (4, 4):
-        raise ValueError(f"frame_consistency needs two (M, 4, 4) arrays, got {pred_T.shape} and {gt_T.shape}")
-    M = len(pred_T)
+    if gt_T.ndim == 3:
+        gt_T = gt_T[:, None]
+    if (pred_T.ndim != 3 or pred_T.shape[1:] != (4, 4) or gt_T.ndim != 4 or gt_T.shape[2:] != (4, 4)
+            or len(gt_T) != len(pred_T)):
+        raise ValueError(f"frame_consistency needs (M, 4, 4) predictions and (M, 4, 4) or (M, K, 4, 4) ground truth, "
+                         f"got {pred_T.shape} and {gt_T.shape}")
+    M, K = gt_T.shape[:2]
     if M == 0:
         return float("nan")
-    S = np.eye(3)[None] if symmetries is None else np.asarray(symmetries, dtype=np.float64).reshape(-1, 3, 3)
-    O = project_to_so3(np.einsum("mji,mjk,skl->msil", pred_T[:, :3, :3], gt_T[:, :3, :3],
-                                 S.transpose(0, 2, 1)).reshape(-1, 3, 3)).reshape(M, len(S), 3, 3)
+    O = project_to_so3(np.einsum("mji,mkjl->mkil", pred_T[:, :3, :3], gt_T[:, :, :3, :3]).reshape(-1, 3, 3))
+    O = O.reshape(M, K, 3, 3)
     hyp = O.reshape(-1, 3, 3)
     if len(hyp) > 400:
         hyp = hyp[np.random.default_rng(0).choice(len(hyp), 400, replace=False)]
@@ -214,10 +222,10 @@ def split_consistency(data: Path, preds, split: str = "val") -> tuple[float, flo
     """
     from scapo.data import load
     from scapo.errors import PredictionError
-    from scapo.eval.evaluator import declared_rotations
+    from scapo.eval.evaluator import object_frame_twins
 
     d = load(data, split)
-    gt = d.arrays(["T_cam_obj"])["T_cam_obj"]
+    gt = object_frame_twins(d)
     keys = {k: i for i, k in enumerate(d.keys())}
     rows = [i for i in range(len(preds)) if str(preds.split[i]) == split]
     try:
@@ -225,9 +233,8 @@ def split_consistency(data: Path, preds, split: str = "val") -> tuple[float, flo
     except KeyError as e:
         raise PredictionError(f"predictions of {preds.method!r} name sample {e.args[0]}, which the {split} split of "
                               f"{data} lacks") from None
-    strict = frame_consistency(preds.T_cam_obj[rows], gt[order])
-    sym = declared_rotations(d.card)
-    return strict, (frame_consistency(preds.T_cam_obj[rows], gt[order], symmetries=sym) if len(sym) > 1 else strict)
+    strict = frame_consistency(preds.T_cam_obj[rows], gt[order, 0])
+    return strict, (frame_consistency(preds.T_cam_obj[rows], gt[order]) if gt.shape[1] > 1 else strict)
 
 
 def resampling_stability(method, points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
@@ -274,19 +281,24 @@ def _stability(run: Path, data: Path, method: str, preset, limit: int = 64, devi
 
 def _upgrade(rec_path: Path, data: Path, method: str, preset) -> dict:
     """A cell's record, with the symmetry-aware consistency and the resampling stability added when it was written
-    before they existed (from the cell's own predictions and run; ``consistency_commit`` names the code)."""
+    before they existed, and the consistency scored again when it predates :data:`CONSISTENCY_VERSION` on a category
+    that declares a symmetry (from the cell's own predictions and run; ``consistency_commit`` names the code)."""
     from scapo.eval import Predictions
     from scapo.methods import METHODS
     from scapo.provenance import git_commit
 
     rec = json.loads(rec_path.read_text())
-    if "frame_consistency_sym" in rec and "resampling_deg" in rec:
+    stale = (rec.get("consistency_version", 1) < CONSISTENCY_VERSION
+             and bool(json.loads((Path(data) / "card.json").read_text()).get("symmetry")))
+    if "frame_consistency_sym" in rec and "resampling_deg" in rec and not stale:
         return rec
     stem = rec_path.name[: -len(".json")]
     preds = Predictions.load(rec_path.parent / f"{stem}_predictions.npz")
     rec["frame_consistency"], rec["frame_consistency_sym"] = (round(x, 4) for x in split_consistency(data, preds))
-    rec["resampling_deg"] = (_stability(rec_path.parent / f"{stem}_run", data, method, preset)
-                             if METHODS.get(method).trained else None)
+    if "resampling_deg" not in rec:
+        rec["resampling_deg"] = (_stability(rec_path.parent / f"{stem}_run", data, method, preset)
+                                 if METHODS.get(method).trained else None)
+    rec["consistency_version"] = CONSISTENCY_VERSION
     rec["consistency_commit"] = git_commit()
     write_json(rec_path, rec)
     return rec
@@ -333,7 +345,8 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
         "protocol": protocol, "dataset": data.name, "dataset_hash": res.info["dataset_hash"],
         "preset": getattr(preset, "name", preset), "budget_values": values,
         "frame_consistency": round(consistency, 4), "frame_consistency_sym": round(consistency_sym, 4),
-        "alignment_inlier_ratio": res.info.get("alignment_inlier_ratio"), "resampling_deg": stability,
+        "consistency_version": CONSISTENCY_VERSION, "alignment_inlier_ratio": res.info.get("alignment_inlier_ratio"),
+        "resampling_deg": stability,
         "S": s.get("S"), "D": s.get("D"), "D_median": s.get("D_median"), "C": s.get("C"),
         "R": s.get("R"), "R_median": s.get("R_median"), "R_sym": s.get("R_sym"), "R_sym_median": s.get("R_sym_median"),
         "R_over90": s.get("R_over90"), "R_sym_over90": s.get("R_sym_over90"),

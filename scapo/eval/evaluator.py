@@ -219,6 +219,29 @@ def declared_rotations(card: dict) -> np.ndarray:
     return np.stack(out)
 
 
+def object_frame_twins(ds: ArticulationDataset) -> np.ndarray:
+    """``(M, K, 4, 4)`` float64: each sample's valid ground-truth object poses ``T_cam_obj``, its own first, then its
+    :func:`~scapo.sim.assets.symmetry.twin`'s under the dataset card's declared symmetry (K = 1 without one).
+
+    The twin's object frame is its base part's pose. Where the symmetry exchanges the base (the laptop's base and
+    lid), that is the exchanged part's pose turned by the symmetry, ``part_pose[lid] S^-1``, which follows the joint
+    state, not ``T_cam_obj S^-1`` (equal only at rest); the part rotations of :func:`declared_rotations` stay right
+    because the parts are matched by their points first.
+
+    Args:
+        ds: one split of a dataset (:func:`scapo.data.load`); the samples in its order.
+    """
+    fields = ["T_cam_obj", "part_pose", "joint_pivot", "joint_axis", "joint_state", "bbox_diag"]
+    own = ds.arrays(["T_cam_obj"])["T_cam_obj"].astype(np.float64)
+    if not ds.card.get("symmetry"):
+        return own[:, None]
+    from scapo.sim.assets.symmetry import Symmetry, twin
+
+    gt = ds.arrays(fields)
+    tw = twin({k: gt[k] for k in fields}, Symmetry.from_dict(ds.card["symmetry"]))["T_cam_obj"]
+    return np.stack([own, np.asarray(tw, dtype=np.float64)], 1)
+
+
 def symmetric_part_errors(proto: Protocol, pose: np.ndarray, gt_pose: np.ndarray, rotations: np.ndarray
                           ) -> tuple[np.ndarray, np.ndarray]:
     """The symmetry-aware part rotation errors: each sample scored against the symmetric ground truth that fits it
