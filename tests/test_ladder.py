@@ -162,6 +162,11 @@ def test_frame_consistency_on_hand_built_offsets():
     mixed[::2, :3, :3] = twin_gt[::2, :3, :3] @ offset.T
     assert frame_consistency(mixed, gt) == pytest.approx(0.5, abs=0.03)
     assert frame_consistency(mixed, np.stack([gt, twin_gt], 1)) == 1.0
+    big = np.tile(np.eye(4), (240, 1, 1))  # a table's test split: every offset of both ground truths is tried
+    big[:, :3, :3] = random_rotation(240, seed=6).numpy()
+    near = big.copy()
+    near[:, :3, :3] = random_rotation(240, seed=7).numpy()
+    assert frame_consistency(near, np.stack([big, near], 1)) == 1.0 >= frame_consistency(near, big)
     with pytest.raises(ValueError):
         frame_consistency(pred[:, :3], gt[:, :3])
     with pytest.raises(ValueError):

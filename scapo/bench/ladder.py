@@ -75,6 +75,10 @@ CONSISTENCY_DEG = 15.0
 #: the field) turned the base's frame by the symmetry's rest-state rotation. :func:`_upgrade` rescores version-1
 #: records of symmetric categories from their predictions.
 CONSISTENCY_VERSION = 2
+#: Most offsets :func:`frame_consistency` tries as the common frame (a sample draw beyond it). Every offset of the
+#: tables' splits (at most 240 samples, two ground truths each) is tried, so the symmetry-aware share is never below
+#: the strict one; it was 400 before ``CONSISTENCY_VERSION`` 2.
+MAX_HYPOTHESES = 1000
 
 
 def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = CONSISTENCY_DEG) -> float:
@@ -82,11 +86,11 @@ def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = 
 
     For each sample the offset ``O = R_pred^T R_gt`` maps the ground-truth object frame into the method's canonical
     frame; a method with one canonical frame has one offset for every sample (1.0), a method whose frame depends on
-    the shape, view or sampling scatters them. Every offset is a hypothesis (at most 400 of them, drawn with a fixed
-    seed); the share is the largest fraction of samples within ``inlier_deg`` degrees of one hypothesis (the
-    hypothesis step of :func:`scapo.eval.alignment.robust_rotation_mean`, which cannot take several symmetric
-    offsets per sample). A supervised method predicts in the ground-truth
-    frame: its share is that of samples within ``inlier_deg`` of one common offset, near the identity.
+    the shape, view or sampling scatters them. Every offset is a hypothesis (at most :data:`MAX_HYPOTHESES` of them,
+    drawn with a fixed seed); the share is the largest fraction of samples within ``inlier_deg`` degrees of one
+    hypothesis (the hypothesis step of :func:`scapo.eval.alignment.robust_rotation_mean`, which cannot take several
+    symmetric offsets per sample). A supervised method predicts in the ground-truth frame: its share is that of
+    samples within ``inlier_deg`` of one common offset, near the identity.
 
     Args:
         pred_T: ``(M, 4, 4)`` float64 predicted ``T_cam_obj``.
@@ -116,8 +120,8 @@ def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = 
     O = project_to_so3(np.einsum("mji,mkjl->mkil", pred_T[:, :3, :3], gt_T[:, :, :3, :3]).reshape(-1, 3, 3))
     O = O.reshape(M, K, 3, 3)
     hyp = O.reshape(-1, 3, 3)
-    if len(hyp) > 400:
-        hyp = hyp[np.random.default_rng(0).choice(len(hyp), 400, replace=False)]
+    if len(hyp) > MAX_HYPOTHESES:
+        hyp = hyp[np.random.default_rng(0).choice(len(hyp), MAX_HYPOTHESES, replace=False)]
     cos_thr = np.cos(np.radians(inlier_deg))
     tr = np.einsum("hij,msij->hms", hyp, O)  # tr(H^T O) = 1 + 2 cos(angle)
     inl = ((tr - 1.0) / 2.0 >= cos_thr - 1e-12).any(-1)  # (H, M)
