@@ -291,6 +291,32 @@ def _bench_script(name: str):
     return mod
 
 
+def test_frame_by_state_splits_the_symmetry_aware_inliers_by_joint_state_and_ground_truth():
+    """``bench/frame_by_state.py``: one canonical frame through the own ground truth at low states and through the twin
+    at middle ones, and frames of their own at high states: the bins show where the frame holds, own / twin which
+    ground truth it holds through."""
+    from scapo.bench.ladder import frame_inliers
+
+    mod = _bench_script("frame_by_state")
+    M = 60
+    gt = np.tile(np.eye(4), (M, 2, 1, 1))
+    gt[:, 0, :3, :3] = random_rotation(M, seed=1).numpy()
+    gt[:, 1, :3, :3] = random_rotation(M, seed=2).numpy()  # each sample's twin
+    offset = random_rotation(1, seed=3).numpy()[0]
+    state = np.linspace(-1.0, 1.0, M)
+    pred = gt[:, 0].copy()
+    pred[:, :3, :3] = gt[:, 0, :3, :3] @ offset.T
+    pred[20:40, :3, :3] = gt[20:40, 1, :3, :3] @ offset.T
+    pred[40:, :3, :3] = random_rotation(20, seed=4).numpy()
+    edges = mod.state_bins(state, 3)
+    assert len(edges) == 4 and edges[0] == -1.0 and edges[-1] == 1.0
+    r = mod.by_state(*frame_inliers(pred, gt), state, edges)
+    assert r["sym"] == pytest.approx(40 / 60, abs=1e-3) and r["own"] == pytest.approx(20 / 60, abs=1e-3)
+    assert r["twin"] == pytest.approx(20 / 60, abs=1e-3)
+    assert [b["sym"] for b in r["bins"]] == [1.0, 1.0, 0.0] and [b["samples"] for b in r["bins"]] == [20, 20, 20]
+    assert r["outlier_deg_median"] > 15
+
+
 def test_the_frame_branches_find_two_frames_a_half_turn_apart():
     from scipy.spatial.transform import Rotation
 

@@ -82,7 +82,15 @@ MAX_HYPOTHESES = 1000
 
 
 def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = CONSISTENCY_DEG) -> float:
-    """Share of samples whose object-frame rotation offset agrees with the one frame most of them agree on.
+    """Share of samples whose object-frame rotation offset agrees with the one frame most of them agree on: the mean of
+    :func:`frame_inliers` (same arguments and errors; NaN for no samples)."""
+    inl = frame_inliers(pred_T, gt_T, inlier_deg)[0]
+    return float(inl.mean()) if len(inl) else float("nan")
+
+
+def frame_inliers(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = CONSISTENCY_DEG
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Which samples' object-frame rotation offsets agree with the one frame most of them agree on.
 
     For each sample the offset ``O = R_pred^T R_gt`` maps the ground-truth object frame into the method's canonical
     frame; a method with one canonical frame has one offset for every sample (1.0), a method whose frame depends on
@@ -100,7 +108,8 @@ def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = 
             (the symmetry-aware share).
 
     Returns:
-        The share in [0, 1] (NaN for no samples).
+        ``(inlier (M,) bool, angle (M, K) float64)``: the samples within ``inlier_deg`` of the common frame, and each
+        ground truth's angle (deg) to it (empty arrays for no samples).
 
     Raises:
         ValueError: arrays that are not ``(M, 4, 4)`` and ``(M, 4, 4)`` or ``(M, K, 4, 4)`` of one ``M``.
@@ -116,7 +125,7 @@ def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = 
                          f"got {pred_T.shape} and {gt_T.shape}")
     M, K = gt_T.shape[:2]
     if M == 0:
-        return float("nan")
+        return np.zeros(0, dtype=bool), np.zeros((0, K))
     O = project_to_so3(np.einsum("mji,mkjl->mkil", pred_T[:, :3, :3], gt_T[:, :, :3, :3]).reshape(-1, 3, 3))
     O = O.reshape(M, K, 3, 3)
     hyp = O.reshape(-1, 3, 3)
@@ -125,7 +134,8 @@ def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = 
     cos_thr = np.cos(np.radians(inlier_deg))
     tr = np.einsum("hij,msij->hms", hyp, O)  # tr(H^T O) = 1 + 2 cos(angle)
     inl = ((tr - 1.0) / 2.0 >= cos_thr - 1e-12).any(-1)  # (H, M)
-    return float(inl.sum(1).max() / M)
+    best = int(inl.sum(1).argmax())
+    return inl[best], np.degrees(np.arccos(np.clip((tr[best] - 1.0) / 2.0, -1.0, 1.0)))
 
 
 def rung_dir(work: Path, category: str, rung: str, instances: int, views: int, train_views: int, seed: int) -> Path:
