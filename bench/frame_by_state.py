@@ -60,7 +60,7 @@ def main(argv=None) -> int:
             ds = load(a.data, a.split)
             cache.update(ds=ds, twins=object_frame_twins(ds), keys={k: i for i, k in enumerate(ds.keys())},
                          state=ds.arrays(["joint_state"])["joint_state"][:, 0].astype(np.float64),
-                         revolute=ds.card["joint_type"][0] == "revolute")
+                         revolute=int(ds.card["joint_type"][0]) == 0)  # SPEC: 0 revolute, 1 prismatic
             cache["edges"] = state_bins(cache["state"], a.bins)
         rows = np.flatnonzero(p.split == a.split)
         try:
