@@ -315,6 +315,18 @@ def test_frame_by_state_splits_the_symmetry_aware_inliers_by_joint_state_and_gro
     assert r["twin"] == pytest.approx(20 / 60, abs=1e-3)
     assert [b["sym"] for b in r["bins"]] == [1.0, 1.0, 0.0] and [b["samples"] for b in r["bins"]] == [20, 20, 20]
     assert r["outlier_deg_median"] > 15
+    # the frames between base and child: 0 the base's, 1 the child's, 0.5 half the joint's turn from each
+    from scipy.spatial.transform import Rotation
+
+    poses = np.tile(np.eye(4), (M, 2, 1, 1))
+    poses[:, 0, :3, :3] = gt[:, 0, :3, :3]
+    turn = Rotation.from_rotvec(np.c_[np.zeros(M), state, np.zeros(M)]).as_matrix()  # the joint about y by the state
+    poses[:, 1, :3, :3] = gt[:, 0, :3, :3] @ turn
+    assert np.allclose(mod.joint_frames(poses, 0.0), poses[:, 0]) and np.allclose(mod.joint_frames(poses, 1.0),
+                                                                                   poses[:, 1])
+    half = mod.joint_frames(poses, 0.5)[:, :3, :3]
+    assert np.allclose(half @ half.transpose(0, 2, 1), np.eye(3), atol=1e-9)
+    assert np.allclose(half @ (gt[:, 0, :3, :3].transpose(0, 2, 1) @ half), poses[:, 1, :3, :3], atol=1e-9)
 
 
 def test_the_frame_branches_find_two_frames_a_half_turn_apart():
