@@ -122,6 +122,7 @@ def write_curve(records: Sequence[dict], out: Path, meta: dict, name: str = "acc
              _fmt(r["resampling_deg"]), _fmt(r["S"]), _fmt(r["D"]), _fmt(r["D_median"]), _fmt(r["R"]),
              _fmt(r["R_median"]), _fmt(r["R_sym"]), _fmt(r["R_sym_median"]), _fmt(r["R_sym_over90"])] for r in flat]
     commits = sorted({r["commit"] for r in flat})
+    rescored = sorted({r["consistency_commit"] for r in records if r.get("consistency_commit")})
     named = sorted({f"{r['method']} {r['budget_values']['preset'].split('/')[0]}" for r in records
                     if isinstance(r.get("budget_values"), dict) and "preset" in r["budget_values"]})
     presets = (f"presets {', '.join(named)} (the table's; each row's schedule in its budget_values)"
@@ -141,6 +142,8 @@ def write_curve(records: Sequence[dict], out: Path, meta: dict, name: str = "acc
           f"instances, {meta['views']} views per val/test instance, {meta['train_views']} per training instance, data "
           f"seed {meta['data_seed']}), {presets}, protocol {meta['protocol']!r}; machine "
           f"{meta.get('machine', '-')}; written by `{meta['command']}`."
+          + (f" Frame consistency of earlier records scored again from their predictions at {', '.join(rescored)} "
+             "(each record's consistency_commit)." if rescored else "")
           + (f" Not computed yet: {', '.join(meta['missing'])}." if meta.get("missing") else ""), ""]
     paths = [out / f"{meta['name']}.md", out / f"{meta['name']}.json", out / f"{meta['name']}.csv",
              out / f"{meta['name']}.png"]
