@@ -66,7 +66,7 @@ def main(argv=None) -> int:
     from scapo.bench.ladder import frame_inliers
     from scapo.data import load
     from scapo.errors import PredictionError
-    from scapo.eval.evaluator import object_frame_twins
+    from scapo.eval.evaluator import object_frame_twins, twin_ground_truth
 
     base_on_base = bench_script("frame_consistency", Path(__file__).parent).base_on_base
     cache = {}
@@ -79,11 +79,7 @@ def main(argv=None) -> int:
                          revolute=int(ds.card["joint_type"][0]) == 0)  # SPEC: 0 revolute, 1 prismatic
             cache["edges"] = state_bins(cache["state"], a.bins)
             if len(ds.card["joint_type"]) == 1 and ds.card.get("symmetry"):  # the bisector's own and twin frames
-                from scapo.sim.assets.symmetry import Symmetry, twin
-
-                fields = ["T_cam_obj", "part_pose", "joint_pivot", "joint_axis", "joint_state", "bbox_diag"]
-                gt = ds.arrays(fields)
-                tw = twin({k: gt[k] for k in fields}, Symmetry.from_dict(ds.card["symmetry"]))
+                gt, tw = twin_ground_truth(ds)
                 cache["bisector"] = np.stack([joint_frames(gt["part_pose"], 0.5),
                                               joint_frames(tw["part_pose"], 0.5)], 1)
             elif len(ds.card["joint_type"]) == 1:

@@ -112,7 +112,9 @@ def _ladder(results: Path) -> list[str]:
     if not path.is_file():
         return []
     recs = [r for r in json.loads(path.read_text())["records"] if r["rung"] == "paper"]
-    old = any(r.get("consistency_version", 1) < 2 for r in recs)  # scapo.bench.ladder.CONSISTENCY_VERSION
+    from scapo.bench.ladder import CONSISTENCY_VERSION
+
+    old = any(r.get("consistency_version", 1) < CONSISTENCY_VERSION for r in recs)
     out = ["", "**Paper-regime laptop, val** (`results/canonical_ladder/ladder_laptop.md`, rung `paper`: 60 "
            "instances, 5 core-minutes of training per cell; frame consistency 1 = one canonical frame; the mean "
            "over the seeds given" + ("; its symmetry-aware share predates the twin object frame and undercounts "

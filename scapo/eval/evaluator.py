@@ -219,9 +219,31 @@ def declared_rotations(card: dict) -> np.ndarray:
     return np.stack(out)
 
 
+#: The ground-truth fields of :func:`twin_ground_truth` (a twin needs its joints and scale besides the poses).
+FRAME_TWIN_FIELDS = ("T_cam_obj", "part_pose", "joint_pivot", "joint_axis", "joint_state", "bbox_diag")
+
+
+def twin_ground_truth(ds: ArticulationDataset) -> tuple[dict, dict | None]:
+    """Each sample's ground truth and its :func:`~scapo.sim.assets.symmetry.twin`'s under the dataset card's declared
+    symmetry: two dicts of :data:`FRAME_TWIN_FIELDS` (``T_cam_obj (M, 4, 4)``, ``part_pose (M, P, 4, 4)`` camera frame,
+    metres; ``joint_pivot``, ``joint_axis (M, J, 3)``; ``joint_state (M, J)``; ``bbox_diag (M,)``), the samples in the
+    split's order; the second is None for a category without a declared symmetry.
+
+    Args:
+        ds: one split of a dataset (:func:`scapo.data.load`).
+    """
+    gt = ds.arrays(list(FRAME_TWIN_FIELDS))
+    if not ds.card.get("symmetry"):
+        return gt, None
+    from scapo.sim.assets.symmetry import Symmetry, twin
+
+    return gt, twin({k: gt[k] for k in FRAME_TWIN_FIELDS}, Symmetry.from_dict(ds.card["symmetry"]))
+
+
 def object_frame_twins(ds: ArticulationDataset) -> np.ndarray:
     """``(M, K, 4, 4)`` float64: each sample's valid ground-truth object poses ``T_cam_obj``, its own first, then its
-    :func:`~scapo.sim.assets.symmetry.twin`'s under the dataset card's declared symmetry (K = 1 without one).
+    :func:`~scapo.sim.assets.symmetry.twin`'s under the dataset card's declared symmetry (K = 1 without one;
+    :func:`twin_ground_truth`).
 
     The twin's object frame is its base part's pose. Where the symmetry exchanges the base (the laptop's base and
     lid), that is the exchanged part's pose turned by the symmetry, ``part_pose[lid] S^-1``, which follows the joint
@@ -231,15 +253,10 @@ def object_frame_twins(ds: ArticulationDataset) -> np.ndarray:
     Args:
         ds: one split of a dataset (:func:`scapo.data.load`); the samples in its order.
     """
-    fields = ["T_cam_obj", "part_pose", "joint_pivot", "joint_axis", "joint_state", "bbox_diag"]
-    own = ds.arrays(["T_cam_obj"])["T_cam_obj"].astype(np.float64)
     if not ds.card.get("symmetry"):
-        return own[:, None]
-    from scapo.sim.assets.symmetry import Symmetry, twin
-
-    gt = ds.arrays(fields)
-    tw = twin({k: gt[k] for k in fields}, Symmetry.from_dict(ds.card["symmetry"]))["T_cam_obj"]
-    return np.stack([own, np.asarray(tw, dtype=np.float64)], 1)
+        return ds.arrays(["T_cam_obj"])["T_cam_obj"].astype(np.float64)[:, None]
+    gt, tw = twin_ground_truth(ds)
+    return np.stack([gt["T_cam_obj"], tw["T_cam_obj"]], 1).astype(np.float64)  # a new array: the split's are cached
 
 
 def symmetric_part_errors(proto: Protocol, pose: np.ndarray, gt_pose: np.ndarray, rotations: np.ndarray
