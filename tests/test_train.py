@@ -474,6 +474,50 @@ def test_frame_targets_give_one_frame_where_the_stage1_frames_take_half_turned_b
     assert info["with_target"] == B and info["beyond_90_deg"] == 0.5
 
 
+def _check_stage2_starts(model, X: torch.Tensor, plain) -> None:
+    """``SCAPOModel.passes(X, starts)`` (``RefineConfig.stage2_starts``) on a model trained with stage 2 in the
+    parts-signed frame: each cloud keeps the outputs of the start whose posed template lies nearest its points."""
+    from scapo.models.branch import apply_branch
+    from scapo.models.scapo_model import stage2_start_rotations
+    from scapo.ops.chamfer import nearest_sq_dist
+
+    G = stage2_start_rotations("D2")
+    assert torch.equal(G[0], torch.eye(3)) and torch.allclose(G @ G.transpose(1, 2), torch.eye(3).expand(4, 3, 3))
+    assert torch.equal(model.passes(X, "").w, plain.w)  # "": the stage-1 frame alone
+    # the real outputs: the choice is the start of least one-sided Chamfer distance, cloud by cloud
+    s1 = model.stage1(X)
+    R0 = apply_branch(s1.enc.R, model.branch, model.branch_flip)
+    each = [model._passes_from(X, s1, R0 @ g) for g in G]
+    assert torch.equal(each[0].w, plain.w)  # the identity start is the plain prediction
+    best = torch.stack([nearest_sq_dist(o.S_obj, o.S_y2x).mean(-1) for o in each]).argmin(0)
+    chosen = model.passes(X, "D2")
+    for b, k in enumerate(best.tolist()):
+        assert torch.equal(chosen.w[b], each[k].w[b]) and torch.equal(chosen.R[b], each[k].R[b])
+        assert torch.equal(chosen.T_x[b], each[k].T_x[b]) and torch.equal(chosen.S_y2x[b], each[k].S_y2x[b])
+    # a hand-built case: start k's posed template is cloud b's points shifted by off[b, k] (distance off^2); a
+    # marker of the start in w
+    off = torch.tensor([[0.3, 0.1, 0.2, 0.3], [0.2, 0.4, 0.4, 0.4], [0.3, 0.2, 0.1, 0.2], [0.5, 0.5, 0.5, 0.5]])
+    calls = []
+
+    def fake(X_, s1_, frame=None):
+        k = len(calls)
+        calls.append(frame)
+        o = each[0]
+        return dataclasses.replace(o, S_y2x=o.S_obj + off[:, k, None, None], w=torch.full_like(o.w, float(k)))
+
+    model._passes_from = fake
+    try:
+        picked = model.passes(X, "D2").w[:, 0, 0].long().tolist()
+    finally:
+        del model._passes_from
+    assert picked == [1, 0, 2, 0]  # the nearest start; the tie in cloud 3 (all 0.5) keeps the first
+    assert len(calls) == 4 and all(torch.allclose(f, R0 @ g) for f, g in zip(calls, G))
+    with pytest.raises(ValueError, match="stage2_starts"):
+        model.passes(X, "D3")
+    with pytest.raises(ValueError, match="stage2_starts"):
+        stage2_start_rotations("")
+
+
 def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_base_gives(laptop_data, tmp_path):
     """``stage2_frame="parts"``: the run stores the template's signed base axes (a rotation) and ranks in the model,
     stage 2 uses a cloud's given frame in place of its stage-1 one (zeros: its own), and prediction runs stage 2 again
@@ -532,6 +576,7 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
         shared = model.passes(X)
         assert PARTS_PASSES > 0 and torch.equal(shared.w, looped.w) and torch.equal(shared.R, looped.R)
         assert torch.equal(shared.T_x, looped.T_x) and torch.equal(shared.Y_star, looped.Y_star)
+        _check_stage2_starts(model, X, shared)
         model.parts_plane.fill_(1)  # parts_axes="plane": the base's directions from its points on its plane
         F_plane = model.parts_frames(X, own.w.argmax(-1))
         model.parts_plane.fill_(0)

@@ -51,6 +51,11 @@ class SCAPOOptions(LearnedOptions):
     the object frame ``T_cam_obj`` is that slot's pose and nothing else changes (part labels, part poses and joints
     stay as the network gives them; the label gets ``+slot-<option>``): an object frame on the part that acts as the
     base when the network's slot 0 holds a child (an addition to the paper, session 39)."""
+    stage2_starts: str | None = None
+    """The hypothesis set of stage 2's first frame in one-pass prediction, for a run trained with ``stage2_frame =
+    "parts"`` (:attr:`scapo.models.refine.RefineConfig.stage2_starts`): "none" (off), "D2" (the stage-1 frame and
+    its half turns), "T", "O" or "I"; default: the run's preset. Given, the label gets ``+starts-<value>`` (its
+    ablation row: ``--option stage2_starts=none``)."""
     parts_axes: str = ""
     """For a run trained with ``stage2_frame = "parts"``: how its prediction passes find the base's directions,
     "pca" or "plane" (:attr:`scapo.models.presets.TrainConfig.parts_axes`; the label gets ``+parts-plane`` /
@@ -59,6 +64,11 @@ class SCAPOOptions(LearnedOptions):
 
     def __post_init__(self):
         super().__post_init__()
+        from scapo.models.refine import STAGE2_STARTS
+
+        if self.stage2_starts is not None and self.stage2_starts not in ("none", *STAGE2_STARTS[1:]):
+            raise ConfigError(f"stage2_starts must be 'none' (off) or one of {', '.join(STAGE2_STARTS[1:])}, got "
+                              f"{self.stage2_starts!r}")
         if self.parts_axes not in ("", "pca", "plane"):
             raise ConfigError(f"parts_axes must be '' (the run's), 'pca' or 'plane', got {self.parts_axes!r}")
         if self.base_frame not in ("", "principal", "parts"):
@@ -91,7 +101,8 @@ class SCAPOMethod:
         self.run = Path(self.options.run)
         axes = f"+parts-{self.options.parts_axes}" if self.options.parts_axes else ""
         slot = f"+slot-{self.options.base_slot}" if self.object_slot_only else ""
-        self.label = str(self.options.label or ("scapo" + axes + post_suffix(self.options) + slot))
+        starts = f"+starts-{self.options.stage2_starts}" if self.options.stage2_starts is not None else ""
+        self.label = str(self.options.label or ("scapo" + axes + starts + post_suffix(self.options) + slot))
         self.predictor: Predictor | None = None
         self.base_offset: np.ndarray | None = None
         """``(3, 3)`` the fitted base-axes offset (``base_frame``, :func:`.base_frame.fit_base_offset`)."""
@@ -268,6 +279,8 @@ class SCAPOMethod:
                                                             upright_deg=float(o.refine_upright_deg))
             except ValueError as e:
                 raise ConfigError(str(e)) from None
+        if o.stage2_starts is not None:
+            self.predictor.refine = dataclasses.replace(self.predictor.refine, stage2_starts=_starts(o.stage2_starts))
         if o.parts_axes:
             model = self.predictor.model
             if not model.uses_parts_frame:
@@ -353,7 +366,8 @@ class SCAPOMethod:
 
 def inference_settings(run, options: dict | None = None) -> dict:
     """The test-time refinement settings a prediction from ``run`` with the prediction ``options``
-    (:class:`SCAPOOptions` fields: ``refine_steps``, ``refine_margin``, ``refine_upright_deg``) uses now
+    (:class:`SCAPOOptions` fields: ``refine_steps``, ``refine_margin``, ``refine_upright_deg``, ``stage2_starts``) uses
+    now
     (:func:`~scapo.models.predict.stored_refine`, with the options applied as :meth:`SCAPOMethod.load` applies them),
     as predictions record them in ``info["inference"]``; empty for a folder without a readable ``run.json``."""
     import json
@@ -370,7 +384,14 @@ def inference_settings(run, options: dict | None = None) -> dict:
     for key, name in (("refine_steps", "steps"), ("refine_margin", "margin"), ("refine_upright_deg", "upright_deg")):
         if o.get(key) is not None:
             rc = dataclasses.replace(rc, **{name: type(getattr(rc, name))(o[key])})
+    if o.get("stage2_starts") is not None:
+        rc = dataclasses.replace(rc, stage2_starts=_starts(str(o["stage2_starts"])))
     return dataclasses.asdict(rc)
+
+
+def _starts(option: str) -> str:
+    """:attr:`SCAPOOptions.stage2_starts` as :attr:`~scapo.models.refine.RefineConfig.stage2_starts` ("none": "")."""
+    return "" if option == "none" else option
 
 
 def _run_spec():

@@ -26,7 +26,7 @@ import torch
 from torch import nn
 
 from scapo.models.branch import apply_branch
-from scapo.models.refine import RefineConfig, refine_articulation
+from scapo.models.refine import STAGE2_STARTS, RefineConfig, refine_articulation
 from scapo.nn.encoder import EncoderConfig, EncoderOutput, SE3Encoder, ShapeDecoder
 from scapo.nn.outputs import SCAPOOutput, Stage1Output
 from scapo.nn.skinning import (
@@ -36,6 +36,7 @@ from scapo.nn.skinning import (
     cross_space_transforms,
     skinning_weights,
 )
+from scapo.ops.chamfer import nearest_sq_dist
 from scapo.ops.so3 import invert_transform, rotation_from_6d
 
 
@@ -177,6 +178,39 @@ class JointHead(nn.Module):
 PARTS_PASSES = 2
 
 
+def stage2_start_rotations(name: str) -> torch.Tensor:
+    """The rotations ``(K, 3, 3)`` float32 of a hypothesis set of stage 2's first frame
+    (:attr:`scapo.models.refine.RefineConfig.stage2_starts`), identity first: "D2" the half turns
+    (:func:`scapo.ops.groups.half_turns`), "T", "O", "I" :func:`scapo.ops.groups.rotation_group`.
+
+    Raises:
+        ValueError: "" or an unknown name.
+    """
+    import numpy as np
+
+    from scapo.ops.groups import half_turns, rotation_group
+
+    if name not in STAGE2_STARTS or not name:
+        raise ValueError(f"unknown stage2_starts {name!r}; use one of {', '.join(k for k in STAGE2_STARTS if k)}")
+    return torch.from_numpy(np.array(half_turns() if name == "D2" else rotation_group(name))).float()
+
+
+def _where_clouds(take: torch.Tensor, new: SCAPOOutput, old: SCAPOOutput) -> SCAPOOutput:
+    """Per cloud (``take (B,)`` bool) the fields of ``new``, else ``old``: every tensor (and the encoder output's)
+    whose first dimension is the batch; other fields (None, shared tensors) are ``old``'s."""
+    B = take.shape[0]
+
+    def pick(a, b):
+        if isinstance(a, torch.Tensor) and isinstance(b, torch.Tensor) and a.dim() and a.shape[0] == B \
+                and a.shape == b.shape:
+            return torch.where(take.view(-1, *[1] * (a.dim() - 1)), a, b)
+        if dataclasses.is_dataclass(a) and not isinstance(a, type):
+            return type(a)(**{f.name: pick(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a)})
+        return b
+
+    return pick(new, old)
+
+
 class SCAPOModel(nn.Module):
     """The SCAPO network; see the module docstring for the data flow."""
 
@@ -251,8 +285,6 @@ class SCAPOModel(nn.Module):
         without anchors."""
         if not self.cfg.anchors:
             return enc
-        from scapo.ops.chamfer import nearest_sq_dist
-
         G = self.anchor_rotations.to(X)
         B, K = X.shape[0], G.shape[0]
         with torch.no_grad():
@@ -367,14 +399,49 @@ class SCAPOModel(nn.Module):
         return "plane" if int(self.parts_plane) else "pca"
 
     @torch.no_grad()
-    def passes(self, X: torch.Tensor) -> SCAPOOutput:
+    def passes(self, X: torch.Tensor, starts: str = "") -> SCAPOOutput:
         """Both stages on normalised points ``X (B, N, 3)`` as prediction runs them (in the module's current mode):
         one pass, then for a model trained with ``TrainConfig.stage2_frame = "parts"`` (:attr:`uses_parts_frame`)
         stage 2 :data:`PARTS_PASSES` more times, each in the frame read from the base the pass before labels
         (:meth:`parts_frames`); the last pass's :class:`~scapo.nn.outputs.SCAPOOutput`. Stage 1 runs once: its
-        output does not depend on the frame, so the passes share it (the same outputs as :meth:`forward` per pass)."""
+        output does not depend on the frame, so the passes share it (the same outputs as :meth:`forward` per pass).
+
+        ``starts`` (:attr:`scapo.models.refine.RefineConfig.stage2_starts`; such a model only, "" for any other): a
+        hypothesis set of the first pass's frame, ``F_k = R G_k`` with ``R`` stage 1's (branch-corrected) frame and
+        ``G_k`` (K, 3, 3) the set's rotations (identity first; "D2": :func:`scapo.ops.groups.half_turns`, else
+        :func:`scapo.ops.groups.rotation_group`). Each start runs all the passes, and each cloud keeps the outputs
+        of the start whose template posed as the cloud (``S_y2x``) is nearest its points in the canonical frame:
+        the one-sided Chamfer distance ``mean_i min_m |S_obj_i - S_y2x_m|^2`` (normalised units), the smallest
+        wins, ties to the earlier start. A frame read from a near-symmetric view (a nearly shut laptop) lands on the
+        wrong end of an axis, and its passes keep it there; the posed template then fits the points worse. The
+        hypothesis choice follows OP-Align's anchor choice by the L1 nearest-neighbour distance from the aligned input
+        to the reconstruction (``models/art_so3net_pn.py`` around lines 259-275) and EAP's. Cost: K times the passes.
+
+        Raises:
+            ValueError: an unknown ``starts`` (:data:`scapo.models.refine.STAGE2_STARTS`).
+        """
         s1 = self.stage1(X)
-        out = self._both(X, s1)
+        if not starts or not self.uses_parts_frame:
+            if starts not in STAGE2_STARTS:
+                raise ValueError(f"unknown stage2_starts {starts!r}; use one of {STAGE2_STARTS}")
+            return self._passes_from(X, s1)
+        G = stage2_start_rotations(starts).to(X)
+        R0 = apply_branch(s1.enc.R, self.branch, self.branch_flip)
+        best, best_d = None, None
+        for g in G:
+            out = self._passes_from(X, s1, R0 @ g)
+            d = nearest_sq_dist(out.S_obj, out.S_y2x).mean(-1)  # (B,) one-sided: input -> posed template
+            if best is None:
+                best, best_d = out, d
+                continue
+            take = d < best_d
+            best_d = torch.where(take, d, best_d)
+            best = _where_clouds(take, out, best)
+        return best
+
+    def _passes_from(self, X: torch.Tensor, s1: Stage1Output, frame: torch.Tensor | None = None) -> SCAPOOutput:
+        """:meth:`passes` from one first frame ``(B, 3, 3)`` (None: stage 1's)."""
+        out = self._both(X, s1, frame)
         for _ in range(PARTS_PASSES if self.uses_parts_frame else 0):  # stage 2 again, in the frame the base it
             out = self._both(X, s1, self.parts_frames(X, out.w.argmax(-1)))  # found gives
         return out
@@ -409,7 +476,7 @@ class SCAPOModel(nn.Module):
         self.eval()
         try:
             X, scale = self.normalize(points)
-            out = self.passes(X)
+            out = self.passes(X, refine.stage2_starts if refine is not None else "")
         finally:
             self.train(was_training)
         enc = out.enc

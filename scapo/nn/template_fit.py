@@ -49,6 +49,14 @@ class RefineConfig:
     swapped by a half turn about their bisector, eyeglasses turned upside down), which the residual
     cannot: the capture setup (objects standing on a support, cameras above them with little roll) is
     the cue, no label is used. An addition to the paper."""
+    stage2_starts: str = ""
+    """A hypothesis set of stage 2's starting frame in one-pass prediction, for a model trained with
+    ``TrainConfig.stage2_frame = "parts"`` (:meth:`scapo.models.scapo_model.SCAPOModel.passes`; an addition to the
+    paper, applied whatever ``steps`` is): "" (off) the stage-1 frame alone; "D2" the stage-1 frame and its three
+    half turns about its own axes (:func:`scapo.ops.groups.half_turns`); "T", "O", "I" a rotation group's turns of it.
+    Each start runs the prediction passes, and each view keeps the one whose template, posed as the view, lies nearest
+    to its points (the one-sided Chamfer distance from the input, as OP-Align's and EAP's anchor choice). Not part
+    of a run: an inference setting, like the rest of this config."""
 
     def __post_init__(self):
         import math
@@ -61,6 +69,9 @@ class RefineConfig:
                              f"points {self.points} (>= 8)")
         if self.starts not in START_SETS:
             raise ValueError(f"unknown refinement starts {self.starts!r}; known: {', '.join(START_SETS)}")
+        if self.stage2_starts not in STAGE2_STARTS:
+            raise ValueError(f"unknown stage2_starts {self.stage2_starts!r}; use one of "
+                             f"{', '.join(repr(k) for k in STAGE2_STARTS)} ('' off)")
         if not 0.0 <= self.upright_deg <= 180.0:
             raise ValueError(f"upright_deg must be in [0, 180], got {self.upright_deg}")
         if self.screen_steps < 1 or self.screen_points < 8 or not 0.0 <= self.margin < 1.0:
@@ -69,6 +80,8 @@ class RefineConfig:
 
 
 START_SETS = ("network", "octahedral")
+#: The hypothesis sets of :attr:`RefineConfig.stage2_starts` ("" off).
+STAGE2_STARTS = ("", "D2", "T", "O", "I")
 
 
 class TemplatePoser:

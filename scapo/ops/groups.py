@@ -17,6 +17,15 @@ import torch
 GROUP_ORDERS = {"T": 12, "O": 24, "I": 60}
 
 
+def half_turns() -> np.ndarray:
+    """The identity and the half turns about the three coordinate axes (the Klein four-group D2) as float64
+    ``(4, 3, 3)``, identity first: the orientations that exchange the ends of a frame's axes in pairs, i.e. the
+    flips of a frame read from a near-symmetric shape (read-only array)."""
+    out = np.stack([np.eye(3), np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0])])
+    out.setflags(write=False)
+    return out
+
+
 @functools.lru_cache(maxsize=4)
 def _group(name: str) -> np.ndarray:
     from scipy.spatial.transform import Rotation

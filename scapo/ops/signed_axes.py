@@ -8,6 +8,8 @@ other parts".
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 
@@ -30,6 +32,17 @@ AXES = ("pca", "plane")
 ``"plane"`` those of the points on its dominant plane (:func:`plane_axes`)."""
 
 
+@functools.lru_cache(maxsize=4096)  # one draw per point count: 6 KB each
+def _plane_triples(n: int, trials: int) -> np.ndarray:
+    """``(trials, 3)`` indices of the three points of each plane :func:`plane_axes` tries on ``n`` points: a fixed
+    random draw (seed 0, three distinct points per plane), the same for every cloud of ``n`` points (cached: the draw
+    costs more than the fit; read-only)."""
+    rng = np.random.default_rng(0)
+    tri = np.stack([rng.choice(n, 3, replace=False) for _ in range(trials)])
+    tri.setflags(write=False)
+    return tri
+
+
 def plane_axes(Q: np.ndarray, tol: float = PLANE_TOL, trials: int = PLANE_TRIALS) -> tuple[np.ndarray, np.ndarray]:
     """:func:`principal_axes` of the points of ``Q (n, 3)`` (``n >= 3``, float64) that lie on its dominant plane: of
     ``trials`` planes through three of the points (a fixed random draw, so the result is deterministic), the one
@@ -46,8 +59,7 @@ def plane_axes(Q: np.ndarray, tol: float = PLANE_TOL, trials: int = PLANE_TRIALS
     w, v = principal_axes(Q)
     if len(Q) < 4:
         return w, v
-    rng = np.random.default_rng(0)
-    tri = np.stack([rng.choice(len(Q), 3, replace=False) for _ in range(int(trials))])
+    tri = _plane_triples(len(Q), int(trials))
     a, b, c = Q[tri[:, 0]], Q[tri[:, 1]], Q[tri[:, 2]]
     n = np.cross(b - a, c - a)
     norm = np.linalg.norm(n, axis=1)
