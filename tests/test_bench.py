@@ -453,9 +453,11 @@ def test_scapo_has_eyeglasses_and_laptop_presets_that_the_tables_pick():
             eye.axis_fixed, eye.losses.disabled) == ("fitted", True, "parts", "refit", "plane", "sweep", True,
                                                        ("dir_align",))
     lap = get_preset("cpu-laptop")
-    assert lap.name == "cpu-laptop" and dataclasses.replace(get_preset("cpu/" + "/".join(LAPTOP_PARTS)),
-                                                           name=lap.name) == lap
-    assert dataclasses.replace(lap, name=eye.name) == eye  # one recipe, two names
+    recipe = get_preset("cpu/" + "/".join(LAPTOP_PARTS))
+    assert lap.name == "cpu-laptop" and lap.refine == dataclasses.replace(recipe.refine, stage2_starts="O")
+    assert dataclasses.replace(recipe, name=lap.name, refine=lap.refine) == lap
+    # one training recipe, two names; the laptop's inference adds the hypothesis set of stage 2's first frame
+    assert dataclasses.replace(lap, name=eye.name, refine=eye.refine) == eye
     assert method_preset("scapo", "cpu", "eyeglasses") == "cpu-eyeglasses"
     assert method_preset("scapo", "cpu", "laptop") == "cpu-laptop"
     assert method_preset("scapo", "cpu", "oven") == "cpu" and method_preset("npcs", "cpu", "eyeglasses") == "cpu"

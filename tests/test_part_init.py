@@ -361,7 +361,8 @@ def test_split_init_fitted_takes_the_most_rigid_fit_even_where_the_keypoint_spli
     fitted = PI.choose_split(still, still[0], Kp, starts=2, pairs=16, keypoint_split=False)
     assert max(fit["scores"]) < 1e-8 and fit["source"] == "keypoints" and fit["chosen"] == 0
     assert fitted["source"] == "fit" and fitted["chosen"] >= 1 and fitted["scores"] == fit["scores"]
-    assert fitted["scores"][fitted["chosen"]] == min(fitted["scores"][1:])
+    assert fitted["scores"][fitted["chosen"]] <= min(fitted["scores"][1:]) + PI.SPLIT_TIE  # ties: the earliest
+    assert fitted["chosen"] == 1  # every fit ties here
     assert get_preset("cpu/split-fit/split-fitted").split_init == "fitted"
     assert get_preset("cpu-eyeglasses/split-fitted").split_labels
 

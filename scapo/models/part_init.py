@@ -660,6 +660,12 @@ def overseg_starts(template: torch.Tensor, num_parts: int, clusters: int, seed: 
             for g in set_partitions(clusters, num_parts)]
 
 
+#: :func:`choose_split`: scores within this of the least are tied and the earliest such candidate wins. Clouds that
+#: never move make every split rigid up to float32 noise (scores of a few 1e-9, whose order differs between CPUs);
+#: real splits score about 5e-3 with differences of 1e-7 and more (a run's ``split_init.json``).
+SPLIT_TIE = 1e-8
+
+
 def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, starts: int = 24, pairs: int = 128,
                  seed: int = 0, rounds: int = 8, keypoint_split: bool = True, overseg: int = 0) -> dict:
     """The most rigid of the keypoint split and template splits found by fitting (``TrainConfig.split_init="fit"``).
@@ -668,8 +674,9 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
     :func:`fit_template_parts` started from it and from ``starts`` random keypoint sets (``P`` template points drawn at
     random). Each is scored as :func:`initial_split` scores keypoints, by :func:`part_rigidity_residual` over ``pairs``
     random pairs of the ``clouds (B, n, 3)`` (the same pairs for every candidate), the clouds labelled by the
-    candidate; the lowest wins. With ``keypoint_split=False`` (``TrainConfig.split_init="fitted"``) the keypoint split
-    is scored but cannot win: the lowest of the fits does (the keypoint split still wins when no fit keeps ``P`` parts).
+    candidate; the lowest wins (scores within :data:`SPLIT_TIE` of it tie, and the earliest of those wins). With
+    ``keypoint_split=False`` (``TrainConfig.split_init="fitted"``) the keypoint split is scored but cannot win: the
+    lowest of the fits does (the keypoint split still wins when no fit keeps ``P`` parts).
     With ``overseg`` (``TrainConfig.split_overseg``, 0: off) the fits from :func:`overseg_starts` (the template in
     ``overseg`` k-means clusters, every grouping into ``P`` parts) are candidates too, after the others (which stay as
     they were). With the frame given (``bench/split_init_diagnosis.py``, three seeds, no
@@ -711,7 +718,8 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
             cands.append((lab, cl, "fit"))
     scores = [score(cl) for _, cl, _ in cands]
     eligible = range(1 if len(cands) > 1 and not keypoint_split else 0, len(cands))
-    best = min(eligible, key=scores.__getitem__)
+    least = min(scores[k] for k in eligible)
+    best = next(k for k in eligible if scores[k] <= least + SPLIT_TIE)  # ties: the earliest candidate
     return {"template_labels": cands[best][0], "cloud_labels": cands[best][1], "source": cands[best][2],
             "scores": scores, "chosen": best}
 
