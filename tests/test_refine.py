@@ -243,7 +243,7 @@ def test_upright_direction_finds_the_majority_branch_of_a_two_fold_ambiguity():
 
 def test_stage2_starts_setting_option_and_preset(tmp_path):
     """``RefineConfig.stage2_starts`` (the hypothesis set of stage 2's first frame): the known sets, the half turns'
-    group, the method option ("none" off) as predictions record it, and ``cpu-laptop`` choosing the cube group."""
+    group, the method option ("off") as predictions record it, and ``cpu-laptop`` choosing the cube group."""
     import json
 
     from scapo.errors import ConfigError
@@ -266,5 +266,8 @@ def test_stage2_starts_setting_option_and_preset(tmp_path):
     run.mkdir()
     (run / "run.json").write_text(json.dumps({"preset": {"name": "cpu-laptop/epochs-5-4"}}))
     assert inference_settings(run, {"refine_steps": 0})["stage2_starts"] == "O"
-    assert inference_settings(run, {"refine_steps": 0, "stage2_starts": "none"})["stage2_starts"] == ""
+    assert inference_settings(run, {"refine_steps": 0, "stage2_starts": "off"})["stage2_starts"] == ""
+    from scapo.methods.registry import validate_options
+
+    assert validate_options("scapo", {"stage2_starts": "off"})["stage2_starts"] == "off"  # "none" reads as no value
     assert inference_settings(run, {"stage2_starts": "D2"})["stage2_starts"] == "D2"

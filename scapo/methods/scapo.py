@@ -53,9 +53,9 @@ class SCAPOOptions(LearnedOptions):
     base when the network's slot 0 holds a child (an addition to the paper, session 39)."""
     stage2_starts: str | None = None
     """The hypothesis set of stage 2's first frame in one-pass prediction, for a run trained with ``stage2_frame =
-    "parts"`` (:attr:`scapo.models.refine.RefineConfig.stage2_starts`): "none" (off), "D2" (the stage-1 frame and
-    its half turns), "T", "O" or "I"; default: the run's preset. Given, the label gets ``+starts-<value>`` (its
-    ablation row: ``--option stage2_starts=none``)."""
+    "parts"`` (:attr:`scapo.models.refine.RefineConfig.stage2_starts`): "off", "D2" (the stage-1 frame and its half
+    turns), "T", "O" or "I"; default (also ``none``, which the option parser reads as no value): the run's preset.
+    Given, the label gets ``+starts-<value>`` (its ablation row: ``--option stage2_starts=off``)."""
     parts_axes: str = ""
     """For a run trained with ``stage2_frame = "parts"``: how its prediction passes find the base's directions,
     "pca" or "plane" (:attr:`scapo.models.presets.TrainConfig.parts_axes`; the label gets ``+parts-plane`` /
@@ -66,8 +66,8 @@ class SCAPOOptions(LearnedOptions):
         super().__post_init__()
         from scapo.models.refine import STAGE2_STARTS
 
-        if self.stage2_starts is not None and self.stage2_starts not in ("none", *STAGE2_STARTS[1:]):
-            raise ConfigError(f"stage2_starts must be 'none' (off) or one of {', '.join(STAGE2_STARTS[1:])}, got "
+        if self.stage2_starts is not None and self.stage2_starts not in ("off", *STAGE2_STARTS[1:]):
+            raise ConfigError(f"stage2_starts must be 'off' or one of {', '.join(STAGE2_STARTS[1:])}, got "
                               f"{self.stage2_starts!r}")
         if self.parts_axes not in ("", "pca", "plane"):
             raise ConfigError(f"parts_axes must be '' (the run's), 'pca' or 'plane', got {self.parts_axes!r}")
@@ -390,8 +390,8 @@ def inference_settings(run, options: dict | None = None) -> dict:
 
 
 def _starts(option: str) -> str:
-    """:attr:`SCAPOOptions.stage2_starts` as :attr:`~scapo.models.refine.RefineConfig.stage2_starts` ("none": "")."""
-    return "" if option == "none" else option
+    """:attr:`SCAPOOptions.stage2_starts` as :attr:`~scapo.models.refine.RefineConfig.stage2_starts` ("off": "")."""
+    return "" if option == "off" else option
 
 
 def _run_spec():

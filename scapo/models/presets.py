@@ -481,7 +481,7 @@ LAPTOP_PARTS = EYEGLASSES_PARTS
 #: prediction from the 24 cube-group turns of the stage-1 frame, each view keeping the start whose posed template fits
 #: its points best (``RefineConfig.stage2_starts = "O"``, :meth:`scapo.models.scapo_model.SCAPOModel.passes`). Chosen
 #: in session 43 on the val split of Table 1's laptop data, three seeds, against "" and "D2"
-#: (results/canonical_ladder/stage2_parts/laptop_table/stage2_starts/); ``--option stage2_starts=none`` is its
+#: (results/canonical_ladder/stage2_parts/laptop_table/stage2_starts/); ``--option stage2_starts=off`` is its
 #: ablation row. Not measured on the eyeglasses, whose preset keeps it off.
 LAPTOP_STAGE2_STARTS = "O"
 PRESETS.add("cpu-laptop", replace(get_preset("cpu/" + "/".join(LAPTOP_PARTS)), name="cpu-laptop",
