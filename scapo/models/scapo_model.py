@@ -420,10 +420,10 @@ class SCAPOModel(nn.Module):
         Raises:
             ValueError: an unknown ``starts`` (:data:`scapo.models.refine.STAGE2_STARTS`).
         """
+        if starts not in STAGE2_STARTS:
+            raise ValueError(f"unknown stage2_starts {starts!r}; use one of {STAGE2_STARTS}")
         s1 = self.stage1(X)
         if not starts or not self.uses_parts_frame:
-            if starts not in STAGE2_STARTS:
-                raise ValueError(f"unknown stage2_starts {starts!r}; use one of {STAGE2_STARTS}")
             return self._passes_from(X, s1)
         G = stage2_start_rotations(starts).to(X)
         R0 = apply_branch(s1.enc.R, self.branch, self.branch_flip)
