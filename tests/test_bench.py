@@ -448,7 +448,8 @@ def test_scapo_has_eyeglasses_and_laptop_presets_that_the_tables_pick():
     from scapo.models.presets import EYEGLASSES_PARTS, LAPTOP_PARTS, get_preset
 
     eye, parts = get_preset("cpu-eyeglasses"), get_preset("cpu/" + "/".join(EYEGLASSES_PARTS))
-    assert eye.name == "cpu-eyeglasses" and dataclasses.replace(parts, name=eye.name) == eye
+    assert eye.name == "cpu-eyeglasses" and eye.refine == dataclasses.replace(parts.refine, stage2_starts="D2")
+    assert dataclasses.replace(parts, name=eye.name, refine=eye.refine) == eye
     assert (eye.split_init, eye.split_labels, eye.stage2_frame, eye.split_frame, eye.parts_axes, eye.axis_init,
             eye.axis_fixed, eye.losses.disabled) == ("fitted", True, "parts", "refit", "plane", "sweep", True,
                                                        ("dir_align",))
@@ -456,7 +457,7 @@ def test_scapo_has_eyeglasses_and_laptop_presets_that_the_tables_pick():
     recipe = get_preset("cpu/" + "/".join(LAPTOP_PARTS))
     assert lap.name == "cpu-laptop" and lap.refine == dataclasses.replace(recipe.refine, stage2_starts="O")
     assert dataclasses.replace(recipe, name=lap.name, refine=lap.refine) == lap
-    # one training recipe, two names; the laptop's inference adds the hypothesis set of stage 2's first frame
+    # one training recipe, two names; each category's inference has its own hypothesis set of stage 2's first frame
     assert dataclasses.replace(lap, name=eye.name, refine=eye.refine) == eye
     assert method_preset("scapo", "cpu", "eyeglasses") == "cpu-eyeglasses"
     assert method_preset("scapo", "cpu", "laptop") == "cpu-laptop"

@@ -259,7 +259,8 @@ def test_stage2_starts_setting_option_and_preset(tmp_path):
     assert np.allclose(np.linalg.det(H), 1.0) and np.allclose(H @ H, np.eye(3))  # proper half turns
     assert get_preset("cpu-laptop").refine.stage2_starts == "O"
     assert get_preset("cpu-laptop/epochs-5-4").refine.stage2_starts == "O"  # a budget's schedule keeps it
-    assert get_preset("cpu-eyeglasses").refine.stage2_starts == "" and get_preset("cpu").refine.stage2_starts == ""
+    assert get_preset("cpu-eyeglasses").refine.stage2_starts == "D2" and get_preset("cpu").refine.stage2_starts == ""
+    assert get_preset("cpu-eyeglasses/epochs-6-5").refine.stage2_starts == "D2"
     with pytest.raises(ConfigError, match="stage2_starts"):
         SCAPOOptions(run=str(tmp_path), stage2_starts="X")
     run = tmp_path / "run"
