@@ -59,6 +59,20 @@ def small_part_search(monkeypatch):
                         functools.partial(part_init.initial_split, pairs=8, directions=8, starts=8))
 
 
+@pytest.fixture
+def small_split_choice(monkeypatch):
+    """The trainer's split choice (:func:`scapo.models.part_init.choose_split`, ``split_init="fit"``) from 4 random
+    starts of 2 fitting rounds scored over 32 pairs instead of 24 starts, 8 rounds and 128 pairs: for tests of how the trainer uses the chosen split (its files,
+    the pseudo-labels, the frames read from it), not of the choice, which tests/test_part_init.py tests on its own
+    (the choice took about half of such a test's time)."""
+    import functools
+
+    from scapo.models import part_init
+
+    monkeypatch.setattr(part_init, "choose_split", functools.partial(part_init.choose_split, starts=4, pairs=32,
+                                                                         rounds=2))
+
+
 # The longest self-contained integration tests start first, so that two pytest-xdist workers finish together
 # (in collection order they came last and left one worker idle for their length).
 _FIRST = ("test_ray.py::", "test_distributed.py::", "test_the_gpu_script_runs", "test_the_wheel_in_a_fresh_venv",

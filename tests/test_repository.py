@@ -5,9 +5,11 @@ from pathlib import Path
 import scapo
 
 ROOT = Path(scapo.__file__).resolve().parent.parent
-#: ``results/``'s budget in MB. Today's tree (records, per-sample metrics, pinned datasets, tables, figures) is
-#: 68 MB; the next step down is one per-sample metrics file per table instead of 510 small parquet files (36 MB).
-RESULTS_BUDGET_MB = 72
+#: ``results/``'s budget in MB. The tree (records, per-sample metrics, pinned datasets, tables, figures) was 68 MB
+#: when the budget was set at 72, and 71 MB before session 45 archived the paper-regime Table 1's cells (its two pinned
+#: datasets 3.9 MB, 26 cells x 3 protocols' records and per-sample metrics about 5 MB: 80 MB when whole). The next step
+#: down is one per-sample metrics file per table instead of 600 small parquet files (about 40 MB).
+RESULTS_BUDGET_MB = 82
 
 
 def test_results_fit_their_size_budget():

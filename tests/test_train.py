@@ -327,7 +327,9 @@ def test_the_lifecycle_resolves_preset_overrides_and_seed_once(tmp_path):
             run_preset(SCAPO_RUN, None, "test", seed=seed)
 
 
-def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_runs_current(laptop_data, tmp_path):
+def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_runs_current(laptop_data, tmp_path,
+                                                                                             small_part_search,
+                                                                                             small_split_choice):
     """``/axis-turn`` starts stage 2's revolute axes from the parts' turns (``TrainConfig.axis_init``) and ``/split-fit``
     chooses its starting split among the keypoint split and fitted template splits (``TrainConfig.split_init``), and
     ``split_labels`` trains stage 2 towards that split's pseudo-labels; the estimators are tested on hand-built clouds in
@@ -518,7 +520,9 @@ def _check_stage2_starts(model, X: torch.Tensor, plain) -> None:
         stage2_start_rotations("")
 
 
-def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_base_gives(laptop_data, tmp_path):
+def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_base_gives(laptop_data, tmp_path,
+                                                                                             small_part_search,
+                                                                                             small_split_choice):
     """``stage2_frame="parts"``: the run stores the template's signed base axes (a rotation) and ranks in the model,
     stage 2 uses a cloud's given frame in place of its stage-1 one (zeros: its own), and prediction runs stage 2 again
     in the frame read from the base it labels (:meth:`SCAPOModel.parts_frames`), which a model without the buffers
