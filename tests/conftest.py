@@ -62,9 +62,9 @@ def small_part_search(monkeypatch):
 @pytest.fixture
 def small_split_choice(monkeypatch):
     """The trainer's split choice (:func:`scapo.models.part_init.choose_split`, ``split_init="fit"``) from 4 random
-    starts of 2 fitting rounds scored over 32 pairs instead of 24 starts, 8 rounds and 128 pairs: for tests of how the trainer uses the chosen split (its files,
-    the pseudo-labels, the frames read from it), not of the choice, which tests/test_part_init.py tests on its own
-    (the choice took about half of such a test's time)."""
+    starts of 2 fitting rounds scored over 32 pairs instead of 24 starts, 8 rounds and 128 pairs: for tests of how
+    the trainer uses the chosen split (its files, the pseudo-labels, the frames read from it), not of the choice,
+    which tests/test_part_init.py tests on its own (the choice took about half of such a test's time)."""
     import functools
 
     from scapo.models import part_init
