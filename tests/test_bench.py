@@ -812,14 +812,15 @@ def test_the_gpu_script_runs_on_cpu_with_the_test_presets(tmp_path):
 
     root = Path(__file__).resolve().parent.parent
     scapo_bin = Path(sys.executable).parent / "scapo"
-    env = {**os.environ, "DEVICE": "cpu", "PRESET": "test", "INSTANCES": "10", "VIEWS": "2", "METHODS": "icp,npcs",
+    env = {**os.environ, "DEVICE": "cpu", "PRESET": "test", "INSTANCES": "10", "VIEWS": "2", "METHODS": "npcs",
            "WORK": str(tmp_path / "work"), "OUT": str(tmp_path / "out"), "SCAPO": str(scapo_bin)}
     run = subprocess.run(["bash", str(root / "bench" / "gpu.sh"), "--allow-dirty"], env=env, capture_output=True,
                          text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
     table = json.loads((tmp_path / "out" / "table1_gpu_test_laptop.json").read_text())
     cells = table["provenance"]["cells"]
-    assert {c["cell"] for c in cells} == {"icp", "npcs_test_s0"} and table["provenance"]["preset"] == "test"
+    # one trained method (ICP's cells, untouched by PRESET and DEVICE, are tested through bench table1 above)
+    assert {c["cell"] for c in cells} == {"npcs_test_s0"} and table["provenance"]["preset"] == "test"
     assert all(c["device"].startswith("cpu") for c in cells)
     import torch
 

@@ -76,11 +76,11 @@ def test_default_generate_writes_train_val_and_test_by_instance(tmp_path):
 
 def test_methods_predict_the_val_split_and_the_evaluator_scores_it(tmp_path):
     from scapo.eval import evaluate
-    from scapo.methods import run_method
+    from scapo.methods import METHODS, run_method
 
     d = tmp_path / "d"
     generate(make_config("laptop", 6, 3, seed=1, test_fraction=0.2, val_fraction=0.2), d, progress=False)
-    preds = run_method("icp", d, tmp_path / "p.npz")
+    preds = run_method("icp", d, tmp_path / "p.npz", **METHODS.get("icp").quick_options)  # the splits, not ICP
     assert set(preds.split) == {"test", "val"}
     val, test = evaluate(d, preds, split="val"), evaluate(d, preds)
     assert val.split == "val" and val.summary["samples"] == len(load(d, "val")) == 3

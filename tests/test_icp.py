@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from scapo.data import load
 from scapo.eval import evaluate
 from scapo.eval.metrics import rotation_error_deg
-from scapo.methods import run_method
+from scapo.methods import METHODS, run_method
 from scapo.methods.icp import ICPBaseline
 from scapo.ops.rigid import as_transform, invert_transform, transform_points
 
@@ -37,9 +37,11 @@ def test_register_part_recovers_a_known_transform(laptop_data):
 @pytest.fixture(scope="module")
 def icp_run(laptop_data, tmp_path_factory):
     """ICP's predictions of the laptop test split (its path and the returned object), made once for the module
-    (the evaluator's and the figure's tests read them; the module runs on one pytest-xdist worker)."""
+    (the evaluator's and the figure's tests read them; the module runs on one pytest-xdist worker). With the
+    registered quick options (0.3 s instead of ~5 s): these tests are of the path through the evaluator and the
+    figure; the search itself is tested above and below, the default search end to end in tests/test_bench.py."""
     path = tmp_path_factory.mktemp("icp") / "icp.npz"
-    return path, run_method("icp", laptop_data, path)
+    return path, run_method("icp", laptop_data, path, **METHODS.get("icp").quick_options)
 
 
 def test_icp_through_the_evaluator_gives_plausible_numbers(laptop_data, icp_run):
