@@ -184,8 +184,9 @@ def test_choices_on_val_never_read_the_test_split(tmp_path, monkeypatch):
 
     d = tmp_path / "d"
     generate(make_config("laptop", 6, 2, seed=1, test_fraction=0.2, val_fraction=0.2), d, progress=False)
-    files = {v: [run_method("icp", d, tmp_path / f"p{v}.npz", max_iterations=int(v), refine_top=1)]
-             for v in ("1", "30")}
+    # two ICP candidates that differ in their iterations (one hypothesis set and a small template: quick)
+    quick = {"refine_top": 1, "hypotheses": "T", "template_points": 64}
+    files = {v: [run_method("icp", d, tmp_path / f"p{v}.npz", max_iterations=int(v), **quick)] for v in ("1", "30")}
     expected = {v: evaluate(d, f[0], split="val").summary for v, f in files.items()}  # brute force, by hand
     import scapo.data.dataset as dataset_module
 
@@ -214,7 +215,7 @@ def test_choices_on_val_never_read_the_test_split(tmp_path, monkeypatch):
     d2 = tmp_path / "d2"
     generate(make_config("laptop", 6, 2, seed=2, test_fraction=0.2, val_fraction=0.2), d2, progress=False)
     for v in ("1", "30"):
-        run_method("icp", d2, d2 / f"p{v}.npz", max_iterations=int(v), refine_top=1)
+        run_method("icp", d2, d2 / f"p{v}.npz", max_iterations=int(v), **quick)
         (tmp_path / f"p{v}.npz").rename(d / f"p{v}.npz")
     scores2 = {v: evaluate(d2, d2 / f"p{v}.npz", split="val").summary for v in ("1", "30")}
     scores2 = {v: s["D"] + s["R"] for v, s in scores2.items()}
