@@ -115,5 +115,11 @@ def test_from_table_uses_the_tables_presets_speeds_and_finished_runs(tmp_path, c
             "command": "scapo bench compute --from-table", "from_table": True}
     write_curve([rec], tmp_path / "o", meta)
     assert "presets scapo cpu-laptop (the table's" in (tmp_path / "o" / "curve.md").read_text()
+    # a curve finished on another machine names each cell's machine, apart from the writer's
+    other = {**rec, "budget_min": 2.0, "provenance": {"commit": "c", "device": "cpu: 2 cores, B"}}
+    rec["provenance"]["device"] = "cpu: 2 cores, A"
+    write_curve([rec, rec | {"budget_min": 3.0}, other], tmp_path / "o", {**meta, "machine": "cpu: 2 cores, B"})
+    assert ("cells computed on cpu: 2 cores, A (2 cells); cpu: 2 cores, B (1 cell); written on cpu: 2 cores, B by"
+            in (tmp_path / "o" / "curve.md").read_text())
     with pytest.raises(ConfigError, match="not a finished dataset.*bench table1 --data-only"):
         _table_dataset(tmp_path, "laptop", "paper", 10, 2, 4, 0, rung_config("laptop", "paper", 10, 2, 4, 0))

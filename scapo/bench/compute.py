@@ -92,7 +92,9 @@ def _check(methods, budgets, seeds, rung):
 
 def write_curve(records: Sequence[dict], out: Path, meta: dict, name: str = "accuracy_vs_compute") -> list[Path]:
     """``<out>/<name>.{md,json,csv,png}``: one row per method x budget x seed (the cells' records) and a figure of
-    S, median symmetry-aware R and symmetry-aware frame consistency against the budget (log axis). ``meta["note"]``,
+    S, median symmetry-aware R and symmetry-aware frame consistency against the budget (log axis). The provenance
+    line names the machines the cells were computed on (each record's ``provenance.device``, with counts when they
+    differ) apart from the one that wrote the files (``meta["machine"]``). ``meta["note"]``,
     when given, is a paragraph after the description and ``meta["predictions"]`` names the rows' predictions in the
     figure's title (default "one-pass")."""
     import matplotlib
@@ -122,6 +124,12 @@ def write_curve(records: Sequence[dict], out: Path, meta: dict, name: str = "acc
              _fmt(r["resampling_deg"]), _fmt(r["S"]), _fmt(r["D"]), _fmt(r["D_median"]), _fmt(r["R"]),
              _fmt(r["R_median"]), _fmt(r["R_sym"]), _fmt(r["R_sym_median"]), _fmt(r["R_sym_over90"])] for r in flat]
     commits = sorted({r["commit"] for r in flat})
+    devices: dict[str, int] = {}  # the cells' own machines (a curve may be finished on another one)
+    for r in records:
+        d = r.get("provenance", {}).get("device") or "-"
+        devices[d] = devices.get(d, 0) + 1
+    machines = "; ".join(f"{d} ({n} cell{'s' if n > 1 else ''})" if len(devices) > 1 else d
+                         for d, n in sorted(devices.items()))
     rescored = sorted({r["consistency_commit"] for r in records if r.get("consistency_commit")})
     named = sorted({f"{r['method']} {r['budget_values']['preset'].split('/')[0]}" for r in records
                     if isinstance(r.get("budget_values"), dict) and "preset" in r["budget_values"]})
@@ -140,8 +148,8 @@ def write_curve(records: Sequence[dict], out: Path, meta: dict, name: str = "acc
           f"![curves]({meta['name']}.png)", "",
           f"Provenance: commits {', '.join(commits) or '-'}; dataset `{meta['dataset']}` ({meta['instances']} "
           f"instances, {meta['views']} views per val/test instance, {meta['train_views']} per training instance, data "
-          f"seed {meta['data_seed']}), {presets}, protocol {meta['protocol']!r}; machine "
-          f"{meta.get('machine', '-')}; written by `{meta['command']}`."
+          f"seed {meta['data_seed']}), {presets}, protocol {meta['protocol']!r}; cells computed on {machines}; "
+          f"written on {meta.get('machine', '-')} by `{meta['command']}`."
           + (f" Frame consistency of earlier records scored again from their predictions at {', '.join(rescored)} "
              "(each record's consistency_commit)." if rescored else "")
           + (f" Not computed yet: {', '.join(meta['missing'])}." if meta.get("missing") else ""), ""]
