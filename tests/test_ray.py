@@ -25,7 +25,12 @@ def test_ray_generation_equals_local_and_resumes(tmp_path):
 
     cfg = make_config("scissors", 3, 4, seed=4, shard_size=3, val_fraction=0.0)
     generate(cfg, tmp_path / "local", progress=False)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    from scapo.data.generate import RAY_LOCAL_SYSTEM_CONFIG
+
+    # as generation starts its own (its workers at normal priority: at Ray's niceness 15 they waited behind the
+    # other pytest-xdist worker's processes)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False,
+             _system_config=dict(RAY_LOCAL_SYSTEM_CONFIG))
     try:
         # a Ray run on two workers, interrupted (the driver stops after its second shard), resumes on one worker:
         # its shards from both worker counts equal the local run's
@@ -50,3 +55,25 @@ def test_ray_generation_equals_local_and_resumes(tmp_path):
     ca = json.loads((tmp_path / "local" / "card.json").read_text())
     cb = json.loads((tmp_path / "ray" / "card.json").read_text())
     assert ca["dataset_hash"] == cb["dataset_hash"] and ca["shards"] == cb["shards"]
+
+
+def test_a_local_ray_cluster_runs_its_workers_at_normal_priority(monkeypatch):
+    """A cluster generation starts itself gets ``worker_niceness`` 0 (Ray's default 15 starved the render actors
+    beside any busy process); a cluster given by address is left as configured."""
+    import ray
+
+    from scapo.data.generate import _run_ray
+
+    seen = []
+
+    def init(**kw):
+        seen.append(kw)
+        raise Interrupt
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", init)
+    for address in (None, "ray://host:10001"):
+        with pytest.raises(Interrupt):
+            _run_ray((), [], 2, None, None, address)
+    assert seen[0]["_system_config"] == {"worker_niceness": 0} and seen[0]["num_cpus"] == 2
+    assert seen[1]["address"] == "ray://host:10001" and "_system_config" not in seen[1]
