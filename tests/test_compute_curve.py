@@ -13,7 +13,7 @@ def test_compute_curve_end_to_end(tmp_path, capsys):
 
     args = ["bench", "compute", "--category", "laptop", "--rungs", "one", "--methods", "npcs", "--budgets", "0.05,0.2",
             "--preset", "test", "--instances", "10", "--views", "1", "--train-views", "4", "--work", str(tmp_path / "w"),
-            "--out", str(tmp_path / "o"), "--no-progress"]
+            "--out", str(tmp_path / "o"), "--no-progress", "--workers", "1"]  # rendered in this process
     assert main([*args, "--data-only"]) == 0
     assert (tmp_path / "w" / "ladder" / "speed_npcs_test_cpu.json").is_file()  # measured alone, before any cell
     assert not (tmp_path / "w" / "ladder" / "compute").exists() and not (tmp_path / "o").exists()

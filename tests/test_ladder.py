@@ -212,7 +212,7 @@ def test_ladder_end_to_end(tmp_path, capsys):
     cmd = ["bench", "ladder", "--category", "laptop", "--rungs", "one",
            "--methods", "npcs", "--variant", "npcs:wide:lr=0.002", "--preset", "test", "--budget-minutes", "0.05",
            "--instances", "10", "--views", "2", "--train-views", "8", "--work", str(tmp_path / "w"), "--out",
-           str(tmp_path / "o"), "--no-progress"]
+           str(tmp_path / "o"), "--no-progress", "--workers", "1"]  # rendered in this process (no pool to start)
     assert main(cmd) == 0, capsys.readouterr().err
     table = json.loads((tmp_path / "o" / "ladder_laptop.json").read_text())
     rows = {(x["rung"], x["method"]) for x in table["records"]}
