@@ -45,6 +45,19 @@ def laptop_data(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.fixture(scope="session")
+def small_laptop_data(tmp_path_factory) -> Path:
+    """5 laptop instances x 3 views (4 training instances: a third of :func:`laptop_data`'s training clouds), for
+    trainings whose every epoch or stage passes over all training clouds at full resolution (relabelling,
+    pseudo-labels, the rigid-split search in processes the small-search fixtures below do not reach)."""
+    from scapo.data import generate, make_config
+
+    out = tmp_path_factory.mktemp("data") / "laptop_small"
+    generate(make_config("laptop", 5, 3, seed=3, test_fraction=0.2, shard_size=16, val_fraction=0.0), out,
+             progress=False)
+    return out
+
+
 @pytest.fixture
 def small_part_search(monkeypatch):
     """The trainer's rigid-split search (:func:`scapo.models.part_init.initial_split`) with 8 pairs, 8 plane

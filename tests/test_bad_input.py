@@ -14,6 +14,7 @@ import warnings
 import numpy as np
 import pytest
 import torch
+from quick import QUICK_ICP
 
 from scapo.cli.main import main
 from scapo.data import generate, load, make_config
@@ -28,7 +29,6 @@ from scapo.errors import (
 )
 from scapo.eval import Predictions, evaluate
 from scapo.files import FolderLock
-from scapo.methods import METHODS
 from scapo.models import load as load_model
 from scapo.models.presets import PRESETS
 from scapo.models.train import Trainer
@@ -36,11 +36,6 @@ from scapo.models.train import Trainer
 TEST = PRESETS.get("test")
 #: A folder the kernel refuses to create anything in, even for root (a stand-in for a read-only mount).
 READ_ONLY = "/sys/scapo-test-out"
-
-# ICP predictions where the test is not about ICP's accuracy: the registered quick options (3 iterations, one
-# hypothesis set): 0.3 s instead of ~5 s on the 12-view test split (the tables' default search is tested in
-# tests/test_icp.py and tests/test_bench.py)
-QUICK_ICP = [a for k, v in METHODS.get("icp").quick_options.items() for a in ("--option", f"{k}={v}")]
 
 
 def cli(*args: str) -> tuple[int, str, str]:

@@ -2,13 +2,9 @@
 
 import subprocess
 
-from scapo.cli.main import main
-from scapo.methods import METHODS
+from quick import QUICK_ICP
 
-# ICP predictions where the test is not about ICP's accuracy: the registered quick options (3 iterations, one
-# hypothesis set): 0.3 s instead of ~5 s on the 12-view test split (the tables' default search is tested in
-# tests/test_icp.py and tests/test_bench.py)
-QUICK_ICP = [a for k, v in METHODS.get("icp").quick_options.items() for a in ("--option", f"{k}={v}")]
+from scapo.cli.main import main
 
 
 def test_list_and_doctor(capsys):

@@ -58,14 +58,9 @@ def _torchrun(*args, nproc=2, timeout=900):
 # engine (sampler, gradient averaging, checkpoints) is one for every trained method, and a one-stage method's resume
 # is tested in one process (tests/test_methods.py). The OP-Align-style case was dropped for the suite's time (13 s).
 @pytest.mark.parametrize("method", ["scapo"])
-def test_two_process_gloo_run_trains_checkpoints_and_resumes_under_another_world_size(method, tmp_path):
-    from scapo.data import generate, make_config
-
-    # a third of the shared dataset's training clouds (4 instances x 3 views): SCAPO's rigid-split search and
-    # pseudo-labels pass over all of them in the ranks, where the tests' smaller searches do not reach
-    laptop_data = tmp_path / "data"
-    generate(make_config("laptop", 5, 3, seed=3, test_fraction=0.2, shard_size=16, val_fraction=0.0), laptop_data,
-             progress=False)
+def test_two_process_gloo_run_trains_checkpoints_and_resumes_under_another_world_size(method, small_laptop_data,
+                                                                                     tmp_path):
+    laptop_data = small_laptop_data  # the ranks' split search and pseudo-labels pass over every training cloud
     run = tmp_path / "run"
     r = _torchrun("train", "--method", method, "--data", str(laptop_data), "--preset", "test", "--out", str(run),
                   "--no-progress")

@@ -4,20 +4,15 @@ import json
 
 import numpy as np
 import pytest
+from quick import QUICK_ICP
 
 from scapo.cli.main import main
 from scapo.data import load
 from scapo.data.opalign_real import convert_opalign_real, find_frames, read_frame
 from scapo.errors import ConfigError, DatasetError
-from scapo.methods import METHODS
 from scapo.ops.rigid import as_transform, joint_motion, transform_points
 
 H, W, F, CX, CY = 96, 128, 120.0, 64.0, 48.0
-
-# ICP predictions where the test is not about ICP's accuracy: the registered quick options (3 iterations, one
-# hypothesis set): 0.3 s instead of ~5 s on the 12-view test split (the tables' default search is tested in
-# tests/test_icp.py and tests/test_bench.py)
-QUICK_ICP = [a for k, v in METHODS.get("icp").quick_options.items() for a in ("--option", f"{k}={v}")]
 
 
 def _frame(theta: float, tilt: float):

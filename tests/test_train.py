@@ -617,24 +617,20 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     assert not older.uses_parts_frame and older.parts_axes == "pca" and not older.joints.axis_frozen.any()
 
 
-def test_relabel_replaces_the_pseudo_labels_with_the_networks_own_and_resumes_the_same(tmp_path, small_part_search):
+def test_relabel_replaces_the_pseudo_labels_with_the_networks_own_and_resumes_the_same(small_laptop_data, tmp_path,
+                                                                                      small_part_search):
     """``relabel``: before a stage-2 epoch of :func:`relabel_epochs` the training clouds' pseudo-labels (and
     with ``stage2_frame="parts"`` their target frames) become what the network predicts for them; the relabelling
     follows from the model's state alone, so a run interrupted in the relabelled epoch and resumed there ends with the
     weights of a run that was not interrupted."""
     import json
 
-    from scapo.data import generate, make_config
     from scapo.errors import ConfigError
     from scapo.models.presets import get_preset
     from scapo.models.scapo_model import SCAPOModel
     from scapo.models.train import TrainingClouds, relabel_epochs
 
-    # a third of the shared dataset's training clouds (4 instances x 3 views): each relabelling and each stage's
-    # pseudo-labels pass over every training cloud at full resolution, three trainings' worth here
-    laptop_data = tmp_path / "data"
-    generate(make_config("laptop", 5, 3, seed=3, test_fraction=0.2, shard_size=16, val_fraction=0.0), laptop_data,
-             progress=False)
+    laptop_data = small_laptop_data  # every relabelling passes over all training clouds, three trainings' worth here
 
     p = dataclasses.replace(TEST, part_init=True, split_labels=True, stage2_frame="parts", relabel=1,
                             stage2_epochs=3)

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -124,10 +125,8 @@ def write_curve(records: Sequence[dict], out: Path, meta: dict, name: str = "acc
              _fmt(r["resampling_deg"]), _fmt(r["S"]), _fmt(r["D"]), _fmt(r["D_median"]), _fmt(r["R"]),
              _fmt(r["R_median"]), _fmt(r["R_sym"]), _fmt(r["R_sym_median"]), _fmt(r["R_sym_over90"])] for r in flat]
     commits = sorted({r["commit"] for r in flat})
-    devices: dict[str, int] = {}  # the cells' own machines (a curve may be finished on another one)
-    for r in records:
-        d = r.get("provenance", {}).get("device") or "-"
-        devices[d] = devices.get(d, 0) + 1
+    # the cells' own machines (a curve may be finished on another one)
+    devices = Counter(r.get("provenance", {}).get("device") or "-" for r in records)
     machines = "; ".join(f"{d} ({n} cell{'s' if n > 1 else ''})" if len(devices) > 1 else d
                          for d, n in sorted(devices.items()))
     rescored = sorted({r["consistency_commit"] for r in records if r.get("consistency_commit")})
