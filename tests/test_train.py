@@ -661,6 +661,17 @@ def test_relabel_replaces_the_pseudo_labels_with_the_networks_own_and_resumes_th
     data.tensors["part_label"], data.tensors["frame_target"] = torch.zeros_like(own), targets.clone()
     a.job._relabel(data, 2)
     assert torch.equal(data.tensors["part_label"], own) and torch.equal(data.tensors["frame_target"], targets)
+    # with the preset's stage-2 starts the relabelling labels as ``scapo predict`` does: passes with those starts
+    a.job.preset = dataclasses.replace(p, refine=dataclasses.replace(p.refine, stage2_starts="D2"))
+    seen, passes = [], a.model.passes
+    a.model.passes = lambda X, starts="": seen.append(starts) or passes(X, starts)
+    try:
+        a.job._relabel(data, 2)
+    finally:
+        del a.model.passes
+    assert seen and set(seen) == {"D2"}
+    with torch.no_grad():
+        assert torch.equal(data.tensors["part_label"], model.passes(X, "D2").w.argmax(-1))
     a.job.preset = p
     # interrupted in the relabelled epoch (after the relabelling ran), resumed: the same weights
     interrupt_at(Trainer(laptop_data, tmp_path / "b", p, progress=False), 2, 2)

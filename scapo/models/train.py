@@ -510,13 +510,14 @@ class ScapoJob:
     def _relabel(self, data: TrainingClouds, epoch: int) -> None:
         """``TrainConfig.relabel``: before a stage-2 epoch of :func:`relabel_epochs`, every training cloud's
         ``part_label`` ``(M, N)`` int64 becomes the argmax of the skinning weights the network predicts for it
-        (:meth:`SCAPOModel.passes` in eval mode, as ``scapo predict``), and with ``stage2_frame = "parts"`` (and
-        ``relabel_frames``) its ``frame_target`` ``(M, 3, 3)`` the frame :meth:`SCAPOModel.parts_frames` reads from
-        those labels (a cloud whose base axes are not found keeps its target). The result follows from the model's
-        state at that epoch alone, so a run resumed there relabels the same way; it replaces ``split_labels.npy`` (and
-        ``frame_targets.npy``), and ``relabel.json`` in the run folder gets, per relabelling, the share of points
-        whose label changed, of clouds whose target moved by more than 15 / 90 deg, and of clouds whose axes were not
-        found (a run resumed at that epoch after the files were written compares against the relabelled ones)."""
+        (:meth:`SCAPOModel.passes` in eval mode with the preset's ``refine.stage2_starts``, as ``scapo predict``), and
+        with ``stage2_frame = "parts"`` (and ``relabel_frames``) its ``frame_target`` ``(M, 3, 3)`` the frame
+        :meth:`SCAPOModel.parts_frames` reads from those labels (a cloud whose base axes are not found keeps its
+        target). The result follows from the model's state at that epoch alone, so a run resumed there relabels the same
+        way; it replaces ``split_labels.npy`` (and ``frame_targets.npy``), and ``relabel.json`` in the run folder gets,
+        per relabelling, the share of points whose label changed, of clouds whose target moved by more than 15 / 90 deg,
+        and of clouds whose axes were not found (a run resumed at that epoch after the files were written compares
+        against the relabelled ones)."""
         if epoch not in relabel_epochs(self.preset):
             return
         labels, frames = [], []
@@ -525,7 +526,7 @@ class ScapoJob:
         try:
             for k in range(0, len(data), 64):
                 X, _ = SCAPOModel.normalize(data.clouds[k:k + 64].to(self.device))
-                out = self.model.passes(X)
+                out = self.model.passes(X, self.preset.refine.stage2_starts)
                 lab = out.w.argmax(-1)
                 labels.append(lab.cpu())
                 if self.relabels_frames:
