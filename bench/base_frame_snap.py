@@ -69,7 +69,7 @@ def _base_labels(src: str, pred: dict, gt: dict, slot: int) -> np.ndarray:
 
 
 def main(argv=None) -> int:
-    from scapo.bench.ladder import frame_consistency
+    from scapo.eval.frames import frame_consistency
     from scapo.data import load
     from scapo.eval.evaluator import object_frame_twins
     from scapo.methods import load_run

@@ -7,7 +7,7 @@ training: the steps read each prediction and its points), beside the one-pass ro
         --out results --name accuracy_vs_compute_hinge --command "how the predictions were made"
 
 Each ``--pred`` is one row (val split): S, D, R and their medians from :func:`scapo.eval.evaluator.evaluate`, and the
-object-frame consistency (:func:`scapo.bench.ladder.split_consistency`). ``--steps`` gives a row's training steps
+object-frame consistency (:func:`scapo.eval.frames.split_consistency`). ``--steps`` gives a row's training steps
 (from the cell's record). Writes ``<out>/<name>.{md,json,csv,png}`` (:func:`scapo.bench.compute.write_curve`).
 """
 
@@ -20,7 +20,7 @@ from pathlib import Path
 
 def record(data: Path, label: str, budget: float, path: str, steps) -> dict:
     """One row of the curve for the predictions file ``path`` (val split of ``data``)."""
-    from scapo.bench.ladder import split_consistency
+    from scapo.eval.frames import split_consistency
     from scapo.eval.evaluator import evaluate
     from scapo.eval.predictions import Predictions
     from scapo.provenance import provenance

@@ -2,7 +2,7 @@
 
 For each predictions file, on one split (val by default): the object-frame offsets ``O = R_pred^T R_gt`` of the base
 part (``part_pose[:, 0]``, the object frame of every method here) are grouped greedily: the offset with the most others
-within 15 deg (the frame consistency's threshold, :data:`scapo.bench.ladder.CONSISTENCY_DEG`) and those others form the
+within 15 deg (the frame consistency's threshold, :data:`scapo.eval.frames.CONSISTENCY_DEG`) and those others form the
 largest branch, then the same on the rest. For the largest branches: their share of the samples and the rotation that
 takes the largest branch's offset to theirs (angle, and axis in the true object frame). A frame that is one frame gives
 one branch; a frame split by a near-symmetry of the object gives two large branches a half turn apart about the axis of

@@ -4,7 +4,7 @@ of predictions files already written; nothing is trained or predicted again).
     python bench/frame_by_state.py --data DATA --pred LABEL=PREDICTIONS.npz [--pred ...] --split test \\
         --out results/.../NAME [--bins 4]
 
-Per file, on one split: the symmetry-aware object-frame consistency (:func:`scapo.bench.ladder.frame_inliers`
+Per file, on one split: the symmetry-aware object-frame consistency (:func:`scapo.eval.frames.frame_inliers`
 against each sample's own and twin ground truths, :func:`scapo.eval.evaluator.object_frame_twins`); the share of
 samples that agree through their own ground truth and through the twin; that share within each of ``--bins``
 equal-count bins of the first joint's true state (its edges from the split, in degrees or metres); the share of views
@@ -26,7 +26,7 @@ def state_bins(state: np.ndarray, bins: int) -> np.ndarray:
 
 
 def by_state(inlier: np.ndarray, angle: np.ndarray, state: np.ndarray, edges: np.ndarray) -> dict:
-    """The statistics of one file from :func:`scapo.bench.ladder.frame_inliers`' ``inlier (M,)`` and ``angle (M, K)``
+    """The statistics of one file from :func:`scapo.eval.frames.frame_inliers`' ``inlier (M,)`` and ``angle (M, K)``
     (own ground truth first), the samples' first-joint state ``(M,)`` and the bins' ``edges``.
 
     Returns:
@@ -63,7 +63,7 @@ def joint_frames(part_pose: np.ndarray, lam: float, child: int = 1) -> np.ndarra
 
 def main(argv=None) -> int:
     from scapo.bench.diagnosis import bench_script, run_diagnosis
-    from scapo.bench.ladder import frame_inliers
+    from scapo.eval.frames import frame_inliers
     from scapo.data import load
     from scapo.errors import PredictionError
     from scapo.eval.evaluator import object_frame_twins, twin_ground_truth

@@ -1,7 +1,7 @@
 """Object-frame consistency of predictions files already written (issue 52's target: at least 0.9).
 
 For each file, on one split (val by default): the share of samples whose object-frame offset ``R_pred^T R_gt`` lies
-within 15 deg of the offset most of them share (:func:`scapo.bench.ladder.split_consistency`; 1 is one canonical
+within 15 deg of the offset most of them share (:func:`scapo.eval.frames.split_consistency`; 1 is one canonical
 frame), strict and against the category's declared symmetric ground truth, as the ladder's cells report it; the
 share of views whose base slot (``info["hinge_frames"]["base"]``, ``info["base_frame"]["slot"]`` or
 ``info["object_slot"]["slot"]`` (``base_slot`` alone), else slot 0) holds mostly points of the true base (the root
@@ -39,7 +39,7 @@ def base_on_base(data: Path, preds, split: str) -> float:
 
 def main(argv=None) -> int:
     from scapo.bench.diagnosis import run_diagnosis
-    from scapo.bench.ladder import split_consistency
+    from scapo.eval.frames import split_consistency
 
     def score(a, p) -> dict:
         strict, sym = split_consistency(Path(a.data), p, a.split)

@@ -5,7 +5,7 @@ For each run (trained with ``TrainConfig.stage2_frame = "parts"`` on DATA; issue
 - val, per prediction pass (stage 2 run again in the frame read from the base it labels,
   :meth:`scapo.models.scapo_model.SCAPOModel.parts_frames`; the method's predictions use
   ``scapo.models.scapo_model.PARTS_PASSES``): the object-frame consistency (share of views within 15 deg of the common
-  offset, :func:`scapo.bench.ladder.frame_consistency`) of stage 2's frame and of the base pose (``T_cam_obj``, with
+  offset, :func:`scapo.eval.frames.frame_consistency`) of stage 2's frame and of the base pose (``T_cam_obj``, with
   the root's motion), and the share of points whose base / not-base label is right; pass 0 is the stage-1 frame; the
   last row is the frame read from the true labels (what the step can reach with a perfect base);
 - train: the run's target frames (``frame_targets.npy``) against the ground truth (frame consistency), its
@@ -83,7 +83,7 @@ def val_passes(model, data: Path, passes: int, split: str = "val") -> list[dict]
     """Rows per pass on one split, val by default (see the module docstring)."""
     import torch
 
-    from scapo.bench.ladder import frame_consistency
+    from scapo.eval.frames import frame_consistency
     from scapo.data import load
 
     d = load(data, split)
@@ -121,7 +121,7 @@ def train_targets(run: Path, data: Path, card: dict) -> dict:
     Raises:
         DatasetError: the run has no target frames or pseudo-labels (not a ``stage2_frame="parts"`` run, or one
             stopped before stage 2), or they do not match the training split."""
-    from scapo.bench.ladder import frame_consistency
+    from scapo.eval.frames import frame_consistency
     from scapo.data import load
     from scapo.errors import DatasetError
     from scapo.ops.signed_axes import _signed_candidates

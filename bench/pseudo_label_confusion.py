@@ -63,7 +63,7 @@ def score_run(data: Path, run: Path, bins: list[float], pc=None) -> dict:
 
 
 def score_frame_targets(run: Path, gt_T) -> dict | None:
-    """The object-frame consistency (:func:`scapo.bench.ladder.frame_consistency`, strict) of the frames the run's
+    """The object-frame consistency (:func:`scapo.eval.frames.frame_consistency`, strict) of the frames the run's
     pseudo-labels were made in and stage 2 trains in (``frame_targets.npy (clouds, 3, 3)`` float64, canonical ->
     camera, zeros where a cloud has none; preset part ``stage2-parts``) against the training split's true object
     rotations ``gt_T (clouds, 4, 4)``; None for a run without the file.
@@ -72,7 +72,7 @@ def score_frame_targets(run: Path, gt_T) -> dict | None:
         DatasetError: a file that cannot be read or whose shape is not ``(clouds, 3, 3)``."""
     import numpy as np
 
-    from scapo.bench.ladder import frame_consistency
+    from scapo.eval.frames import frame_consistency
     from scapo.errors import DatasetError
 
     f = run / "frame_targets.npy"

@@ -71,7 +71,7 @@ def diagnose(data: Path, preds, split: str, rounds: int) -> dict:
     import numpy as np
     import torch
 
-    from scapo.bench.ladder import frame_consistency
+    from scapo.eval.frames import frame_consistency
     from scapo.methods.hinge import prediction_arrays
     from scapo.ops.groups import rotation_group
 

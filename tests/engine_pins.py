@@ -163,8 +163,14 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Pin the engine's test-preset losses of this CPU "
                                  "(tests/data/engine_pins.json).")
     ap.add_argument("--add", metavar="DESCRIPTION", required=True, help="the CPU in words (model, cores)")
+    ap.add_argument("--repin", metavar="KEY", action="append", default=[],
+                    help="a run whose losses changed by design (e.g. op-align:test): its pins of every CPU are "
+                         "replaced by this CPU's; repeatable; needs --why")
+    ap.add_argument("--why", default="", help="with --repin: the change, with its commit")
     a = ap.parse_args(argv)
     pins, cpu = load_pins(), cpu_id()
+    if a.repin:
+        return _repin(pins, cpu, a.add, a.repin, a.why)
     if any(s["cpu_id"] == cpu for s in pin_sets(pins)):
         print(f"scapo: this CPU ({cpu}) is pinned already; remove its set from {PINS_FILE} to pin it again",
               file=sys.stderr)
@@ -191,6 +197,34 @@ def main(argv: list[str] | None = None) -> int:
     tmp_path.write_text(text)
     tmp_path.replace(PINS_FILE)
     print(f"pinned {len(runs)} runs of this CPU in {PINS_FILE}")
+    return 0
+
+
+def _repin(pins: dict, cpu: str, description: str, keys: list[str], why: str) -> int:
+    """Replace the pins of ``keys`` (losses changed by design) on every CPU by this CPU's: the other CPUs' rows of
+    those keys are dropped (they cannot be trained here; such a CPU then passes by the unpinned-CPU tolerance)."""
+    unknown = [k for k in keys if k not in pinned_keys(pins)]
+    if unknown or not why:
+        print(f"scapo: --repin needs pinned keys ({', '.join(pinned_keys(pins))}) and --why; got {keys}, {why!r}",
+              file=sys.stderr)
+        return 2
+    runs = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for key in keys:
+            rows = train_log(key, Path(tmp) / key.replace(":", "_").replace("/", "_"))
+            runs[key] = {"header": rows[0], "rows": rows[1:], "repinned": why}
+    for s in [pins, *pins.get("other_cpus", [])]:
+        for key in keys:
+            s["runs"].pop(key, None)
+    mine = next((o for o in pins.setdefault("other_cpus", []) if o.get("cpu_id") == cpu), None)
+    if mine is None:
+        mine = {"cpu": description, "cpu_id": cpu, "pinned_at": f"{_commit()}: the repinned runs only", "runs": {}}
+        pins["other_cpus"].append(mine)
+    mine["runs"].update(runs)
+    tmp_path = PINS_FILE.with_suffix(".json.tmp")
+    tmp_path.write_text(json.dumps(pins, indent=1) + "\n")
+    tmp_path.replace(PINS_FILE)
+    print(f"repinned {', '.join(keys)} on this CPU ({cpu}) in {PINS_FILE}")
     return 0
 
 

@@ -437,11 +437,11 @@ def test_ablation_presets():
     assert q.losses.disabled == () and q.root_motion == get_preset("cpu").root_motion
 
 
-def test_scapo_has_eyeglasses_and_laptop_presets_that_the_tables_pick():
+def test_scapo_per_category_presets_are_labelled_rows_not_the_tables_choice():
     """``cpu-eyeglasses`` is ``cpu`` with the ladder's eyeglasses parts (chosen on val), and ``cpu-laptop`` the same
-    recipe (chosen on the laptop's val split), picked by :func:`method_preset` for their category only; ablations and
-    schedules stack on them like any preset's; the semi-supervised ``/sj`` (Table 2) keeps its base preset, which the
-    recipe's pseudo-labels could not be combined with."""
+    recipe (chosen on the laptop's val split); ablations and schedules stack on them like any preset's. The tables
+    train one preset per method for every category (:func:`method_preset`): a per-category preset is asked for by
+    name."""
     import dataclasses
 
     from scapo.bench.cells import method_preset
@@ -459,19 +459,16 @@ def test_scapo_has_eyeglasses_and_laptop_presets_that_the_tables_pick():
     assert dataclasses.replace(recipe, name=lap.name, refine=lap.refine) == lap
     # one training recipe, two names; each category's inference has its own hypothesis set of stage 2's first frame
     assert dataclasses.replace(lap, name=eye.name, refine=eye.refine) == eye
-    assert method_preset("scapo", "cpu", "eyeglasses") == "cpu-eyeglasses"
-    assert method_preset("scapo", "cpu", "laptop") == "cpu-laptop"
-    assert method_preset("scapo", "cpu", "oven") == "cpu" and method_preset("npcs", "cpu", "eyeglasses") == "cpu"
-    assert method_preset("scapo", "cpu/no-shape_var", "eyeglasses") == "cpu-eyeglasses/no-shape_var"
-    assert method_preset("scapo", "cpu/sj", "laptop") == "cpu/sj"  # cpu-laptop/sj is refused by TrainConfig
-    get_preset(method_preset("scapo", "cpu/sj", "laptop"))
+    assert method_preset("scapo", "cpu") == "cpu" and method_preset("npcs", "cpu") == "cpu"
+    assert method_preset("scapo", "cpu/no-shape_var") == "cpu/no-shape_var"
+    assert method_preset("scapo", "cpu-laptop") == "cpu-laptop"  # by name
+    get_preset(method_preset("scapo", "cpu/sj"))
     with pytest.raises(ConfigError, match="no preset 'nope'"):
-        method_preset("scapo", "nope/sj", "laptop")
+        method_preset("scapo", "nope/sj")
     six = get_preset("cpu-eyeglasses/epochs-6-5")
     assert (six.stage1_epochs, six.stage2_epochs, six.axis_init) == (6, 5, "sweep")
     cells = table1_cells(["scapo"], ["eyeglasses", "laptop", "oven"], "cpu", [0])
-    assert {(c.category, c.preset) for c in cells} == {("eyeglasses", "cpu-eyeglasses"), ("laptop", "cpu-laptop"),
-                                                       ("oven", "cpu")}
+    assert {(c.category, c.preset) for c in cells} == {("eyeglasses", "cpu"), ("laptop", "cpu"), ("oven", "cpu")}
 
 
 def test_finished_only_writes_the_done_cells_and_lists_the_missing(bench, monkeypatch, tmp_path):
@@ -564,7 +561,7 @@ def test_table2_real_style_with_semi_supervised_rows(tmp_path, monkeypatch):
     assert "(every joint, prismatic ones included)" in md and "Basket (symmetric" not in md  # no basket here
     # strict and symmetry-aware rotation errors side by side (the AP layout has no rotation column)
     assert "## Medians and rates" in md and "| R (deg) | R med (deg) |" in md and "R sym (deg)" in md
-    assert "## Differences the test instances support" in md
+    assert "## Differences the training seeds and test instances support" in md
     for r in results:
         assert {"seg_75", "ap_joint_5", "ap_part_15", "min_ap_part_5"} <= set(r.summary)
     before = {s: (out / f"table2_real_style.{s}").read_text() for s in ("csv", "md", "tex")}

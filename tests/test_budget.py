@@ -38,19 +38,23 @@ def _speed(work, data_name, method, row):
     path.write_text(json.dumps([row]))
 
 
-def test_budget_cells_fill_the_budget_from_the_measured_speed(tmp_path):
+def test_budget_cells_fill_the_budget_less_the_one_time_work(tmp_path):
     """Hand-built speeds (16 clouds/s at batch 16: one step a second; 160 training clouds: 10 steps an epoch): NPCS's
-    10 epochs take 100 s, so 1 core-minute buys 6 (its one-time 500 s not charged); SCAPO's 10 + 10 take 200 s, so
-    3 + 3. A fitted method is left alone; without a measured speed and measuring off, a clear refusal."""
+    10 epochs take 100 s, so 1 core-minute buys 6 epochs, 60 steps; with 30 s of one-time work it buys exactly 30
+    steps fewer (3 epochs); SCAPO's 10 + 10 take 200 s, so 3 + 3. A fitted method is left alone; one-time work longer
+    than the budget, or no measured speed with measuring off, is refused clearly."""
     from scapo.bench.cells import Cell
     from scapo.bench.experiments import budget_cells, dataset_dir
+    from scapo.bench.perf import training_budget
 
     kw = {"viewpoints": "paper", "train_views": 4}
     name = dataset_dir(tmp_path, "laptop", 10, 2, 0, kw).name
     base = {"batch_size": 16, "fixed_s": 0.0, "train_clouds": 160, "max_steps_per_epoch": 0, "stage1_epoch_s": 0.0,
             "stage1_clouds_per_s": 16.0}
-    # a one-time cost longer than the budget (EAP-style's joint estimation on a large split) is not charged
-    _speed(tmp_path, name, "npcs", {**base, "method": "npcs", "stage1_epochs": 10, "iterations": 0, "fixed_s": 500.0})
+    npcs = {**base, "method": "npcs", "stage1_epochs": 10, "iterations": 0}
+    free, charged = training_budget([npcs, {**npcs, "fixed_s": 30.0}], 1.0, 160)
+    assert (free["stage1_steps_for_budget"], charged["stage1_steps_for_budget"]) == (60, 30)
+    _speed(tmp_path, name, "npcs", npcs)
     _speed(tmp_path, name, "scapo", {**base, "method": "scapo", "stage1_epochs": 10, "stage2_epochs": 10,
                                      "stage2_clouds_per_s": 16.0, "stage2_epoch_s": 0.0})
     cells = [Cell("npcs", "laptop", 0, "cpu"), Cell("scapo", "laptop", 1, "cpu"), Cell("icp", "laptop")]
@@ -58,10 +62,35 @@ def test_budget_cells_fill_the_budget_from_the_measured_speed(tmp_path):
     assert [c.preset for c in out] == ["cpu/epochs-6", "cpu/epochs-3-3", None]
     assert schedules == {"laptop": {"npcs cpu": "epochs-6", "scapo cpu": "epochs-3-3"}}
     assert out[1].key == "scapo_cpu+epochs-3-3_s1"
+    # a one-time cost longer than the budget (EAP-style's joint estimation on a large split) is refused, not excused
+    _speed(tmp_path, name, "npcs", {**npcs, "fixed_s": 500.0})
+    with pytest.raises(ConfigError, match="one-time work alone is 500 charged seconds"):
+        budget_cells(cells[:1], 1.0, tmp_path, 10, 2, 0, kw, measure=False)
     with pytest.raises(ConfigError, match="not measured yet"):
         budget_cells([Cell("eap", "laptop", 0, "cpu")], 1.0, tmp_path, 10, 2, 0, kw, measure=False)
     with pytest.raises(ConfigError, match="budget-minutes"):
         budget_cells(cells, 0.0, tmp_path, 10, 2, 0, kw, measure=False)
+
+
+def test_a_cell_over_its_budget_is_refused_naming_the_phase():
+    """:func:`scapo.engine.ledger.check_budget`: within 110 % of the budget a ledger passes; beyond it the cell is
+    refused, naming the phase that overran its plan the most."""
+    from scapo.engine.ledger import Ledger, check_budget
+
+    led = Ledger()
+    led.add("setup", 5.0, 5.0)
+    led.add("stage2/start", 40.0, 41.0)
+    led.add("stage1/steps", 60.0, 61.0)
+    plan = {"setup": 5.0, "stage2/start": 10.0, "stage1/steps": 60.0}
+    check_budget(led.to_dict(), 100.0, plan)  # 105 core-seconds: within 110 %
+    led.add("stage2/start", 10.0, 10.0)
+    with pytest.raises(ConfigError, match=r"charged 115 core-seconds.*'stage2/start' took 50 s against 10 s planned"):
+        check_budget(led.to_dict(), 100.0, plan, what="cell laptop/paper/scapo_s0")
+    with pytest.raises(ConfigError, match="the largest phase is 'stage1/steps'"):
+        check_budget(led.to_dict(), 100.0)
+    gpu = Ledger(accelerator=True, before=led.to_dict())  # a resumed run adds to its checkpoint's ledger
+    gpu.add("stage1/steps", 0.0, 1.0)
+    assert gpu.to_dict()["unit"] == "device-seconds" and gpu.charged("stage1/steps") == pytest.approx(62.0)
 
 
 def test_ladder_on_a_device_keeps_its_cells_and_speeds_apart(tmp_path):

@@ -60,9 +60,9 @@ def test_compute_curve_refuses_bad_arguments(tmp_path, capsys, args, match):
 
 
 def test_from_table_uses_the_tables_presets_speeds_and_finished_runs(tmp_path, capsys):
-    """``--from-table``: the table's per-category preset (SCAPO on the laptop: ``cpu-laptop``) and uncharged one-time
-    cost (hand-built speeds: 16 clouds/s at batch 16, 10 steps an epoch; SCAPO's 10 + 10 epochs take 200 s, so one
-    core-minute buys 3 + 3 whatever its 600 s of pseudo-labelling; NPCS's 10 take 100 s: 6); the table's finished
+    """``--from-table``: the table's preset (one for every category) and charged one-time work (hand-built speeds:
+    16 clouds/s at batch 16, 10 steps an epoch; SCAPO's 10 + 10 epochs take 200 s, so one core-minute less its 20 s
+    of pseudo-labelling buys 2 + 2; NPCS's 10 take 100 s: 6); the table's finished
     run of the same preset and seed is copied to the cell's run (an unfinished one, or one of another schedule, is
     not); a work folder without the table's dataset is refused with the command that renders it."""
     from scapo.bench.cells import Cell
@@ -75,20 +75,20 @@ def test_from_table_uses_the_tables_presets_speeds_and_finished_runs(tmp_path, c
     data = dataset_dir(tmp_path, "laptop", 10, 2, 0, kw)
     base = {"batch_size": 16, "train_clouds": 160, "max_steps_per_epoch": 0, "stage1_epoch_s": 0.0,
             "stage1_clouds_per_s": 16.0}
-    speeds = {"scapo_cpu-laptop": {**base, "method": "scapo", "stage1_epochs": 10, "stage2_epochs": 10,
-                                   "stage2_clouds_per_s": 16.0, "stage2_epoch_s": 0.0, "fixed_s": 600.0},
+    speeds = {"scapo_cpu": {**base, "method": "scapo", "stage1_epochs": 10, "stage2_epochs": 10,
+                                   "stage2_clouds_per_s": 16.0, "stage2_epoch_s": 0.0, "fixed_s": 20.0},
               "npcs_cpu": {**base, "method": "npcs", "stage1_epochs": 10, "iterations": 0, "fixed_s": 0.0}}
     for key, row in speeds.items():
         path = tmp_path / "speeds" / f"{data.name}_{key}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps([row]))
     presets = _table_presets(["scapo", "npcs"], "laptop", 1.0, "cpu", tmp_path, 10, 2, 4, 0, "paper")
-    assert {m: v[1]["preset"] for m, v in presets.items()} == {"scapo": "cpu-laptop/epochs-3-3",
+    assert {m: v[1]["preset"] for m, v in presets.items()} == {"scapo": "cpu/epochs-2-2",
                                                                 "npcs": "cpu/epochs-6"}
-    assert (presets["scapo"][0].stage1_epochs, presets["scapo"][0].stage2_epochs) == (3, 3)
+    assert (presets["scapo"][0].stage1_epochs, presets["scapo"][0].stage2_epochs) == (2, 2)
 
-    for seed, preset, finished in ((0, "cpu-laptop/epochs-3-3", True), (1, "cpu-laptop/epochs-3-3", False),
-                                   (2, "cpu-laptop/epochs-9-9", True)):
+    for seed, preset, finished in ((0, "cpu/epochs-2-2", True), (1, "cpu/epochs-2-2", False),
+                                   (2, "cpu/epochs-9-9", True)):
         run = data / f"run_{Cell('scapo', 'laptop', seed, preset).run_key}"
         run.mkdir(parents=True)
         (run / "checkpoint.pt").write_bytes(b"weights")
@@ -96,25 +96,25 @@ def test_from_table_uses_the_tables_presets_speeds_and_finished_runs(tmp_path, c
             (run / "timing.json").write_text("{}")
     work = tmp_path / "compute" / "b1"
     for seed in (0, 1, 2):
-        _reuse_table_run(data, work, "laptop", "paper", "scapo", seed, "cpu-laptop/epochs-3-3")
+        _reuse_table_run(data, work, "laptop", "paper", "scapo", seed, "cpu/epochs-2-2")
     cells = cells_dir(work, "laptop", "paper")
     assert (cells / "scapo_s0_run" / "checkpoint.pt").read_bytes() == b"weights"
     assert not (cells / "scapo_s1_run").exists() and not (cells / "scapo_s2_run").exists()
     assert "reusing the table's finished run" in capsys.readouterr().out
     (cells / "scapo_s0_run" / "checkpoint.pt").write_bytes(b"resumed")  # a cell's own run is never replaced
-    _reuse_table_run(data, work, "laptop", "paper", "scapo", 0, "cpu-laptop/epochs-3-3")
+    _reuse_table_run(data, work, "laptop", "paper", "scapo", 0, "cpu/epochs-2-2")
     assert (cells / "scapo_s0_run" / "checkpoint.pt").read_bytes() == b"resumed"
 
     from scapo.bench.compute import write_curve
 
     rec = {"method": "scapo", "budget_min": 1.0, "seed": 0, "wall": {"train_steps": 6}, "provenance": {"commit": "c"},
-           "dataset_hash": "h", "budget_values": {"preset": "cpu-laptop/epochs-3-3"}, "frame_consistency_sym": 0.5,
+           "dataset_hash": "h", "budget_values": {"preset": "cpu/epochs-2-2"}, "frame_consistency_sym": 0.5,
            "S": 80.0, "R_sym_median": 5.0}
     meta = {"name": "curve", "category": "laptop", "rung": "paper", "split": "val", "dataset": data.name,
             "instances": 10, "views": 2, "train_views": 4, "data_seed": 0, "preset": "cpu", "protocol": "scapo",
             "command": "scapo bench compute --from-table", "from_table": True}
     write_curve([rec], tmp_path / "o", meta)
-    assert "presets scapo cpu-laptop (the table's" in (tmp_path / "o" / "curve.md").read_text()
+    assert "presets scapo cpu (the table's" in (tmp_path / "o" / "curve.md").read_text()
     # a curve finished on another machine names each cell's machine, apart from the writer's
     other = {**rec, "budget_min": 2.0, "provenance": {"commit": "c", "device": "cpu: 2 cores, B"}}
     rec["provenance"]["device"] = "cpu: 2 cores, A"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from scapo.bench.ladder import RUNGS, frame_consistency, parse_variant, rung_config
+from scapo.bench.ladder import RUNGS, parse_variant, rung_config
 from scapo.data import generate, load, make_config
 from scapo.errors import ConfigError
 from scapo.ops.groups import random_rotation as _random_rotation
@@ -138,40 +138,6 @@ def test_rungs_differ_in_one_setting_each():
     assert "random_rotation" not in cfgs["aligned"]["view"] or not cfgs["aligned"]["view"]["random_rotation"]
 
 
-def test_frame_consistency_on_hand_built_offsets():
-    M = 40
-    gt = np.tile(np.eye(4), (M, 1, 1))
-    gt[:, :3, :3] = random_rotation(M, seed=1).numpy()
-    offset = random_rotation(1, seed=2).numpy()[0]
-    pred = gt.copy()
-    pred[:, :3, :3] = gt[:, :3, :3] @ offset.T  # one canonical frame: R_pred^T R_gt = offset for every sample
-    assert frame_consistency(pred, gt) == 1.0
-    bad = pred.copy()
-    bad[:10, :3, :3] = random_rotation(10, seed=3).numpy()  # a quarter in frames of their own
-    assert frame_consistency(bad, gt) == pytest.approx(0.75, abs=0.03)
-    scattered = pred.copy()
-    scattered[:, :3, :3] = random_rotation(M, seed=4).numpy()
-    assert frame_consistency(scattered, gt) < 0.2
-    # a second valid ground truth per sample (a symmetric category's twin, its own rotation per sample): the samples
-    # predicted in their twin's frame agree only when the twins are given
-    twin_gt = gt.copy()
-    twin_gt[:, :3, :3] = random_rotation(M, seed=5).numpy()
-    mixed = pred.copy()
-    mixed[::2, :3, :3] = twin_gt[::2, :3, :3] @ offset.T
-    assert frame_consistency(mixed, gt) == pytest.approx(0.5, abs=0.03)
-    assert frame_consistency(mixed, np.stack([gt, twin_gt], 1)) == 1.0
-    big = np.tile(np.eye(4), (240, 1, 1))  # a table's test split: every offset of both ground truths is tried
-    big[:, :3, :3] = random_rotation(240, seed=6).numpy()
-    near = big.copy()
-    near[:, :3, :3] = random_rotation(240, seed=7).numpy()
-    assert frame_consistency(near, np.stack([big, near], 1)) == 1.0 >= frame_consistency(near, big)
-    with pytest.raises(ValueError):
-        frame_consistency(pred[:, :3], gt[:, :3])
-    with pytest.raises(ValueError):
-        frame_consistency(pred, np.stack([gt, twin_gt], 1)[:-1])
-    assert np.isnan(frame_consistency(np.zeros((0, 4, 4)), np.zeros((0, 4, 4))))
-
-
 def test_a_cells_consistency_is_scored_again_when_it_predates_the_twin_object_frame(tmp_path, monkeypatch):
     """``_upgrade``: a record of a category that declares a symmetry, written before ``CONSISTENCY_VERSION`` 2, gets
     its two frame-consistency shares again from its own predictions (its resampling column kept); a current record,
@@ -294,7 +260,7 @@ def test_frame_by_state_splits_the_symmetry_aware_inliers_by_joint_state_and_gro
     """``bench/frame_by_state.py``: one canonical frame through the own ground truth at low states and through the twin
     at middle ones, and frames of their own at high states: the bins show where the frame holds, own / twin which
     ground truth it holds through."""
-    from scapo.bench.ladder import frame_inliers
+    from scapo.eval.frames import frame_inliers
 
     mod = _bench_script("frame_by_state")
     M = 60

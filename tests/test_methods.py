@@ -539,6 +539,37 @@ def test_op_align_template_prior_variance_penalty_and_bounded_residual():
     assert int(logits.grad.argmin()) == 1  # gradient descent raises the nearest anchor's attention
 
 
+def test_op_align_object_frame_is_its_base_parts_pose_and_its_terms_follow_the_original():
+    """``T_cam_obj`` is the base part's pose (the root of the kinematic tree; the dataset's convention), not the
+    object-level rigid fit; the clouds are normalised to a mean centroid distance of 0.25 (``LightDataset.py`` 45-50);
+    the pivot term is ``1 - exp(-30 d^2)`` of the mean distance to the 8 nearest points and sends no gradient into
+    the shape (``art_metric.py`` 267-274); the canonical shape's states go to 0, its pivots are free
+    (``art_metric.py`` 256-265)."""
+    from scapo.methods import op_align
+
+    torch.manual_seed(0)
+    pc = op_align.PRESETS.get("test")
+    pts = torch.rand(3, 96, 3) * torch.tensor([0.4, 0.3, 0.02]) + torch.tensor([0.0, 0.0, 0.8])
+    X, c, sc = op_align.normalize_op_align(pts)
+    assert float(X.norm(dim=-1).mean(-1).sub(0.25).abs().max()) < 1e-6
+    torch.testing.assert_close(X * sc[:, None, None] + c[:, None], pts)
+    for joint_parts, base in (([(0, 1)], 0), ([(1, 0)], 1), ([(2, 0), (2, 1)], 2)):
+        parts = 1 + max(max(p) for p in joint_parts)
+        net = op_align.OPAlignNet(parts, [0] * len(joint_parts), joint_parts, pc).eval()
+        assert net.base == base
+        out = net.infer(pts)
+        np.testing.assert_array_equal(out["T_cam_obj"], out["part_pose"][:, base])
+    shape = torch.rand(2, 50, 3, requires_grad=True)
+    pivot = shape[:, :1].detach().clone().requires_grad_(True)
+    term = op_align.pivot_near(pivot, shape)
+    term.backward()
+    assert shape.grad is None or float(shape.grad.abs().max()) == 0.0
+    assert pivot.grad is not None and 0.0 < float(term) < 1.0
+    net = op_align.OPAlignNet(2, [0], [(0, 1)], pc).train()
+    terms, _ = net.losses({"points": pts}, 0.0)
+    assert {"cano_joint", "pivot_near", "balance"} <= set(terms)
+
+
 def test_eap_anchor_choice_picks_the_rotation_whose_posed_shape_fits_each_part():
     """Each part's frame is off by a cube rotation (a different one per part); the anchor choice (EAP's orbit
     selection by reconstruction distance) finds the anchors that undo it."""

@@ -161,6 +161,28 @@ def test_pairwise_bootstrap_supports_clear_differences_only():
     assert "good better than weak (-" in line, line
 
 
+def test_the_bootstrap_does_not_support_a_difference_only_one_seed_shows():
+    """Hierarchical: the training seeds are resampled too. Method ``lucky`` beats ``base`` by 30 points of S on one of
+    its three seeds and ties on the other two, over many test instances: pooling the seeds, the instance bootstrap
+    alone would call it better; resampling the seeds, the draws without that seed have no difference, so the
+    interval holds 0. Three seeds that each beat ``base`` by 10 points are supported."""
+    import numpy as np
+
+    from scapo.eval.tables import pairwise_bootstrap
+
+    rng = np.random.default_rng(3)
+    res = []
+    for s in range(3):
+        res.append(_synthetic_result("base", "laptop", s, 50, 20, rng, instances=60))
+        res.append(_synthetic_result("lucky", "laptop", s, 80 if s == 0 else 50, 20, rng, instances=60))
+        res.append(_synthetic_result("steady", "laptop", s, 60, 20, rng, instances=60))
+    pairs = {(p["a"], p["b"]): p for p in pairwise_bootstrap(res, draws=400)["metrics"]["S"]}
+    lucky = pairs[("base", "lucky")]
+    assert lucky["diff"] < -9 and not lucky["supported"] and lucky["interval"][1] >= 0
+    steady = pairs[("base", "steady")]
+    assert steady["supported"] and steady["better"] == "steady"
+
+
 def test_table1_puts_r_sym_beside_r_and_orders_one_pass_and_refine_rows_apart():
     """Issue 31's layout: the paper layout carries the symmetry-aware R sym block after the strict R; the "+ refine"
     rows come after every one-pass row; the self-supervised ordering compares one-pass rows with one another and

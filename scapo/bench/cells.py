@@ -46,7 +46,6 @@ from scapo.eval import EvalResult, Predictions, evaluate
 from scapo.files import atomic_write_bytes, write_json
 from scapo.methods import METHODS, run_method, train_method
 from scapo.provenance import provenance
-from scapo.registry import parse_preset
 
 
 @dataclass(frozen=True)
@@ -56,9 +55,8 @@ class Cell:
     Attributes:
         method: registry name (``scapo list``). category: dataset category.
         seed: training seed of a trained method; None for a fitted one (ICP).
-        preset: the training preset actually used (a method's preset, a per-category preset
-            ``<preset>-<category>`` when the method registers one, or a SCAPO ablation
-            ``cpu/no-shape_var``); None for a fitted method.
+        preset: the training preset actually used (a method's preset, or a modified one such as the SCAPO
+            ablation ``cpu/no-shape_var``); None for a fitted method.
         label: the predictions' method label (the table row): the method name, or e.g.
             ``scapo-no-shape_var`` for an ablation, ``scapo+refine`` for the refined prediction of a run.
         options: prediction options as sorted ``(name, value)`` pairs (e.g. the method's ``one_pass`` options).
@@ -101,28 +99,19 @@ class Cell:
             f"_s{self.seed}"
 
 
-def method_preset(method: str, preset: str, category: str) -> str:
-    """The preset ``method`` trains with on ``category`` when the bench asks for ``preset``: the
-    per-category preset ``<preset>-<category>`` when the method registers one (chosen on the
-    validation split; see the method's preset definitions), else ``preset`` itself. A semi-supervised preset
-    (a part ``sj``, ``s`` or ``j``) is kept as asked: the per-category presets are self-supervised recipes.
+def method_preset(method: str, preset: str) -> str:
+    """The preset ``method`` trains with when a table asks for ``preset``: ``preset`` itself, the same for every
+    category (the paper used one setting for all; a per-category preset, e.g. SCAPO's ``cpu-laptop``, is asked for
+    by name in a labelled row, after every trained method has been offered the same val trials). A modified preset
+    (``<base>/<parts>``, an ablation or a schedule) is checked on its base.
 
     Raises:
         UnknownNameError: unknown method. ConfigError: a trained method without that preset.
     """
     entry = METHODS.get(method)
-    if parse_preset(preset).supervision:  # the semi-supervised setting (Table 2's /sj rows): the labels do what a
-        base = preset.partition("/")[0]  # per-category preset's pseudo-labels do, and a preset cannot have both
-        if base not in entry.presets:  # (TrainConfig refuses split_labels with S), so the base preset as asked
-            raise ConfigError(f"method {method!r} has no preset {base!r}; its presets: {', '.join(entry.presets)}")
-        return preset
-    if "/" in preset:  # a modified preset (an ablation): of the method's per-category base preset
-        base, _, mods = preset.partition("/")
-        return f"{method_preset(method, base, category)}/{mods}"
-    if f"{preset}-{category}" in entry.presets:
-        return f"{preset}-{category}"
-    if preset not in entry.presets:
-        raise ConfigError(f"method {method!r} has no preset {preset!r}; its presets: {', '.join(entry.presets)}")
+    base = preset.partition("/")[0]
+    if base not in entry.presets:
+        raise ConfigError(f"method {method!r} has no preset {base!r}; its presets: {', '.join(entry.presets)}")
     return preset
 
 

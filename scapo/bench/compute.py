@@ -21,9 +21,8 @@ the table of every finished cell at its end (``--finished-only`` writes it alone
 ``from_table`` (``scapo bench compute --from-table``): the curve of the table's own cells. The work folder is a
 ``scapo bench table1 --budget-minutes`` work folder (:func:`scapo.bench.experiments.budget_cells`), whose dataset
 (``<work>/<category>_i<I>_v<V>_t<T>_s<seed>[_paper]``), measured speeds (``<work>/speeds/``) and budget rule are used:
-each method trains with the preset the table gives it on that category (a per-category preset where the method
-registers one, :func:`scapo.bench.cells.method_preset`) and the epochs that fill the budget's optimisation, the
-one-time costs uncharged (``charge_fixed=False``), so a curve cell is the table's cell at another budget. A cell
+each method trains with the preset the table gives it and the epochs that fill the budget less its one-time work
+(:mod:`scapo.engine.ledger`), so a curve cell is the table's cell at another budget. A cell
 whose run the table has already trained (same preset, schedule and seed, ``<dataset>/run_<key>``, finished) starts
 from a copy of that run (the engine checks its identity) and is only predicted and scored on val. Cells:
 ``<work>/compute/b<budget>/<category>/<rung>/``.
@@ -228,11 +227,11 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
             "machine": device_description("cpu"), "from_table": bool(from_table)}
     if from_table:
         meta["note"] = (f"The table's cells at other budgets (`--from-table`): each method trains with the preset "
-                        f"`scapo bench table1` gives it on {category} (a per-category preset where the method has "
-                        "one; the rows' `budget_values` name it with its schedule) and the epochs that fill the "
-                        "budget's optimisation from the table's measured speeds, one-time costs (SCAPO's pseudo-labels "
-                        "between its stages, EAP-style's joint estimation) not charged, as in the table; a cell at "
-                        "the table's own budget and seed is the table's run, predicted and scored on val.")
+                        f"`scapo bench table1` gives it (the rows' `budget_values` name it with its schedule) and the "
+                        "epochs that fill the budget less its one-time work (SCAPO's pseudo-labels between its "
+                        "stages, EAP-style's joint estimation) from the table's measured charged speeds, as in the "
+                        "table; a cell at the table's own budget and seed is the table's run, predicted and scored "
+                        "on val.")
 
     cells = [(b, m, s) for b in sorted(budgets) for m in methods for s in seeds]
     print(f"scapo bench compute: {category}, rung {rung}; methods {', '.join(methods)}; budgets "
@@ -252,11 +251,11 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
         if data_only:
             return []
         for b, m, s in cells:
-            pc, values = presets[b][m]
+            pc, values, plan = presets[b][m]
             t0 = time.perf_counter()
             if from_table:
                 _reuse_table_run(data, budget_dir(work, b), category, rung, m, s, values["preset"])
-            rec = _cell(data, budget_dir(work, b), category, rung, m, s, pc, values, protocol)
+            rec = _cell(data, budget_dir(work, b), category, rung, m, s, pc, values, protocol, plan=plan)
             print(f"  {b:6g} min  {m:9s} seed {s}: frame consistency sym {_fmt(rec['frame_consistency_sym'], 2)}, "
                   f"S {_fmt(rec['S'])}, R sym median {_fmt(rec['R_sym_median'])}, steps "
                   f"{rec['wall'].get('train_steps')} ({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -289,15 +288,15 @@ def _table_dataset(work: Path, category: str, rung: str, instances: int, views: 
 def _table_presets(methods: Sequence[str], category: str, budget: float, preset: str, work: Path, instances: int,
                    views: int, train_views: int, data_seed: int, rung: str) -> dict:
     """Per method, the preset object and ``{"preset": name}`` that ``scapo bench table1 --budget-minutes budget``
-    trains it with on ``category`` (its per-category preset and the schedule part that fills the budget, from the
+    trains it with on ``category`` (its preset and the schedule part that fills the budget, from the
     table's measured speeds in ``<work>/speeds/``, measured there first when missing)."""
     from scapo.bench.cells import Cell, method_preset
     from scapo.bench.experiments import budget_cells
     from scapo.methods import METHODS
 
-    cells = [Cell(m, category, seed=0, preset=method_preset(m, preset, category)) for m in methods]
+    cells = [Cell(m, category, seed=0, preset=method_preset(m, preset)) for m in methods]
     budgeted, _ = budget_cells(cells, budget, work, instances, views, data_seed, _table_kwargs(rung, train_views))
-    return {c.method: (METHODS.get(c.method).preset(c.preset), {"preset": c.preset}) for c in budgeted}
+    return {c.method: (METHODS.get(c.method).preset(c.preset), {"preset": c.preset}, None) for c in budgeted}
 
 
 def _reuse_table_run(data: Path, work: Path, category: str, rung: str, method: str, seed: int, preset: str) -> None:

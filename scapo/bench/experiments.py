@@ -160,7 +160,7 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
             if not entry.trained:
                 cells.append(Cell(m, cat))
                 continue
-            p = method_preset(m, preset, cat)
+            p = method_preset(m, preset)
             one = tuple(entry.one_pass.items())
             cells += [Cell(m, cat, s, p, options=one) for s in cat_seeds]
             if entry.refinable and refine_rows:  # the method-independent refinement, its own row
@@ -185,7 +185,7 @@ def table3_cells(categories: Sequence[str], preset: str, seeds: Sequence[int],
     category_seeds = dict(category_seeds or {})
     cells = []
     for cat in categories:
-        full = method_preset(method, preset, cat)
+        full = method_preset(method, preset)
         one = tuple(entry.one_pass.items())  # every row one-pass, as Table 1's (its "Full" rows are those cells)
         for s in category_seeds.get(cat, seeds):
             cells.append(Cell(method, cat, int(s), full, options=one))
@@ -491,10 +491,10 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
                  data_seed: int, data_kwargs: Mapping | None = None, measure: bool = True) -> tuple[list[Cell], dict]:
     """The cells with the equal training budget (``scapo bench table1 --budget-minutes``): every trained cell's
     preset gets the schedule part (:func:`scapo.registry.schedule_part`, e.g. ``cpu/epochs-15-13``) whose epochs fill
-    ``budget_minutes`` of one CPU core on its category's dataset (the optimisation: its steps and their epochs'
-    overhead; one-time costs, such as EAP-style's joint estimation over the whole training split after training, 6-7
-    minutes on 6,720 clouds, are not charged: :func:`scapo.bench.perf.training_budget` with ``charge_fixed=False``),
-    from the method's clouds/s measured once on that dataset through the engine
+    ``budget_minutes`` of one CPU core on its category's dataset less its one-time work (every charged core-second
+    before the method can predict: set-up, stage starts, the work after the last epoch such as EAP-style's joint
+    estimation; :mod:`scapo.engine.ledger`), from the method's charged clouds/s measured once on that dataset through
+    the engine
     (:func:`scapo.bench.perf.bench_train_data` and
     :func:`scapo.bench.perf.training_budget`, as ``scapo bench ladder`` and ``scapo bench compute`` make theirs;
     ``<work>/speeds/<dataset>_<method>_<preset>.json``, measured with the torch threads this process has: run it
@@ -537,9 +537,9 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
                                               work=Path(work_dir) / "speeds" / "runs" / data.name))
         if path not in speeds:  # one read per dataset and method (the seeds share it)
             rows = json.loads(path.read_text())
-            speeds[path] = training_budget(rows, budget_minutes, int(rows[0]["train_clouds"]), charge_fixed=False)[0]
+            speeds[path] = training_budget(rows, budget_minutes, int(rows[0]["train_clouds"]))[0]
         base = METHODS.get(c.method).preset(c.preset)
-        values = budget_schedule(speeds[path], base, budget_minutes, charge_fixed=False)
+        values = budget_schedule(speeds[path], base, budget_minutes)
         override(base, values, f"{c.method} preset")  # a schedule this preset takes
         part = schedule_part(values)
         schedules.setdefault(c.category, {})[f"{c.method} {c.preset}"] = part
@@ -688,7 +688,7 @@ def table2_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
         for cat in categories:
             for m in methods:
                 if m in sj_methods:
-                    p = method_preset(m, f"{preset}/sj", cat)
+                    p = method_preset(m, f"{preset}/sj")
                     cells += [Cell(m, cat, int(s), p, label=f"{m}-sj")
                               for s in (category_seeds or {}).get(cat, seeds)]
     return cells

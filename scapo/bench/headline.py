@@ -112,7 +112,7 @@ def _ladder(results: Path) -> list[str]:
     if not path.is_file():
         return []
     recs = [r for r in json.loads(path.read_text())["records"] if r["rung"] == "paper"]
-    from scapo.bench.ladder import CONSISTENCY_VERSION
+    from scapo.eval.frames import CONSISTENCY_VERSION
 
     old = any(r.get("consistency_version", 1) < CONSISTENCY_VERSION for r in recs)
     out = ["", "**Paper-regime laptop, val** (`results/canonical_ladder/ladder_laptop.md`, rung `paper`: 60 "

@@ -21,7 +21,7 @@ trained method gets the same training compute on every rung: ``budget_minutes`` 
 epochs (or iterations) per method from its clouds/s measured on the ladder's own data through the engine
 (:func:`scapo.bench.perf.bench_train_data` and :func:`scapo.bench.perf.training_budget`, as the tables' equal budget is
 made). The scores are on the **val** split (a diagnosis chooses what to fix; test stays for the tables):
-frame consistency (:func:`frame_consistency`), S, D, mean and median part rotation error R, strict and
+frame consistency (:func:`scapo.eval.frames.frame_consistency`), S, D, mean and median part rotation error R, strict and
 symmetry-aware, and the evaluator's training-split alignment inlier ratio.
 
 A cell (rung x method x seed) is resumable: its record ``<work>/<category>/<rung>/<method>_s<seed>.json`` is written
@@ -41,7 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
+from scapo.engine.ledger import check_budget
 from scapo.errors import ConfigError
+from scapo.eval.frames import CONSISTENCY_DEG, CONSISTENCY_VERSION, split_consistency
 from scapo.files import check_output_dir, write_json
 
 #: The rungs, easiest first: keywords of :func:`scapo.data.make_config` (besides the shared sizes).
@@ -68,76 +70,6 @@ CELL_OPTIONS = {"scapo": {"refine_steps": 0}}
 #: A frame "breaks" at the first rung whose symmetry-aware object-frame consistency is below this (the issue's target
 #: for the tables is 0.9).
 BREAK = 0.9
-#: Inlier threshold of :func:`frame_consistency` (the evaluator's alignment uses the same).
-CONSISTENCY_DEG = 15.0
-#: Version of the cells' frame consistency: 2 takes a symmetric category's twin object frame from the twin ground
-#: truth (:func:`scapo.eval.evaluator.object_frame_twins`; the laptop's follows the lid's state); 1 (records without
-#: the field) turned the base's frame by the symmetry's rest-state rotation. :func:`_upgrade` rescores version-1
-#: records of symmetric categories from their predictions.
-CONSISTENCY_VERSION = 2
-#: Most offsets :func:`frame_consistency` tries as the common frame (a sample draw beyond it). Every offset of the
-#: tables' splits (at most 240 samples, two ground truths each) is tried, so the symmetry-aware share is never below
-#: the strict one; it was 400 before ``CONSISTENCY_VERSION`` 2.
-MAX_HYPOTHESES = 1000
-
-
-def frame_consistency(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = CONSISTENCY_DEG) -> float:
-    """Share of samples whose object-frame rotation offset agrees with the one frame most of them agree on: the mean of
-    :func:`frame_inliers` (same arguments and errors; NaN for no samples)."""
-    inl = frame_inliers(pred_T, gt_T, inlier_deg)[0]
-    return float(inl.mean()) if len(inl) else float("nan")
-
-
-def frame_inliers(pred_T: np.ndarray, gt_T: np.ndarray, inlier_deg: float = CONSISTENCY_DEG
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Which samples' object-frame rotation offsets agree with the one frame most of them agree on.
-
-    For each sample the offset ``O = R_pred^T R_gt`` maps the ground-truth object frame into the method's canonical
-    frame; a method with one canonical frame has one offset for every sample (1.0), a method whose frame depends on
-    the shape, view or sampling scatters them. Every offset is a hypothesis (at most :data:`MAX_HYPOTHESES` of them,
-    drawn with a fixed seed); the share is the largest fraction of samples within ``inlier_deg`` degrees of one
-    hypothesis (the hypothesis step of :func:`scapo.eval.alignment.robust_rotation_mean`, which cannot take several
-    symmetric offsets per sample). A supervised method predicts in the ground-truth frame: its share is that of
-    samples within ``inlier_deg`` of one common offset, near the identity.
-
-    Args:
-        pred_T: ``(M, 4, 4)`` float64 predicted ``T_cam_obj``.
-        gt_T: ``(M, 4, 4)`` ground-truth ``T_cam_obj`` of the same samples (the strict share), or ``(M, K, 4, 4)``:
-            each sample's K valid ground truths, its own first, then its twins under the category's declared
-            symmetries (:func:`scapo.eval.evaluator.object_frame_twins`); a sample then agrees when any of them does
-            (the symmetry-aware share).
-
-    Returns:
-        ``(inlier (M,) bool, angle (M, K) float64)``: the samples within ``inlier_deg`` of the common frame, and each
-        ground truth's angle (deg) to it (empty arrays for no samples).
-
-    Raises:
-        ValueError: arrays that are not ``(M, 4, 4)`` and ``(M, 4, 4)`` or ``(M, K, 4, 4)`` of one ``M``.
-    """
-    from scapo.ops.rigid import project_to_so3
-
-    pred_T, gt_T = np.asarray(pred_T, dtype=np.float64), np.asarray(gt_T, dtype=np.float64)
-    if gt_T.ndim == 3:
-        gt_T = gt_T[:, None]
-    if (pred_T.ndim != 3 or pred_T.shape[1:] != (4, 4) or gt_T.ndim != 4 or gt_T.shape[2:] != (4, 4)
-            or len(gt_T) != len(pred_T)):
-        raise ValueError(f"frame_consistency needs (M, 4, 4) predictions and (M, 4, 4) or (M, K, 4, 4) ground truth, "
-                         f"got {pred_T.shape} and {gt_T.shape}")
-    M, K = gt_T.shape[:2]
-    if M == 0:
-        return np.zeros(0, dtype=bool), np.zeros((0, K))
-    O = project_to_so3(np.einsum("mji,mkjl->mkil", pred_T[:, :3, :3], gt_T[:, :, :3, :3]).reshape(-1, 3, 3))
-    O = O.reshape(M, K, 3, 3)
-    hyp = O.reshape(-1, 3, 3)
-    if len(hyp) > MAX_HYPOTHESES:
-        hyp = hyp[np.random.default_rng(0).choice(len(hyp), MAX_HYPOTHESES, replace=False)]
-    cos_thr = np.cos(np.radians(inlier_deg))
-    tr = np.einsum("hij,msij->hms", hyp, O)  # tr(H^T O) = 1 + 2 cos(angle)
-    inl = ((tr - 1.0) / 2.0 >= cos_thr - 1e-12).any(-1)  # (H, M)
-    best = int(inl.sum(1).argmax())
-    return inl[best], np.degrees(np.arccos(np.clip((tr[best] - 1.0) / 2.0, -1.0, 1.0)))
-
-
 def rung_dir(work: Path, category: str, rung: str, instances: int, views: int, train_views: int, seed: int) -> Path:
     """The dataset folder of one rung: ``<work>/data/<category>_<rung>_i<I>_v<V>_t<T>_s<seed>``."""
     return Path(work) / "data" / f"{category}_{rung}_i{instances}_v{views}_t{train_views}_s{seed}"
@@ -181,31 +113,69 @@ def cells_dir(work: Path, category: str, rung: str, preset: str = "cpu", device:
 
 def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float, preset: str, work: Path,
                       device: str | None = None) -> dict:
-    """Per trained method, its ``preset`` with the epochs (iterations) that fill ``budget_minutes`` of one core
-    (of ``device``, e.g. ``cuda``, when given) on ``data``'s training split, from speeds measured once
-    (:func:`speed_file`, reused)."""
+    """Per trained method, ``(preset, values, plan)``: its ``preset`` (or, for a key ``(method, preset)``, that preset;
+    a ladder variant's ``preset=NAME``) with the epochs (iterations) that fill
+    ``budget_minutes`` of one core (of ``device``, e.g. ``cuda``, when given) on ``data``'s training split less its
+    one-time work, the replaced fields, and the plan :func:`scapo.engine.ledger.check_budget` holds the cell's
+    ledger to (:func:`budget_plan`), from charged speeds measured once (:func:`speed_file`, reused; a file measured
+    before the compute ledger is set aside as ``*.pre-ledger.json`` and measured again)."""
     from scapo.bench.perf import bench_train_data, budget_schedule, training_budget
     from scapo.config import override
     from scapo.data import load
     from scapo.methods import METHODS
 
-    trained = [m for m in methods if METHODS.get(m).trained]
+    keys = [k if isinstance(k, tuple) else (k, preset) for k in methods]
+    trained = [(m, p) for m, p in keys if METHODS.get(m).trained]
     clouds = len(load(data, "train"))
-    rows = []
-    for m in trained:  # one file per method, so that ladders of other methods can share the work folder
-        path = speed_file(work, m, preset, device)
-        if not path.is_file():
-            print(f"scapo bench ladder: measuring the training speed of {m} on {data.name}", flush=True)
-            steps = max(2, min(10, clouds // METHODS.get(m).preset(preset).batch_size))
-            runs = work / "speed_runs" if path.name == f"speed_{m}.json" else work / f"speed_runs_{path.stem[6:]}"
-            write_json(path, bench_train_data(data, [m], preset=preset, steps=steps, work=runs, device=device))
-        rows += json.loads(path.read_text())
     out = {}
-    for r in training_budget([r for r in rows if r["method"] in trained], budget_minutes, clouds):
-        base = METHODS.get(r["method"]).preset(preset)
+    for m, p in trained:  # one file per method and preset, so that ladders of other methods can share the folder
+        path = speed_file(work, m, p, device)
+        runs = work / "speed_runs" if path.name == f"speed_{m}.json" else work / f"speed_runs_{path.stem[6:]}"
+        if path.is_file() and not all("unit" in r for r in json.loads(path.read_text())):
+            path.rename(path.with_suffix(".pre-ledger.json"))  # kept: wall-clock rates, one-time work uncharged
+            old = runs / f"{m}_{p.replace('/', '-')}"
+            if old.exists():
+                old.rename(old.with_name(old.name + ".pre-ledger"))
+        if not path.is_file():
+            print(f"scapo bench ladder: measuring the training speed of {m} ({p}) on {data.name}", flush=True)
+            steps = max(2, min(10, clouds // METHODS.get(m).preset(p).batch_size))
+            write_json(path, bench_train_data(data, [m], preset=p, steps=steps, work=runs, device=device))
+        r = training_budget([r for r in json.loads(path.read_text()) if r["method"] == m], budget_minutes, clouds)[0]
+        base = METHODS.get(m).preset(p)
         values = budget_schedule(r, base, budget_minutes)
-        out[r["method"]] = (override(base, values, f"{r['method']} preset"), values)
+        out[m if p == preset else (m, p)] = (override(base, values, f"{m} preset"), values,
+                                             budget_plan(r, values, budget_minutes, clouds))
     return out
+
+
+def budget_plan(row: dict, values: dict, budget_minutes: float, train_clouds: int) -> dict:
+    """What a cell's ledger is held to: ``{"budget_s", "unit", "phases": {phase: planned charged seconds}}``, the
+    one-time phases as measured in the speed run (``row``, :func:`scapo.bench.perf.bench_train_data`) and the steps
+    and epochs of the schedule ``values`` (:func:`scapo.bench.perf.budget_schedule`) at the measured rates."""
+    batch = int(row["batch_size"])
+    per_epoch = max(train_clouds // batch, 1)
+    if row.get("max_steps_per_epoch"):
+        per_epoch = min(per_epoch, int(row["max_steps_per_epoch"]))
+    phases = {k: float(v) for k, v in (row.get("one_time_s") or {}).items()}
+    if "iterations" in values:
+        phases["stage1/steps"] = values["iterations"] * batch / row["stage1_clouds_per_s"]
+    else:
+        epochs = {1: values.get("stage1_epochs", values.get("epochs", 0)), 2: values.get("stage2_epochs", 0)}
+        for k, e in epochs.items():
+            if f"stage{k}_clouds_per_s" in row and e:
+                phases[f"stage{k}/steps"] = e * per_epoch * batch / row[f"stage{k}_clouds_per_s"]
+                phases[f"stage{k}/epochs"] = e * float(row.get(f"stage{k}_epoch_s", 0.0))
+    return {"budget_s": 60.0 * budget_minutes, "unit": row.get("unit", "core-seconds"),
+            "phases": {k: round(v, 1) for k, v in phases.items()}}
+
+
+def variant_preset(sets: dict, preset: str) -> tuple[str, dict]:
+    """A variant's base preset and the fields it replaces: ``preset=NAME`` among a variant's assignments trains
+    ``NAME`` instead of the ladder's ``preset`` (e.g. a per-category preset as a labelled row, ``--variant
+    scapo:cpu-laptop:preset=cpu-laptop``), with its own measured speed and budget; the other assignments replace
+    fields of that preset."""
+    rest = {k: v for k, v in sets.items() if k != "preset"}
+    return str(sets.get("preset", preset)), rest
 
 
 def parse_variant(text: str, flag: str = "--variant",
@@ -225,30 +195,6 @@ def parse_variant(text: str, flag: str = "--variant",
         raise ConfigError(f"{flag} {text!r}: write METHOD:LABEL:KEY=VALUE[,KEY=VALUE...] with LABEL a plain name "
                           f"(letters, digits, '_', '-', '.'), e.g. {example}")
     return method, label, parse_assignments(sets.split(","), flag)
-
-
-def split_consistency(data: Path, preds, split: str = "val") -> tuple[float, float]:
-    """:func:`frame_consistency` of predictions ``preds`` on one split of the dataset ``data``: strict and
-    symmetry-aware (the declared symmetries of its card).
-
-    Raises:
-        PredictionError: the predictions name samples the split lacks.
-    """
-    from scapo.data import load
-    from scapo.errors import PredictionError
-    from scapo.eval.evaluator import object_frame_twins
-
-    d = load(data, split)
-    gt = object_frame_twins(d)
-    keys = {k: i for i, k in enumerate(d.keys())}
-    rows = [i for i in range(len(preds)) if str(preds.split[i]) == split]
-    try:
-        order = np.array([keys[(int(preds.instance_id[i]), int(preds.view_id[i]))] for i in rows], dtype=np.int64)
-    except KeyError as e:
-        raise PredictionError(f"predictions of {preds.method!r} name sample {e.args[0]}, which the {split} split of "
-                              f"{data} lacks") from None
-    strict = frame_consistency(preds.T_cam_obj[rows], gt[order, 0])
-    return strict, (frame_consistency(preds.T_cam_obj[rows], gt[order]) if gt.shape[1] > 1 else strict)
 
 
 def resampling_stability(method, points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
@@ -319,8 +265,16 @@ def _upgrade(rec_path: Path, data: Path, method: str, preset) -> dict:
 
 
 def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: int, preset, values: dict,
-          protocol: str, label: str | None = None, preset_name: str = "cpu", device: str | None = None) -> dict:
-    """Train (trained methods), predict and score one cell on the val split; returns (and writes) its record."""
+          protocol: str, label: str | None = None, preset_name: str = "cpu", device: str | None = None,
+          plan: dict | None = None) -> dict:
+    """Train (trained methods), predict and score one cell on the val split; returns (and writes) its record, with
+    the run's compute ledger (``ledger``: charged seconds by phase, :mod:`scapo.engine.ledger`), its charged minutes
+    and the inference milliseconds per val cloud (wall and CPU).
+
+    Raises:
+        ConfigError: a trained cell whose ledger exceeds its ``plan``'s budget by more than
+            :data:`scapo.engine.ledger.OVER_BUDGET` (:func:`~scapo.engine.ledger.check_budget`; its run is kept, no
+            record is written)."""
     from scapo.eval import evaluate
     from scapo.methods import METHODS, run_method, train_method
     from scapo.provenance import provenance
@@ -334,7 +288,7 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
     run = cells / f"{key}_s{seed}_run"
     wall = {}
     t0 = time.perf_counter()
-    threads = None
+    threads = ledger = None
     if METHODS.get(method).trained:
         import torch
 
@@ -343,6 +297,12 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
         timing = json.loads((run / "timing.json").read_text())
         wall["train_s"] = float(timing["seconds"])
         wall["train_steps"] = timing.get("steps")
+        ledger = timing.get("ledger")
+        if plan is not None:
+            if ledger is None:
+                raise ConfigError(f"{run} was trained before the compute ledger existed (its timing.json has none), "
+                                  "so its charged compute is unknown; move it away and run the ladder again")
+            check_budget(ledger, plan["budget_s"], plan["phases"], what=f"cell {category}/{rung}/{key}_s{seed}")
     t1 = time.perf_counter()
     opts = {"run": run, **CELL_OPTIONS.get(method, {})} if METHODS.get(method).trained else {}
     if device is not None and METHODS.get(method).trained:
@@ -352,8 +312,8 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
     wall["predict_s"] = round(time.perf_counter() - t1, 1)
     stability = _stability(run, data, method, preset, device=device) if METHODS.get(method).trained else None
     res = evaluate(data, preds, split="val")
-    consistency, consistency_sym = split_consistency(data, preds)
     s = res.summary
+    consistency, consistency_sym = s["frame_consistency"], s["frame_consistency_sym"]
     rec = {
         "rung": rung, "rung_label": RUNG_LABELS[rung], "method": name, "seed": seed, "split": "val",
         "protocol": protocol, "dataset": data.name, "dataset_hash": res.info["dataset_hash"],
@@ -364,6 +324,10 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
         "S": s.get("S"), "D": s.get("D"), "D_median": s.get("D_median"), "C": s.get("C"),
         "R": s.get("R"), "R_median": s.get("R_median"), "R_sym": s.get("R_sym"), "R_sym_median": s.get("R_sym_median"),
         "R_over90": s.get("R_over90"), "R_sym_over90": s.get("R_sym_over90"),
+        "ledger": ledger, "plan": plan,
+        "charged_min": None if ledger is None else round(ledger["charged_s"] / 60, 2),
+        "infer_ms_per_cloud": preds.info.get("ms_per_cloud_val"),
+        "infer_cpu_ms_per_cloud": preds.info.get("cpu_ms_per_cloud_val"),
         "wall": {**wall, "cell_s": round(time.perf_counter() - t0, 1)}, "torch_threads": threads,
         "provenance": provenance(torch_device=device), "device": device or "cpu",
     }
@@ -402,18 +366,21 @@ def write_ladder(records: Sequence[dict], out: Path, name: str, meta: dict) -> l
         row["alignment_inlier_ratio"] = (None if r.get("alignment_inlier_ratio") is None
                                          else float(np.mean(r["alignment_inlier_ratio"])))
         row["train_steps"] = r["wall"].get("train_steps")
+        row["charged_min"] = r.get("charged_min")
+        row["infer_ms_per_cloud"] = r.get("infer_ms_per_cloud")
         row["train_wall_min"] = None if r["wall"].get("train_s") is None else r["wall"]["train_s"] / 60
         row["commit"] = r["provenance"].get("commit")
         row["dataset_hash"] = r["dataset_hash"]
         flat.append(row)
     header = ["rung", "method", "seed", "frame cons.", "frame cons. sym", "align. inliers (train)", "resampling deg",
               "S %", "D", "D med", "C", "R",
-              "R med", "R sym", "R sym med", "R sym > 90 %", "steps"]
+              "R med", "R sym", "R sym med", "R sym > 90 %", "steps", "charged min", "infer ms"]
     body = [[r["rung"], r["method"], r["seed"], _fmt(r["frame_consistency"], 2),
              _fmt(r.get("frame_consistency_sym"), 2), _fmt(r["alignment_inlier_ratio"], 2), _fmt(r["resampling_deg"]),
              _fmt(r["S"]), _fmt(r["D"]), _fmt(r["D_median"]), _fmt(r["C"], 3), _fmt(r["R"]), _fmt(r["R_median"]),
              _fmt(r["R_sym"]), _fmt(r["R_sym_median"]), _fmt(r["R_sym_over90"]),
-             "-" if r["train_steps"] is None else str(r["train_steps"])] for r in flat]
+             "-" if r["train_steps"] is None else str(r["train_steps"]), _fmt(r["charged_min"]),
+             _fmt(r["infer_ms_per_cloud"])] for r in flat]
     commits = sorted({r["commit"] for r in flat})
     # per method: the symmetry-aware object-frame consistency rung by rung (mean over its seeds), and the first rung
     # whose mean is below BREAK
@@ -431,12 +398,14 @@ def write_ladder(records: Sequence[dict], out: Path, name: str, meta: dict) -> l
     md = [f"# Canonical-frame ladder: {meta['category']} ({meta['split']} split)", "",
           "Rungs: " + "; ".join(f"**{k}**: {RUNG_LABELS[k]}" for k in meta["rungs"]) + ".", "",
           f"Equal training compute: {meta['budget_minutes']} {_unit(meta)} per trained cell (epochs from the "
-          f"measured clouds/s, `speed_<method>*.json`). One-pass predictions. Frame consistency: share of val "
+          f"measured clouds/s, `speed_<method>*.json`, less each method's one-time work; charged min: the run's "
+          "compute ledger, every core-second spent before it can predict, `scapo.engine.ledger`; infer ms: wall "
+          "milliseconds per val cloud). One-pass predictions. Frame consistency: share of val "
           "samples whose object-frame "
           f"offset is within {CONSISTENCY_DEG:g} deg of the common one (1 = one canonical frame), strict and against "
           "the category's declared symmetric ground truths (sym; e.g. a laptop's base/lid exchange); the alignment "
-          "inlier ratio is the evaluator's, on the training split, per part (the frame consistency the tables "
-          "report); resampling deg: median angle between the object frames predicted from two disjoint random "
+          "inlier ratio is the evaluator's, on the training split, per part (another quantity than the frame "
+          "consistency); resampling deg: median angle between the object frames predicted from two disjoint random "
           "subsets (training density) of one val view.", "",
           markdown_table(header, body), "",
           "Where the frame breaks: the symmetry-aware object-frame consistency per rung, mean over the training seeds "
@@ -476,7 +445,8 @@ def _write_finished(work: Path, category: str, rungs, methods, parsed, seeds, ou
                     if METHODS.get(m).trained:
                         preset = METHODS.get(m).preset(meta["preset"])
                         if label is not None:
-                            preset = override(preset, sets[(m, label)], f"{m} preset")
+                            base, rest = variant_preset(sets[(m, label)], meta["preset"])
+                            preset = override(METHODS.get(m).preset(base), rest, f"{m} preset")
                     data = rung_dir(work, category, r, meta["instances"], meta["views"], meta["train_views"],
                                     meta["data_seed"])
                     records.append(_upgrade(path, data, m, preset))
@@ -544,7 +514,8 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
     for m, label, sets in parsed:
         if not METHODS.get(m).trained:
             raise ConfigError(f"--variant {m}:{label}: {m!r} is not trained; a variant replaces fields of its preset")
-        override(METHODS.get(m).preset(preset), sets, f"{m} preset (--variant {label})")  # bad keys before any work
+        base, rest = variant_preset(sets, preset)
+        override(METHODS.get(m).preset(base), rest, f"{m} preset (--variant {label})")  # bad keys before any work
     if len({(m, label) for m, label, _ in parsed}) != len(parsed):
         raise ConfigError("--variant: two variants with one METHOD:LABEL")
     work = check_output_dir(work, "ladder work folder")
@@ -569,16 +540,17 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         return []
     ref = rung_dir(work, category, "paper" if "paper" in rungs else rungs[0], instances, views, train_views, data_seed)
     meta = meta_of()
-    presets = _training_presets(sorted(set(methods) | {m for m, _, _ in parsed}), ref, budget_minutes, preset, work,
-                                device)
+    presets = _training_presets(sorted(set(methods) | {(m, variant_preset(v, preset)[0]) for m, _, v in parsed},
+                                       key=str), ref, budget_minutes, preset, work, device)
     records = []
     for r in rungs:
         data = rung_dir(work, category, r, instances, views, train_views, data_seed)
         for m in methods:
             for s in seeds:
-                pc, values = presets.get(m, (None, {}))
+                pc, values, plan = presets.get(m, (None, {}, None))
                 t0 = time.perf_counter()
-                rec = _cell(data, work, category, r, m, s, pc, values, protocol, preset_name=preset, device=device)
+                rec = _cell(data, work, category, r, m, s, pc, values, protocol, preset_name=preset, device=device,
+                            plan=plan)
                 print(f"  {r:9s} {m:9s} seed {s}: frame consistency {_fmt(rec['frame_consistency'], 2)}, S "
                       f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "
                       f"{_fmt(rec['R_sym_median'])} ({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -586,12 +558,13 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         for m, label, sets in parsed:
             from scapo.config import override
 
-            pc, values = presets[m]
-            pv = override(pc, sets, f"{m} preset (--variant {label})")
+            base, rest = variant_preset(sets, preset)
+            pc, values, plan = presets[m if base == preset else (m, base)]
+            pv = override(pc, rest, f"{m} preset (--variant {label})")
             for s in seeds:
                 t0 = time.perf_counter()
                 rec = _cell(data, work, category, r, m, s, pv, {**values, **sets}, protocol, label=label,
-                            preset_name=preset, device=device)
+                            preset_name=preset, device=device, plan=plan)
                 print(f"  {r:9s} {m}:{label} seed {s}: frame consistency {_fmt(rec['frame_consistency'], 2)}, S "
                       f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "
                       f"{_fmt(rec['R_sym_median'])} ({time.perf_counter() - t0:.0f} s)", flush=True)

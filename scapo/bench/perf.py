@@ -172,11 +172,12 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
     """Training speed on a real dataset through the engine, as a table cell trains (``scapo bench perf --what train
     --data DATASET``): each trained method's ``preset`` trains for two epochs of ``steps`` steps per stage on the
     training split in a fresh run folder under ``work`` (default: a temporary folder), and the engine's record of
-    where the time went (``timing.json``'s breakdown, :meth:`scapo.engine.runs.RunFolder.write_timing`) gives per
-    stage the clouds/s of its steps (``stage<k>_clouds_per_s``) and the seconds each epoch adds around them
-    (``stage<k>_epoch_s``: checkpoint, loss plot), and the run's one-time seconds (``fixed_s``: stage starts such
-    as SCAPO's stage-2 initialisation, the extras after the last epoch, the rest of the session), with the preset's
-    schedule, for :func:`training_budget`. Needs ``steps * batch_size`` training clouds. Measure as the cells run
+    where the compute went (``timing.json``'s ledger, :mod:`scapo.engine.ledger`: charged core-seconds, or seconds of
+    an accelerator) gives per stage the clouds/s of its steps (``stage<k>_clouds_per_s``) and the charged seconds
+    each epoch adds around them (``stage<k>_epoch_s``: checkpoint, loss plot), and the run's one-time charged seconds
+    (``fixed_s``, by phase in ``one_time_s``: set-up, stage starts such as SCAPO's stage-2 initialisation, the work
+    after the last epoch such as EAP-style's joint estimation, the rest of the session), with the preset's schedule,
+    for :func:`training_budget`. Needs ``steps * batch_size`` training clouds. Measure as the cells run
     (one torch thread per core, the other core busy with the other chain). ``device`` (default: the preset's, the
     CPU for the ``cpu`` presets) trains on that torch device (e.g. ``cuda``): its clouds/s there, for a budget in
     minutes of that device.
@@ -190,6 +191,7 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
 
     from scapo.config import override
     from scapo.data.dataset import load
+    from scapo.engine.ledger import one_time_s
     from scapo.errors import ConfigError
     from scapo.methods import METHODS, train_method
 
@@ -217,34 +219,39 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
         timing = json.loads((run / "timing.json").read_text())
         row = {"method": m, "preset": preset, "batch_size": batch,
                "points": getattr(base, "train_points", getattr(base, "points", None))}
-        fixed = float(timing.get("final_s", 0.0)) + float(timing.get("other_s", 0.0))
+        ledger = timing["ledger"]  # charged seconds by phase (scapo.engine.ledger)
         for k, part in sorted(timing["stages"].items()):
-            row[f"stage{k}_clouds_per_s"] = round(part["steps"] * batch / max(part["step_s"], 1e-9), 2)
-            row[f"stage{k}_epoch_s"] = round(part["epoch_s"] / max(part["epochs"], 1), 2)
-            fixed += float(part["start_s"])
+            steps_s = float(ledger["phases"].get(f"stage{k}/steps", {}).get("charged_s", 0.0))
+            epochs_s = float(ledger["phases"].get(f"stage{k}/epochs", {}).get("charged_s", 0.0))
+            row[f"stage{k}_clouds_per_s"] = round(part["steps"] * batch / max(steps_s, 1e-9), 2)
+            row[f"stage{k}_epoch_s"] = round(epochs_s / max(part["epochs"], 1), 2)
+        one_time = {n: float(p["charged_s"]) for n, p in ledger["phases"].items()
+                    if not (n.endswith("/steps") or n.endswith("/epochs"))}
+        fixed = one_time_s(ledger)
         if two:
             row.update(stage1_epochs=base.stage1_epochs, stage2_epochs=base.stage2_epochs)
         else:
             row.update(stage1_epochs=base.epochs, iterations=base.iterations)
-        row.update(max_steps_per_epoch=base.max_steps_per_epoch, fixed_s=round(fixed, 1), train_clouds=clouds,
+        row.update(max_steps_per_epoch=base.max_steps_per_epoch, fixed_s=round(fixed, 1),
+                   one_time_s={n: round(v, 1) for n, v in one_time.items()}, unit=ledger["unit"], train_clouds=clouds,
                    data=str(data), device=timing.get("device") or device or "cpu",
                    threads=torch.get_num_threads())
         rows.append(row)
     return rows
 
 
-def training_budget(rows: list[dict], minutes: float, train_clouds: int, charge_fixed: bool = True) -> list[dict]:
+def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list[dict]:
     """The tables' equal training budget from measured speeds (every method gets the same core-minutes): for each
     ``--what train`` row (its clouds/s per stage and its preset's schedule: ``stage<k>_epochs``,
     ``max_steps_per_epoch``, ``iterations``), the wall time of a training run on ``train_clouds`` clouds at that
     schedule (``planned_min``: ``floor(clouds / batch)`` steps per epoch, as the engine drops a last partial batch,
     capped by ``max_steps_per_epoch``; each step at the measured clouds/s) and the epochs per stage that fill
     ``minutes`` (``stage<k>_epochs_for_budget``: every stage scaled by the same factor, at least 1).
-    A row's ``stage<k>_epoch_s`` and ``fixed_s`` (from :func:`bench_train_data`: the seconds each epoch adds
-    around its steps, and the run's one-time seconds) are added: the epochs fill the budget less the fixed cost
-    (``charge_fixed``; False: the budget buys the optimisation alone, its steps and their epochs' overhead, and the
-    one-time seconds, e.g. EAP-style's joint estimation over the whole training split after training, are not
-    charged: on a large training split they can exceed a small budget and leave a method one epoch).
+    A row's ``stage<k>_epoch_s`` and ``fixed_s`` (from :func:`bench_train_data`: the charged seconds each epoch
+    adds around its steps, and the run's one-time charged seconds) are added: the epochs fill the budget less the
+    one-time cost (every core-second a method spends before it can predict counts, :mod:`scapo.engine.ledger`), so a
+    method with one-time work gets that work's worth of steps fewer (``steps_for_budget``: the steps per stage the
+    rest of the budget buys; ``one_time_s``: the one-time seconds charged).
     The tables' cells run one torch thread per core, so measure with one thread. Rows without a schedule pass
     unchanged.
 
@@ -266,31 +273,35 @@ def training_budget(rows: list[dict], minutes: float, train_clouds: int, charge_
             per_epoch = min(per_epoch, r["max_steps_per_epoch"])
         sec_per_epoch = {k: per_epoch * r["batch_size"] / r[f"stage{k}_clouds_per_s"] + r.get(f"stage{k}_epoch_s", 0.0)
                          for k in stages}
-        fixed = float(r.get("fixed_s", 0.0)) if charge_fixed else 0.0
+        fixed = float(r.get("fixed_s", 0.0))
         if r.get("iterations"):  # one stage of a fixed step count
             sec = r["iterations"] * r["batch_size"] / r["stage1_clouds_per_s"]
         else:
             sec = sum(r[f"stage{k}_epochs"] * sec_per_epoch[k] for k in stages)
         r["train_clouds"], r["planned_min"] = train_clouds, round((fixed + sec) / 60, 2)
+        if minutes * 60 <= fixed:
+            raise ConfigError(f"{r.get('method', 'a method')}: its one-time work alone is {fixed:.0f} charged seconds, "
+                              f"more than the budget of {minutes * 60:.0f}; make that work cheaper or give a larger "
+                              "budget")
         if not r.get("iterations"):
-            f = max(minutes * 60 - fixed, 0.0) / sec
+            f = (minutes * 60 - fixed) / sec
             for k in stages:
                 r[f"stage{k}_epochs_for_budget"] = max(1, round(r[f"stage{k}_epochs"] * f))
+                r[f"stage{k}_steps_for_budget"] = r[f"stage{k}_epochs_for_budget"] * per_epoch
             r["budget_min"] = minutes
         out.append(r)
     return out
 
 
-def budget_schedule(row: dict, preset, minutes: float, charge_fixed: bool = True) -> dict:
+def budget_schedule(row: dict, preset, minutes: float) -> dict:
     """The preset fields that fill the budget, from a :func:`training_budget` row: ``stage1_epochs`` and
     ``stage2_epochs`` (a two-stage ``preset``), ``epochs`` (one stage), or ``iterations`` (a preset of a fixed number
-    of iterations: the iterations ``minutes`` buy at the measured clouds/s, less the row's one-time seconds with
-    ``charge_fixed``)."""
+    of iterations: the iterations ``minutes`` buy at the measured clouds/s, less the row's one-time seconds)."""
     if "budget_min" in row:
         if hasattr(preset, "stage2_epochs"):
             return {"stage1_epochs": row["stage1_epochs_for_budget"], "stage2_epochs": row["stage2_epochs_for_budget"]}
         return {"epochs": row["stage1_epochs_for_budget"]}
-    sec = max(minutes * 60 - (float(row.get("fixed_s", 0.0)) if charge_fixed else 0.0), 1.0)
+    sec = max(minutes * 60 - float(row.get("fixed_s", 0.0)), 1.0)
     return {"iterations": max(1, int(sec * row["stage1_clouds_per_s"] / row["batch_size"]))}
 
 

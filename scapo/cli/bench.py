@@ -254,7 +254,8 @@ def add_parsers(sub) -> None:
                          "val (results/paper_regime/); --views otherwise)")
     sp.add_argument("--variant", action="append", default=[], metavar="METHOD:LABEL:KEY=VALUE[,KEY=VALUE]",
                     help="ladder: an extra row of METHOD with preset fields replaced (scapo train --set keys), same "
-                    "budget, e.g. scapo:consensus:losses.consensus=1; repeatable")
+                    "budget, e.g. scapo:consensus:losses.consensus=1; preset=NAME trains another preset of METHOD "
+                    "(its own measured speed), e.g. scapo:cpu-laptop:preset=cpu-laptop; repeatable")
     sp.add_argument("--part", action="append", default=[], metavar="METHOD/PART",
                     help="table1: an extra row of trained METHOD with its preset's part PART (preset <preset>/PART, "
                     "e.g. scapo/principal), labelled METHOD-PART, same seeds and budget; repeatable")
@@ -302,8 +303,9 @@ def add_parsers(sub) -> None:
                     "two-epoch run (per stage)")
     sp.add_argument("--baseline", default=None, help="perf --what train: an earlier run's .json (e.g. at another "
                     "commit, same machine and threads): adds each stage's clouds/s before and the speed-up")
-    sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3; a "
-                    "method's per-category preset PRESET-CATEGORY is used where it has one)")
+    sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3, "
+                    "ladder, compute), the same for every category; a per-category preset is a labelled row "
+                    "(ladder: --variant METHOD:LABEL:preset=NAME)")
     sp.add_argument("--method", default=None, help="perf --what model: time this method's inference (default: "
                     "SCAPO training and inference; icp also needs --data)")
     sp.add_argument("--device", default=None, help="perf --what model, table1, table3, ladder: cpu | cuda "
@@ -325,9 +327,8 @@ def add_parsers(sub) -> None:
     sp.add_argument("--from-table", action="store_true",
                     help="compute: the curve of a table's own cells: --work is a 'bench table1 --budget-minutes' work "
                          "folder whose dataset (default --instances 150, --views 8, --train-views 64 in the paper's "
-                         "viewpoints), measured speeds, per-category presets and budget rule (one-time costs "
-                         "uncharged) are used; a cell at the table's own budget and seed starts from the table's "
-                         "finished run")
+                         "viewpoints), measured speeds, presets and budget rule (one-time work charged) are used; a "
+                         "cell at the table's own budget and seed starts from the table's finished run")
     sp.add_argument("--dry-run", action="store_true", help="table1/3: list the cells and which are done; compute "
                     "nothing")
     sp.add_argument("--finished-only", action="store_true", help="table1/2/3: train and predict nothing; write the "

@@ -38,6 +38,7 @@ from torch.utils.data import DataLoader, Dataset
 from torch.utils.data.distributed import DistributedSampler
 
 from scapo.engine.distributed import DistContext, dist_context, per_rank_threads, run_settings
+from scapo.engine.ledger import Ledger
 from scapo.engine.runs import RunFolder, plot_losses, truncate_log
 from scapo.errors import TrainingError
 from scapo.files import FolderLock, check_output_dir, clean_stale_temps
@@ -238,7 +239,10 @@ def train_run(folder: RunFolder, make_job: Callable[[torch.device, DistContext],
                 if ctx.is_main:
                     folder.write_identity()
                 try:
-                    return fit(make_job(device, ctx), folder, state, device, progress, ctx)
+                    c0, w0 = time.process_time(), time.perf_counter()
+                    job = make_job(device, ctx)
+                    setup = (time.process_time() - c0, time.perf_counter() - w0)
+                    return fit(job, folder, state, device, progress, ctx, setup=setup)
                 except (TrainingError, OSError) as e:
                     if ctx.is_main and not folder.checkpoint.exists():  # nothing of value was trained: a
                         folder.mark_failed(e)  # corrected rerun may start over here (RunFolder.load_checkpoint)
@@ -248,11 +252,13 @@ def train_run(folder: RunFolder, make_job: Callable[[torch.device, DistContext],
 
 
 def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.device, progress: bool = True,
-        ctx: DistContext | None = None) -> Path:
+        ctx: DistContext | None = None, setup: tuple[float, float] = (0.0, 0.0)) -> Path:
     """The loop: every stage of ``job`` from the checkpoint ``state``'s next (stage, epoch) (or the start),
     a checkpoint after every epoch, the loss plot (``losses.png``) after an epoch that ends at least
     :data:`PLOT_EVERY_S` after the last one drawn, after the last epoch and at a failure, ``timing.json`` at the
-    end. Returns the checkpoint path.
+    end, with the run's compute ledger (:class:`~scapo.engine.ledger.Ledger`: charged seconds by phase over every
+    session, kept in the checkpoints; ``setup`` = (CPU, wall) seconds of building ``job``, charged as ``setup``).
+    Returns the checkpoint path.
 
     Raises:
         TrainingError: a loss term became NaN or infinite (named, with stage, epoch and step).
@@ -278,7 +284,11 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
     columns = list(dict.fromkeys([*BASE_COLUMNS, *[t for s in job.stages for t in s.terms]]))
     board = _tensorboard(folder, steps * done_before) if ctx.is_main else None
     t0 = plotted = time.perf_counter()
+    c0 = time.process_time()
     before = float(state.get("seconds", 0.0)) if state is not None else 0.0  # earlier sessions' training time
+    ledger = Ledger(device.type != "cpu", state.get("ledger") if state is not None else None)
+    ledger.add("setup", *setup)
+    charged_before = {k: dict(v) for k, v in ledger.phases.items()}  # this session's "other" is what remains
     # where this session's time went, per stage (timing.json "stages"; scapo bench perf --what train --data)
     parts = {str(s.index): {"steps": 0, "step_s": 0.0, "epochs": 0, "epoch_s": 0.0, "start_s": 0.0} for s in live}
     final_s = 0.0
@@ -293,19 +303,24 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
             if state is not None and stage.index == start[0] and first > 0 and "optimizer" in state:
                 opt.load_state_dict(state["optimizer"])
                 sched.load_state_dict(state["scheduler"])
+            name = f"stage{stage.index}"
             if first == 0 and stage.on_start is not None:
                 ts = time.perf_counter()
-                stage.on_start()
+                with ledger.phase(f"{name}/start"):
+                    stage.on_start()
                 part["start_s"] += time.perf_counter() - ts
             for epoch in range(first, stage.epochs):
                 if stage.on_epoch is not None:
                     ts = time.perf_counter()
-                    stage.on_epoch(epoch)
+                    with ledger.phase(f"{name}/start"):
+                        stage.on_epoch(epoch)
                     part["start_s"] += time.perf_counter() - ts
                 ts = time.perf_counter()
-                run_epoch(job, stage, epoch, opt, sched, steps, folder, bar, device, ctx, columns, board)
-                _check_weights(job.model, stage.index, epoch)  # before the checkpoint: the last good one is kept
+                with ledger.phase(f"{name}/steps"):
+                    run_epoch(job, stage, epoch, opt, sched, steps, folder, bar, device, ctx, columns, board)
+                    _check_weights(job.model, stage.index, epoch)  # before the checkpoint: the last good one is kept
                 te = time.perf_counter()
+                ce = time.process_time()
                 part["steps"], part["epochs"], part["step_s"] = part["steps"] + steps, part["epochs"] + 1, \
                     part["step_s"] + te - ts
                 last_stage = stage is live[-1]
@@ -315,16 +330,19 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                 extras = job.extras(done) if job.extras is not None else {}
                 if done:  # the final extras (e.g. statistics over the training split) happen once per run
                     final_s += time.perf_counter() - te
-                    te = time.perf_counter()
+                    ledger.add("final", time.process_time() - ce, time.perf_counter() - te)
+                    te, ce = time.perf_counter(), time.process_time()
                 if ctx.is_main:  # every rank holds the same model, optimiser and schedule
                     folder.save({"model": job.model.state_dict(), "optimizer": opt.state_dict(),
                                  "scheduler": sched.state_dict(), "stage": nxt[0], "epoch": nxt[1], "done": done,
-                                 "world_size": ctx.world, "seconds": before + time.perf_counter() - t0, **extras})
+                                 "world_size": ctx.world, "seconds": before + time.perf_counter() - t0,
+                                 "ledger": ledger.to_dict(), **extras})
                     if done or time.perf_counter() - plotted >= PLOT_EVERY_S:
                         plot_losses(folder.log, folder.path / "losses.png")
                         plotted = time.perf_counter()
                 ctx.barrier()
                 part["epoch_s"] += time.perf_counter() - te
+                ledger.add(f"{name}/epochs", time.process_time() - ce, time.perf_counter() - te)
     except TrainingError:
         if ctx.is_main:  # the curves up to the failing step, to look at
             plot_losses(folder.log, folder.path / "losses.png")
@@ -335,9 +353,14 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
         if board is not None:
             board.close()
     if ctx.is_main:  # the training time over every session that trained this run (resumes included)
+        spent = {k: (v["cpu_s"] - charged_before.get(k, {}).get("cpu_s", 0.0),
+                     v["wall_s"] - charged_before.get(k, {}).get("wall_s", 0.0)) for k, v in ledger.phases.items()}
+        ledger.add("other", time.process_time() - c0 - sum(c for c, _ in spent.values()) + setup[0],
+                   time.perf_counter() - t0 - sum(w for _, w in spent.values()) + setup[1])
         folder.write_timing(before + time.perf_counter() - t0, device, ctx.world,
                             steps=sum(stage.epochs * steps for stage in live),
-                            breakdown=_breakdown(parts, final_s, time.perf_counter() - t0))
+                            breakdown={**_breakdown(parts, final_s, time.perf_counter() - t0),
+                                       "ledger": ledger.to_dict()})
     return folder.checkpoint
 
 

@@ -23,6 +23,7 @@ import pandas as pd
 from scapo.data.dataset import ArticulationDataset, load
 from scapo.errors import DatasetError, PredictionError, warn_few_instances
 from scapo.eval.alignment import CanonicalAlignment, axis_sign, estimate_alignment
+from scapo.eval.frames import frame_inliers
 from scapo.eval.metrics import (
     AP_THRESHOLDS,
     SEG_THRESHOLDS,
@@ -160,7 +161,10 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
         unit: bbox diagonals, or OP-Align's), t_cm, C_cm, state_cm (cm), AP (%), the robust
         statistics of :func:`robust_summary`, and the symmetry-aware R_sym (deg, against the best of the
         dataset's declared symmetric ground truths, :func:`symmetric_part_errors`) with sym_rate (% of samples
-        whose best ground truth is a symmetric one); the strict R stays the paper's column.
+        whose best ground truth is a symmetric one); the strict R stays the paper's column; and the frame
+        consistency of the predicted object frames ``T_cam_obj`` on the split (:mod:`scapo.eval.frames`:
+        ``frame_consistency``, ``frame_consistency_sym``, shares in [0, 1]; per sample ``frame_inlier``,
+        ``frame_inlier_sym``).
 
     Raises:
         PredictionError: missing samples, wrong shapes or values (see
@@ -192,8 +196,14 @@ def evaluate(dataset: str | Path | ArticulationDataset, predictions: str | Path 
     per_sample["symmetry"] = choice
     for p in range(P):
         per_sample[f"R_sym_p{p}"] = R_sym[:, p]
+    frame = object_frame_twins(test)  # the split's order; rows[i] is sample i's prediction
+    strict, _ = frame_inliers(preds.T_cam_obj[rows], frame[:, 0])
+    per_sample["frame_inlier"] = strict
+    per_sample["frame_inlier_sym"] = frame_inliers(preds.T_cam_obj[rows], frame)[0] if frame.shape[1] > 1 else strict
     summary = _summarise(per_sample, errors, proto, gt["joint_type"], P, J)
     summary["R_sym"] = float(per_sample["R_sym"].mean()) if len(rows) else float("nan")
+    for k in ("frame_consistency", "frame_consistency_sym"):  # scapo.eval.frames: one object frame across views
+        summary[k] = float(per_sample[k.replace("consistency", "inlier")].mean()) if len(rows) else float("nan")
     summary["sym_rate"] = 100.0 * float((choice > 0).mean()) if len(rows) else float("nan")
     if sym is not None:  # share of test samples scored against their twin ground truth (%)
         summary["twin_rate"] = 100.0 * float(twinned.mean()) if len(rows) else float("nan")

@@ -245,23 +245,34 @@ def _weighted_stat(values: np.ndarray, weights: np.ndarray, median: bool) -> np.
 
 
 def _instance_weights(results: Sequence[EvalResult], cats: Sequence[str], draws: int, seed: int) -> dict:
-    """Per category: its test instances (sorted) and ``draws`` multinomial resampling counts of them, shared by every
-    method (the pairing of a paired bootstrap)."""
+    """The hierarchical bootstrap's resampling counts: per category its test instances (sorted) and ``draws``
+    multinomial resampling counts of them, shared by every method (the pairing of a paired bootstrap); under the key
+    ``"seeds"``, per ``(method, category)`` ``draws`` multinomial counts over that method's training seeds there
+    (each method's own: seed 0 of one method has nothing to do with seed 0 of another), drawn from a generator keyed
+    by ``seed``, the method and the category, so a method's seed draws do not depend on the other methods."""
+    import zlib
+
     rng = np.random.default_rng(seed)
-    weights = {}
+    weights: dict = {"seeds": {}}
     for c in cats:
         inst = np.unique(np.concatenate([r.per_sample["instance_id"].to_numpy() for r in results if r.category == c]))
         weights[c] = (inst, rng.multinomial(len(inst), np.full(len(inst), 1.0 / len(inst)), size=draws))
+    for m, c in dict.fromkeys((r.method, r.category) for r in results if r.category in cats):
+        n = sum(1 for r in results if r.method == m and r.category == c)
+        g = np.random.default_rng([seed, zlib.crc32(f"{m}|{c}".encode())])
+        weights["seeds"][(m, c)] = g.multinomial(n, np.full(n, 1.0 / n), size=draws)
     return weights
 
 
 def _method_bootstrap(results: Sequence[EvalResult], method: str, cats: Sequence[str], metric: str, weights: dict
                       ) -> tuple[np.ndarray, float, dict[str, list[float]]]:
     """One method's value on ``metric`` as the table's Mean column has it (per category the mean over training seeds
-    of the cell statistic, then the mean over ``cats``) under each resample of ``weights``: ``(draws (B,), value,
-    {category: per-seed values})``. A ``*_median`` metric is the median over all parts of the per-part columns
-    (``R_median``: ``R_p*``; ``R_sym_median``: ``R_sym_p*``); others the per-sample column's mean."""
-    draws = next(iter(weights.values()))[1].shape[0]
+    of the cell statistic, then the mean over ``cats``) under each hierarchical resample of ``weights`` (the
+    method's training seeds, then the category's test instances: a draw's value is the mean over the drawn seeds,
+    with multiplicity, of each seed's statistic on the drawn instances): ``(draws (B,), value, {category: per-seed
+    values})``. A ``*_median`` metric is the median over all parts of the per-part columns (``R_median``: ``R_p*``;
+    ``R_sym_median``: ``R_sym_p*``); others the per-sample column's mean."""
+    draws = weights[cats[0]][1].shape[0]
     boot = np.zeros(draws)
     cat_vals, per_seed = [], {}
     for c in cats:
@@ -279,7 +290,11 @@ def _method_bootstrap(results: Sequence[EvalResult], method: str, cats: Sequence
             w = counts[:, np.searchsorted(inst, rows)].astype(np.float64)
             seeds_b.append(_weighted_stat(vals, w, metric.endswith("_median")))
             seeds_v.append(float(r.summary.get(metric, math.nan)))
-        boot += np.nanmean(np.stack(seeds_b), 0) / len(cats)
+        per = np.stack(seeds_b)  # (seeds, draws)
+        sc = weights["seeds"][(method, c)].T.astype(np.float64)  # (seeds, draws): how often each seed is drawn
+        ok = np.isfinite(per)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            boot += (np.where(ok, per, 0.0) * sc).sum(0) / (ok * sc).sum(0) / len(cats)
         cat_vals.append(float(np.nanmean(seeds_v)))
         per_seed[c] = [v for v in seeds_v if math.isfinite(v)]
     return boot, float(np.mean(cat_vals)), per_seed
@@ -303,11 +318,13 @@ PAIRWISE_METRICS = {"S": ("mean S", True), "D": ("mean D", False), "C": ("mean C
 
 
 def pairwise_bootstrap(results: Sequence[EvalResult], draws: int = 1000, seed: int = 0, level: float = 0.95) -> dict:
-    """Which differences between methods the test instances support: for every pair of methods and every metric of
-    :data:`PAIRWISE_METRICS`, a paired bootstrap over test instances (``draws`` resamples of each category's
-    instances, shared by both methods; training seeds pooled as in the table) of the difference of their table
-    values on the categories both have (Efron and Tibshirani, "An Introduction to the Bootstrap", 1993, ch. 13:
-    percentile intervals).
+    """Which differences between methods the training seeds and test instances support: for every pair of methods
+    and every metric of :data:`PAIRWISE_METRICS`, a hierarchical bootstrap (``draws`` resamples: each method's
+    training seeds with replacement, then each category's test instances, shared by both methods) of the difference
+    of their table values on the categories both have (Efron and Tibshirani, "An Introduction to the Bootstrap",
+    1993, ch. 13: percentile intervals; Davison and Hinkley, "Bootstrap Methods and their Application", 1997,
+    section 3.8: resampling at both levels of a two-level design). A difference that one training seed alone shows is
+    not supported: the draws without that seed have none.
 
     Returns ``{"draws", "level", "metrics": {metric: [{"a", "b", "categories", "a_value", "b_value", "diff" (a - b),
     "interval" [lo, hi] of the difference, "p_a_better" (share of resamples in which a is better), "supported"
@@ -347,10 +364,10 @@ def pairwise_bootstrap(results: Sequence[EvalResult], draws: int = 1000, seed: i
 
 
 def pairwise_markdown(boot: dict, display: Callable[[str], str] = str) -> list[str]:
-    """The "Differences the test instances support" lines under a table (:func:`pairwise_bootstrap`)."""
+    """The "Differences the training seeds and test instances support" lines under a table (:func:`pairwise_bootstrap`)."""
     if not boot.get("metrics") or not any(boot["metrics"].values()):
         return []
-    lines = ["## Differences the test instances support", ""]
+    lines = ["## Differences the training seeds and test instances support", ""]
     for metric, pairs in boot["metrics"].items():
         if not pairs:
             continue
@@ -371,8 +388,8 @@ def pairwise_markdown(boot: dict, display: Callable[[str], str] = str) -> list[s
                      + (f". Not supported: {', '.join(no)}" if no else "") + ".")
     lines += ["", f"A difference is supported when the {100 * boot['level']:.0f} % interval of the difference of the "
               f"two methods' table values (printed as the better one's minus the other's, over {boot['draws']} "
-              "paired resamples of the test instances of the categories both have, training seeds pooled) excludes 0.",
-              ""]
+              "hierarchical resamples: each method's training seeds, then the test instances of the categories both "
+              "have, shared by the pair) excludes 0.", ""]
     return lines
 
 
@@ -386,9 +403,9 @@ def self_supervised_ordering(results: Sequence[EvalResult], describe: Describe |
     over all parts), then the mean over categories; a metric some result lacks is left out. Two checks of the
     best method against each other:
 
-    - test samples: a paired bootstrap over test instances (``draws`` resamples of each category's
-      instances, shared by all methods, seeds pooled as in the table), giving the share of resamples
-      in which the best stays better (``p_better``);
+    - seeds and test samples: the hierarchical bootstrap of :func:`pairwise_bootstrap` (``draws`` resamples of
+      each method's training seeds, then of each category's instances, shared by all methods), giving the share of
+      resamples in which the best stays better (``p_better``);
     - training seeds: on the categories where both methods have several seeds, whether the best
       method's worst seed beats the other's best seed on every such category (``seeds_separate``;
       None without such categories).
@@ -452,8 +469,8 @@ def ordering_markdown(order: dict, display: Callable[[str], str] = str, rows_kin
                f", seeds {'separate' if a['seeds_separate'] else 'overlap'}") for m, a in res["against"].items())
         rows.append([name, display(res["best"]), vals, checks])
     legend = (f"Self-supervised rows on the categories all of them have ({', '.join(order['categories'])}); values "
-              "as in the table's Mean column. Resamples: a paired bootstrap over test instances "
-              f"({order['draws']} draws, seeds pooled); seeds separate: on every category where both have several "
+              "as in the table's Mean column. Resamples: a hierarchical bootstrap over each method's training seeds, "
+              f"then the test instances ({order['draws']} draws); seeds separate: on every category where both have several "
               "training seeds, the best method's worst seed beats the other's best seed.")
     return [f"## Self-supervised ordering{f' ({rows_kind})' if rows_kind else ''}", "",
             markdown_table(["Metric", "Best", "Values (mean over categories)", "Checks of the best"], rows,

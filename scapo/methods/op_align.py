@@ -29,13 +29,15 @@ What differs (and why):
 - Chamfer distances are density-aware as OP-Align's (``1 - exp(-alpha d)`` per nearest squared distance,
   batched matrix products instead of pytorch3d's kNN); no colour channel (the datasets are depth only); the
   canonical shape is a learnable category template plus an MLP-decoded per-instance offset.
-- The canonical shape's joint parameters are pulled to their batch mean (OP-Align regresses them to
-  a fixed canonical joint); parts that appear on several joints (the base of a star) are aligned once
-  per joint, with a consistency term as in OP-Align's three-part case.
+- Parts that appear on several joints (the base of a star) are aligned once per joint, with a consistency term as
+  in OP-Align's three-part case.
 - Outputs for the evaluator: the part pose of part ``p`` maps the canonical frame (scaled to metres
   by the cloud's normalisation) to the camera through the inverse of its part alignment and the
-  object pose; joint axes and pivots are the input-side predictions mapped to the camera; the state is
-  the input's relative state minus the canonical shape's.
+  object pose; ``T_cam_obj`` is the base part's pose (the root of the kinematic tree), the dataset's
+  convention, as OP-Align itself evaluates part poses (``art_metric.py`` 133-141): the object-level
+  rotation alone is a rigid fit of the whole articulated shape and turns with the joint state. Joint
+  axes and pivots are the input-side predictions mapped to the camera; the state is the input's
+  relative state minus the canonical shape's.
 
 Fidelity (read against YC-Che/OP-Align at f3323dd; "same" = same component and rule, "simplified" = the
 component's role kept with a different form, "absent" = not implemented; a gap is closed or stated, never silent):
@@ -62,19 +64,28 @@ density-aware Chamfer (``1 - exp(-a d)``)  ``art_metric.py`` 77-78, 169-178, 234
                                                                                            the rigid and part terms
 local-density term on the canonical shape  ``art_metric.py`` 82, 241-254                   same (weight 200, k 64)
 canonical shape centred                    ``art_metric.py`` 84, 295-300                   same
-rigid term halving on a schedule           ``art_metric.py`` 72-74 (every 5000 iters)      same rule: ``paper`` every
-                                                                                           5,000 iterations, ``cpu``
-                                                                                           every 15 % of training
+rigid term halving on a schedule           ``art_metric.py`` 72-74 (every 5000 iters)      same rule: every quarter
+                                                                                           of training (``paper``:
+                                                                                           5,000 iterations)
 part-level network on S and on Y, joint    ``art_so3net_pn.py`` 52-55 (``ResnetPointnet``) same outline
 pivot, direction and two states per side
 segmentation-weighted part alignment       ``art_metric.py`` 78, 189-232                   same: each moved part
                                                                                            against all of Y, weighted
                                                                                            by each side's segmentation
-canonical joints fixed across instances    ``art_metric.py`` 86, 256-265                   simplified: pulled to the
-                                                                                           batch mean
-pivot near the shape                       ``art_metric.py`` 87-88, 267-274                same role (squared, no
-                                                                                           exp)
-part populated / probability floor         ``art_metric.py`` 101, 317-325                  simplified: balance hinge
+canonical joints fixed across instances    ``art_metric.py`` 86, 256-265: states to 0,     same (weight 10)
+                                           directions to their batch mean, pivots free
+pivot near the shape                       ``art_metric.py`` 87-88, 267-274: mean distance  same (weight 0.1 each on
+                                           to the 8 nearest points of the detached shape,  S and Y)
+                                           ``1 - exp(-30 d^2)``
+part populated / probability floor         ``art_metric.py`` 101, 317-325; ``options.py``   same: 0.05 on the
+                                           74 (``--prob-threshold 0.05``)                  canonical shape, floor
+                                                                                           0.01 on both, weight 10
+joint-direction noise in training          ``art_encoder.py`` 134-140 (uniform, width      same
+                                           0.01, renormalised)
+cloud normalisation                        ``LightDataset.py`` 45-50: centroid, mean        same (0.25)
+                                           centroid distance 0.25
+object frame reported                      part poses evaluated (``art_metric.py``         ``T_cam_obj`` = the base
+                                           133-141)                                        part's pose
 translation offset small                   ``art_metric.py`` 100                           same
 colour channel                             ``art_metric.py`` 78 (``color_w``)              absent (depth only)
 schedule                                   ``options.py`` 89-127: 20,000 iterations,       ``paper``: same; ``cpu``:
@@ -96,7 +107,7 @@ from torch import nn
 
 from scapo.errors import ConfigError
 from scapo.losses.supervised import joint_loss, seg_nll
-from scapo.methods.learned import LearnedPreset, LearnedSpec, normalize_clouds, register_learned
+from scapo.methods.learned import LearnedPreset, LearnedSpec, register_learned
 from scapo.methods.nets import PointResNet, mlp
 from scapo.ops.chamfer import nearest_sq_dist, pairwise_sq_dist
 from scapo.ops.groups import rotation_group
@@ -144,10 +155,18 @@ class OPAlignPreset(LearnedPreset):
     rotation_range_deg: float = 180.0
     """Range of each articulation state (revolute; a prismatic state spans range / 180 cloud scales)."""
     rigid_weight: float = 0.5
-    rigid_halve: float = 0.15
-    """The rigid term's weight halves every this fraction of training."""
-    min_part: float = 0.1
-    """Smallest mean segmentation probability of a part before the balance term acts."""
+    rigid_halve: float = 0.25
+    """The rigid term's weight halves every this fraction of training (OP-Align: every 5,000 of its 20,000
+    iterations, ``art_metric.py`` 72-74, ``options.py`` 89)."""
+    prob_threshold: float = 0.05
+    """Smallest mean segmentation probability of a part of the canonical shape before the balance term acts
+    (OP-Align: ``--prob-threshold 0.05``, ``options.py`` 74, on ``I_seg`` alone, ``art_metric.py`` 101, 317-325)."""
+    prob_floor: float = 0.01
+    """Every point's smallest part probability is pulled up to this, on the input and the canonical shape
+    (``min_prob = 1e-2``, ``art_metric.py`` 101, 321-323)."""
+    drct_noise: float = 0.01
+    """Training only: each predicted joint direction gets uniform noise of this width per component before it is
+    renormalised (``art_encoder.py`` 134-140)."""
     supervision: str = ""
     """Labels training may use (:mod:`scapo.losses.supervised`): "" self-supervised (the paper's Table 1 row),
     "SJ" the paper's "OP-Align (SJ)" row of Table 2; preset suffix ``/sj``."""
@@ -161,9 +180,11 @@ class OPAlignPreset(LearnedPreset):
         if self.attention not in ("expected", "ce"):
             raise ConfigError(f"preset {self.name!r}: attention must be 'expected' or 'ce', got {self.attention!r}")
         if not 0 < self.max_residual_deg <= 180 or self.density_alpha < 0 or self.density_alpha_inv < 0 \
-                or self.gather_k < 1:
+                or self.gather_k < 1 or not 0 <= self.prob_threshold < 1 or not 0 <= self.prob_floor < 1 \
+                or self.drct_noise < 0 or not 0 < self.rigid_halve <= 1:
             raise ConfigError(f"preset {self.name!r}: needs 0 < max_residual_deg <= 180, density alphas >= 0, "
-                              "gather_k >= 1")
+                              "gather_k >= 1, 0 <= prob_threshold < 1, 0 <= prob_floor < 1, drct_noise >= 0, "
+                              "0 < rigid_halve <= 1")
 
         if check_supervision(self.supervision) != self.supervision:
             raise ConfigError(f"preset {self.name!r}: write supervision as one of '', 'S', 'J', 'SJ', got "
@@ -175,16 +196,38 @@ PRESETS: Registry[OPAlignPreset] = Registry("op-align preset")
 # the epochs fill it at the speed measured by scapo bench perf --what train --data
 # (results/perf/train_cpu_laptop_i150_v8_s1_op-align.md)
 PRESETS.add("cpu", OPAlignPreset(name="cpu", epochs=28, batch_size=16, lr=1e-3, points=256, max_steps_per_epoch=100,
-                                 anchor_points=96,
-                                 width=64, part_width=96, template_points=256))
+                                 anchor_points=96, width=64, part_width=96, template_points=256))
 # paper: the original's schedule (options.py 28, 89-127: 1024 points, 20,000 iterations of batch 16, lr 1e-4 halved
 # every 5,000; the 60 icosahedral anchors), the rigid term halving every 5,000 iterations (art_metric.py 72-74)
 PRESETS.add("paper", OPAlignPreset(name="paper", batch_size=16, lr=1e-4, points=1024, group="I",
                                    anchor_points=1024, width=128, blocks=3, part_width=256, template_points=1024,
-                                   iterations=20000, lr_schedule="step", lr_decay=0.5, lr_decay_steps=5000,
-                                   rigid_halve=0.25))
+                                   iterations=20000, lr_schedule="step", lr_decay=0.5, lr_decay_steps=5000))
 PRESETS.add("test", OPAlignPreset(name="test", epochs=2, batch_size=4, points=128, anchor_points=64, width=32,
                                   blocks=2, part_width=32, template_points=64, max_steps_per_epoch=2, group="T"))
+
+
+#: Mean distance of the normalised cloud's points from its centroid (OP-Align's synthetic loader,
+#: ``LightDataset.py`` 45-50); its density terms' constants (alpha 30 / 120 / 60) were set at this scale.
+CLOUD_SCALE = 0.25
+
+
+def normalize_op_align(points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """OP-Align's normalisation: ``points (B, N, 3)`` metres -> (``(points - c) / s``, centre ``c (B, 3)``, scale
+    ``s (B,)`` metres per unit) with ``c`` the centroid and ``s`` the mean centroid distance over
+    :data:`CLOUD_SCALE`, so the normalised cloud's mean centroid distance is 0.25."""
+    c = points.mean(1)
+    x = points - c[:, None]
+    s = (x.norm(dim=-1).mean(-1) / CLOUD_SCALE).clamp_min(1e-6)
+    return x / s[:, None, None], c, s
+
+
+def pivot_near(pivot: torch.Tensor, shape: torch.Tensor, k: int = 8, alpha: float = 30.0) -> torch.Tensor:
+    """OP-Align's pivot-near-shape term (``art_metric.py`` 87-88, 267-274): per pivot the mean distance to its
+    ``k`` nearest points of ``shape`` (detached: the term moves the pivots, not the shape), as
+    ``1 - exp(-alpha d^2)``, averaged; ``pivot (B, J, 3)``, ``shape (B, M, 3)`` -> scalar."""
+    d = pairwise_sq_dist(pivot, shape.detach()).topk(min(k, shape.shape[1]), dim=-1, largest=False).values
+    mean_d = d.clamp_min(1e-12).sqrt().mean(-1)
+    return (1.0 - torch.exp(-alpha * mean_d ** 2)).mean()
 
 
 def direction_rotation(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -255,6 +298,9 @@ class OPAlignNet(nn.Module):
         self.joint = mlp([preset.part_width, preset.part_width, 8 * self.J])
         # (joint, side) -> part: side 0 is the parent part, side 1 the child part
         self.sides = [(j, a, self.joint_parts[j][a]) for j in range(self.J) for a in range(2)]
+        # the base part: the root of the kinematic tree (a parent that is no joint's child), part 0 without joints
+        children = {c for _, c in self.joint_parts}
+        self.base = next((p for p, _ in self.joint_parts if p not in children), 0)
 
     # ---------------------------------------------------------------- object level
     def object_level(self, X: torch.Tensor) -> dict:
@@ -297,6 +343,8 @@ class OPAlignNet(nn.Module):
         seg = torch.softmax(self.seg(h), -1)  # (B, N, P)
         j = self.joint(g).view(-1, self.J, 8)
         drct = F.normalize(j[..., 3:6] + 1e-6, dim=-1)
+        if self.training and self.pc.drct_noise > 0:  # art_encoder.py 134-140
+            drct = F.normalize(drct + self.pc.drct_noise * (torch.rand_like(drct) - 0.5), dim=-1)
         rng = np.radians(self.pc.rotation_range_deg)
         state = rng * (torch.sigmoid(j[..., 6:8]) - 0.5)  # (B, J, 2)
         return {"seg": seg, "pivot": j[..., :3], "drct": drct, "state": state}
@@ -327,7 +375,7 @@ class OPAlignNet(nn.Module):
     # ---------------------------------------------------------------- training
     def losses(self, batch: dict, progress: float) -> tuple[dict, torch.Tensor]:
         """Training terms and total (the module docstring; weights as ``art_metric.py`` 75-101)."""
-        X, _, _ = normalize_clouds(batch["points"].float())
+        X, _, _ = normalize_op_align(batch["points"].float())
         out = self(X)
         S, Y, s, y = out["S"], out["Y"], out["s"], out["y"]
         pc = self.pc
@@ -351,10 +399,13 @@ class OPAlignNet(nn.Module):
         art = (d_fwd * ws).sum(-1).mean(-1) + _inv_weight(a, a_inv) * (d_inv * wy).sum(-1).mean(-1)
         art = art.mean()
         w_rigid = pc.rigid_weight * 0.5 ** int(progress / pc.rigid_halve)
-        balance = sum(F.relu(pc.min_part - o["seg"].mean(1)).sum(-1).mean() for o in (s, y))
-        near = sum(nearest_sq_dist(o["pivot"], P).mean() for o, P in ((s, S), (y, Y)))
-        cano = sum(((y[k] - y[k].mean(0, keepdim=True).detach()) ** 2).sum(-1).mean()
-                   for k in ("pivot", "drct", "state"))
+        # every part of the canonical shape populated, every point some probability of every part (art_metric 317-325)
+        balance = F.relu(pc.prob_threshold - y["seg"].mean(1)).mean() + sum(
+            F.relu(pc.prob_floor - o["seg"].min(-1).values).mean() for o in (s, y))
+        near = pivot_near(s["pivot"], S) + pivot_near(y["pivot"], Y)
+        # the canonical shape's states at 0 and its directions at their batch mean; its pivots free (art_metric
+        # 256-265: the pivot term is commented out there)
+        cano = (y["state"] ** 2).mean() + ((y["drct"] - y["drct"].mean(0, keepdim=True)) ** 2).sum(-1).mean()
         if pc.attention == "expected":  # the attention's expected Chamfer distance over the anchors
             attn = (torch.softmax(out["attn"], -1) * out["anchor_dist"]).sum(-1).mean()
         else:
@@ -381,7 +432,7 @@ class OPAlignNet(nn.Module):
                 extra["sup_seg"] = seg_nll(s["seg"], batch["part_label"])
             if "joint_axis" in batch and self.J:
                 R, t = out["R_sel"], out["t_sel"]
-                _, c, sc = normalize_clouds(batch["points"].float())
+                _, c, sc = normalize_op_align(batch["points"].float())
                 axis = (R[:, None] @ s["drct"][..., None]).squeeze(-1)
                 pivot = (R[:, None] @ (s["pivot"] + t[:, None])[..., None]).squeeze(-1)
                 gt_pivot = (batch["joint_pivot"].to(X) - c[:, None]) / sc[:, None, None]
@@ -401,14 +452,11 @@ class OPAlignNet(nn.Module):
         Canonical coordinates are the network's, times the cloud's scale ``sc`` (metres):
         ``x_cam = sc R (S + t) + c`` and part ``p``'s alignment maps ``S`` onto ``Y``.
         """
-        X, c, sc = normalize_clouds(points.float())
+        X, c, sc = normalize_op_align(points.float())
         out = self(X)
         B = X.shape[0]
         R, t, s, y = out["R_sel"], out["t_sel"], out["s"], out["y"]
         eye = torch.eye(4, dtype=X.dtype, device=X.device)
-        T_obj = eye.repeat(B, 1, 1)
-        T_obj[:, :3, :3] = R
-        T_obj[:, :3, 3] = sc[:, None] * (R @ t[:, :, None]).squeeze(-1) + c
         poses = eye.repeat(B, self.P, 1, 1)
         done = set()
         for j, a, p in self.sides:
@@ -420,6 +468,7 @@ class OPAlignNet(nn.Module):
             tinv = -(Rinv @ ta[:, :, None]).squeeze(-1)
             poses[:, p, :3, :3] = R @ Rinv
             poses[:, p, :3, 3] = sc[:, None] * (R @ (tinv + t)[:, :, None]).squeeze(-1) + c
+        T_obj = poses[:, self.base]  # the dataset's object frame: the base part's pose (docs/usage.md)
         axis = (R[:, None] @ s["drct"][..., None]).squeeze(-1)
         pivot = sc[:, None, None] * (R[:, None] @ (s["pivot"] + t[:, None])[..., None]).squeeze(-1) + c[:, None]
         rel_s = s["state"][..., 1] - s["state"][..., 0]
