@@ -16,6 +16,11 @@ Pin a CPU (from a clean checkout, so that ``pinned_at`` names a commit; it refus
 outside the tolerance, which would be a change of the losses, not of the rounding)::
 
     .venv/bin/python tests/engine_pins.py --add "AMD EPYC 7B13 (Milan), 2 cores"
+
+Re-pin a run whose losses changed by design (its other CPUs' rows are dropped: they cannot be trained here, and
+such a CPU then passes by the unpinned-CPU tolerance)::
+
+    .venv/bin/python tests/engine_pins.py --add "this CPU in words" --repin op-align:test --why "the change, commit"
 """
 
 from __future__ import annotations
