@@ -94,12 +94,20 @@ def rung_config(category: str, rung: str, instances: int, views: int, train_view
                        val_fraction=0.1, cropped="reject", **RUNGS[rung])
 
 
-def speed_file(work: Path, method: str, preset: str = "cpu", device: str | None = None) -> Path:
+def speed_file(work: Path, method: str, preset: str = "cpu", device: str | None = None, sets: dict | None = None
+               ) -> Path:
     """Where the ladder keeps ``method``'s measured training speed: ``<work>/speed_<method>.json`` for the ``cpu``
-    preset on the CPU (the tables' budget), ``speed_<method>_<preset>_<device>.json`` otherwise."""
+    preset on the CPU (the tables' budget), ``speed_<method>_<preset>_<device>.json`` otherwise; a variant's fields
+    ``sets`` add ``_v<hash>`` (a variant's one-time work and steps can cost more than its base's)."""
+    tag = ""
+    if sets:
+        import hashlib
+
+        tag = "_v" + hashlib.sha256(json.dumps(sorted((str(k), str(v)) for k, v in sets.items())).encode()
+                                    ).hexdigest()[:8]
     if preset == "cpu" and device in (None, "cpu"):
-        return work / f"speed_{method}.json"
-    return work / f"speed_{method}_{preset.replace('/', '+')}_{(device or 'cpu').replace(':', '')}.json"
+        return work / f"speed_{method}{tag}.json"
+    return work / f"speed_{method}_{preset.replace('/', '+')}_{(device or 'cpu').replace(':', '')}{tag}.json"
 
 
 def cells_dir(work: Path, category: str, rung: str, preset: str = "cpu", device: str | None = None) -> Path:
@@ -111,25 +119,26 @@ def cells_dir(work: Path, category: str, rung: str, preset: str = "cpu", device:
     return base / f"{preset.replace('/', '+')}_{(device or 'cpu').replace(':', '')}"
 
 
-def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float, preset: str, work: Path,
+def _training_presets(methods: Sequence, data: Path, budget_minutes: float, preset: str, work: Path,
                       device: str | None = None) -> dict:
-    """Per trained method, ``(preset, values, plan)``: its ``preset`` (or, for a key ``(method, preset)``, that preset;
-    a ladder variant's ``preset=NAME``) with the epochs (iterations) that fill
+    """Per trained method, ``(preset, values, plan)``: its ``preset`` with the epochs (iterations) that fill
     ``budget_minutes`` of one core (of ``device``, e.g. ``cuda``, when given) on ``data``'s training split less its
     one-time work, the replaced fields, and the plan :func:`scapo.engine.ledger.check_budget` holds the cell's
     ledger to (:func:`budget_plan`), from charged speeds measured once (:func:`speed_file`, reused; a file measured
-    before the compute ledger is set aside as ``*.pre-ledger.json`` and measured again)."""
+    before the compute ledger is set aside as ``*.pre-ledger.json`` and measured again). An entry of ``methods`` may
+    be ``(method, preset name, sets)`` (a ladder variant, :func:`variant_preset`: that preset with the fields
+    ``sets`` replaced, its own speed measured); its result is keyed by that tuple, with ``sets`` as sorted items."""
     from scapo.bench.perf import bench_train_data, budget_schedule, training_budget
     from scapo.config import override
     from scapo.data import load
     from scapo.methods import METHODS
 
-    keys = [k if isinstance(k, tuple) else (k, preset) for k in methods]
-    trained = [(m, p) for m, p in keys if METHODS.get(m).trained]
+    keys = [(k[0], k[1], dict(k[2])) if isinstance(k, tuple) else (k, preset, {}) for k in methods]
+    trained = [(m, p, sets) for m, p, sets in keys if METHODS.get(m).trained]
     clouds = len(load(data, "train"))
     out = {}
-    for m, p in trained:  # one file per method and preset, so that ladders of other methods can share the folder
-        path = speed_file(work, m, p, device)
+    for m, p, sets in trained:  # one file per method, preset and fields, so that ladders can share the folder
+        path = speed_file(work, m, p, device, sets)
         runs = work / "speed_runs" if path.name == f"speed_{m}.json" else work / f"speed_runs_{path.stem[6:]}"
         if path.is_file() and not all("unit" in r for r in json.loads(path.read_text())):
             path.rename(path.with_suffix(".pre-ledger.json"))  # kept: wall-clock rates, one-time work uncharged
@@ -137,14 +146,16 @@ def _training_presets(methods: Sequence[str], data: Path, budget_minutes: float,
             if old.exists():
                 old.rename(old.with_name(old.name + ".pre-ledger"))
         if not path.is_file():
-            print(f"scapo bench ladder: measuring the training speed of {m} ({p}) on {data.name}", flush=True)
+            what = p + "".join(f", {k}={v}" for k, v in sets.items())
+            print(f"scapo bench ladder: measuring the training speed of {m} ({what}) on {data.name}", flush=True)
             steps = max(2, min(10, clouds // METHODS.get(m).preset(p).batch_size))
-            write_json(path, bench_train_data(data, [m], preset=p, steps=steps, work=runs, device=device))
+            write_json(path, bench_train_data(data, [m], preset=p, steps=steps, work=runs, device=device,
+                                              sets=sets))
         r = training_budget([r for r in json.loads(path.read_text()) if r["method"] == m], budget_minutes, clouds)[0]
-        base = METHODS.get(m).preset(p)
+        base = override(METHODS.get(m).preset(p), sets, f"{m} preset") if sets else METHODS.get(m).preset(p)
         values = budget_schedule(r, base, budget_minutes)
-        out[m if p == preset else (m, p)] = (override(base, values, f"{m} preset"), values,
-                                             budget_plan(r, values, budget_minutes, clouds))
+        key = m if (p, sets) == (preset, {}) else (m, p, tuple(sorted(sets.items())))
+        out[key] = (override(base, values, f"{m} preset"), values, budget_plan(r, values, budget_minutes, clouds))
     return out
 
 
@@ -172,8 +183,8 @@ def budget_plan(row: dict, values: dict, budget_minutes: float, train_clouds: in
 def variant_preset(sets: dict, preset: str) -> tuple[str, dict]:
     """A variant's base preset and the fields it replaces: ``preset=NAME`` among a variant's assignments trains
     ``NAME`` instead of the ladder's ``preset`` (e.g. a per-category preset as a labelled row, ``--variant
-    scapo:cpu-laptop:preset=cpu-laptop``), with its own measured speed and budget; the other assignments replace
-    fields of that preset."""
+    scapo:cpu-laptop:preset=cpu-laptop``); the other assignments replace fields of that preset. Every variant's
+    speed and one-time work are measured on their own (:func:`speed_file`) and fill the same budget."""
     rest = {k: v for k, v in sets.items() if k != "preset"}
     return str(sets.get("preset", preset)), rest
 
@@ -540,8 +551,10 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         return []
     ref = rung_dir(work, category, "paper" if "paper" in rungs else rungs[0], instances, views, train_views, data_seed)
     meta = meta_of()
-    presets = _training_presets(sorted(set(methods) | {(m, variant_preset(v, preset)[0]) for m, _, v in parsed},
-                                       key=str), ref, budget_minutes, preset, work, device)
+    variant_keys = {label: (m, *variant_preset(v, preset)) for m, label, v in parsed}
+    presets = _training_presets(list(methods) + [(m, p, tuple(sorted(rest.items())))
+                                                 for m, p, rest in variant_keys.values()],
+                                ref, budget_minutes, preset, work, device)
     records = []
     for r in rungs:
         data = rung_dir(work, category, r, instances, views, train_views, data_seed)
@@ -558,12 +571,11 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         for m, label, sets in parsed:
             from scapo.config import override
 
-            base, rest = variant_preset(sets, preset)
-            pc, values, plan = presets[m if base == preset else (m, base)]
-            pv = override(pc, rest, f"{m} preset (--variant {label})")
+            _, base, rest = variant_keys[label]
+            pv, values, plan = presets[(m, base, tuple(sorted(rest.items())))]
             for s in seeds:
                 t0 = time.perf_counter()
-                rec = _cell(data, work, category, r, m, s, pv, {**values, **sets}, protocol, label=label,
+                rec = _cell(data, work, category, r, m, s, pv, {**sets, **values}, protocol, label=label,
                             preset_name=preset, device=device, plan=plan)
                 print(f"  {r:9s} {m}:{label} seed {s}: frame consistency {_fmt(rec['frame_consistency'], 2)}, S "
                       f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "

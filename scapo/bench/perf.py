@@ -168,7 +168,8 @@ def compare_train(rows: list[dict], baseline: str | Path) -> tuple[list[dict], d
 
 
 def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps: int = 20,
-                     work: str | Path | None = None, device: str | None = None) -> list[dict]:
+                     work: str | Path | None = None, device: str | None = None, sets: dict | None = None
+                     ) -> list[dict]:
     """Training speed on a real dataset through the engine, as a table cell trains (``scapo bench perf --what train
     --data DATASET``): each trained method's ``preset`` trains for two epochs of ``steps`` steps per stage on the
     training split in a fresh run folder under ``work`` (default: a temporary folder), and the engine's record of
@@ -180,7 +181,7 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
     for :func:`training_budget`. Needs ``steps * batch_size`` training clouds. Measure as the cells run
     (one torch thread per core, the other core busy with the other chain). ``device`` (default: the preset's, the
     CPU for the ``cpu`` presets) trains on that torch device (e.g. ``cuda``): its clouds/s there, for a budget in
-    minutes of that device.
+    minutes of that device. ``sets``: preset fields replaced first (``scapo train --set`` keys; a ladder variant).
 
     Raises:
         UnknownNameError: an unknown method or preset. ConfigError: a method that is not trained, ``steps < 2``,
@@ -207,6 +208,8 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
     rows = []
     for m in names:
         base = METHODS.get(m).preset(preset)
+        if sets:
+            base = override(base, sets, f"{m} preset")
         two = hasattr(base, "stage2_epochs")
         batch = base.batch_size
         if clouds < steps * batch:

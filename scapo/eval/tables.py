@@ -65,6 +65,10 @@ ROBUST_METRICS: dict[str, MetricInfo] = {
     "state_deg": MetricInfo("state", "mean revolute state error", "deg", False, 2),
     "state_deg_median": MetricInfo("state med", "median revolute state error", "deg", False, 2),
     "state_cm": MetricInfo("state cm", "mean prismatic state error", "cm", False, 2),
+    "frame_consistency": MetricInfo("frame", "object-frame consistency: share of the split's views in the one "
+                                    "canonical frame most share (scapo.eval.frames)", "share", True, 2),
+    "frame_consistency_sym": MetricInfo("frame sym", "object-frame consistency against the declared symmetric "
+                                        "ground truths too", "share", True, 2),
 }
 
 
