@@ -75,6 +75,10 @@ def test_tables_figures_and_per_cell_provenance(bench):
             assert c["train_steps"] == timing["steps"] == sum(1 for _ in f) - 1  # one log row per optimiser step
         assert c["predict_s"] > 0 and c["evaluate_s"] > 0 and c["commit"] and c["device"].startswith("cpu")
         assert c["run"] == f"run_{key}"
+        # the compute ledger: every charged core-second of the run, by phase, summing to the charged total
+        assert c["charged_s"] == pytest.approx(sum(p["charged_s"] for p in timing["ledger"]["phases"].values()),
+                                               abs=0.01)
+        assert {"setup", "stage1/steps"} <= set(timing["ledger"]["phases"]) and c["infer_ms_per_cloud"] > 0
     assert prov["compute_hours"] == round(sum(c["train_s"] + c["predict_s"] + c["evaluate_s"]
                                               for c in cells.values()) / 3600, 2)
     from scapo.methods import METHODS
@@ -82,7 +86,7 @@ def test_tables_figures_and_per_cell_provenance(bench):
     rec = json.loads((work / "laptop_i10_v2_s0" / "cells" / "scapo_test_s0.scapo.json").read_text())
     assert rec["info"]["inference"] == METHODS.get("scapo").inference(work / "laptop_i10_v2_s0" / "run_scapo_test_s0")
     md = (out / "table1_synthetic_sphere.md").read_text()
-    assert "## Cells (wall time, minutes; training steps)" in md and "scapo_test_s0" in md and "SCAPO (paper)" in md
+    assert "## Cells (wall time, minutes; training steps; charged compute" in md and "scapo_test_s0" in md and "SCAPO (paper)" in md
 
 
 def test_rerun_recomputes_nothing_and_rewrites_identical_tables(bench, monkeypatch):

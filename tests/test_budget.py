@@ -58,10 +58,13 @@ def test_budget_cells_fill_the_budget_less_the_one_time_work(tmp_path):
     _speed(tmp_path, name, "scapo", {**base, "method": "scapo", "stage1_epochs": 10, "stage2_epochs": 10,
                                      "stage2_clouds_per_s": 16.0, "stage2_epoch_s": 0.0})
     cells = [Cell("npcs", "laptop", 0, "cpu"), Cell("scapo", "laptop", 1, "cpu"), Cell("icp", "laptop")]
-    out, schedules = budget_cells(cells, 1.0, tmp_path, 10, 2, 0, kw, measure=False)
+    out, schedules, plans = budget_cells(cells, 1.0, tmp_path, 10, 2, 0, kw, measure=False)
     assert [c.preset for c in out] == ["cpu/epochs-6", "cpu/epochs-3-3", None]
     assert schedules == {"laptop": {"npcs cpu": "epochs-6", "scapo cpu": "epochs-3-3"}}
     assert out[1].key == "scapo_cpu+epochs-3-3_s1"
+    plan = plans[("laptop", out[1].key)]  # what the cell's ledger is held to: 3 + 3 epochs of 10 one-second steps
+    assert plan["budget_s"] == 60.0 and plan["phases"] == {"stage1/steps": 30.0, "stage1/epochs": 0.0,
+                                                           "stage2/steps": 30.0, "stage2/epochs": 0.0}
     # a one-time cost longer than the budget (EAP-style's joint estimation on a large split) is refused, not excused
     _speed(tmp_path, name, "npcs", {**npcs, "fixed_s": 500.0})
     with pytest.raises(ConfigError, match="one-time work alone is 500 charged seconds"):

@@ -41,6 +41,7 @@ import pandas as pd
 
 from scapo.data import load
 from scapo.data.storage import sha256_file
+from scapo.engine.ledger import check_budget
 from scapo.errors import ConfigError
 from scapo.eval import EvalResult, Predictions, evaluate
 from scapo.files import atomic_write_bytes, write_json
@@ -287,8 +288,14 @@ def _predictions_fit(path: Path, dataset_hash: str, cell: Cell, run: Path) -> bo
 
 def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
                  device: str | None = None, recompute_dirty: bool = False,
-                 evaluate_only: bool = False) -> tuple[EvalResult, dict, bool]:
-    """Compute (or load) one cell: train, predict, evaluate on the test split of ``data``.
+                 evaluate_only: bool = False, plan: dict | None = None) -> tuple[EvalResult, dict, bool]:
+    """Compute (or load) one cell: train, predict, evaluate on the test split of ``data``. The record holds the
+    trained run's compute ledger (``ledger``; ``wall["charged_s"]``, :mod:`scapo.engine.ledger`) and the wall and
+    CPU milliseconds per test cloud of the prediction (``wall["infer_ms_per_cloud"]``, ``infer_cpu_ms_per_cloud``).
+
+    ``plan`` (:func:`scapo.bench.experiments.budget_cells`): the budget the trained run's ledger is held to; a run
+    over :data:`scapo.engine.ledger.OVER_BUDGET` times it is refused (ConfigError naming the phase; the run is kept,
+    no record is written).
 
     ``evaluate_only``: load or (re-)evaluate a cell whose predictions exist, never train or predict
     (``--finished-only``; a bench may be computing other cells of the same folder meanwhile).
@@ -345,6 +352,14 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
         wall.update(train_s=float(timing["seconds"]), train_device=timing.get("device"))
         if timing.get("steps") is not None:
             wall["train_steps"] = int(timing["steps"])
+        ledger = timing.get("ledger")
+        if ledger is not None:
+            wall["charged_s"] = float(ledger["charged_s"])
+        if plan is not None and not (evaluate_only or rescore):
+            if ledger is None:
+                raise ConfigError(f"{paths.run} was trained before the compute ledger existed (its timing.json has "
+                                  "none), so its charged compute is unknown; move it away and run the bench again")
+            check_budget(ledger, plan["budget_s"], plan["phases"], what=f"cell {cell.category}/{cell.key}")
     t0 = time.perf_counter()
     if fit:
         preds = Predictions.load(paths.predictions)
@@ -365,6 +380,9 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
         preds = run_method(cell.method, data, paths.predictions, progress=progress, **opts)
         wall["predict_s"] = round(time.perf_counter() - t0, 3)
         preds_sha, reevaluated = sha256_file(paths.predictions), False
+    for k in ("ms_per_cloud_test", "cpu_ms_per_cloud_test"):  # as the method timed its test split
+        if k in preds.info:
+            wall[f"infer_{k[: -len('_test')]}"] = float(preds.info[k])
     t1 = time.perf_counter()
     res = evaluate(data, preds, protocol=protocol)
     wall["evaluate_s"] = round(time.perf_counter() - t1, 3)
@@ -375,6 +393,7 @@ def compute_cell(data: Path, cell: Cell, protocol: str, progress: bool = True,
            "run": paths.run.name if cell.trained else None, "evaluator": evaluator_fingerprint(),
            "computed_commit": computed_commit(earlier) if reevaluated else prov["commit"],
            "summary": res.summary, "info": json.loads(json.dumps(res.info, default=str)), "wall": wall,
+           "ledger": timing.get("ledger") if cell.trained else None,
            "provenance": prov}
     paths.record.parent.mkdir(parents=True, exist_ok=True)
     buf = res.per_sample.to_parquet(index=False)

@@ -295,8 +295,10 @@ def _table_presets(methods: Sequence[str], category: str, budget: float, preset:
     from scapo.methods import METHODS
 
     cells = [Cell(m, category, seed=0, preset=method_preset(m, preset)) for m in methods]
-    budgeted, _ = budget_cells(cells, budget, work, instances, views, data_seed, _table_kwargs(rung, train_views))
-    return {c.method: (METHODS.get(c.method).preset(c.preset), {"preset": c.preset}, None) for c in budgeted}
+    budgeted, _, plans = budget_cells(cells, budget, work, instances, views, data_seed,
+                                      _table_kwargs(rung, train_views))
+    return {c.method: (METHODS.get(c.method).preset(c.preset), {"preset": c.preset}, plans.get((category, c.key)))
+            for c in budgeted}
 
 
 def _reuse_table_run(data: Path, work: Path, category: str, rung: str, method: str, seed: int, preset: str) -> None:

@@ -308,7 +308,8 @@ ARCHIVED_PROTOCOLS = ("scapo", "op-align", "eap")
 def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data_seed: int, protocol: str,
              workers: int, cache_dir, progress: bool, device: str | None, finished_only: bool = False,
              data_kwargs: dict | None = None, recompute_dirty: bool = False, category_data: dict | None = None,
-             archive: Path | None = None, data_only: bool = False, archive_predictions: bool = False):
+             archive: Path | None = None, data_only: bool = False, archive_predictions: bool = False,
+             plans: dict | None = None):
     """Generate each dataset once (resumes), then compute every cell in order; with ``finished_only``
     nothing is computed and only the cells that are done are returned (the others in ``missing``). With
     ``archive`` (:mod:`scapo.bench.archive`), each generated dataset is first made the archived dataset's bytes
@@ -317,7 +318,8 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
     restored into the work folder once the dataset exists, and every done cell is archived (its predictions only with
     ``archive_predictions``; without them it is also scored and archived under each of :data:`ARCHIVED_PROTOCOLS`,
     so that tables under another protocol come from the archive alone). With ``data_only``
-    the datasets are generated (reconciled, pinned, their cells restored) and no cell is computed or returned."""
+    the datasets are generated (reconciled, pinned, their cells restored) and no cell is computed or returned.
+    ``plans`` (:func:`budget_cells`): each trained cell's budget, which its run's ledger is held to."""
     results, records, hashes, done, missing = [], [], {}, [], []
 
     def restore(data: Path, category: str) -> None:
@@ -371,7 +373,8 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
         if data_only:
             continue
         res, rec, computed = compute_cell(data, c, protocol, progress=progress, device=device,
-                                          recompute_dirty=recompute_dirty, evaluate_only=finished_only)
+                                          recompute_dirty=recompute_dirty, evaluate_only=finished_only,
+                                          plan=(plans or {}).get((c.category, c.key)))
         if archive is not None:
             archive_cell(data, c, protocol, archive, predictions=archive_predictions)
             kept = cell_paths(Path(archive) / data.name, c, protocol)
@@ -441,7 +444,8 @@ def _provenance(name: str, cells, records, hashes, instances, views, data_seed, 
                          **({"adopted_from": str(r["adopted"].get("from", ""))[:16]}
                             if isinstance(r.get("adopted"), dict) else {}),
                          **({"run": r["run"]} if isinstance(r.get("run"), str) else {}),
-                         **{k: w[k] for k in ("train_s", "train_steps", "predict_s", "evaluate_s") if k in w}})
+                         **{k: w[k] for k in ("train_s", "train_steps", "charged_s", "predict_s", "evaluate_s",
+                                              "infer_ms_per_cloud") if k in w}})
     seeds: dict[str, list[int]] = {}
     for c in cells:
         if c.seed is not None and c.seed not in seeds.setdefault(c.category, []):
@@ -488,7 +492,8 @@ def _writer(write_table, name, out_dir, figures, work_dir, instances, views, dat
 
 
 def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, instances: int, views: int,
-                 data_seed: int, data_kwargs: Mapping | None = None, measure: bool = True) -> tuple[list[Cell], dict]:
+                 data_seed: int, data_kwargs: Mapping | None = None, measure: bool = True
+                 ) -> tuple[list[Cell], dict, dict]:
     """The cells with the equal training budget (``scapo bench table1 --budget-minutes``): every trained cell's
     preset gets the schedule part (:func:`scapo.registry.schedule_part`, e.g. ``cpu/epochs-15-13``) whose epochs fill
     ``budget_minutes`` of one CPU core on its category's dataset less its one-time work (every charged core-second
@@ -501,8 +506,10 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
     as the cells will run, one thread per core). The datasets must exist (the bench generates them first).
 
     Returns:
-        The cells (fitted ones unchanged) and ``{category: {preset of the cell: schedule part}}`` for the table's
-        provenance.
+        The cells (fitted ones unchanged), ``{category: {preset of the cell: schedule part}}`` for the table's
+        provenance, and ``{(category, cell key): plan}`` (:func:`scapo.bench.ladder.budget_plan`: the budget and
+        each phase's planned charged seconds) that :func:`~scapo.bench.cells.compute_cell` holds the trained run's
+        ledger to.
 
     Raises:
         ConfigError: ``budget_minutes`` not in (0, 45 * 16]; with ``measure=False`` (``--finished-only``, ``--dry-run``)
@@ -510,6 +517,7 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
     """
     import json
 
+    from scapo.bench.ladder import budget_plan
     from scapo.bench.perf import bench_train_data, budget_schedule, training_budget
     from scapo.config import override
     from scapo.files import write_json
@@ -518,7 +526,7 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
     if not (math.isfinite(budget_minutes) and 0 < budget_minutes <= 720):
         raise ConfigError(f"--budget-minutes must be a positive number of core-minutes per training run, at most 720, "
                           f"got {budget_minutes}")
-    out, schedules, speeds = [], {}, {}
+    out, schedules, speeds, plans = [], {}, {}, {}
     for c in cells:
         if not c.trained:
             out.append(c)
@@ -544,7 +552,9 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
         part = schedule_part(values)
         schedules.setdefault(c.category, {})[f"{c.method} {c.preset}"] = part
         out.append(replace(c, preset=f"{c.preset}/{part}"))
-    return out, schedules
+        plans[(c.category, out[-1].key)] = budget_plan(speeds[path], values, budget_minutes,
+                                                       int(speeds[path]["train_clouds"]))
+    return out, schedules, plans
 
 
 def _bench(title, cells, methods, categories, write, instances, views, data_seed, work_dir, out_dir, preset, protocol,
@@ -567,8 +577,8 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
                 raise ConfigError(f"{what} {folder} is (or is inside) a file, not a folder; give a folder")
         if budget_minutes is not None:
             try:
-                cells, _ = budget_cells(cells, budget_minutes, work_dir, instances, views, data_seed, data_kwargs,
-                                        measure=False)
+                cells, _, _ = budget_cells(cells, budget_minutes, work_dir, instances, views, data_seed,
+                                           data_kwargs, measure=False)
             except ConfigError as exc:
                 print(f"(the budget's schedules are not known yet: {exc})")
         rows = plan(cells, work_dir, instances, views, data_seed, protocol, recompute_dirty, archive, data_kwargs)
@@ -581,19 +591,19 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
         raise ConfigError(f"this checkout has uncommitted changes (commit {here}): cells computed or scored now could "
                           "not be traced to a commit; commit first (or run the bench from a worktree of a commit: git "
                           "worktree add), or pass --allow-dirty")
-    schedules = None
+    schedules, plans = None, None
     if budget_minutes is not None:  # the datasets first: the schedules come from speeds measured on them
         if not finished_only:
             _compute(cells, work_dir, instances, views, data_seed, protocol, workers, cache_dir, progress, device,
                      False, data_kwargs, False, category_data, archive, True, archive_predictions)
-        cells, schedules = budget_cells(cells, budget_minutes, work_dir, instances, views, data_seed, data_kwargs,
-                                        measure=not finished_only)
+        cells, schedules, plans = budget_cells(cells, budget_minutes, work_dir, instances, views, data_seed,
+                                               data_kwargs, measure=not finished_only)
         if data_only:
             return []
     results, records, hashes, done, missing = _compute(cells, work_dir, instances, views, data_seed, protocol,
                                                        workers, cache_dir, progress, device, finished_only,
                                                        data_kwargs, recompute_dirty, category_data, archive,
-                                                       data_only, archive_predictions)
+                                                       data_only, archive_predictions, plans)
     if out_dir is not None and not data_only:
         check_commits(done, records, allow_dirty, allow_mixed_commits)
         kw = data_kwargs or SYNTHETIC_DATA

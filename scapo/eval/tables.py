@@ -196,7 +196,8 @@ def _partial_note(provenance: dict) -> list[str]:
 def cells_markdown(cells: Sequence[dict] | None) -> list[str]:
     """Markdown lines of a bench's per-cell provenance (``scapo.bench``: category, cell, commit that
     computed it (and the evaluation's, when the evaluation was redone later), device, training /
-    prediction / evaluation wall time); nothing when there is none. A cell computed on another CPU kind's
+    prediction / evaluation wall time, the charged core-minutes of its training and its inference milliseconds per
+    test cloud); nothing when there is none. A cell computed on another CPU kind's
     regeneration of its dataset and adopted by this one (``adopted_from``: :func:`scapo.bench.archive.adopt_dataset`)
     says so beside its device."""
     if not cells:
@@ -216,15 +217,19 @@ def cells_markdown(cells: Sequence[dict] | None) -> list[str]:
         return c["device"] + (f" (dataset {c['adopted_from'][:12]}, adopted)" if c.get("adopted_from") else "")
 
     rows = [[c["category"], c["cell"], commit(c), device(c), minutes(c, "train_s"),
-             "-" if c.get("train_steps") is None else str(c["train_steps"]),
-             minutes(c, "predict_s"), minutes(c, "evaluate_s")] for c in cells]
+             "-" if c.get("train_steps") is None else str(c["train_steps"]), minutes(c, "charged_s"),
+             minutes(c, "predict_s"), "-" if c.get("infer_ms_per_cloud") is None else f"{c['infer_ms_per_cloud']:.1f}",
+             minutes(c, "evaluate_s")] for c in cells]
     note = (["Cells marked adopted were computed on another CPU kind's regeneration of their dataset (the hash "
              "named) and adopted by this table's dataset after scoring the same on it "
              "(`results/tables_cells/README.md`, `scapo.bench.archive.adopt_dataset`).", ""]
             if any(c.get("adopted_from") for c in cells) else [])
-    return ["## Cells (wall time, minutes; training steps)", "",
-            markdown_table(["Category", "Cell", "Commit", "Device", "Train", "Steps", "Predict", "Evaluate"], rows,
-                           ["l", "l", "l", "l", "r", "r", "r", "r"]), "", *note]
+    return ["## Cells (wall time, minutes; training steps; charged compute, core-minutes; inference, ms per test "
+            "cloud)", "",
+            markdown_table(["Category", "Cell", "Commit", "Device", "Train", "Steps", "Charged", "Predict",
+                            "Infer ms", "Evaluate"], rows, ["l", "l", "l", "l", "r", "r", "r", "r", "r", "r"]), "",
+            "Charged: the run's compute ledger (`scapo.engine.ledger`), every core-second spent before it can predict "
+            "(its one-time work included); '-' for a fitted method or a run trained before the ledger.", "", *note]
 
 
 #: The ordering check of the self-supervised rows: metric -> (the statistic of a cell, higher is better).
