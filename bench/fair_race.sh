@@ -1,0 +1,58 @@
+#!/usr/bin/env bash
+# Issue 88's fair race (results/fair_race/): the ladder's paper rung (single views in the paper's viewpoints, 150
+# instances, 8 views per val/test instance, 64 per training instance, data seed 1), scored on val, three training
+# seeds, every trained method at BUDGET (15) charged core-minutes under the compute ledger, one preset per method
+# (`cpu`), SCAPO's per-category presets as labelled rows. Resumable per cell; one torch thread per chain.
+#
+#   WT=/path/to/clean/worktree WORK=/path/to/work CHAIN="op-align scapo" bash bench/fair_race.sh   # a chain of cells
+#   WT=... WORK=... VARIANTS=1 bash bench/fair_race.sh    # SCAPO's per-category presets (labelled rows; after the
+#                                                         # chain with scapo, whose cells it would otherwise train)
+#   WT=... WORK=... FINISH=1 OUT=results/fair_race bash bench/fair_race.sh   # the tables of the finished cells
+#
+# WT: a clean worktree of the commit the cells record (git worktree add); its code computes the cells. Several
+# chains may share WORK (each its own methods) once the data exist; the data step runs in the first chain.
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+wt="${WT:?give WT, a clean worktree of the commit the cells record}"
+work="${WORK:?give WORK, the work folder}"
+py="${PYTHON:-$here/.venv/bin/python}"
+budget="${BUDGET:-15}"
+cats="${CATEGORIES:-laptop eyeglasses}"
+if [ -n "$(git -C "$wt" status --porcelain --untracked-files=no)" ]; then
+  echo "fair_race.sh: $wt has uncommitted changes; the cells must come from one clean commit" >&2
+  exit 2
+fi
+ladder() {  # category, then ladder options
+  local cat="$1"; shift
+  OMP_NUM_THREADS=1 PYTHONPATH="$wt" "$py" -m scapo.cli bench ladder --category "$cat" --rungs paper --seeds 0,1,2 \
+    --instances 150 --views 8 --train-views 64 --budget-minutes "$budget" --seed 1 --work "$work" --no-progress "$@"
+}
+variants() {  # SCAPO's per-category preset of a category, where it has one
+  case "$1" in
+    laptop) echo "--variant scapo:cpu-laptop:preset=cpu-laptop" ;;
+    eyeglasses) echo "--variant scapo:cpu-eyeglasses:preset=cpu-eyeglasses" ;;
+  esac
+}
+for cat in $cats; do
+  ladder "$cat" --data-only --workers 2 --methods scapo
+done
+if [ -n "${FINISH:-}" ]; then
+  for cat in $cats; do
+    # shellcheck disable=SC2046
+    ladder "$cat" --finished-only --methods "${METHODS:-scapo,op-align,eap,npcs}" $(variants "$cat") \
+      --out "${OUT:-$work/out}"
+  done
+  exit 0
+fi
+if [ -n "${VARIANTS:-}" ]; then
+  for cat in $cats; do
+    # shellcheck disable=SC2046
+    ladder "$cat" --methods scapo $(variants "$cat") --out "$work/out_variants"  # after the scapo chain
+  done
+  exit 0
+fi
+for m in ${CHAIN:-op-align scapo npcs eap}; do
+  for cat in $cats; do
+    ladder "$cat" --methods "$m" --out "$work/out_$m"
+  done
+done
