@@ -69,9 +69,9 @@ def _base_labels(src: str, pred: dict, gt: dict, slot: int) -> np.ndarray:
 
 
 def main(argv=None) -> int:
-    from scapo.eval.frames import frame_consistency
     from scapo.data import load
     from scapo.eval.evaluator import object_frame_twins
+    from scapo.eval.frames import frame_consistency
     from scapo.methods import load_run
     from scapo.methods.base_frame import base_axes, choose_base_slot, fit_base_offset, rotation_dispersion, snap_to_base
     from scapo.provenance import provenance

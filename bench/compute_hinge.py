@@ -20,8 +20,8 @@ from pathlib import Path
 
 def record(data: Path, label: str, budget: float, path: str, steps) -> dict:
     """One row of the curve for the predictions file ``path`` (val split of ``data``)."""
-    from scapo.eval.frames import split_consistency
     from scapo.eval.evaluator import evaluate
+    from scapo.eval.frames import split_consistency
     from scapo.eval.predictions import Predictions
     from scapo.provenance import provenance
 

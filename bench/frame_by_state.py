@@ -63,10 +63,10 @@ def joint_frames(part_pose: np.ndarray, lam: float, child: int = 1) -> np.ndarra
 
 def main(argv=None) -> int:
     from scapo.bench.diagnosis import bench_script, run_diagnosis
-    from scapo.eval.frames import frame_inliers
     from scapo.data import load
     from scapo.errors import PredictionError
     from scapo.eval.evaluator import object_frame_twins, twin_ground_truth
+    from scapo.eval.frames import frame_inliers
 
     base_on_base = bench_script("frame_consistency", Path(__file__).parent).base_on_base
     cache = {}

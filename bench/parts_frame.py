@@ -83,8 +83,8 @@ def val_passes(model, data: Path, passes: int, split: str = "val") -> list[dict]
     """Rows per pass on one split, val by default (see the module docstring)."""
     import torch
 
-    from scapo.eval.frames import frame_consistency
     from scapo.data import load
+    from scapo.eval.frames import frame_consistency
 
     d = load(data, split)
     a = d.arrays(["points", "T_cam_obj", "part_label"])
@@ -121,9 +121,9 @@ def train_targets(run: Path, data: Path, card: dict) -> dict:
     Raises:
         DatasetError: the run has no target frames or pseudo-labels (not a ``stage2_frame="parts"`` run, or one
             stopped before stage 2), or they do not match the training split."""
-    from scapo.eval.frames import frame_consistency
     from scapo.data import load
     from scapo.errors import DatasetError
+    from scapo.eval.frames import frame_consistency
     from scapo.ops.signed_axes import _signed_candidates
 
     tf, sl = run / "frame_targets.npy", run / "split_labels.npy"

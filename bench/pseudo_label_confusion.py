@@ -72,8 +72,8 @@ def score_frame_targets(run: Path, gt_T) -> dict | None:
         DatasetError: a file that cannot be read or whose shape is not ``(clouds, 3, 3)``."""
     import numpy as np
 
-    from scapo.eval.frames import frame_consistency
     from scapo.errors import DatasetError
+    from scapo.eval.frames import frame_consistency
 
     f = run / "frame_targets.npy"
     if not f.is_file():

@@ -124,12 +124,25 @@ def parse_preset(name: str) -> PresetName:
 _SCHEDULE = re.compile(r"(epochs|iterations)-([0-9]{1,7}(?:-[0-9]{1,7})?)")
 
 
+def schedule_fields(preset) -> tuple[str, ...]:
+    """The preset fields that hold a trained method's epochs, one per training stage in the engine's order:
+    ``("stage1_epochs", "stage2_epochs")`` (SCAPO), ``("stage0_epochs", "epochs")`` (a learned baseline with a
+    whole-object stage trained first, EAP-style), ``("epochs",)`` (one stage)."""
+    if hasattr(preset, "stage2_epochs"):
+        return ("stage1_epochs", "stage2_epochs")
+    if hasattr(preset, "stage0_epochs"):
+        return ("stage0_epochs", "epochs")
+    return ("epochs",)
+
+
 def schedule_part(values: dict) -> str:
     """The preset-name part (:func:`parse_preset`) that sets a schedule: ``{"stage1_epochs": 15, "stage2_epochs":
     13}`` -> ``"epochs-15-13"``, ``{"epochs": 47}`` -> ``"epochs-47"``, ``{"iterations": 400}`` ->
     ``"iterations-400"`` (the keys :func:`scapo.bench.perf.training_budget` gives)."""
     if "stage1_epochs" in values:
         return f"epochs-{int(values['stage1_epochs'])}-{int(values['stage2_epochs'])}"
+    if "stage0_epochs" in values:
+        return f"epochs-{int(values['stage0_epochs'])}-{int(values['epochs'])}"
     if "iterations" in values and "epochs" not in values:
         return f"iterations-{int(values['iterations'])}"
     return f"epochs-{int(values['epochs'])}"
@@ -137,7 +150,8 @@ def schedule_part(values: dict) -> str:
 
 def apply_schedule(preset, parsed: PresetName, name: str):
     """``preset`` (a frozen dataclass) with the schedule of ``parsed`` (:attr:`PresetName.schedule`): ``epochs-A``
-    sets ``epochs`` (a one-stage preset), ``epochs-A-B`` ``stage1_epochs`` and ``stage2_epochs`` (a two-stage one),
+    sets ``epochs`` (a one-stage preset), ``epochs-A-B`` the two stages' fields of :func:`schedule_fields` (a
+    two-stage one),
     ``iterations-N`` ``iterations``; ``name`` (the full preset name) becomes its ``name``.
 
     Raises:
@@ -152,12 +166,10 @@ def apply_schedule(preset, parsed: PresetName, name: str):
             raise UnknownNameError(f"preset {name!r}: {key}-{'-'.join(map(str, vals))} must count at least 1")
         if key == "iterations" and len(vals) == 1 and hasattr(preset, "iterations"):
             fields["iterations"] = vals[0]
-        elif key == "epochs" and len(vals) == 2 and hasattr(preset, "stage2_epochs"):
-            fields.update(stage1_epochs=vals[0], stage2_epochs=vals[1])
-        elif key == "epochs" and len(vals) == 1 and hasattr(preset, "epochs"):
-            fields["epochs"] = vals[0]
+        elif key == "epochs" and len(vals) == len(schedule_fields(preset)):
+            fields.update(zip(schedule_fields(preset), vals))
         else:
-            two = hasattr(preset, "stage2_epochs")
+            two = len(schedule_fields(preset)) == 2
             raise UnknownNameError(f"preset {name!r}: '{key}-{'-'.join(map(str, vals))}' does not fit this method's "
                                    f"schedule; it takes " + ("epochs-STAGE1-STAGE2" if two else "epochs-N")
                                    + (" or iterations-N" if hasattr(preset, "iterations") else ""))

@@ -242,6 +242,8 @@ def test_a_trained_method_reads_its_part_rotations_from_its_hinges(name, laptop_
 
 
 def test_eap_template_posed_by_its_part_poses_is_its_own_reconstruction():
+    """The template parts EAP-style returns, posed by its part poses, are the network's reconstruction of the cloud
+    mapped back to the camera (stage 1's canonical frame through stage 0's), with the slots in the card's order."""
     from scapo.methods import eap
     from scapo.methods.learned import normalize_clouds
 
@@ -251,7 +253,12 @@ def test_eap_template_posed_by_its_part_poses_is_its_own_reconstruction():
     o = net.infer(pts)
     X, c, sc = normalize_clouds(pts)
     with torch.no_grad():
-        want = (sc[:, None, None, None] * net.posed(net(X)) + c[:, None, None]).reshape(3, -1, 3).double().numpy()
+        Xc, Rw, shift = net.canonicalise(X)
+        out = net(Xc)
+        posed = net.posed(out) @ Rw[:, None].transpose(-1, -2) + shift[:, None, None]
+        want = (sc[:, None, None, None] * posed + c[:, None, None]).double().numpy()
+    perm = np.stack([net.card_order(int(k)) for k in out["w"].sum(1).argmax(-1)])
+    want = want[np.arange(3)[:, None], perm].reshape(3, -1, 3)
     T = o["part_pose"][np.arange(3)[:, None], o["template_label"]]  # (B, M, 4, 4)
     got = np.einsum("bmij,bmj->bmi", T[..., :3, :3], o["template"]) + T[..., :3, 3]
     np.testing.assert_allclose(got, want, atol=1e-5)
@@ -408,30 +415,6 @@ def _moved_object(states, joint_type=0):
     return np.array(T), axis, pivot, off
 
 
-def test_part_transforms_of_a_moved_object_give_back_its_joint():
-    from scapo.methods.eap import joints_from_pairs
-    from scapo.ops.rigid import closest_point_on_line, invert_transform
-
-    states = np.linspace(0.0, 1.5, 12)
-    T, axis, pivot, off = _moved_object(states)
-    scale = np.random.default_rng(2).uniform(0.5, 2.0, len(T))  # each cloud's canonical units in metres
-    Tm = T.copy()
-    Tm[:, :, :3, 3] *= scale[:, None, None]
-    out = joints_from_pairs(Tm, scale, [0], [(0, 1)], pairs=200, min_motion_deg=5.0)
-    assert out["joint_ok"][0]
-    # the joint in the child's canonical frame, mapped to the object frame
-    ax_obj = off[1][:3, :3] @ out["joint_axis"][0]
-    pv_obj = off[1][:3, :3] @ out["joint_pivot"][0] + off[1][:3, 3]
-    assert abs(abs(ax_obj @ axis) - 1.0) < 1e-6
-    np.testing.assert_allclose(closest_point_on_line(pv_obj, ax_obj), closest_point_on_line(pivot, axis), atol=1e-6)
-    # states relative to the reference differ by the true state differences
-    from scapo.methods.eap import _motion_along
-
-    est = [_motion_along(invert_transform(out["joint_ref"][0]) @ invert_transform(t[0]) @ t[1], 0,
-                         out["joint_axis"][0]) for t in T]
-    np.testing.assert_allclose(np.diff(est) * np.sign(ax_obj @ axis), np.diff(states), atol=1e-6)
-
-
 def test_joint_from_part_poses_recovers_a_revolute_and_a_prismatic_joint():
     from scapo.methods.joints import joint_from_part_poses
     from scapo.ops.rigid import closest_point_on_line
@@ -467,17 +450,103 @@ def test_op_align_part_motion_moves_a_part_onto_its_canonical_state():
     assert cos == pytest.approx(math.cos(-0.7), abs=1e-5)
 
 
-def test_eap_part_poses_are_rotation_equivariant():
+def test_eap_stage0_makes_stage1s_input_the_same_for_a_turned_cloud():
+    """Stage 0 (the whole-object network) is rotation-equivariant, so the canonical cloud it hands stage 1 is the same
+    for a cloud and the cloud turned and moved, and the predicted part poses turn with it."""
     from scapo.methods import eap
 
     torch.manual_seed(0)
     net = eap.EAPNet(2, [0], [(0, 1)], eap.PRESETS.get("test")).double().eval()
-    X = torch.rand(2, 64, 3, dtype=torch.float64)
+    X = torch.rand(2, 64, 3, dtype=torch.float64) - 0.5
     Q = torch.from_numpy(Rotation.from_rotvec([0.4, -1.0, 2.0]).as_matrix())
-    a, b = net(X), net(X @ Q.T + 0.3)
-    torch.testing.assert_close(b["R"], Q @ a["R"], atol=1e-6, rtol=1e-6)
-    torch.testing.assert_close(b["t"], a["t"] @ Q.T + 0.3, atol=1e-6, rtol=1e-6)
-    torch.testing.assert_close(b["Y"], a["Y"], atol=1e-6, rtol=1e-6)
+    with torch.no_grad():
+        a, b = net.canonicalise(X), net.canonicalise(X @ Q.T + 0.3)
+    torch.testing.assert_close(b[0], a[0], atol=1e-6, rtol=1e-6)
+    torch.testing.assert_close(b[1], Q @ a[1], atol=1e-6, rtol=1e-6)
+    with torch.no_grad():
+        pa, pb = net._predict(X + 1.0), net._predict((X + 1.0) @ Q.T)
+    torch.testing.assert_close(pb["R"], Q @ pa["R"], atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(pb["axis"], pa["axis"] @ Q.T, atol=1e-5, rtol=1e-5)
+
+
+def test_eap_parts_turn_about_one_shared_axis_within_a_quarter_turn():
+    """EAP's constrained part poses (``M38`` 1076-1121): every part's rotation relative to another is a turn about
+    the one shared axis (through the orbit) by the difference of their angles, each angle within [0, 90] deg, and a
+    part's pivot stays where it is; a prismatic category slides along the axis instead."""
+    from scapo.methods import eap
+
+    torch.manual_seed(1)
+    net = eap.EAPNet(3, [0, 0], [(0, 1), (0, 2)], eap.PRESETS.get("test")).double().eval()
+    with torch.no_grad():
+        net.motion[-1].bias.normal_(0, 3.0)  # spread the angles
+        o = net(torch.rand(4, 64, 3, dtype=torch.float64) - 0.5)
+    assert float(o["amount"].min()) >= 0.0 and float(o["amount"].max()) <= np.pi / 2 + 1e-9
+    G = net.anchors.double()[o["orbit"]]  # (B, 3, 3)
+    u = (G @ o["axis"][..., None])[..., 0]
+    for p, q in ((1, 0), (2, 0), (2, 1)):
+        rel = o["R"][:, p] @ o["R"][:, q].transpose(1, 2)
+        rv = torch.from_numpy(Rotation.from_matrix(rel.numpy()).as_rotvec())
+        want = u * (o["amount"][:, p] - o["amount"][:, q])[:, None]
+        torch.testing.assert_close(rv, want, atol=1e-6, rtol=1e-6)
+    axis, amount = torch.tensor([[0.0, 0.0, 1.0]]), torch.tensor([[0.3, 1.2]])
+    centre, pivot = torch.tensor([[[0.2, 0.0, 0.0], [0.0, 0.3, 0.0]]]), torch.tensor([[[0.1, 0.1, 0.0]] * 2])
+    R, t = eap.part_motion(axis, amount, centre, pivot, prismatic=False)
+    for p in range(2):  # the pivot, as a point of the part's centred shape, is fixed by the motion
+        torch.testing.assert_close(R[0, p] @ (pivot[0, p] - centre[0, p]) + t[0, p], pivot[0, p])
+    R, t = eap.part_motion(axis, amount, centre, pivot, prismatic=True)
+    torch.testing.assert_close(R, torch.eye(3).expand(1, 2, 3, 3))
+    torch.testing.assert_close(t, centre + amount[..., None] * axis[:, None])
+
+
+def test_eap_stage1_leaves_stage0_as_trained():
+    """Stage 1 trains the part network with stage 0 frozen: its optimiser holds none of stage 0's parameters, and
+    steps of stage 1 change neither stage 0's parameters nor its statistics."""
+    from scapo.methods import eap
+
+    torch.manual_seed(0)
+    net = eap.EAPNet(2, [0], [(0, 1)], eap.PRESETS.get("test")).train()
+    s0, s1 = net.training_stages()
+    assert (s0["index"], s1["index"]) == (1, 2) and s1["epochs"] == 2 and s0["epochs"] == 1
+    frozen = {k: v.clone() for m in net.stage0_modules() for k, v in m.state_dict().items()}
+    held = {id(p) for p in s1["params"]()}
+    assert not any(id(p) in held for m in net.stage0_modules() for p in m.parameters())
+    opt = torch.optim.Adam(s1["params"](), lr=1e-2)
+    batch = {"points": torch.rand(4, 128, 3) + torch.tensor([0.0, 0.0, 1.0])}
+    for _ in range(3):
+        _, total = s1["losses"](batch, 0.5)
+        opt.zero_grad()
+        total.backward()
+        opt.step()
+    after = {k: v for m in net.stage0_modules() for k, v in m.state_dict().items()}
+    assert all(torch.equal(frozen[k], after[k]) for k in frozen)
+    assert all(p.grad is None for m in net.stage0_modules() for p in m.parameters())
+
+
+def test_eap_base_is_the_largest_part_and_every_point_is_predicted_at_the_training_density(monkeypatch):
+    """The base is the slot with the most points: its pose is ``T_cam_obj`` and it becomes the card's root part (the
+    labels follow); a cloud of more points than the training density is predicted in interleaved subsets of at most
+    that many, every point labelled by its subset, the poses the first subset's."""
+    from scapo.methods import eap
+
+    torch.manual_seed(0)
+    net = eap.EAPNet(2, [0], [(0, 1)], eap.PRESETS.get("test")).eval()
+    assert net.card_order(1).tolist() == [1, 0] and net.card_order(0).tolist() == [0, 1]
+    seen = []
+    real = net._predict
+
+    def spy(points):
+        seen.append(points.shape[1])
+        out = real(points)
+        out["label"] = torch.ones_like(out["label"])  # every point in slot 1: the largest
+        out["base"] = torch.ones_like(out["base"])
+        return out
+
+    monkeypatch.setattr(net, "_predict", spy)
+    pts = torch.rand(2, 300, 3) + torch.tensor([0.0, 0.0, 1.0])
+    o = net.infer(pts)
+    assert max(seen) <= net.pc.points and sum(seen) == 300 and len(seen) == 3
+    assert (o["part_label"] == 0).all()  # slot 1 is the card's base part 0
+    np.testing.assert_array_equal(o["T_cam_obj"], o["part_pose"][:, 0])
 
 
 def test_op_align_density_aware_chamfer_matches_the_original_rule_and_bounds_outliers():
@@ -570,9 +639,9 @@ def test_op_align_object_frame_is_its_base_parts_pose_and_its_terms_follow_the_o
     assert {"cano_joint", "pivot_near", "balance"} <= set(terms)
 
 
-def test_eap_anchor_choice_picks_the_rotation_whose_posed_shape_fits_each_part():
-    """Each part's frame is off by a cube rotation (a different one per part); the anchor choice (EAP's orbit
-    selection by reconstruction distance) finds the anchors that undo it."""
+def test_eap_orbit_choice_picks_the_one_anchor_that_fits_every_part():
+    """Two parts posed by one cube rotation of the group (one orbit shared by the parts); the orbit choice (EAP's
+    selection by reconstruction distance over the sum of the parts) finds the anchor that poses both."""
     from scapo.methods import eap
 
     rng = np.random.default_rng(0)
@@ -584,16 +653,13 @@ def test_eap_anchor_choice_picks_the_rotation_whose_posed_shape_fits_each_part()
         pts[:20] += np.array([size[0] / 2, size[1] / 2, 0.05])
         shapes.append(pts)
     Y = torch.tensor(np.stack(shapes), dtype=torch.float32)[None]  # (1, 2, 128, 3)
-    R_true = torch.from_numpy(Rotation.from_rotvec([[0.3, -0.8, 0.5], [1.2, 0.1, -0.4]]).as_matrix()).float()[None]
+    R = torch.from_numpy(Rotation.from_rotvec([[0.0, 0.0, 0.3], [0.0, 0.0, 0.9]]).as_matrix()).float()[None]
     t = torch.tensor([[[0.2, 0.0, 0.1], [-0.3, 0.2, 0.0]]])
-    X = torch.cat([Y[0, p] @ R_true[0, p].T + t[0, p] for p in range(2)])[None]  # (1, 256, 3)
+    want = 17
+    X = torch.cat([(Y[0, p] @ R[0, p].T + t[0, p]) @ G[want].T for p in range(2)])[None]  # (1, 256, 3)
     w = torch.zeros(1, 256, 2)
     w[0, :128, 0], w[0, 128:, 1] = 1, 1
-    want = torch.tensor([[5, 17]])
-    R_off = R_true @ G[want[0]].transpose(1, 2)  # the frame is off by G_want^-1
-    got = net.select_anchor(X, w, R_off, t, Y)
-    assert got.tolist() == want.tolist()
-    torch.testing.assert_close(R_off @ G[got[0]], R_true, atol=1e-5, rtol=0)
+    assert net.select_orbit(X, w, R, t, Y).tolist() == [want]
 
 
 def test_npcs_vn_backbone_gives_labels_and_npcs_that_no_rotation_changes():
@@ -615,37 +681,6 @@ def test_npcs_vn_backbone_gives_labels_and_npcs_that_no_rotation_changes():
     torch.testing.assert_close(a[2], b[2], atol=1e-8, rtol=1e-6)  # the per-part NPCS (cpu preset: part_npcs)
     with pytest.raises(ConfigError, match="backbone"):
         dataclasses.replace(pc, backbone="pointnet++")
-
-
-def test_eap_joint_terms_vanish_on_a_consistent_joint_and_not_on_a_wrong_one():
-    """EAP-style's joint heads (issue 30): for two parts related by a rotation about a known axis through a known
-    pivot, the true axis and pivot in each part's frame make the axis and pivot terms 0; a wrong axis or pivot
-    does not; a prismatic joint has no pivot term."""
-    from scapo.methods.eap import joint_consistency
-
-    rng = np.random.default_rng(0)
-    u, p = np.array([0.0, 0.6, 0.8]), np.array([0.1, -0.2, 0.3])  # the joint in the parent's frame
-    Ra = Rotation.from_rotvec(rng.normal(size=(4, 3))).as_matrix()
-    ta = rng.normal(size=(4, 3))
-    Rrel = Rotation.from_rotvec(np.outer(rng.uniform(0.3, 1.5, 4), u)).as_matrix()  # child = parent turned about u
-    Rc = Ra @ Rrel
-    tc = np.einsum("bij,j->bi", Ra, p) + ta - np.einsum("bij,j->bi", Rc, p)  # the pivot stays where it was
-    # so in the child's frame the pivot is p and the axis u as well (the relative rotation fixes both)
-
-    def t(x):
-        return torch.tensor(np.asarray(x), dtype=torch.float64)
-
-    def terms(u_a, p_a, u_c, p_c, jt=0):
-        head = t(np.concatenate([u_a, p_a, u_c, p_c]))[None, None].expand(4, 1, 12)
-        return joint_consistency(t(Ra)[:, None], t(ta)[:, None], t(Rc)[:, None], t(tc)[:, None], head,
-                                 torch.tensor([jt]))
-
-    good = terms(u, p, u, p)
-    assert float(good["axis"]) < 1e-12 and float(good["pivot"]) < 1e-12 and float(good["joint_var"]) < 1e-12
-    np.testing.assert_allclose(good["pivot_posed"][:, 0].numpy(), np.einsum("bij,j->bi", Ra, p) + ta, atol=1e-9)
-    assert float(terms([1.0, 0, 0], p, [1.0, 0, 0], p)["axis"]) > 1e-2
-    assert float(terms(u, p + 0.1, u, p + 0.1)["pivot"]) > 1e-4
-    assert float(terms(u, p + 0.1, u, p + 0.1, jt=1)["pivot"]) == 0.0
 
 
 def test_perf_train_times_every_trained_methods_step_and_refuses_icp(tmp_path, capsys):
@@ -839,36 +874,13 @@ def test_cpu_presets_fill_the_equal_training_budget(name):
     assert measured["provenance"]["budget_minutes"] == 15.0 and row["threads"] == 1
     pc = METHODS.get(name).preset("cpu")
     assert getattr(pc, "train_points", getattr(pc, "points", None)) == 256 and pc.batch_size == 16
-    epochs = {"stage1_epochs": pc.stage1_epochs, "stage2_epochs": pc.stage2_epochs} if name == "scapo" else \
-        {"stage1_epochs": pc.epochs}
+    from scapo.registry import schedule_fields
+
+    epochs = {f"stage{k}_epochs": getattr(pc, f) for k, f in enumerate(schedule_fields(pc), 1)}
     assert pc.max_steps_per_epoch == 100 and not getattr(pc, "iterations", 0)
     (plan,) = training_budget([{**row, **epochs, "max_steps_per_epoch": pc.max_steps_per_epoch}], 15.0,
                               row["train_clouds"])
     assert abs(plan["planned_min"] - 15.0) <= 1.5, plan
-
-
-def test_eap_joints_option_takes_the_heads_or_the_pairs_joint_carried_by_the_child(laptop_data, trained_runs, tmp_path):
-    """EAP-style's ``joints`` prediction option: ``heads`` (default, EAP's own heads) or ``pairs`` (the category joint
-    from pairs of training clouds, carried by the child part's predicted pose); anything else is refused."""
-    import torch as _torch
-
-    from scapo.eval.predictions import Predictions
-
-    heads = run_method("eap", laptop_data, tmp_path / "h.npz", run=trained_runs["eap"])
-    pairs = run_method("eap", laptop_data, tmp_path / "p.npz", run=trained_runs["eap"], joints="pairs")
-    assert isinstance(pairs, Predictions) and not np.allclose(heads.joint_axis, pairs.joint_axis)
-    np.testing.assert_allclose(heads.part_pose, pairs.part_pose)
-    np.testing.assert_allclose(heads.joint_state, pairs.joint_state)
-    ck = _torch.load(trained_runs["eap"] / "checkpoint.pt", weights_only=False)
-    ex = ck["extras"]
-    if bool(np.asarray(ex["joint_ok"])[0]):  # the laptop's hinge: parent base (0), child lid (1)
-        want = np.einsum("bij,j->bi", pairs.part_pose[:, 1, :3, :3], np.asarray(ex["joint_axis"])[0])
-        np.testing.assert_allclose(pairs.joint_axis[:, 0], want, atol=1e-6)
-    from scapo.methods.eap import EAPOptions
-
-    assert "joints" in validate_options("eap", {"joints": "pairs"})
-    with pytest.raises(ConfigError, match="joints must be 'heads' or 'pairs'"):
-        EAPOptions(joints="both")
 
 
 def test_npcs_infer_points_splits_the_cloud_into_training_density_subsets(trained_test_runs):

@@ -122,8 +122,8 @@ def _twin_frame_consistency(out, preds, swap):
     """A prediction in the twin's order and poses has one canonical frame. The laptop's twin object frame is the lid's
     pose turned by the symmetry, which moves with the joint state: the symmetry-aware share counts every sample,
     while the rest-state turn of the base's frame (``T_cam_obj S^-1``) does not."""
-    from scapo.eval.frames import frame_consistency, split_consistency
     from scapo.eval.evaluator import declared_rotations, object_frame_twins
+    from scapo.eval.frames import frame_consistency, split_consistency
 
     ds = load(out, "test")
     n = len(ds)

@@ -226,8 +226,8 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
             "data_seed": data_seed, "preset": preset, "protocol": protocol, "command": command,
             "machine": device_description("cpu"), "from_table": bool(from_table)}
     if from_table:
-        meta["note"] = (f"The table's cells at other budgets (`--from-table`): each method trains with the preset "
-                        f"`scapo bench table1` gives it (the rows' `budget_values` name it with its schedule) and the "
+        meta["note"] = ("The table's cells at other budgets (`--from-table`): each method trains with the preset "
+                        "`scapo bench table1` gives it (the rows' `budget_values` name it with its schedule) and the "
                         "epochs that fill the budget less its one-time work (SCAPO's pseudo-labels between its "
                         "stages, EAP-style's joint estimation) from the table's measured charged speeds, as in the "
                         "table; a cell at the table's own budget and seed is the table's run, predicted and scored "

@@ -171,7 +171,12 @@ def budget_plan(row: dict, values: dict, budget_minutes: float, train_clouds: in
     if "iterations" in values:
         phases["stage1/steps"] = values["iterations"] * batch / row["stage1_clouds_per_s"]
     else:
-        epochs = {1: values.get("stage1_epochs", values.get("epochs", 0)), 2: values.get("stage2_epochs", 0)}
+        if "stage1_epochs" in values:  # the engine's stages in the order of scapo.registry.schedule_fields
+            epochs = {1: values["stage1_epochs"], 2: values["stage2_epochs"]}
+        elif "stage0_epochs" in values:
+            epochs = {1: values["stage0_epochs"], 2: values["epochs"]}
+        else:
+            epochs = {1: values.get("epochs", 0)}
         for k, e in epochs.items():
             if f"stage{k}_clouds_per_s" in row and e:
                 phases[f"stage{k}/steps"] = e * per_epoch * batch / row[f"stage{k}_clouds_per_s"]

@@ -23,6 +23,7 @@ from scapo.data.generate import _POOL_WORKER, ShardWorker, _pool_init, generate,
 from scapo.files import atomic_write_text, check_output_dir
 from scapo.ops.rigid import sapien_camera_pose
 from scapo.provenance import provenance, render_device
+from scapo.registry import schedule_fields
 from scapo.report import markdown_table
 from scapo.sim.assets import build_category
 from scapo.sim.render import sample_camera_pose, sample_state
@@ -210,13 +211,15 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
         base = METHODS.get(m).preset(preset)
         if sets:
             base = override(base, sets, f"{m} preset")
-        two = hasattr(base, "stage2_epochs")
+        fields = schedule_fields(base)
         batch = base.batch_size
         if clouds < steps * batch:
             raise ConfigError(f"{data}: {clouds} training clouds, fewer than the {steps * batch} that {steps} "
                               f"steps of {batch} need; give a larger dataset or a smaller --steps")
         values = {"max_steps_per_epoch": steps}
-        values.update({"stage1_epochs": 2, "stage2_epochs": 2} if two else {"epochs": 2, "iterations": 0})
+        values.update({f: 2 for f in fields})
+        if hasattr(base, "iterations"):
+            values["iterations"] = 0
         run = root / f"{m}_{preset.replace('/', '-')}"
         train_method(m, data, run, override(base, values, f"{m} preset"), progress=False, device=device)
         timing = json.loads((run / "timing.json").read_text())
@@ -231,10 +234,9 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
         one_time = {n: float(p["charged_s"]) for n, p in ledger["phases"].items()
                     if not (n.endswith("/steps") or n.endswith("/epochs"))}
         fixed = one_time_s(ledger)
-        if two:
-            row.update(stage1_epochs=base.stage1_epochs, stage2_epochs=base.stage2_epochs)
-        else:
-            row.update(stage1_epochs=base.epochs, iterations=base.iterations)
+        row.update({f"stage{k}_epochs": getattr(base, f) for k, f in enumerate(fields, 1)})
+        if len(fields) == 1:
+            row["iterations"] = base.iterations
         row.update(max_steps_per_epoch=base.max_steps_per_epoch, fixed_s=round(fixed, 1),
                    one_time_s={n: round(v, 1) for n, v in one_time.items()}, unit=ledger["unit"], train_clouds=clouds,
                    data=str(data), device=timing.get("device") or device or "cpu",
@@ -297,13 +299,12 @@ def training_budget(rows: list[dict], minutes: float, train_clouds: int) -> list
 
 
 def budget_schedule(row: dict, preset, minutes: float) -> dict:
-    """The preset fields that fill the budget, from a :func:`training_budget` row: ``stage1_epochs`` and
-    ``stage2_epochs`` (a two-stage ``preset``), ``epochs`` (one stage), or ``iterations`` (a preset of a fixed number
+    """The preset fields that fill the budget, from a :func:`training_budget` row: the epochs of each stage
+    (:func:`scapo.registry.schedule_fields`: SCAPO's ``stage1_epochs`` and ``stage2_epochs``, EAP-style's
+    ``stage0_epochs`` and ``epochs``, a one-stage preset's ``epochs``), or ``iterations`` (a preset of a fixed number
     of iterations: the iterations ``minutes`` buy at the measured clouds/s, less the row's one-time seconds)."""
     if "budget_min" in row:
-        if hasattr(preset, "stage2_epochs"):
-            return {"stage1_epochs": row["stage1_epochs_for_budget"], "stage2_epochs": row["stage2_epochs_for_budget"]}
-        return {"epochs": row["stage1_epochs_for_budget"]}
+        return {f: row[f"stage{k}_epochs_for_budget"] for k, f in enumerate(schedule_fields(preset), 1)}
     sec = max(minutes * 60 - float(row.get("fixed_s", 0.0)), 1.0)
     return {"iterations": max(1, int(sec * row["stage1_clouds_per_s"] / row["batch_size"]))}
 

@@ -373,7 +373,8 @@ def pairwise_bootstrap(results: Sequence[EvalResult], draws: int = 1000, seed: i
 
 
 def pairwise_markdown(boot: dict, display: Callable[[str], str] = str) -> list[str]:
-    """The "Differences the training seeds and test instances support" lines under a table (:func:`pairwise_bootstrap`)."""
+    """The "Differences the training seeds and test instances support" lines under a table
+    (:func:`pairwise_bootstrap`)."""
     if not boot.get("metrics") or not any(boot["metrics"].values()):
         return []
     lines = ["## Differences the training seeds and test instances support", ""]
@@ -478,9 +479,9 @@ def ordering_markdown(order: dict, display: Callable[[str], str] = str, rows_kin
                f", seeds {'separate' if a['seeds_separate'] else 'overlap'}") for m, a in res["against"].items())
         rows.append([name, display(res["best"]), vals, checks])
     legend = (f"Self-supervised rows on the categories all of them have ({', '.join(order['categories'])}); values "
-              "as in the table's Mean column. Resamples: a hierarchical bootstrap over each method's training seeds, "
-              f"then the test instances ({order['draws']} draws); seeds separate: on every category where both have several "
-              "training seeds, the best method's worst seed beats the other's best seed.")
+              "as in the table's Mean column. Resamples: a hierarchical bootstrap over each method's training "
+              f"seeds, then the test instances ({order['draws']} draws); seeds separate: on every category where "
+              "both have several training seeds, the best method's worst seed beats the other's best seed.")
     return [f"## Self-supervised ordering{f' ({rows_kind})' if rows_kind else ''}", "",
             markdown_table(["Metric", "Best", "Values (mean over categories)", "Checks of the best"], rows,
                            ["l", "l", "l", "l"]), "", legend, ""]

@@ -205,7 +205,9 @@ def train_learned(spec: LearnedSpec, data: str | Path, run: str | Path, preset=N
 
 def learned_job(spec: LearnedSpec, pc, train: ArticulationDataset, dev: torch.device) -> TrainJob:
     """The engine's job for a learned baseline: ``spec.build(card, pc)`` (initialised from ``pc.seed``), one
-    stage of ``pc.epochs`` over its ``losses(batch, progress)``, the training split's ``spec.fields`` (and the
+    stage of ``pc.epochs`` over its ``losses(batch, progress)`` (or the stages of the network's
+    ``training_stages()``: dicts of :class:`~scapo.engine.loop.Stage` fields without the learning rate and schedule,
+    which are the preset's), the training split's ``spec.fields`` (and the
     labels ``pc.supervision`` allows) subsampled to ``pc.points`` points; ``spec.extras`` stored with the
     final checkpoint."""
     from scapo.losses.supervised import supervised_fields
@@ -228,13 +230,16 @@ def learned_job(spec: LearnedSpec, pc, train: ArticulationDataset, dev: torch.de
     cfg = FitConfig(batch_size=pc.batch_size, weight_decay=pc.weight_decay, min_lr=pc.min_lr, grad_clip=pc.grad_clip,
                     max_steps_per_epoch=pc.max_steps_per_epoch, seed=pc.seed, order="permutation")
     data = CloudSet(tensors, pc.points)
-    epochs = pc.epochs
-    if pc.iterations > 0:  # the original's iteration count on one process: epochs of this training split
-        per_epoch = TrainJob(model=net, data=data, stages=[], config=cfg).steps_per_epoch(1)
-        epochs = max(1, -(-pc.iterations // per_epoch))
-    stage = Stage(index=1, epochs=epochs, lr=pc.lr, params=lambda: list(net.parameters()), losses=net.losses,
-                  schedule=pc.lr_schedule, decay=pc.lr_decay, decay_steps=pc.lr_decay_steps)
-    return TrainJob(model=net, data=data, stages=[stage], config=cfg, extras=extras,
+    sched = {"lr": pc.lr, "schedule": pc.lr_schedule, "decay": pc.lr_decay, "decay_steps": pc.lr_decay_steps}
+    if hasattr(net, "training_stages"):  # a network with stages of its own (EAP-style: the whole object first)
+        stages = [Stage(**sched, **kw) for kw in net.training_stages()]
+    else:
+        epochs = pc.epochs
+        if pc.iterations > 0:  # the original's iteration count on one process: epochs of this training split
+            per_epoch = TrainJob(model=net, data=data, stages=[], config=cfg).steps_per_epoch(1)
+            epochs = max(1, -(-pc.iterations // per_epoch))
+        stages = [Stage(index=1, epochs=epochs, params=lambda: list(net.parameters()), losses=net.losses, **sched)]
+    return TrainJob(model=net, data=data, stages=stages, config=cfg, extras=extras,
                     desc=f"train {spec.method} {train.card['category']} ({pc.name})")
 
 
@@ -646,8 +651,9 @@ def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "c
     """Clouds/s of one training step (loss, backward, Adam) of a freshly initialised ``spec`` network of ``preset``'s
     size (``scapo bench perf --what train``): a two-part, one-revolute structure, the preset's batch of box clouds
     (:func:`scapo.engine.speed.box_clouds`) at its training points; a supervised method gets labels and NPCS
-    derived from the clouds (left and right halves as parts). ``{"batch_size", "points", "stage1_clouds_per_s",
-    "stage1_epochs", "max_steps_per_epoch", "iterations"}`` (the last three: the preset's schedule).
+    derived from the clouds (left and right halves as parts). ``{"batch_size", "points", "stage<k>_clouds_per_s",
+    "stage<k>_epochs", "max_steps_per_epoch", "iterations"}`` per training stage (the network's
+    ``training_stages()`` where it has them; the epochs, steps cap and iterations: the preset's schedule).
 
     Raises:
         UnknownNameError: unknown preset. ConfigError: an unavailable device."""
@@ -675,12 +681,18 @@ def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "c
         a.update(instance_id=np.arange(pc.batch_size), view_id=np.zeros(pc.batch_size, dtype=np.int64))
         batch.update({k: torch.from_numpy(v).to(dev) for k, v in spec.derive(a, SPEED_CARD, pc).items()})
 
-    def step():
-        _, total = net.losses(batch, 0.5)
-        opt.zero_grad()
-        total.backward()
-        opt.step()
+    from scapo.registry import schedule_fields
 
-    sec = median_seconds(step, iters, dev.type == "cuda")
-    return {"batch_size": pc.batch_size, "points": pc.points, "stage1_clouds_per_s": round(pc.batch_size / sec, 2),
-            "stage1_epochs": pc.epochs, "max_steps_per_epoch": pc.max_steps_per_epoch, "iterations": pc.iterations}
+    losses = [st["losses"] for st in net.training_stages()] if hasattr(net, "training_stages") else [net.losses]
+    row = {"batch_size": pc.batch_size, "points": pc.points}
+    for k, fn in enumerate(losses, 1):
+        def step(fn=fn):
+            _, total = fn(batch, 0.5)
+            opt.zero_grad()
+            total.backward()
+            opt.step()
+
+        sec = median_seconds(step, iters, dev.type == "cuda")
+        row[f"stage{k}_clouds_per_s"] = round(pc.batch_size / sec, 2)
+    row.update({f"stage{k}_epochs": getattr(pc, f) for k, f in enumerate(schedule_fields(pc), 1)})
+    return {**row, "max_steps_per_epoch": pc.max_steps_per_epoch, "iterations": pc.iterations}
