@@ -162,6 +162,17 @@ def test_a_cells_consistency_is_scored_again_when_it_predates_the_twin_object_fr
     assert ladder._upgrade(tmp_path / "sym_s0.json", tmp_path / "sym", "npcs", None) == rec and len(calls) == 1
 
 
+def test_a_variant_may_train_another_preset_with_its_own_speed_file():
+    from scapo.bench.ladder import speed_file, variant_preset
+
+    assert variant_preset({"preset": "cpu-laptop", "lr": "0.002"}, "cpu") == ("cpu-laptop", {"lr": "0.002"})
+    assert variant_preset({"lr": "0.002"}, "cpu") == ("cpu", {"lr": "0.002"})
+    work = Path("w")
+    assert speed_file(work, "scapo") == work / "speed_scapo.json"
+    a, b = speed_file(work, "scapo", sets={"lr": "0.002"}), speed_file(work, "scapo", sets={"lr": "0.003"})
+    assert a != b and a.name.startswith("speed_scapo_v") and a == speed_file(work, "scapo", sets={"lr": "0.002"})
+
+
 def test_parse_variant():
     assert parse_variant("scapo:cons:losses.consensus=1,losses.align=0") == (
         "scapo", "cons", {"losses.consensus": "1", "losses.align": "0"})
@@ -185,8 +196,13 @@ def test_ladder_end_to_end(tmp_path, capsys):
     assert rows == {("one", "npcs"), ("one", "npcs:wide")}
     for x in table["records"]:
         assert 0.0 <= x["frame_consistency"] <= 1.0 and x["split"] == "val" and x["provenance"]["commit"]
+        # the compute ledger: every phase charged, within 110 % of the 0.05 core-minutes, and its inference time
+        assert x["ledger"]["unit"] == "core-seconds" and {"setup", "stage1/steps"} <= set(x["ledger"]["phases"])
+        assert 0 < x["charged_min"] <= 1.1 * 0.05 and x["plan"]["budget_s"] == 3.0 and x["infer_ms_per_cloud"] > 0
+    # the variant's speed and one-time work are measured on their own (a variant can cost more than its base)
+    assert len(list((tmp_path / "w" / "ladder").glob("speed_npcs_test_cpu_v*.json"))) == 1
     md = (tmp_path / "o" / "ladder_laptop.md").read_text()
-    assert "frame cons." in md and "npcs:wide" in md and "first rung below" in md
+    assert "frame cons." in md and "npcs:wide" in md and "first rung below" in md and "charged min" in md
     capsys.readouterr()
     assert main(cmd) == 0 and "measuring" not in capsys.readouterr().out
     assert json.loads((tmp_path / "o" / "ladder_laptop.json").read_text())["records"] == table["records"]
