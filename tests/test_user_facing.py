@@ -570,3 +570,25 @@ def test_training_on_an_object_without_a_movable_joint_is_refused(pin_copy, tmp_
     with pytest.raises(ConfigError, match="has no movable joint"):
         train_method("npcs", pin_copy, tmp_path / "r", "test", progress=False)
     assert not (tmp_path / "r").exists()
+
+
+def test_progress_bars_draw_only_on_a_terminal(monkeypatch):
+    """A log file or a pipe gets no carriage-return progress lines (tqdm's own check of the stream); a terminal gets
+    the bar, unless ``--no-progress`` (``TQDM_DISABLE``) turned bars off."""
+    import io
+
+    from scapo.report import progress_bar
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    log = io.StringIO()
+    assert list(progress_bar(range(3), file=log)) == [0, 1, 2] and log.getvalue() == ""
+    term = Terminal()
+    list(progress_bar(range(3), file=term))
+    assert "3/3" in term.getvalue()
+    monkeypatch.setenv("TQDM_DISABLE", "1")
+    quiet = Terminal()
+    list(progress_bar(range(3), file=quiet))
+    assert quiet.getvalue() == ""

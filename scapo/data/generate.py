@@ -580,9 +580,9 @@ def _generate_locked(cfg, out, workers, progress, cache_dir, on_shard_done, t0, 
     n_todo = sum(len(t.items) for t in todo)
     bar = None
     if progress:
-        from tqdm import tqdm
+        from scapo.report import progress_bar
 
-        bar = tqdm(total=total, initial=total - n_todo, desc=f"generate {cfg.category}", unit="sample",
+        bar = progress_bar(total=total, initial=total - n_todo, desc=f"generate {cfg.category}", unit="sample",
                    dynamic_ncols=True)
     rejections: Counter = Counter()
     spans: list[tuple[float, float]] = []

@@ -277,10 +277,10 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
         min(start[1], s.epochs) for s in live if s.index == start[0])
     bar = None
     if progress and ctx.is_main:
-        from tqdm import tqdm
+        from scapo.report import progress_bar
 
-        bar = tqdm(total=steps * sum(s.epochs for s in live), initial=steps * done_before, desc=job.desc, unit="it",
-                   dynamic_ncols=True)
+        bar = progress_bar(total=steps * sum(s.epochs for s in live), initial=steps * done_before, desc=job.desc,
+                           unit="it", dynamic_ncols=True)
     columns = list(dict.fromkeys([*BASE_COLUMNS, *[t for s in job.stages for t in s.terms]]))
     board = _tensorboard(folder, steps * done_before) if ctx.is_main else None
     t0 = plotted = time.perf_counter()

@@ -405,9 +405,9 @@ class ICPBaseline:
         state = np.zeros((M, J))
         it = range(M)
         if self.config.progress:
-            from tqdm import tqdm
+            from scapo.report import progress_bar
 
-            it = tqdm(it, desc=f"icp {dataset.split}", unit="cloud")
+            it = progress_bar(it, desc=f"icp {dataset.split}", unit="cloud")
         for m in it:
             pts = a["points"][m].astype(np.float64)
             gl = a["part_label"][m]

@@ -476,9 +476,9 @@ class LearnedMethod:
         """The network's one-pass outputs for ``points (M, N, 3)`` in batches (a tqdm bar titled ``progress``)."""
         it = range(0, len(points), self.options.batch_size)
         if progress:
-            from tqdm import tqdm
+            from scapo.report import progress_bar
 
-            it = tqdm(it, desc=progress, unit="batch")
+            it = progress_bar(it, desc=progress, unit="batch")
         outs = []
         for i in it:
             X = torch.from_numpy(np.ascontiguousarray(points[i:i + self.options.batch_size])).float()

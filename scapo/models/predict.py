@@ -226,9 +226,9 @@ class Predictor:
         step = max(1, min(int(batch_size), _BATCH_BYTES // (4 * n * n)))
         starts = range(0, B, step)
         if progress:
-            from tqdm import tqdm
+            from scapo.report import progress_bar
 
-            starts = tqdm(starts, desc="scapo predict", unit="batch")
+            starts = progress_bar(starts, desc="scapo predict", unit="batch")
         outs = []
         for k in starts:
             o = self.model.predict(pts[k:k + step].to(self.device), self.refine, self.upright)

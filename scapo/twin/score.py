@@ -142,9 +142,9 @@ def twin_scores(data: str | Path, predictions, split: str = "test", limit: int =
     rows = []
     it = range(n)
     if progress:
-        from tqdm import tqdm
+        from scapo.report import progress_bar
 
-        it = tqdm(it, desc=f"twin {preds.method}", unit="sample")
+        it = progress_bar(it, desc=f"twin {preds.method}", unit="sample")
     try:
         with tempfile.TemporaryDirectory(prefix="scapo-twin-") as tmp:
             for k in it:

@@ -216,7 +216,7 @@ def build_category(
         raise ConfigError(f"the number of instances must be >= 1, got {instances}")
     if not progress:
         return [build_instance(category, i, seed, cache_dir) for i in range(int(instances))]
-    from tqdm import tqdm
+    from scapo.report import progress_bar
 
-    with tqdm(range(int(instances)), desc=f"assets {category}", unit="inst") as ids:
+    with progress_bar(range(int(instances)), desc=f"assets {category}", unit="inst") as ids:
         return [build_instance(category, i, seed, cache_dir) for i in ids]
