@@ -79,6 +79,9 @@ def test_tables_figures_and_per_cell_provenance(bench):
         assert c["charged_s"] == pytest.approx(sum(p["charged_s"] for p in timing["ledger"]["phases"].values()),
                                                abs=0.01)
         assert {"setup", "stage1/steps"} <= set(timing["ledger"]["phases"]) and c["infer_ms_per_cloud"] > 0
+        phases = timing["ledger"]["phases"]  # one session: the phases' wall seconds are the set-up and the loop's
+        assert sum(p["wall_s"] for p in phases.values()) - phases["setup"]["wall_s"] == pytest.approx(
+            timing["session_s"], abs=0.01)
     assert prov["compute_hours"] == round(sum(c["train_s"] + c["predict_s"] + c["evaluate_s"]
                                               for c in cells.values()) / 3600, 2)
     from scapo.methods import METHODS

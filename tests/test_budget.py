@@ -91,6 +91,9 @@ def test_a_cell_over_its_budget_is_refused_naming_the_phase():
         check_budget(led.to_dict(), 100.0, plan, what="cell laptop/paper/scapo_s0")
     with pytest.raises(ConfigError, match="the largest phase is 'stage1/steps'"):
         check_budget(led.to_dict(), 100.0)
+    two = Ledger(world=2)  # two processes (torchrun): rank 0 keeps the ledger, every rank's seconds are charged
+    two.add("stage1/steps", 3.0, 4.0)
+    assert two.charged("stage1/steps") == 6.0 and two.to_dict()["phases"]["stage1/steps"]["wall_s"] == 8.0
     gpu = Ledger(accelerator=True, before=led.to_dict())  # a resumed run adds to its checkpoint's ledger
     gpu.add("stage1/steps", 0.0, 1.0)
     assert gpu.to_dict()["unit"] == "device-seconds" and gpu.charged("stage1/steps") == pytest.approx(62.0)

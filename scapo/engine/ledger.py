@@ -3,8 +3,9 @@
 The tables give every trained method the same budget of charged compute. A training run's ledger
 (``timing.json``'s ``ledger``, kept in every checkpoint so that a resumed run adds to it) holds, per phase, the
 process's CPU seconds (``cpu_s``: every thread of the process, so one busy core for one second is one core-second)
-and the wall seconds (``wall_s``); the charged seconds are the CPU seconds on a CPU device, the wall seconds of the
-accelerator otherwise (``charged_s``; the budget is then minutes of that device). The phases:
+and the wall seconds (``wall_s``), each times the number of processes training the run; the charged seconds are the
+CPU seconds on a CPU device, the wall seconds of the accelerator otherwise (``charged_s``; the budget is then minutes
+of that device). The phases:
 
 ============================ ===================================================================================
 phase                        what
@@ -41,19 +42,23 @@ class Ledger:
     Args:
         accelerator: charge wall seconds (a CUDA device) instead of the process's CPU seconds.
         before: an earlier session's :meth:`to_dict` (from the checkpoint): its phases are added to.
+        world: processes training the run (``torchrun``): the ledger is kept by rank 0, and every rank does the same
+            work, so each phase is charged ``world`` times what rank 0 measures.
     """
 
-    def __init__(self, accelerator: bool = False, before: dict | None = None):
+    def __init__(self, accelerator: bool = False, before: dict | None = None, world: int = 1):
         self.accelerator = bool(accelerator)
+        self.world = max(int(world), 1)
         self.phases: dict[str, dict[str, float]] = {}
         for name, p in ((before or {}).get("phases") or {}).items():
             self.phases[str(name)] = {"cpu_s": float(p.get("cpu_s", 0.0)), "wall_s": float(p.get("wall_s", 0.0))}
 
     def add(self, name: str, cpu_s: float, wall_s: float) -> None:
-        """Add ``cpu_s`` CPU seconds and ``wall_s`` wall seconds to phase ``name``."""
+        """Add ``cpu_s`` CPU seconds and ``wall_s`` wall seconds of this process (times the world size) to phase
+        ``name``."""
         p = self.phases.setdefault(name, {"cpu_s": 0.0, "wall_s": 0.0})
-        p["cpu_s"] += max(float(cpu_s), 0.0)
-        p["wall_s"] += max(float(wall_s), 0.0)
+        p["cpu_s"] += max(float(cpu_s), 0.0) * self.world
+        p["wall_s"] += max(float(wall_s), 0.0) * self.world
 
     @contextmanager
     def phase(self, name: str):

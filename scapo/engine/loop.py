@@ -286,9 +286,10 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
     t0 = plotted = time.perf_counter()
     c0 = time.process_time()
     before = float(state.get("seconds", 0.0)) if state is not None else 0.0  # earlier sessions' training time
-    ledger = Ledger(device.type != "cpu", state.get("ledger") if state is not None else None)
+    ledger = Ledger(device.type != "cpu", state.get("ledger") if state is not None else None, world=ctx.world)
     ledger.add("setup", *setup)
-    charged_before = {k: dict(v) for k, v in ledger.phases.items()}  # this session's "other" is what remains
+    # this session's "other": what fit's own phases leave of its seconds (the set-up was measured before fit)
+    charged_before = {k: dict(v) for k, v in ledger.phases.items()}
     # where this session's time went, per stage (timing.json "stages"; scapo bench perf --what train --data)
     parts = {str(s.index): {"steps": 0, "step_s": 0.0, "epochs": 0, "epoch_s": 0.0, "start_s": 0.0} for s in live}
     final_s = 0.0
@@ -355,8 +356,9 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
     if ctx.is_main:  # the training time over every session that trained this run (resumes included)
         spent = {k: (v["cpu_s"] - charged_before.get(k, {}).get("cpu_s", 0.0),
                      v["wall_s"] - charged_before.get(k, {}).get("wall_s", 0.0)) for k, v in ledger.phases.items()}
-        ledger.add("other", time.process_time() - c0 - sum(c for c, _ in spent.values()) + setup[0],
-                   time.perf_counter() - t0 - sum(w for _, w in spent.values()) + setup[1])
+        w = ledger.world  # spent is charged for every rank; this process's own seconds in fit are what remains
+        ledger.add("other", time.process_time() - c0 - sum(c for c, _ in spent.values()) / w,
+                   time.perf_counter() - t0 - sum(s for _, s in spent.values()) / w)
         folder.write_timing(before + time.perf_counter() - t0, device, ctx.world,
                             steps=sum(stage.epochs * steps for stage in live),
                             breakdown={**_breakdown(parts, final_s, time.perf_counter() - t0),
