@@ -9,12 +9,30 @@
 #                                                         # chain with scapo, whose cells it would otherwise train)
 #   WT=... WORK=... FINISH=1 OUT=results/fair_race bash bench/fair_race.sh   # the tables of the finished cells
 #
+#   WORK=... ARCHIVE=results/fair_race/cells/NAME bash bench/fair_race.sh   # keep the finished cells' records and
+#                                                         # speed files (no predictions, no runs)
+#   WORK=... RESTORE=results/fair_race/cells/NAME bash bench/fair_race.sh   # put them back into a new work folder
+#
 # WT: a clean worktree of the commit the cells record (git worktree add); its code computes the cells. Several
-# chains may share WORK (each its own methods) once the data exist; the data step runs in the first chain.
+# chains may share WORK (each its own methods) once the data exist; the data step runs in the first chain. A restored
+# cell is not computed again (its record is found); check that the regenerated datasets have the records' hashes.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-wt="${WT:?give WT, a clean worktree of the commit the cells record}"
 work="${WORK:?give WORK, the work folder}"
+if [ -n "${ARCHIVE:-}" ]; then  # records and speed files, their paths relative to WORK/ladder
+  (cd "$work/ladder" && { find . -maxdepth 1 -name 'speed_*.json'
+     find . -mindepth 3 -maxdepth 3 -path './*/paper/*' -name '*_s[0-9]*.json'; } \
+     | while read -r f; do install -D -m 644 "$f" "$here/$ARCHIVE/$f"; done)
+  echo "fair_race.sh: archived $(find "$here/$ARCHIVE" -name '*.json' | wc -l) files into $ARCHIVE"
+  exit 0
+fi
+if [ -n "${RESTORE:-}" ]; then  # never over a cell of the work folder
+  (cd "$here/$RESTORE" && find . -name '*.json' -print0 | while IFS= read -r -d '' f; do
+     [ -e "$work/ladder/$f" ] || install -D -m 644 "$f" "$work/ladder/$f"; done)
+  echo "fair_race.sh: restored $RESTORE into $work/ladder"
+  exit 0
+fi
+wt="${WT:?give WT, a clean worktree of the commit the cells record}"
 py="${PYTHON:-$here/.venv/bin/python}"
 budget="${BUDGET:-15}"
 cats="${CATEGORIES:-laptop eyeglasses}"
