@@ -18,6 +18,11 @@ class ConfigError(ScapoError, ValueError):
     """A configuration value is invalid or conflicts with data already on disk."""
 
 
+class BudgetError(ConfigError):
+    """A trained cell charged more than its budget allows (:func:`scapo.engine.ledger.check_budget`); its run is kept,
+    no record is written."""
+
+
 class StaleAssetsError(ConfigError):
     """A dataset folder's finished shards were rendered from other assets than the current ones (the asset
     generator or its templates changed since): resuming would mix two versions of the objects."""

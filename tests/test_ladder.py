@@ -436,3 +436,26 @@ def test_pseudo_label_confusion_scores_a_runs_split_labels(laptop_data, tmp_path
     assert "template_split.npz cannot be read" in capsys.readouterr().err
     assert mod.main(["--bins", "3,1", "--data", str(laptop_data), "--run", f"r={run}", "--out", str(tmp_path / "o")]) == 2
     assert "--bins" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
+
+
+def test_a_cell_over_its_budget_is_refused_and_the_others_are_computed(tmp_path, monkeypatch):
+    """A cell refused by the compute ledger (:class:`~scapo.errors.BudgetError`) does not stop the ladder: the other
+    cells are computed and their table written, then the command ends with the refusal."""
+    from scapo.bench import ladder
+    from scapo.errors import BudgetError
+
+    def cell(data, work, category, rung, method, seed, *a, **k):
+        if seed == 0:
+            raise BudgetError(f"cell {category}/{rung}/{method}_s0 charged 1000 core-seconds, more than 110 %")
+        return {"rung": rung, "method": method, "seed": seed, "frame_consistency": 0.5, "frame_consistency_sym": 0.5,
+                "alignment_inlier_ratio": None, "resampling_deg": None, "S": 50.0, "D": 1.0, "D_median": 1.0, "C": 0.1,
+                "R": 1.0, "R_median": 1.0, "R_sym": 1.0, "R_sym_median": 1.0, "R_sym_over90": 0.0,
+                "wall": {"train_steps": 10}, "provenance": {"commit": "c"}, "dataset_hash": "h"}
+
+    monkeypatch.setattr(ladder, "_finished_dataset", lambda folder, cfg: True)
+    monkeypatch.setattr(ladder, "_training_presets", lambda *a, **k: {})
+    monkeypatch.setattr(ladder, "_cell", cell)
+    with pytest.raises(BudgetError, match="(?s)1 cell\\(s\\) refused.*npcs_s0"):
+        ladder.run_ladder("laptop", ["npcs"], ["paper"], [0, 1], work=tmp_path / "w", out=tmp_path / "o")
+    table = json.loads((tmp_path / "o" / "ladder_laptop.json").read_text())
+    assert [r["seed"] for r in table["records"]] == [1]

@@ -44,7 +44,7 @@ from scapo.bench.cells import (
 )
 from scapo.data import generate, load, make_config
 from scapo.data.config import viewpoints_of
-from scapo.errors import ConfigError, ScapoWarning
+from scapo.errors import BudgetError, ConfigError, ScapoWarning
 from scapo.files import check_output_dir
 from scapo.methods import METHODS, describe
 from scapo.provenance import git_commit
@@ -372,9 +372,14 @@ def _compute(cells: Sequence[Cell], work: Path, instances: int, views: int, data
             restore(data, c.category)
         if data_only:
             continue
-        res, rec, computed = compute_cell(data, c, protocol, progress=progress, device=device,
-                                          recompute_dirty=recompute_dirty, evaluate_only=finished_only,
-                                          plan=(plans or {}).get((c.category, c.key)))
+        try:
+            res, rec, computed = compute_cell(data, c, protocol, progress=progress, device=device,
+                                              recompute_dirty=recompute_dirty, evaluate_only=finished_only,
+                                              plan=(plans or {}).get((c.category, c.key)))
+        except BudgetError as e:  # the other cells go on; the table lists this one as not done
+            print(f"refused  {c.category:11s} {c.key:44s} {e}", flush=True)
+            missing.append(c)
+            continue
         if archive is not None:
             archive_cell(data, c, protocol, archive, predictions=archive_predictions)
             kept = cell_paths(Path(archive) / data.name, c, protocol)

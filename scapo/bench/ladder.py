@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from scapo.engine.ledger import check_budget
-from scapo.errors import ConfigError
+from scapo.errors import BudgetError, ConfigError
 from scapo.eval.frames import CONSISTENCY_DEG, CONSISTENCY_VERSION, split_consistency
 from scapo.files import check_output_dir, write_json
 
@@ -288,7 +288,7 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
     and the inference milliseconds per val cloud (wall and CPU).
 
     Raises:
-        ConfigError: a trained cell whose ledger exceeds its ``plan``'s budget by more than
+        BudgetError: a trained cell whose ledger exceeds its ``plan``'s budget by more than
             :data:`scapo.engine.ledger.OVER_BUDGET` (:func:`~scapo.engine.ledger.check_budget`; its run is kept, no
             record is written)."""
     from scapo.eval import evaluate
@@ -494,7 +494,8 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
 
     Raises:
         ConfigError: an empty or unknown list, a budget <= 0, sizes too small for a val split.
-        UnknownNameError: an unknown method. Otherwise as generation, training and evaluation.
+        UnknownNameError: an unknown method. BudgetError: cells that charged more than 110 % of their budget (the
+        other cells are computed and their table written first). Otherwise as generation, training and evaluation.
     """
     from scapo.data import generate
     from scapo.methods import METHODS
@@ -560,15 +561,20 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
     presets = _training_presets(list(methods) + [(m, p, tuple(sorted(rest.items())))
                                                  for m, p, rest in variant_keys.values()],
                                 ref, budget_minutes, preset, work, device)
-    records = []
+    records, refused = [], []
     for r in rungs:
         data = rung_dir(work, category, r, instances, views, train_views, data_seed)
         for m in methods:
             for s in seeds:
                 pc, values, plan = presets.get(m, (None, {}, None))
                 t0 = time.perf_counter()
-                rec = _cell(data, work, category, r, m, s, pc, values, protocol, preset_name=preset, device=device,
-                            plan=plan)
+                try:
+                    rec = _cell(data, work, category, r, m, s, pc, values, protocol, preset_name=preset,
+                                device=device, plan=plan)
+                except BudgetError as e:  # the other cells go on; the run is kept
+                    print(f"  {r:9s} {m:9s} seed {s}: refused: {e}", flush=True)
+                    refused.append(str(e))
+                    continue
                 print(f"  {r:9s} {m:9s} seed {s}: frame consistency {_fmt(rec['frame_consistency'], 2)}, S "
                       f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "
                       f"{_fmt(rec['R_sym_median'])} ({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -580,10 +586,21 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
             pv, values, plan = presets[(m, base, tuple(sorted(rest.items())))]
             for s in seeds:
                 t0 = time.perf_counter()
-                rec = _cell(data, work, category, r, m, s, pv, {**sets, **values}, protocol, label=label,
-                            preset_name=preset, device=device, plan=plan)
+                try:
+                    rec = _cell(data, work, category, r, m, s, pv, {**sets, **values}, protocol, label=label,
+                                preset_name=preset, device=device, plan=plan)
+                except BudgetError as e:
+                    print(f"  {r:9s} {m}:{label} seed {s}: refused: {e}", flush=True)
+                    refused.append(str(e))
+                    continue
                 print(f"  {r:9s} {m}:{label} seed {s}: frame consistency {_fmt(rec['frame_consistency'], 2)}, S "
                       f"{_fmt(rec['S'])}, D {_fmt(rec['D'])}, R median {_fmt(rec['R_median'])}, R sym median "
                       f"{_fmt(rec['R_sym_median'])} ({time.perf_counter() - t0:.0f} s)", flush=True)
                 records.append(rec)
-    return write_ladder(records, Path(out), f"ladder_{category}", meta)
+    if not records:
+        raise BudgetError("every cell was refused over its budget:\n" + "\n".join(refused))
+    paths = write_ladder(records, Path(out), f"ladder_{category}", meta)
+    if refused:  # the table of the others is written; the refusals end the command with an error
+        raise BudgetError(f"{len(refused)} cell(s) refused over their budget (the table lists the others):\n"
+                          + "\n".join(refused))
+    return paths

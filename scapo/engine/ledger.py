@@ -30,7 +30,7 @@ from __future__ import annotations
 import time
 from contextlib import contextmanager
 
-from scapo.errors import ConfigError
+from scapo.errors import BudgetError
 
 #: A cell whose charged compute exceeds this multiple of its budget is refused (:func:`check_budget`).
 OVER_BUDGET = 1.10
@@ -107,7 +107,7 @@ def check_budget(ledger: dict, budget_s: float, plan: dict | None = None, what: 
         what: the run's name in the message.
 
     Raises:
-        ConfigError: over :data:`OVER_BUDGET` times the budget, with every phase's charged seconds.
+        BudgetError: over :data:`OVER_BUDGET` times the budget, with every phase's charged seconds.
     """
     total = float(ledger.get("charged_s", 0.0))
     if total <= OVER_BUDGET * budget_s:
@@ -120,7 +120,7 @@ def check_budget(ledger: dict, budget_s: float, plan: dict | None = None, what: 
         worst = max(phases, key=phases.get)
         why = f"the largest phase is {worst!r} ({phases[worst]:.0f} s)"
     listing = ", ".join(f"{k} {v:.0f} s" for k, v in sorted(phases.items(), key=lambda kv: -kv[1]))
-    raise ConfigError(f"{what} charged {total:.0f} {ledger.get('unit', 'core-seconds')}, more than "
+    raise BudgetError(f"{what} charged {total:.0f} {ledger.get('unit', 'core-seconds')}, more than "
                       f"{100 * OVER_BUDGET:.0f} % of its budget of {budget_s:.0f}: {why} ({listing}); its run is kept. "
                       "Measure the training speed again on this machine as the cells run (delete the speed file), or "
                       "make that phase cheaper")
