@@ -286,7 +286,7 @@ class EAPNet(nn.Module):
         orbit = self.select_orbit(Xc, w, R, t, Y)
         Ga = G[orbit][:, None]  # (B, 1, 3, 3)
         return {"w": w, "R": Ga @ R, "t": (Ga @ t[..., None])[..., 0], "Y": Y, "axis": axis, "pivot": pivot,
-                "amount": amount, "orbit": orbit, "code": code}
+                "amount": amount, "orbit": orbit}
 
     @torch.no_grad()
     def select_orbit(self, X: torch.Tensor, w: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
@@ -354,7 +354,8 @@ class EAPNet(nn.Module):
     # ---------------------------------------------------------------- inference
     def _predict(self, points: torch.Tensor) -> dict:
         """Every output of one batch ``points (B, n, 3)`` metres at the training density, mapped to the camera:
-        labels, part poses (canonical part frame, metres -> camera), joints, the base part and the shapes."""
+        labels, part poses (canonical part frame, metres -> camera), joints, the base part, the shapes and the
+        clouds' normalisation scale ``scale (B,)`` (metres per network unit)."""
         X, c, sc = normalize_clouds(points.to(self.template.dtype))
         Xc, Rw, shift = self.canonicalise(X)
         o = self(Xc)
@@ -365,7 +366,7 @@ class EAPNet(nn.Module):
         axis = (Rw @ G @ o["axis"][..., None])[..., 0]  # (B, 3) camera frame
         pivot = s3 * ((Rw[:, None] @ G[:, None] @ o["pivot"][..., None])[..., 0] + shift[:, None]) + c[:, None]
         return {"label": o["w"].argmax(-1), "R": R, "t": t, "axis": axis, "pivot": pivot, "amount": o["amount"],
-                "base": o["w"].sum(1).argmax(-1), "Y": s3[..., None] * o["Y"]}
+                "base": o["w"].sum(1).argmax(-1), "Y": s3[..., None] * o["Y"], "scale": sc}
 
     @torch.no_grad()
     def infer(self, points: torch.Tensor) -> dict:
@@ -400,7 +401,7 @@ class EAPNet(nn.Module):
         amount = first["amount"].double().cpu().numpy()[bi, perm]
         pivot_c = first["pivot"].double().cpu().numpy()[bi, perm]
         axis_c = first["axis"].double().cpu().numpy()
-        sc = normalize_clouds(points[:, chunks[0]].float())[2].double().cpu().numpy()
+        sc = first["scale"].double().cpu().numpy()
         axis, pivot, state = np.zeros((B, J, 3)), np.zeros((B, J, 3)), np.zeros((B, J))
         for j, (pa, ch) in enumerate(self.joint_parts):
             axis[:, j] = axis_c
