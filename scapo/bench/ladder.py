@@ -61,7 +61,8 @@ RUNG_LABELS = {
     "paper": "single views, the paper's viewpoints",
     "sphere": "single views, the whole sphere",
 }
-#: The rungs run when none are named: the four of issue 52 (``aligned`` is asked for by name).
+#: The rungs run when none are named: the four difficulties of the canonical-frame diagnosis (``aligned`` is asked
+#: for by name).
 DEFAULT_RUNGS = ("one", "complete", "paper", "sphere")
 #: The methods of the ladder: the trained ones (ICP, fitted without training, may be added with --methods).
 LADDER_METHODS = ("scapo", "op-align", "eap", "npcs")

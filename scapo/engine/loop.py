@@ -14,7 +14,10 @@ does the rest, the same way for every method:
 - batches from a :class:`~torch.utils.data.DataLoader`; with several processes (``torchrun``) a
   :class:`~torch.utils.data.distributed.DistributedSampler` gives each rank its share and the gradients are
   averaged (:mod:`scapo.engine.distributed`);
-- every epoch is seeded by (seed, stage, epoch, rank): a run is a function of its preset and data.
+- every epoch is seeded by (seed, stage, epoch, rank): a run is a function of its preset and data;
+- with :attr:`FitConfig.compile`, the network's parts are compiled (:func:`compile_network`) and each stage's first
+  step is compiled before it trains, charged to the ledger's ``stage<k>/compile`` phase; eager where compilation
+  fails (a warning).
 
 Usage (a method's ``train`` function)::
 
@@ -169,6 +172,8 @@ class FitConfig:
     max_steps_per_epoch: int = 0
     seed: int = 0
     order: Literal["permutation", "shuffle"] = "permutation"
+    compile: bool = False
+    """Compile the network's parts with ``torch.compile`` (:func:`compile_network`) for the training steps."""
 
 
 @dataclass
@@ -288,6 +293,7 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
     before = float(state.get("seconds", 0.0)) if state is not None else 0.0  # earlier sessions' training time
     ledger = Ledger(device.type != "cpu", state.get("ledger") if state is not None else None, world=ctx.world)
     ledger.add("setup", *setup)
+    compiled = compile_network(job.model) if cfg.compile else []
     # this session's "other": what fit's own phases leave of its seconds (the set-up was measured before fit)
     charged_before = {k: dict(v) for k, v in ledger.phases.items()}
     # where this session's time went, per stage (timing.json "stages"; scapo bench perf --what train --data)
@@ -310,6 +316,9 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                 with ledger.phase(f"{name}/start"):
                     stage.on_start()
                 part["start_s"] += time.perf_counter() - ts
+            if compiled:  # compiled for this stage's step once per session, after its start
+                with ledger.phase(f"{name}/compile"):
+                    compiled = warm_up(job, stage, device, compiled, ctx)
             for epoch in range(first, stage.epochs):
                 if stage.on_epoch is not None:
                     ts = time.perf_counter()
@@ -328,6 +337,8 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                 done = last_stage and epoch == stage.epochs - 1
                 nxt = (stage.index, epoch + 1) if epoch + 1 < stage.epochs or last_stage else (
                     live[live.index(stage) + 1].index, 0)
+                if done:  # the work after training runs eagerly (in eval mode, on other shapes)
+                    compiled = uncompile_network(compiled)
                 extras = job.extras(done) if job.extras is not None else {}
                 if done:  # the final extras (e.g. statistics over the training split) happen once per run
                     final_s += time.perf_counter() - te
@@ -349,6 +360,7 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
             plot_losses(folder.log, folder.path / "losses.png")
         raise
     finally:
+        uncompile_network(compiled)
         if bar is not None:
             bar.close()
         if board is not None:
@@ -364,6 +376,76 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                             breakdown={**_breakdown(parts, final_s, time.perf_counter() - t0),
                                        "ledger": ledger.to_dict()})
     return folder.checkpoint
+
+
+def compile_network(model: torch.nn.Module) -> list[torch.nn.Module]:
+    """Compile, in place (as ``nn.Module.compile``: ``torch.compile`` with the default inductor backend; parameters
+    and state-dict keys unchanged), each direct child of ``model`` that holds parameters; returns them. Compilation
+    itself happens at their first call (:func:`warm_up`). Inductor's compiled kernels are cached on disk
+    (``TORCHINDUCTOR_CACHE_DIR``, default ``~/.cache/scapo/inductor`` where it is not set), so a later run of the
+    same network and shapes compiles less."""
+
+    import os
+
+    os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(Path.home() / ".cache" / "scapo" / "inductor"))
+    parts = [m for m in model.children() if any(True for _ in m.parameters())]
+    for m in parts:
+        m._compiled_call_impl = torch.compile(_called(m))
+    return parts
+
+
+def _called(module: torch.nn.Module) -> Callable:
+    """``module``'s call as a function of this file (torch 2.13's ``nn.Module.compile`` hands dynamo the bound
+    ``_call_impl``, a frame of torch itself, which it does not trace: that module would run eagerly)."""
+    def call(*args, **kwargs):
+        return module._call_impl(*args, **kwargs)
+
+    return call
+
+
+def uncompile_network(parts: list[torch.nn.Module]) -> list[torch.nn.Module]:
+    """Undo :func:`compile_network` on ``parts`` (they run eagerly again); returns ``[]``."""
+    for m in parts:
+        m._compiled_call_impl = None
+    return []
+
+
+def warm_up(job: TrainJob, stage: Stage, device: torch.device, parts: list[torch.nn.Module], ctx: DistContext
+            ) -> list[torch.nn.Module]:
+    """Compile ``stage``'s training step: one forward and backward of its loss on a batch of the first clouds (the
+    training batch's shapes), leaving the training untouched: no optimiser step, the gradients cleared, the
+    network's buffers (batch-norm statistics) and every random generator (torch's, numpy's, the clouds' own) as
+    they were. Returns ``parts``, or ``[]`` after a failed compilation, with a warning: the network then trains
+    eagerly (the same function)."""
+    import warnings
+
+    from torch.utils.data import default_collate
+
+    data = job.data
+    n = max(1, min(job.config.batch_size, len(data) // ctx.world))
+    buffers = {k: v.detach().clone() for k, v in job.model.named_buffers()}
+    generator = getattr(data, "generator", None)
+    np_state = np.random.get_state()  # noqa: NPY002 - restored as it was
+    try:
+        with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
+            if generator is not None:
+                data.generator = None
+            batch = {k: v.to(device) for k, v in default_collate([data[i] for i in range(n)]).items()}
+            _, total = stage.losses(batch, 0.0)
+            total.backward()
+    except Exception as e:  # noqa: BLE001 - any failure of the compiler: train eagerly
+        warnings.warn(f"scapo: torch.compile failed for stage {stage.index} ({type(e).__name__}: "
+                      f"{str(e).splitlines()[0] if str(e) else ''}); training eagerly", RuntimeWarning, stacklevel=2)
+        parts = uncompile_network(parts)
+    finally:
+        if generator is not None:
+            data.generator = generator
+        np.random.set_state(np_state)  # noqa: NPY002
+        job.model.zero_grad(set_to_none=True)
+        with torch.no_grad():
+            for k, v in job.model.named_buffers():
+                v.copy_(buffers[k])
+    return parts
 
 
 def _breakdown(parts: dict, final_s: float, session_s: float) -> dict:

@@ -22,19 +22,21 @@ def box_clouds(batch: int, n: int, seed: int = 0) -> np.ndarray:
     return out
 
 
-def median_seconds(fn, iters: int, cuda: bool) -> float:
-    """Median wall time (s) of ``iters`` calls of ``fn()`` after one warm-up call (CUDA synchronised)."""
+def median_seconds(fn, iters: int, cuda: bool, warm_up: bool = True) -> float:
+    """Median wall time (s) of ``iters`` calls of ``fn()`` after one warm-up call (CUDA synchronised); without
+    ``warm_up``, of ``max(iters, 1)`` calls, the first included (e.g. a compiling first call)."""
     import torch
 
     times = []
-    for i in range(iters + 1):
+    start = 1 if warm_up else 0
+    for i in range(max(iters, 1 - start) + start):
         if cuda:
             torch.cuda.synchronize()
         t = time.perf_counter()
         fn()
         if cuda:
             torch.cuda.synchronize()
-        if i:
+        if i >= start:
             times.append(time.perf_counter() - t)
     return float(np.median(times))
 

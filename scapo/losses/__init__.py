@@ -59,8 +59,8 @@ class LossConfig:
     template: float = 0.0
     """Weight of ``L_template`` in stage 1 (:func:`~scapo.losses.scapo_losses.template_loss`): every decoded canonical
     shape is pulled to one learnable category template in metres (``SCAPOModel.template_s1``), from the first step, so
-    that a persistent shape, not each view's own decoding, decides the frame (an addition to the paper, issue 52's
-    hypothesis that stage 2's template arrives after the frame is fixed; 0 switches it off)."""
+    that a persistent shape, not each view's own decoding, decides the frame (an addition to the paper, testing
+    the hypothesis that stage 2's template arrives after the frame is fixed; 0 switches it off)."""
     rec_one_sided: bool = False
     """Stage 1's ``L_rec`` from the input to the reconstruction only (:func:`reconstruction_loss`; an addition to the
     paper for partial views, Li et al.'s partial setting; preset part ``one-sided``)."""

@@ -1,4 +1,4 @@
-"""The canonical frame read from the base part's principal axes (an addition to the paper, issue 52).
+"""The canonical frame read from the base part's principal axes (an addition to the paper).
 
 SCAPO's stage-1 frame is a function of the whole cloud. The principal axes of the whole cloud turn with the joint state
 and with what a view shows; those of the base part alone do not: with the ground-truth base points, the base's
@@ -28,12 +28,12 @@ only with the viewpoint, every other part also with its joint states. The snappe
 
 A view with fewer than ``min_points`` base points keeps its frame.
 
-``base_frame=parts`` (:func:`parts_signed_axes`, session 30) signs the axes from the object instead of the network: the
+``base_frame=parts`` (:func:`parts_signed_axes`) signs the axes from the object instead of the network: the
 base's principal directions of two ranks are each signed towards the centroid of the points of the other parts (an
 eyeglasses front's normal towards its temples, its height towards the hinges above its centre; a laptop base's depth
 towards the hinge and its normal towards the open lid), the third by the right-hand rule. Which two ranks is chosen
 on the training split (:func:`choose_signed_pair`: with two or more other parts, the ranks along which all of them lie
-on one side of the base in most views, so that an axis a mirror pair straddles is not signed (session 31); with one,
+on one side of the base in most views, so that an axis a mirror pair straddles is not signed; with one,
 the ranks along which the other parts lie farthest, in units of the base's spread, in most views). The axes then have
 no ambiguity left, so the offset is fitted with no group and each view's base rotation is ``E O^T`` whatever the
 network's frame: on the eyeglasses' paper rung, where SCAPO's frame scatters, this is what can give one frame

@@ -156,9 +156,12 @@ class EAPPreset(LearnedPreset):
 
 PRESETS: Registry[EAPPreset] = Registry("eap preset")
 # cpu: the tables' CPU budget (one core, 256 training points, batch 16, at most 100 steps an epoch); a table's budget
-# replaces both stages' epochs (scapo.bench.perf.training_budget)
+# replaces both stages' epochs (scapo.bench.perf.training_budget); its steps compiled (1.27x and 1.25x the eager steps
+# of stages 0 and 1 on one thread, about 60 core-seconds of compilation charged to the budget: docs/history.md,
+# "Compiled training steps")
 PRESETS.add("cpu", EAPPreset(name="cpu", stage0_epochs=10, epochs=28, batch_size=16, lr=1e-3, points=256,
-                             max_steps_per_epoch=100, k=10, channels=32, object_points=256, shape_points=128))
+                             max_steps_per_epoch=100, k=10, channels=32, object_points=256, shape_points=128,
+                             compile=True))
 # paper: EAP's scripts (scripts/train/*.sh): 60 anchors, lr 1e-4, batch 1 on each of 8 GPUs (8 here); their
 # iteration count (options.py 51: 1,000,000, stopped by hand) is not a schedule we can follow, so 40 + 200 epochs
 PRESETS.add("paper", EAPPreset(name="paper", stage0_epochs=40, epochs=200, batch_size=8, lr=1e-4, points=512,

@@ -1,4 +1,4 @@
-"""The part split re-fitted about each revolute joint: a two-ray fit (an addition to the paper, issue 52).
+"""The part split re-fitted about each revolute joint: a two-ray fit (an addition to the paper).
 
 A self-supervised segmentation learned from motion is weakest next to a revolute joint: a point near the axis
 moves little whichever part it is given to, so the losses that separate parts by their motion (SCAPO's cycle and
@@ -413,7 +413,7 @@ def _across(Q: np.ndarray, pivot: np.ndarray, axis: np.ndarray) -> np.ndarray:
 
 def part_axes(points: np.ndarray, out: dict, joint_type, joint_parts,
               min_points: int = HINGE_MIN_POINTS) -> tuple[np.ndarray, np.ndarray]:
-    """Each part's axes read from its hinge, per view (``hinge_frames``; an addition to the paper, issue 52).
+    """Each part's axes read from its hinge, per view (``hinge_frames``; an addition to the paper).
 
     For a revolute joint with unit axis ``a`` and pivot ``c`` (the prediction's, after :func:`hinge_prediction`), each
     of its two parts runs away from the hinge along ``u`` (:func:`_across`: the principal direction of its points
@@ -423,7 +423,7 @@ def part_axes(points: np.ndarray, out: dict, joint_type, joint_parts,
     ``E = [a, u, a x u]`` (columns, camera frame): rigid with the part, so ``R_p^T E`` is one constant rotation in
     the part's canonical coordinates for every view where the part and its hinge are found. A part on several
     joints (an eyeglasses front) takes its first revolute joint in ``joint_parts`` order, in every view: where that
-    joint is shut the part keeps the method's rotation (until session 30 it fell through to the next joint, whose
+    joint is shut the part keeps the method's rotation (it once fell through to the next joint, whose
     axes sit in the part at another offset, so that a front whose first temple was shut turned by a half turn: 25 %
     of the aligned rung's val views with the true split).
 

@@ -65,6 +65,9 @@ class LearnedPreset:
     (:class:`~scapo.engine.loop.Stage`)."""
     lr_decay: float = 0.5
     lr_decay_steps: int = 5000
+    compile: bool = False
+    """Compile the network's parts for the training steps (``torch.compile``, :func:`scapo.engine.loop.
+    compile_network`); the compilation is charged to the run's ledger (``stage<k>/compile``)."""
 
     def __post_init__(self):
         from scapo.config import check_settings
@@ -129,7 +132,7 @@ def _preset_from_dict(cls: type, d: dict):
 
 #: preset fields added after runs were trained, with the value those runs had: left out of a run's identity
 #: at that value, so older runs keep their identity
-ADDED_FIELDS = {"supervision": "", "sup_weight": 1.0, "part_npcs": False}
+ADDED_FIELDS = {"supervision": "", "sup_weight": 1.0, "part_npcs": False, "compile": False}
 
 
 def resolve_preset(spec: LearnedSpec, preset):
@@ -228,7 +231,8 @@ def learned_job(spec: LearnedSpec, pc, train: ArticulationDataset, dev: torch.de
         return {"extras": spec.extras(net, train.arrays(list(spec.extras_fields or spec.fields)))}
 
     cfg = FitConfig(batch_size=pc.batch_size, weight_decay=pc.weight_decay, min_lr=pc.min_lr, grad_clip=pc.grad_clip,
-                    max_steps_per_epoch=pc.max_steps_per_epoch, seed=pc.seed, order="permutation")
+                    max_steps_per_epoch=pc.max_steps_per_epoch, seed=pc.seed, order="permutation",
+                    compile=pc.compile)
     data = CloudSet(tensors, pc.points)
     sched = {"lr": pc.lr, "schedule": pc.lr_schedule, "decay": pc.lr_decay, "decay_steps": pc.lr_decay_steps}
     if hasattr(net, "training_stages"):  # a network with stages of its own (EAP-style: the whole object first)
@@ -652,13 +656,17 @@ def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "c
     size (``scapo bench perf --what train``): a two-part, one-revolute structure, the preset's batch of box clouds
     (:func:`scapo.engine.speed.box_clouds`) at its training points; a supervised method gets labels and NPCS
     derived from the clouds (left and right halves as parts). ``{"batch_size", "points", "stage<k>_clouds_per_s",
-    "stage<k>_epochs", "max_steps_per_epoch", "iterations"}`` per training stage (the network's
-    ``training_stages()`` where it has them; the epochs, steps cap and iterations: the preset's schedule).
+    "stage<k>_epochs", "max_steps_per_epoch", "iterations", "compile"}`` per training stage (with the preset's
+    ``compile``, the eager step measured first in the same run: ``stage<k>_eager_clouds_per_s``,
+    ``stage<k>_speedup_vs_eager`` and ``stage<k>_compile_s``, the first compiled step's seconds beyond a step's)
+    (the network's ``training_stages()`` where it has them; the epochs, steps cap and iterations: the preset's
+    schedule).
 
     Raises:
         UnknownNameError: unknown preset. ConfigError: an unavailable device."""
     import dataclasses
 
+    from scapo.engine.loop import compile_network, uncompile_network
     from scapo.engine.runs import resolve_device
     from scapo.engine.speed import box_clouds, median_seconds
 
@@ -684,7 +692,8 @@ def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "c
     from scapo.registry import schedule_fields
 
     losses = [st["losses"] for st in net.training_stages()] if hasattr(net, "training_stages") else [net.losses]
-    row = {"batch_size": pc.batch_size, "points": pc.points}
+    row = {"batch_size": pc.batch_size, "points": pc.points, "compile": pc.compile}
+    parts = compile_network(net) if pc.compile else []
     for k, fn in enumerate(losses, 1):
         def step(fn=fn):
             _, total = fn(batch, 0.5)
@@ -692,7 +701,17 @@ def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "c
             total.backward()
             opt.step()
 
+        if parts:  # the eager step first (the reference, same run), then the first compiled step apart
+            parts = uncompile_network(parts)
+            eager = median_seconds(step, iters, dev.type == "cuda")
+            parts = compile_network(net)
+            first = median_seconds(step, 0, dev.type == "cuda", warm_up=False)
         sec = median_seconds(step, iters, dev.type == "cuda")
         row[f"stage{k}_clouds_per_s"] = round(pc.batch_size / sec, 2)
+        if parts:
+            row[f"stage{k}_eager_clouds_per_s"] = round(pc.batch_size / eager, 2)
+            row[f"stage{k}_speedup_vs_eager"] = round(eager / sec, 2)
+            row[f"stage{k}_compile_s"] = round(max(first - sec, 0.0), 2)
+    uncompile_network(parts)
     row.update({f"stage{k}_epochs": getattr(pc, f) for k, f in enumerate(schedule_fields(pc), 1)})
     return {**row, "max_steps_per_epoch": pc.max_steps_per_epoch, "iterations": pc.iterations}

@@ -152,9 +152,10 @@ class NPCSOptions(LearnedOptions):
 PRESETS: Registry[NPCSPreset] = Registry("npcs preset")
 # cpu: the tables' equal training budget (15 minutes of training per cell on one core, the tables' 840 training clouds);
 # the epochs fill it at the speed measured by scapo bench perf --what train --data
-# (results/perf/train_cpu_laptop_i150_v8_s1_npcs.md)
+# (results/perf/train_cpu_laptop_i150_v8_s1_npcs.md); its steps compiled (1.19x the eager step on one thread, about 20
+# core-seconds of compilation charged to the budget: docs/history.md, "Compiled training steps")
 PRESETS.add("cpu", NPCSPreset(name="cpu", epochs=89, batch_size=16, lr=1e-3, points=256, max_steps_per_epoch=100,
-                              rotation_augment=True,
+                              rotation_augment=True, compile=True,
                               backbone="vn", width=128, vn_channels=32, k=10, part_npcs=True))
 PRESETS.add("paper", NPCSPreset(name="paper", epochs=200, batch_size=32, lr=1e-3, points=1024, width=256, blocks=5,
                                 device="auto", rotation_augment=True, backbone="vn", vn_channels=64, k=20,

@@ -50,7 +50,7 @@ class SCAPOOptions(LearnedOptions):
     joint; no labels). With ``base_frame`` the snap works on that slot and the snapped frame is its pose; without it
     the object frame ``T_cam_obj`` is that slot's pose and nothing else changes (part labels, part poses and joints
     stay as the network gives them; the label gets ``+slot-<option>``): an object frame on the part that acts as the
-    base when the network's slot 0 holds a child (an addition to the paper, session 39)."""
+    base when the network's slot 0 holds a child (an addition to the paper)."""
     stage2_starts: str | None = None
     """The hypothesis set of stage 2's first frame in one-pass prediction, for a run trained with ``stage2_frame =
     "parts"`` (:attr:`scapo.models.refine.RefineConfig.stage2_starts`): "off", "D2" (the stage-1 frame and its half

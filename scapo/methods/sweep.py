@@ -1,5 +1,5 @@
 """Revolute axes from the sweep of each child part over the training views (``axis_sweep``; an addition to the paper,
-issue 52, offered to every trained method).
+offered to every trained method).
 
 Over the training views, in the frame of the method's own base pose (``T_cam_obj``), the principal direction of the
 points the method labels as a revolute joint's child sweeps about the joint's axis (:mod:`scapo.ops.sweep`: the
@@ -8,7 +8,7 @@ is then that canonical direction turned by the view's base rotation, signed as t
 
 What it needs from the method: a base pose that is one frame across views (frame consistency) and a segmentation
 that gives the child's points; nothing else is read (no ground truth, no labels). Measured in
-``results/canonical_ladder/README.md``, "The base's plane and the hinge axes from the sweep" (session 33).
+``results/canonical_ladder/README.md``, "The base's plane and the hinge axes from the sweep".
 """
 
 from __future__ import annotations

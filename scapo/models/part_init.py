@@ -500,7 +500,7 @@ def label_clouds(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Ten
     the ``retry`` share of the clouds whose fit is worst (:func:`_two_sided` score, clipped at 0.01) is fitted
     again from the whole template's best start among ``starts`` (:func:`whole_template_start` on every
     :data:`RETRY_STRIDE`-th point of the cloud, then the part-by-part fit on all of them), and each of those clouds
-    keeps whichever of its two fits scores lower (a minimum over hypotheses; an addition to the paper, session 37:
+    keeps whichever of its two fits scores lower (a minimum over hypotheses; an addition to the paper:
     on the table's eyeglasses data the clouds labelled at random are those whose frame is far from the template's,
     and their identity fit is the worse, ``results/canonical_ladder/stage2_parts/scale/README.md``, section 10).
     ``record``, when given, gets ``{"retried", "kept_retry"}``: the shares of the clouds fitted again and of those
@@ -542,7 +542,7 @@ def label_clouds(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Ten
 
 #: ``label_clouds(retry=...)``: the start search of a retried cloud reads every this-th point of it (the part-by-part
 #: fit then reads all): on the table's eyeglasses data, seed 0's clouds labelled at random, the base's IoU was 0.575
-#: with every 4th point and 0.574 with all, in half the time (session 37; fixed before the runs that measure it).
+#: with every 4th point and 0.574 with all, in half the time (fixed before the runs that measure it).
 RETRY_STRIDE = 4
 
 
@@ -647,7 +647,7 @@ def overseg_starts(template: torch.Tensor, num_parts: int, clusters: int, seed: 
     every grouping of the clusters into ``num_parts`` parts (:func:`set_partitions`) -> a list of ``S(clusters,
     num_parts)`` label tensors ``(M,)`` int64. Random keypoint starts rarely draw a part made of the template's far
     ends (an eyeglasses temple on either side of the front); groups of clusters can (results/canonical_ladder/
-    stage2_parts/scale/, session 36).
+    stage2_parts/scale/).
 
     Raises:
         ValueError: ``clusters`` outside ``[num_parts, MAX_OVERSEG_CLUSTERS]`` or above the template's points."""
@@ -734,8 +734,8 @@ def base_first_labels(template: torch.Tensor, labels: torch.Tensor, num_parts: i
     :func:`base_first_order`), the others keep their order; with two, the order is kept (either part can be the root
     of one joint). Not the hub of the centroids, as :func:`base_first_order` orders keypoints: children folded onto
     their parent lie together, so their centroids are nearer each other than the parent's (an eyeglasses template
-    with its temples shut put a temple first in five of six training runs, ``results/canonical_ladder/README.md``,
-    session 30), while the body a star-shaped tree's children hang from is the largest part of both benchmark categories
+    with its temples shut put a temple first in five of six training runs, ``results/canonical_ladder/README.md``),
+    while the body a star-shaped tree's children hang from is the largest part of both benchmark categories
     with more than two parts (the eyeglasses' front: about 0.57 of the points; the basket's body)."""
     C = torch.stack([template[labels == p].mean(0) if bool((labels == p).any()) else template.mean(0)
                      for p in range(num_parts)])

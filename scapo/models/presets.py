@@ -87,14 +87,14 @@ class TrainConfig:
     ``split-fit``); "fitted", the most rigid of the fitted splits only (the keypoint split is scored, and kept only
     when no fit keeps every part; preset part ``split-fitted``): on eyeglasses data other than the one "fit" was chosen
     on, the keypoint split, whose Voronoi cells cannot hold a folded temple, sometimes wins the score and the
-    pseudo-labels built on it lose the frame (results/canonical_ladder/stage2_parts/scale/, session 34)."""
+    pseudo-labels built on it lose the frame (results/canonical_ladder/stage2_parts/scale/)."""
     split_overseg: int = 0
     """With ``split_init`` "fit" or "fitted": the template is also cut into this many k-means clusters and every
     grouping of them into the category's parts starts a fit (:func:`scapo.models.part_init.overseg_starts`; 6 gives 90
     more fits on three parts, 31 on two). 0: off, the keypoint and random starts only. At most
     :data:`scapo.models.part_init.MAX_OVERSEG_CLUSTERS`. An addition to the paper, preset part ``split-overseg``; on
     the eyeglasses' stage-2 start it finds splits more rigid than the random starts' (results/canonical_ladder/
-    stage2_parts/scale/, session 36)."""
+    stage2_parts/scale/)."""
     split_labels: bool = False
     """At the start of stage 2, label every training cloud with stage 2's starting split (the template, split as it
     starts, fitted part by part to the cloud in its stage-1 frame: :func:`scapo.models.part_init.label_clouds`) and
@@ -120,14 +120,14 @@ class TrainConfig:
     through its attach point, the fit whose posed template is nearest the cloud both ways
     (:func:`scapo.models.part_init.refit_from_joint_starts`), for clouds whose articulation is far from the template's
     (a folded eyeglasses temple where the template's is open; labelling takes about 25 times longer). An addition to
-    the paper (issue 52); "O" gave no gain and "A" a mixed result on the eyeglasses' paper rung
+    the paper; "O" gave no gain and "A" a mixed result on the eyeglasses' paper rung
     (results/canonical_ladder/README.md, sessions 31-32)."""
     label_retry: float = 0.0
     """With ``split_labels`` and a rotation group in ``label_starts`` ("T", "O" or "I"): the share of the training
     clouds, those whose part-by-part template fit from the identity scores worst, that are fitted again from the
     group's best whole-template start, each keeping the better-scoring of its two fits
     (:func:`scapo.models.part_init.label_clouds` ``retry``; preset part ``label-retry``: "O" and 0.4). An addition to
-    the paper (issue 52, session 37): on the table's eyeglasses data a fifth of the clouds get labels no better than
+    the paper: on the table's eyeglasses data a fifth of the clouds get labels no better than
     chance, those whose frame at stage 2's start is far from the template's; the starts rescue half of their base,
     and the training targets in one frame rise from 0.76-0.82 to 0.84-0.90 over three seeds, but the val result
     does not change (S 54.4 -> 54.3, median R 14.2 -> 15.1, nothing supported: a negative result;
@@ -137,11 +137,14 @@ class TrainConfig:
     """With ``split_labels``: the pseudo-labelling at the start of stage 2 reads each training cloud's stage-1 frame
     from every ``label_stride``-th of its points and fits the template's part motions on those points
     (:func:`scapo.models.part_init.label_clouds` ``fit_stride``); every point is still labelled, from the template
-    posed by those motions. 1 (default): all points. A cost setting (an addition to the paper, session 40; the
+    posed by those motions. 1 (default): all points. A cost setting (an addition to the paper; the
     network itself trains on ``train_points`` subsets): on Table 1's 1024-point laptop clouds this work took 461 s of
     a ``cpu-laptop`` run's 1,075 s, more than its 900 optimiser steps; at 4 the frames cost 9.7x and the labels 4.5x
     less, and the pseudo-labels' accuracy against the true parts fell from 0.730 to 0.707 on a finished run's model
     (results/perf/label_stride/). Not set by any preset."""
+    compile: bool = False
+    """Compile the network's parts for the training steps (``torch.compile``, :func:`scapo.engine.loop.
+    compile_network`); the compilation is charged to the run's ledger (``stage<k>/compile``)."""
     frame_target: float = 0.0
     """Weight of a stage-2 term that pulls each training cloud's frame (stage 1's, which stage 2 trains on) towards
     the frame its base's axes give when signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`,
@@ -150,7 +153,7 @@ class TrainConfig:
     axes in the stage-1 frames), the term the mean geodesic angle (rad) between the frame and the target. Where the
     stage-1 frames scatter between half-turned branches of a near-symmetric shape (eyeglasses' front), the targets
     are one frame up to the error of the pseudo-labels; 0 (default): off. Needs ``split_labels``; the targets are
-    stored in the run folder (``frame_targets.npy``) for a resume. An addition to the paper (issue 52)."""
+    stored in the run folder (``frame_targets.npy``) for a resume. An addition to the paper."""
     stage2_frame: str = "stage1"
     """The frame stage 2 works in: "stage1", each cloud's stage-1 frame (the paper); "parts", the frame in which the
     cloud's base axes signed by its other parts are the template's (:func:`scapo.ops.signed_axes.parts_signed_axes`,
@@ -158,7 +161,7 @@ class TrainConfig:
     pseudo-labels), which replaces its stage-1 frame in stage 2; in prediction, read from the base stage 2 labels in a
     first pass and stage 2 run again in it (:meth:`scapo.models.scapo_model.SCAPOModel.parts_frames`). Stage 1's frame
     then needs to be right only up to the half-turned branches of a near-symmetric base. Needs ``split_labels``. An
-    addition to the paper (issue 52), preset part ``stage2-parts``."""
+    addition to the paper, preset part ``stage2-parts``."""
     relabel: int = 0
     """How many times stage 2 labels the training clouds again from the network's own predictions (self-training; 0,
     the default: never): before the stage-2 epochs ``round(k E / (relabel + 1))``, ``k = 1..relabel`` (``E`` =
@@ -168,12 +171,11 @@ class TrainConfig:
     ``stage2_frame = "parts"`` its target frame is read again from those labels
     (:meth:`~scapo.models.scapo_model.SCAPOModel.parts_frames`; a cloud whose base axes are not found keeps its
     target). The starting pseudo-labels come from one template fitted part by part; the network trained on them
-    labels the clouds it has learnt from more consistently (issue 52: base accuracy 0.87 on val against 0.77 for the
+    labels the clouds it has learnt from more consistently (base accuracy 0.87 on val against 0.77 for the
     pseudo-labels on train). Needs ``split_labels``; the new labels and targets replace ``split_labels.npy`` and
-    ``frame_targets.npy`` (a resume reads them), and what changed goes to ``relabel.json``. An addition to the paper
-    (issue 52), preset part ``relabel``; a negative result on the eyeglasses' paper rung (the targets read from the
-    network's labels halfway through stage 2 are one frame for fewer clouds; results/canonical_ladder/README.md,
-    session 32)."""
+    ``frame_targets.npy`` (a resume reads them), and what changed goes to ``relabel.json``. An addition to the paper,
+    preset part ``relabel``; a negative result on the eyeglasses' paper rung (the targets read from the
+    network's labels halfway through stage 2 are one frame for fewer clouds; results/canonical_ladder/README.md)."""
     relabel_frames: bool = True
     """With ``relabel`` and ``stage2_frame = "parts"``: whether a relabelling also reads each training cloud's target
     frame again from its new labels (True, the default) or keeps the targets read from the starting pseudo-labels
@@ -183,7 +185,7 @@ class TrainConfig:
     template's) base directions are found before the other parts sign them
     (:func:`scapo.ops.signed_axes.parts_signed_axes`): "pca" (default) the principal axes of all the points labelled
     base; "plane" those of its points on their dominant plane (:func:`scapo.ops.signed_axes.plane_axes`), so that
-    points of a child part the labels give the base do not turn them (an addition to the paper, issue 52, preset
+    points of a child part the labels give the base do not turn them (an addition to the paper, preset
     part ``parts-plane``). Prediction uses the same (the model's ``parts_plane`` buffer)."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
@@ -466,14 +468,14 @@ def get_preset(name: str) -> TrainConfig:
 #: stage 2 in each cloud's parts-signed frame with the split fitted again there, the base's directions from its
 #: dominant plane, the revolute axes from the temples' sweep and held there, ``L_dir_align`` off. Chosen on the val
 #: split of the eyeglasses' paper-regime ladder rung, one switch at a time over three seeds, each part with its own
-#: ablation row (results/canonical_ladder/README.md, sessions 29-34; ``split-fitted``: stage2_parts/scale/). On the
-#: laptop an early subset of these parts was worse (stage2_parts/laptop_paper/, session 31). ``split-overseg`` (more
-#: starts for the split fit, session 36) was chosen on the val split of Table 1's eyeglasses data against the table's
+#: ablation row (results/canonical_ladder/README.md; ``split-fitted``: stage2_parts/scale/). On the
+#: laptop an early subset of these parts was worse (stage2_parts/laptop_paper/). ``split-overseg`` (more
+#: starts for the split fit) was chosen on the val split of Table 1's eyeglasses data against the table's
 #: own cells (stage2_parts/scale/, section 7); ``--set split_overseg=0`` is its ablation.
 EYEGLASSES_PARTS = ("split-fitted", "split-overseg", "split-labels", "stage2-parts", "split-refit", "parts-plane",
                     "axis-sweep", "axis-fixed", "no-dir_align")
 #: ``cpu-eyeglasses``' inference setting: one-pass prediction from the identity and the three half turns of the
-#: stage-1 frame (``RefineConfig.stage2_starts = "D2"``). Chosen in session 44 on the val split of Table 1's eyeglasses
+#: stage-1 frame (``RefineConfig.stage2_starts = "D2"``). Chosen on the val split of Table 1's eyeglasses
 #: data, three seeds, against "" and "O" by the laptop's criterion (the mean object-frame consistency; D2 0.853 and
 #: O 0.847 within 0.02 of each other, so the cheaper set) (results/canonical_ladder/stage2_parts/scale/stage2_starts/);
 #: ``--option stage2_starts=off`` is its ablation row.
@@ -481,13 +483,13 @@ EYEGLASSES_STAGE2_STARTS = "D2"
 PRESETS.add("cpu-eyeglasses", replace(get_preset("cpu/" + "/".join(EYEGLASSES_PARTS)), name="cpu-eyeglasses",
                                       refine=replace(get_preset("cpu").refine, stage2_starts=EYEGLASSES_STAGE2_STARTS)))
 #: The parts of ``cpu`` that make SCAPO's per-category preset for the laptop (``cpu-laptop``): the whole eyeglasses
-#: recipe, as it stands since session 36. Chosen in session 38 on the val split of Table 1's paper-regime laptop data
+#: recipe. Chosen on the val split of Table 1's paper-regime laptop data
 #: against ``cpu``, three seeds each at the table's schedule (results/canonical_ladder/stage2_parts/laptop_table/).
 LAPTOP_PARTS = EYEGLASSES_PARTS
 #: ``cpu-laptop``'s inference setting (not part of a run, so it applies to every ``cpu-laptop`` run): one-pass
 #: prediction from the 24 cube-group turns of the stage-1 frame, each view keeping the start whose posed template fits
 #: its points best (``RefineConfig.stage2_starts = "O"``, :meth:`scapo.models.scapo_model.SCAPOModel.passes`). Chosen
-#: in session 43 on the val split of Table 1's laptop data, three seeds, against "" and "D2"
+#: on the val split of Table 1's laptop data, three seeds, against "" and "D2"
 #: (results/canonical_ladder/stage2_parts/laptop_table/stage2_starts/); ``--option stage2_starts=off`` is its
 #: ablation row.
 LAPTOP_STAGE2_STARTS = "O"

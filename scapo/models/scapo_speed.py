@@ -7,6 +7,7 @@ import functools
 
 import torch
 
+from scapo.engine.loop import compile_network, uncompile_network
 from scapo.engine.runs import resolve_device
 from scapo.engine.speed import box_clouds, inference_speed, median_seconds
 from scapo.models.presets import get_preset
@@ -41,7 +42,7 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
         d = resolved[dev]
         model, steps = _train_speed(pc, d, iters)
         row = {"preset": preset, "device": dev, "batch_size": pc.batch_size, "train_points": pc.train_points}
-        row.update({f"train_stage{k}_samples_per_s": v for k, v in steps.items()})
+        row.update({f"train_stage{k}_samples_per_s": steps[k] for k in (1, 2)})
         model.eval()
         row.update(inference_speed(model.predict, d, num_points, iters))
         for batch in (1, 32):
@@ -64,16 +65,29 @@ def bench_model(preset: str = "cpu", device: str | None = None, iters: int = 5, 
 
 def _train_speed(pc, d: torch.device, iters: int) -> tuple[SCAPOModel, dict]:
     """A fresh two-part, one-revolute SCAPO model of preset ``pc`` on ``d`` and its training clouds/s per stage
-    ``{1: ..., 2: ...}`` (one optimiser step on the preset's batch of box clouds at its training points)."""
+    ``{1: ..., 2: ...}`` (one optimiser step on the preset's batch of box clouds at its training points); with the
+    preset's ``compile``, also ``{"eager<k>": clouds/s}`` of the eager step measured first in the same run and
+    ``{"compile<k>": s}``, each stage's first compiled step's seconds beyond a compiled step's."""
     cfg = ModelConfig(2, (0,), ((0, 1),), encoder=pc.encoder, template_points=pc.template_points, gamma=pc.gamma,
                       root_motion=pc.root_motion)
     model = SCAPOModel(cfg).to(d)
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
     pts = torch.from_numpy(box_clouds(pc.batch_size, pc.train_points)).to(d)
     out = {}
+    parts = compile_network(model) if pc.compile else []
     for stage in (1, 2):
-        sec = median_seconds(functools.partial(train_step, model, opt, pts, stage, pc.losses), iters, d.type == "cuda")
+        step = functools.partial(train_step, model, opt, pts, stage, pc.losses)
+        if parts:  # the eager step first (the reference, same run), then the first compiled step apart
+            parts = uncompile_network(parts)
+            eager = median_seconds(step, iters, d.type == "cuda")
+            parts = compile_network(model)
+            first = median_seconds(step, 0, d.type == "cuda", warm_up=False)
+        sec = median_seconds(step, iters, d.type == "cuda")
         out[stage] = round(pc.batch_size / sec, 2)
+        if parts:
+            out[f"eager{stage}"] = round(pc.batch_size / eager, 2)
+            out[f"compile{stage}"] = round(max(first - sec, 0.0), 2)
+    uncompile_network(parts)
     return model, out
 
 
@@ -84,7 +98,11 @@ def bench_train_step(preset: str = "cpu", device: str = "cpu", iters: int = 5) -
     pc = get_preset(preset)
     torch.manual_seed(0)
     _, steps = _train_speed(pc, resolve_device(device), iters)
-    return {"batch_size": pc.batch_size, "points": pc.train_points,
-            **{f"stage{k}_clouds_per_s": v for k, v in steps.items()},
+    return {"batch_size": pc.batch_size, "points": pc.train_points, "compile": pc.compile,
+            **{f"stage{k}_clouds_per_s": steps[k] for k in (1, 2)},
+            **{f: v for k in (1, 2) if f"compile{k}" in steps for f, v in (
+                (f"stage{k}_eager_clouds_per_s", steps[f"eager{k}"]),
+                (f"stage{k}_speedup_vs_eager", round(steps[k] / steps[f"eager{k}"], 2)),
+                (f"stage{k}_compile_s", steps[f"compile{k}"]))},
             "stage1_epochs": pc.stage1_epochs, "stage2_epochs": pc.stage2_epochs,
             "max_steps_per_epoch": pc.max_steps_per_epoch, "iterations": 0}

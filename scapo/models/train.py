@@ -183,7 +183,7 @@ ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "lab
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
                 "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": "",
                 "relabel": 0, "relabel_frames": True, "parts_axes": "pca", "axis_fixed": False,
-                "split_overseg": 0, "label_retry": 0.0, "label_stride": 1}
+                "split_overseg": 0, "label_retry": 0.0, "label_stride": 1, "compile": False}
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -267,7 +267,7 @@ class ScapoJob:
                         on_epoch=(lambda epoch: self._relabel(data, epoch)) if pc.relabel else None)]
         cfg = FitConfig(batch_size=pc.batch_size, weight_decay=pc.weight_decay, min_lr=pc.min_lr,
                         grad_clip=pc.grad_clip, max_steps_per_epoch=pc.max_steps_per_epoch, seed=pc.seed,
-                        order="shuffle")
+                        order="shuffle", compile=pc.compile)
         mcfg = dataclasses.asdict(self.mcfg)
         return TrainJob(model=self.model, data=data, stages=stages, config=cfg,
                         desc=f"train scapo {self.card['category']} ({pc.name})",
@@ -359,7 +359,7 @@ class ScapoJob:
         (``sample``, int64, an index into the training split), its points' indices in that cloud (``points (M,)``
         int64), the split stage 2 starts from (``labels (M,)`` int64) and, with ``split_frame = "refit"``, the split
         fitted again (``labels_refit (M,)``). Not read by training or prediction: ``bench/pseudo_label_confusion.py``
-        scores the template's split against the true labels of those points (issue 52's diagnosis)."""
+        scores the template's split against the true labels of those points (a diagnosis of the split)."""
         import io
 
         from scapo.files import atomic_write_bytes

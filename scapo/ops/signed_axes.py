@@ -1,4 +1,4 @@
-"""The principal axes of a part signed by where the other parts lie (numpy; an addition to the paper, issue 52).
+"""The principal axes of a part signed by where the other parts lie (numpy; an addition to the paper).
 
 Used by SCAPO's prediction option ``base_frame=parts`` (:mod:`scapo.methods.base_frame`, which turns these
 ``ValueError`` into ``scapo:`` input errors) and by its training switch ``TrainConfig.split_frame = "parts"``
@@ -22,7 +22,7 @@ def principal_axes(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 PLANE_TOL = 0.1
 """``plane_axes``: a point is on the plane when it lies within this share of the points' largest standard deviation
-of it (fixed before measuring; 0.05 gave the same frames on the eyeglasses' val views, session 33)."""
+of it (fixed before measuring; 0.05 gave the same frames on the eyeglasses' val views)."""
 
 PLANE_TRIALS = 256
 """``plane_axes``: the number of three-point planes tried."""
@@ -49,7 +49,7 @@ def plane_axes(Q: np.ndarray, tol: float = PLANE_TOL, trials: int = PLANE_TRIALS
     with the most points within ``tol`` times the largest standard deviation of ``Q``. A slab-shaped base part
     (a laptop's base, an eyeglasses' front) keeps its own axes where a segmentation gives it some points of a child
     part: those leave the plane, where they would turn the principal axes of all the points (an addition to the
-    paper, issue 52; measured in ``results/canonical_ladder/README.md``, "The base's plane").
+    paper; measured in ``results/canonical_ladder/README.md``, "The base's plane").
 
     Returns:
         the variances ``(3,)``, largest first, and the directions as columns ``(3, 3)``, as :func:`principal_axes`;
@@ -120,7 +120,7 @@ def choose_signed_pair(points: np.ndarray, part_label: np.ndarray, slot: int = 0
     """The two ranks of the base's principal directions that ``base_frame=parts`` (:mod:`scapo.methods.base_frame`)
     and ``TrainConfig.split_frame = "parts"`` sign (:func:`parts_signed_axes`), chosen on training views with no
     labels. Where views show two or more other parts, the two ranks along which all the other parts lie on one side
-    of the base in the most views (:func:`children_agreement`; session 31: the rule below chose an eyeglasses front's
+    of the base in the most views (:func:`children_agreement`; the rule below chose an eyeglasses front's
     width, which the temples straddle, in 2 of 12 runs, and those runs' frames failed), unless the third rank ties the
     second. Otherwise (a base with one child, a laptop) per view the two ranks along which the other parts' centroid
     lies farthest from the base's (in units of the base's spread along each); the pair most views give.

@@ -1,5 +1,5 @@
 """Revolute axes from the sweep of a child part's direction over views in its parent's frame (numpy; an addition to
-the paper, issue 52).
+the paper).
 
 A revolute child turns about one axis fixed in its parent's frame. Any direction the child carries that is normal to
 that axis (an eyeglasses temple's length, a laptop lid's normal) therefore stays in the plane normal to it as the joint
@@ -7,7 +7,7 @@ moves, while a direction along the axis stays put. Over the views of a category,
 them, the child's principal direction of largest variance thus sweeps a great circle whose normal is the axis, or
 stays on the axis. Used by the prediction step ``axis_sweep`` (:mod:`scapo.methods.sweep`) and by the training switch
 ``TrainConfig.axis_init = "sweep"`` (:mod:`scapo.models.train`). Measured in ``results/canonical_ladder/README.md``,
-"The base's plane and the hinge axes from the sweep" (session 33).
+"The base's plane and the hinge axes from the sweep".
 """
 
 from __future__ import annotations
