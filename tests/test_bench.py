@@ -1031,3 +1031,20 @@ def test_regime_compare_puts_two_tables_beside_the_papers_rows(tmp_path):
         bad = subprocess.run([sys.executable, str(script), *args, *([] if "--methods" in args else ["--methods", "npcs"]),
                               "--categories", "laptop"], capture_output=True, text=True, cwd=tmp_path)
         assert bad.returncode == 2 and bad.stderr.startswith("scapo: ") and "Traceback" not in bad.stderr, args
+
+
+def test_the_agreement_benchmark_trains_a_method_eagerly_and_compiled_and_compares_the_losses(tmp_path, capsys):
+    """``scapo bench perf --what agreement``: the method's first steps twice on one dataset and seed, eager and
+    compiled; the compiled path's compilation is reported apart and its losses agree with the eager ones (float32
+    kernels fused differently); without --method it is a clear error."""
+    from scapo.cli.main import main
+
+    data = Path(__file__).parent / "data" / "pin_laptop"
+    assert main(["bench", "perf", "--what", "agreement", "--data", str(data), "--method", "npcs", "--preset", "test",
+                 "--steps", "3", "--out", str(tmp_path)]) == 0
+    rows = json.loads((tmp_path / "agreement_npcs_test_pin_laptop.json").read_text())["rows"]
+    assert [r["path"] for r in rows] == ["eager", "compiled"] and all(r["steps"] == 3 for r in rows)
+    assert rows[0]["compile_s"] == 0 and rows[1]["compile_s"] > 0
+    assert rows[1]["rel_diff_max"] < 1e-4
+    assert main(["bench", "perf", "--what", "agreement", "--data", str(data)]) == 2
+    assert "needs --data DATASET and --method METHOD" in capsys.readouterr().err

@@ -309,6 +309,58 @@ def budget_schedule(row: dict, preset, minutes: float) -> dict:
     return {"iterations": max(1, int(sec * row["stage1_clouds_per_s"] / row["batch_size"]))}
 
 
+def bench_agreement(data: str | Path, method: str, preset: str = "cpu", steps: int = 200, seed: int = 0
+                    ) -> list[dict]:
+    """The compiled training step against the eager one (``scapo bench perf --what agreement``): ``method``'s
+    ``preset`` trained twice on ``data`` for its first ``steps`` optimiser steps (the preset's schedule replaced: one
+    epoch per stage, ``steps`` split evenly over the stages), eagerly and compiled (``compile``), from one seed, and
+    the logged loss totals compared step by step: the largest and median relative difference over the steps and
+    over the first 10, the eager run's charged core-seconds per step beside the compiled one's, and the compiled
+    run's compilation (its ``stage<k>/compile`` phases). One row per path.
+
+    Raises:
+        UnknownNameError: unknown method or preset. ConfigError: a method that is not trained, ``steps`` below the
+        number of stages.
+    """
+    import csv
+
+    from scapo.errors import ConfigError
+    from scapo.methods import METHODS, train_method
+    from scapo.registry import schedule_fields
+
+    entry = METHODS.get(method)
+    if not entry.trained:
+        raise ConfigError(f"method {method!r} is not trained: nothing to compile")
+    fields = schedule_fields(entry.preset(preset))
+    if steps < len(fields):
+        raise ConfigError(f"--steps must be at least {len(fields)} (one per training stage), got {steps}")
+    overrides = {**{f: 1 for f in fields}, "max_steps_per_epoch": steps // len(fields), "iterations": 0}
+    if not hasattr(entry.preset(preset), "iterations"):
+        overrides.pop("iterations")
+    rows, totals = [], {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for path in ("eager", "compiled"):
+            run = Path(tmp) / path
+            train_method(method, data, run, preset, progress=False, seed=seed,
+                         overrides={**overrides, "compile": path == "compiled"})
+            with open(run / "log.csv", newline="") as f:
+                totals[path] = np.array([float(r["total"]) for r in csv.DictReader(f)])
+            ledger = json.loads((run / "timing.json").read_text())["ledger"]
+            phases = ledger["phases"]
+            step_s = sum(float(p["charged_s"]) for k, p in phases.items() if k.endswith("/steps"))
+            rows.append({"method": method, "preset": preset, "path": path, "steps": len(totals[path]),
+                         "charged_s_per_step": round(step_s / max(len(totals[path]), 1), 4),
+                         "compile_s": round(sum(float(p["charged_s"]) for k, p in phases.items()
+                                                if k.endswith("/compile")), 1)})
+    n = min(len(totals["eager"]), len(totals["compiled"]))
+    rel = np.abs(totals["compiled"][:n] - totals["eager"][:n]) / np.maximum(np.abs(totals["eager"][:n]), 1e-12)
+    for row in rows:
+        row["speedup_vs_eager"] = round(rows[0]["charged_s_per_step"] / max(row["charged_s_per_step"], 1e-12), 2)
+        row.update({"rel_diff_max": float(f"{rel.max():.3g}"), "rel_diff_median": float(f"{np.median(rel):.3g}"),
+                    "rel_diff_max_first10": float(f"{rel[:10].max():.3g}")})
+    return rows
+
+
 def bench_icp(data: str | Path, limit: int = 0) -> list[dict]:
     """ICP's two searches (``ICPConfig.search``: "exhaustive", the reference, and "batched") on the same test
     clouds of ``data`` in one run: ms per cloud, the speed-up over the reference, and what each gets under the

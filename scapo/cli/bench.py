@@ -137,6 +137,8 @@ def cmd_bench(args) -> int:
     if args.iters is not None and (args.target != "train" or args.data is not None):
         raise ConfigError("--iters goes with 'bench perf --what train' without --data (timed steps on box clouds); "
                           "with --data the timed run is set by --steps")
+    if args.steps is not None and args.steps < 1:
+        raise ConfigError(f"--steps must be >= 1, got {args.steps}")
     if args.iters is not None and args.iters < 1:
         raise ConfigError(f"--iters must be >= 1, got {args.iters}")
     extra_prov: dict = {}
@@ -151,6 +153,14 @@ def cmd_bench(args) -> int:
         rows = bench_maniskill(args.category, instances=args.instances or 4, views=args.views or 32,
                                cache_dir=args.cache)
         name = f"maniskill_{args.category}"
+    elif args.target == "agreement":
+        from scapo.bench.perf import bench_agreement
+
+        if args.data is None or args.method is None:
+            raise ConfigError("bench perf --what agreement needs --data DATASET and --method METHOD (the method's "
+                              "first --steps training steps on that dataset, eager and compiled)")
+        rows = bench_agreement(args.data, args.method, args.preset, steps=args.steps or 200)
+        name = f"agreement_{args.method}_{args.preset}_{Path(args.data).name}"
     elif args.target == "icp":
         from scapo.bench.perf import bench_icp
 
@@ -171,7 +181,7 @@ def cmd_bench(args) -> int:
             from scapo.bench.perf import bench_train_data
 
             rows = bench_train_data(args.data, [args.method] if args.method else None, args.preset,
-                                    steps=args.steps)
+                                    steps=args.steps or 20)
             name = f"train_{args.preset}_{Path(args.data).name}" + (f"_{args.method}" if args.method else "")
         else:
             rows = bench_train([args.method] if args.method else None, args.preset, device=args.device,
@@ -276,10 +286,12 @@ def add_parsers(sub) -> None:
                     "table2: default op-align, as the paper's Table 2")
     sp.add_argument("--limit", type=int, default=0, help="perf --what icp: time the first N test clouds (0: all)")
     sp.add_argument("--sizes", type=ints, default=[100, 1000, 10000], help="perf --what growth: dataset sizes")
-    sp.add_argument("--what", dest="target", choices=["generate", "model", "train", "icp", "maniskill", "growth"],
+    sp.add_argument("--what", dest="target", choices=["generate", "model", "train", "agreement", "icp",
+                                                                "maniskill", "growth"],
                     default="generate",
                     help="perf: generation throughput (generate), SCAPO's or a method's training/inference speed "
-                    "(model), every trained method's training clouds/s per stage (train; --method for one), "
+                    "(model), every trained method's training clouds/s per stage (train; --method for one), a "
+                    "method's first --steps (200) training losses eager and compiled (agreement, with --data), "
                     "ICP's two searches (icp, with --data), the ManiSkill3 backend against SAPIEN "
                     "(maniskill), generation and evaluation time against dataset size (growth)")
     sp.add_argument("--budget-minutes", type=float, default=None, help="perf --what train: the training budget per "
@@ -299,8 +311,9 @@ def add_parsers(sub) -> None:
                     "views, 105 training instances)")
     sp.add_argument("--iters", type=int, default=None, help="perf --what train (without --data): timed optimiser "
                     "steps per method and stage after a warm-up, default 5; the median is reported (more: less noise)")
-    sp.add_argument("--steps", type=int, default=20, help="perf --what train --data: steps per epoch of the timed "
-                    "two-epoch run (per stage)")
+    sp.add_argument("--steps", type=int, default=None, help="perf --what train --data: steps per epoch of the timed "
+                    "two-epoch run (per stage; default 20); perf --what agreement: training steps compared (default "
+                    "200)")
     sp.add_argument("--baseline", default=None, help="perf --what train: an earlier run's .json (e.g. at another "
                     "commit, same machine and threads): adds each stage's clouds/s before and the speed-up")
     sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3, "
