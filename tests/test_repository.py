@@ -27,3 +27,12 @@ def test_no_predictions_or_checkpoints_are_committed_in_results():
     heavy = [p.relative_to(ROOT) for p in (ROOT / "results").rglob("*")
              if p.is_file() and (p.name.startswith("predictions_") or p.suffix == ".pt")]
     assert not heavy, f"predictions or checkpoints in results/: {heavy[:5]}"
+
+
+def test_no_scripts_are_kept_in_results():
+    """``results/`` holds generated tables, their cells and READMEs; the experiments that make them live in
+    ``bench/`` (the reusable ones) and one-off scripts leave the tree (``docs/history.md`` names the commit that had
+    them)."""
+    scripts = [str(p.relative_to(ROOT)) for p in (ROOT / "results").rglob("*")
+               if p.is_file() and p.suffix in (".py", ".sh", ".ipynb")]
+    assert not scripts, f"scripts in results/: {scripts[:5]}; move a reusable one to bench/, delete a one-off one"
