@@ -122,20 +122,22 @@ def test_only_scapos_method_module_and_the_cli_import_the_model_package():
     assert not wrong, "\n".join(wrong)
 
 
-def test_readme_layout_lists_every_package_with_its_imports():
-    """README's Layout block: one line per stage package (``scapo/`` for the top-level modules, ``scapo/bench/`` for
-    the top stage's modules), bottom-up, each with the packages it imports (``| a, b``), as the tree has them."""
-    readme = (Path(scapo.__file__).parent.parent / "README.md").read_text()
+def test_the_layout_lists_every_package_with_its_imports():
+    """The Layout block of docs/DEVELOPING.md: one line per stage package (``scapo/`` for the top-level modules,
+    ``scapo/bench/`` for the top stage's modules), bottom-up, each with the packages it imports (``| a, b``), as the
+    tree has them."""
+    readme = (Path(scapo.__file__).parent.parent / "docs" / "DEVELOPING.md").read_text()
     block = readme.split("## Layout", 1)[1].split("```", 2)[1]
     lines = [ln for ln in block.splitlines() if ln.startswith("scapo/") and "|" in ln]
     listed = [ln.split()[0].rstrip("/").replace("/", ".") for ln in lines]
-    assert listed == [s[0] for s in STAGES], "README Layout lists other packages (or another order) than STAGES"
+    assert listed == [s[0] for s in STAGES], ("docs/DEVELOPING.md Layout lists other packages (or another order) than "
+                                              "STAGES")
     graph = imports()
     for line, stage in zip(lines, STAGES):
         i = STAGES.index(stage)
         want = {STAGES[stage_of(d)][0] for m, deps in graph.items() if stage_of(m) == i for d in deps} - {stage[0]}
         names = {w.strip() for w in line.split("|", 1)[1].split(",")} - {"-"}
         got = {"scapo" if n == "scapo" else f"scapo.{n}" for n in names}
-        assert got == want, f"{stage[0]}: README says it imports {sorted(got)}, the code {sorted(want)}"
+        assert got == want, f"{stage[0]}: docs/DEVELOPING.md says it imports {sorted(got)}, the code {sorted(want)}"
     packages = {p.name for p in Path(scapo.__file__).parent.iterdir() if (p / "__init__.py").is_file()}
     assert {f"scapo.{p}" for p in packages} <= {m for s in STAGES for m in s}, "a package is in no stage"

@@ -30,13 +30,13 @@ def test_headline_block_is_rewritten_and_refused_without_markers(tmp_path):
 
 
 def test_headline_of_table1_paper_two_categories(tmp_path):
-    """The paper-viewpoint Table 1 block: per method the mean over categories and seeds, the budget stated."""
+    """The paper-viewpoint Table 1 block: per method the mean over categories and seeds, the budget stated, the paper's
+    rows as the mean of the same categories' columns."""
     import json
 
     from scapo.bench.headline import _table1_paper
 
-    assert _table1_paper(tmp_path) == []
-    summary = {"S": 80.0, "D": 5.0, "R_median": 10.0, "R_sym_median": 8.0}
+    summary = {"S": 80.0, "D": 5.0, "R": 20.0, "R_median": 10.0, "R_sym_median": 8.0}
     rows = [{"method": "scapo", "category": c, "split": "test", "seed": s,
              "summary": {**summary, "S": 70.0 + 10 * s}, "info": {"alignment_inlier_ratio": [0.5, 0.7]}}
             for c in ("laptop", "eyeglasses") for s in (0, 1)]
@@ -45,27 +45,22 @@ def test_headline_of_table1_paper_two_categories(tmp_path):
     (tmp_path / "table1_paper_two_categories.json").write_text(json.dumps({"results": rows, "provenance": prov}))
     text = "\n".join(_table1_paper(tmp_path))
     assert "5 core-minutes" in text and "abcdef0" in text
-    assert "| SCAPO | 75.0 | 5.0 | 10.0 | 8.0 | 0.60 |" in text
+    assert "| SCAPO | 75.0 | 5.0 | 20.0 | 10.0 | 8.0 | 0.60 |" in text
+    assert "| SCAPO, the paper | 80.8 | 2.3 | 3.6 | - | - | - |" in text  # (93.41 + 68.19) / 2, ...
 
 
-def test_headline_of_the_laptop_with_the_hinge_steps(tmp_path):
-    """The hinge block: one-pass and with the steps per method and budget, means over seeds, the frame consistency of
-    the consistency file's rows of that label; absent without both files."""
-    import json
+def test_headline_refuses_a_results_folder_without_the_table_and_a_damaged_table(tmp_path, capsys):
+    """A wrong --results or a damaged table JSON is a one-line error naming the file, and the README's block is left
+    as it was (it was once rewritten from nothing and the command exited 0)."""
+    from scapo.bench.headline import main
 
-    from scapo.bench.headline import STEPS, _hinge
-
-    assert _hinge(tmp_path) == []
-    folder = tmp_path / "table1_paper_hinge_45min"
-    folder.mkdir()
-    rows = [{"method": m, "category": "laptop", "split": "test", "seed": s,
-             "summary": {"S": 70.0 + 10 * s + (10 if m != "scapo" else 0), "D_median": 1.0, "R_median": 2.0}}
-            for m in ("scapo", "scapo" + STEPS) for s in (0, 1)]
-    (folder / "laptop_scapo.json").write_text(json.dumps({"results": rows}))
-    assert _hinge(tmp_path) == []  # no consistency file yet
-    cons = {f"{m}-s{s}": {"strict": 0.5 + 0.4 * (m != "scapo") + 0.02 * s} for m in ("scapo", "scapo" + STEPS)
-            for s in (0, 1)}
-    (folder / "laptop_scapo_consistency.json").write_text(json.dumps({"rows": cons}))
-    text = "\n".join(_hinge(tmp_path))
-    assert "| SCAPO | 45 | 75.0 | 1.00 | 2.00 | 0.51 |" in text
-    assert "| SCAPO + hinge steps | 45 | 85.0 | 1.00 | 2.00 | 0.91 |" in text
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# x\n\n{START}\nthe numbers\n{END}\n")
+    for check in ([], ["--check"]):
+        assert main(["--readme", str(readme), "--results", str(tmp_path / "nosuch"), *check]) == 2
+        assert "table1_paper_two_categories.json is not there" in capsys.readouterr().err
+    (tmp_path / "table1_paper_two_categories.json").write_text('{"results": [')
+    assert main(["--readme", str(readme), "--results", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "table1_paper_two_categories.json is not a table of scapo bench" in err and err.count("\n") == 1
+    assert "the numbers" in readme.read_text()

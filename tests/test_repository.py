@@ -36,3 +36,10 @@ def test_no_scripts_are_kept_in_results():
     scripts = [str(p.relative_to(ROOT)) for p in (ROOT / "results").rglob("*")
                if p.is_file() and p.suffix in (".py", ".sh", ".ipynb")]
     assert not scripts, f"scripts in results/: {scripts[:5]}; move a reusable one to bench/, delete a one-off one"
+
+
+def test_the_readme_is_read_in_two_minutes():
+    """README.md: what scapo is, the two commands, the headline table, the status, the commands, links; at most 8 KB
+    (the reference is docs/usage.md, the developers' page docs/DEVELOPING.md)."""
+    size = (ROOT / "README.md").stat().st_size
+    assert size <= 8 * 1024, f"README.md is {size} bytes, over 8 KB: move detail to docs/"

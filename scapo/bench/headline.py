@@ -1,23 +1,12 @@
-"""The README's "where the numbers stand" block, generated from the committed results so that it cannot drift.
+"""The README's headline table, generated from the committed results so that it cannot drift.
 
 ``python -m scapo.bench.headline`` rewrites the block between :data:`START` and :data:`END` in ``README.md`` from
-``results/``; ``--check`` only says whether it is current (the test suite runs the check). Every number in the block
-is read from a results JSON written by a project command (its provenance is in that file):
-
-- Table 1 on the whole sphere (``results/table1_synthetic_sphere.json``, ``scapo bench table1 --viewpoints
-  sphere``): per method the mean over its categories and training seeds of S, D, mean R, mean symmetry-aware R, and
-  the paper's own row (``scapo/eval/reference/paper_table1.csv``, its mean column);
-- Table 1 in the paper's viewpoints on laptop and eyeglasses (``results/table1_paper_two_categories.json``, ``scapo
-  bench table1 --viewpoints paper --budget-minutes``), when it exists: per method the mean over categories and seeds
-  of S, D, median R strict and symmetry-aware, and the alignment inlier ratio;
-- the canonical-frame ladder's paper-regime rung on laptop (``results/canonical_ladder/ladder_laptop.json``, val):
-  per method (default rows) the symmetry-aware frame consistency, S and median symmetry-aware R, mean over seeds;
-- accuracy against training compute (``results/accuracy_vs_compute.json``, val), when it exists: S and frame
-  consistency per budget;
-- the laptop with the hinge prediction steps (``results/table1_paper_hinge_{45,5}min/``: ``scapo evaluate`` of the
-  tables' cells with ``hinge``, ``hinge_axis``, ``hinge_frames`` and ``hinge_view_prior``, and
-  ``bench/frame_consistency.py``), when they exist: per method and budget, one-pass and with the steps, S, median D,
-  median R and the object-frame consistency, means over the training seeds.
+``results/``; ``--check`` only says whether it is current (the test suite runs the check). The block is Table 1 in the
+paper's viewpoints (``results/table1_paper_two_categories.json``, made by ``scapo bench table1 --viewpoints paper``;
+its provenance is in that file): per method the mean over its categories and training seeds of S, D, mean R, median R
+strict and symmetry-aware, and the alignment inlier ratio, then the paper's own rows for the same categories
+(``scapo/eval/reference/paper_table1.csv``, the mean of those categories' columns). A results folder without that
+table is refused (nothing is rewritten).
 """
 
 from __future__ import annotations
@@ -46,148 +35,78 @@ def _f(v, nd: int = 1) -> str:
     return "-" if v is None else f"{v:.{nd}f}"
 
 
-def _paper_row(method: str) -> dict:
-    path = Path(__file__).resolve().parents[1] / "eval" / "reference" / "paper_table1.csv"
-    with open(path, newline="") as f:
-        return {r["metric"]: float(r["mean"]) for r in csv.DictReader(f) if r["method"] == method}
-
-
 def _table(path: Path):
-    """A table JSON's test rows, categories, training seeds and provenance, or None where it is not there."""
+    """A table JSON's test rows, categories, training seeds and provenance, or None where it is not there.
+
+    Raises:
+        ValueError: the file is not a table JSON (names it)."""
     if not path.is_file():
         return None
-    t = json.loads(path.read_text())
-    rows = [r for r in t["results"] if r.get("split", "test") == "test"]
-    prov = t["provenance"]
-    seeds = sorted({s for v in prov.get("training_seeds", {}).values() for s in v})
-    return rows, sorted({r["category"] for r in rows}), seeds, prov
+    try:
+        t = json.loads(path.read_text())
+        rows = [r for r in t["results"] if r.get("split", "test") == "test"]
+        prov = t["provenance"]
+        seeds = sorted({s for v in prov.get("training_seeds", {}).values() for s in v})
+        cats = sorted({r["category"] for r in rows})
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        raise ValueError(f"{path} is not a table of scapo bench ({type(e).__name__}: {e}); restore it from git "
+                         "(git checkout -- results/) or make the table again") from None
+    return rows, cats, seeds, prov
 
 
-def _table1(results: Path) -> list[str]:
-    table = _table(results / "table1_synthetic_sphere.json")
-    if table is None:
-        return []
-    rows, cats, seeds, prov = table
-    out = [f"**Table 1, whole sphere** (`results/table1_synthetic_sphere.md`; test split, {len(cats)} categories, "
-           f"training seeds {', '.join(map(str, seeds))}, one-pass rows; commit "
-           f"{', '.join(c[:7] for c in prov.get('commits', []))}). A uniformly random rotation has a mean "
-           "R of 126.5 deg.", "",
-           "| method | S % | D deg | R deg | R sym deg |", "|---|---|---|---|---|"]
-    for m in ORDER:
-        mine = [r["summary"] for r in rows if r["method"] == m]
-        if mine:
-            out.append(f"| {NAMES[m]} | {_f(_mean(s['S'] for s in mine))} | {_f(_mean(s['D'] for s in mine))} | "
-                       f"{_f(_mean(s['R'] for s in mine))} | {_f(_mean(s.get('R_sym') for s in mine))} |")
-    p = _paper_row("SCAPO")
-    out.append(f"| SCAPO, the paper's Table 1 | {_f(p.get('S'))} | {_f(p.get('D'))} | {_f(p.get('R'))} | - |")
-    return out
+#: The paper's Table 1 rows shown beside ours: its name in ``paper_table1.csv`` -> the row's label.
+PAPER_ROWS = {"ICP": "ICP, the paper", "NPCS-EPN": "NPCS-EPN (supervised), the paper", "EAP": "EAP, the paper",
+              "OP-Align": "OP-Align, the paper", "SCAPO": "SCAPO, the paper"}
+
+
+def _paper_means(method: str, categories: list[str]) -> dict:
+    """The paper's Table 1 values of ``method``, each the mean over ``categories`` (metrics it reports for all)."""
+    path = Path(__file__).resolve().parents[1] / "eval" / "reference" / "paper_table1.csv"
+    with open(path, newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["method"] == method]
+    return {r["metric"]: sum(float(r[c]) for c in categories) / len(categories) for r in rows
+            if all(r.get(c) not in (None, "") for c in categories)}
 
 
 def _table1_paper(results: Path) -> list[str]:
-    table = _table(results / "table1_paper_two_categories.json")
+    """The block's lines; ValueError where ``results`` has no paper-viewpoint Table 1."""
+    path = results / "table1_paper_two_categories.json"
+    table = _table(path)
     if table is None:
-        return []
+        raise ValueError(f"{path} is not there: give --results the folder of the committed tables (the headline is "
+                         "made from its paper-viewpoint Table 1; nothing was rewritten)")
     rows, cats, seeds, prov = table
     budget = prov.get("training_budget", {}).get("core_minutes_per_run")
-    out = ["", f"**Table 1 in the paper's viewpoints** (`results/table1_paper_two_categories.md`; test split, "
+    out = [f"**Table 1 in the paper's viewpoints** (`results/table1_paper_two_categories.md`; test split, "
            f"{', '.join(cats)}, training seeds {', '.join(map(str, seeds))}, one-pass rows"
            + (f", {budget:g} core-minutes of training per run" if budget else "") + "; commit "
-           f"{', '.join(c[:7] for c in prov.get('commits', []))}). Frame consistency: the evaluator's alignment "
-           "inlier ratio (1 = one canonical frame; self-supervised rows).", "",
-           "| method | S % | D deg | median R deg | median R sym deg | frame consistency |",
-           "|---|---|---|---|---|---|"]
+           f"{', '.join(c[:7] for c in prov.get('commits', []))}). Means over categories and seeds; frame "
+           "consistency: the evaluator's alignment inlier ratio (1 = one canonical frame; self-supervised rows). "
+           "The paper's rows: its Table 1, the mean of the same categories.", "",
+           "| method | S % | D deg | R deg | median R deg | median R sym deg | frame consistency |",
+           "|---|---|---|---|---|---|---|"]
     for m in ORDER:
         mine = [r for r in rows if r["method"] == m]
         if mine:
             s = [r["summary"] for r in mine]
             inl = _mean(x for r in mine for x in (r.get("info", {}).get("alignment_inlier_ratio") or []))
             out.append(f"| {NAMES[m]} | {_f(_mean(x['S'] for x in s))} | {_f(_mean(x['D'] for x in s))} | "
-                       f"{_f(_mean(x['R_median'] for x in s))} | {_f(_mean(x.get('R_sym_median') for x in s))} | "
-                       f"{_f(inl, 2)} |")
+                       f"{_f(_mean(x.get('R') for x in s))} | {_f(_mean(x['R_median'] for x in s))} | "
+                       f"{_f(_mean(x.get('R_sym_median') for x in s))} | {_f(inl, 2)} |")
+    for name, label in PAPER_ROWS.items():
+        p = _paper_means(name, cats)
+        if p:
+            out.append(f"| {label} | {_f(p.get('S'))} | {_f(p.get('D'))} | {_f(p.get('R'))} | - | - | - |")
     return out
-
-
-def _ladder(results: Path) -> list[str]:
-    path = results / "canonical_ladder" / "ladder_laptop.json"
-    if not path.is_file():
-        return []
-    recs = [r for r in json.loads(path.read_text())["records"] if r["rung"] == "paper"]
-    from scapo.eval.frames import CONSISTENCY_VERSION
-
-    old = any(r.get("consistency_version", 1) < CONSISTENCY_VERSION for r in recs)
-    out = ["", "**Paper-regime laptop, val** (`results/canonical_ladder/ladder_laptop.md`, rung `paper`: 60 "
-           "instances, 5 core-minutes of training per cell; frame consistency 1 = one canonical frame; the mean "
-           "over the seeds given" + ("; its symmetry-aware share predates the twin object frame and undercounts "
-                                     "views framed on the exchanged lid, see `results/README.md`" if old else "")
-           + ").", "",
-           "| method | seeds | frame consistency sym | S % | median R sym deg |", "|---|---|---|---|---|"]
-    for m in ORDER:
-        mine = [r for r in recs if r["method"] == m]
-        if mine:
-            out.append(f"| {NAMES[m]} | {len(mine)} | {_f(_mean(r['frame_consistency_sym'] for r in mine), 2)} | "
-                       f"{_f(_mean(r['S'] for r in mine))} | {_f(_mean(r['R_sym_median'] for r in mine))} |")
-    return out
-
-
-def _compute(results: Path) -> list[str]:
-    path = results / "accuracy_vs_compute.json"
-    if not path.is_file():
-        return []
-    recs = json.loads(path.read_text())["records"]
-    budgets = sorted({r["budget_min"] for r in recs})
-    out = ["", "**Accuracy against training compute** (`results/accuracy_vs_compute.md`, paper-regime laptop, val, "
-           "one seed): S % / symmetry-aware frame consistency after each budget of core-minutes.", "",
-           "| method | " + " | ".join(f"{b:g} min" for b in budgets) + " |", "|---|" + "---|" * len(budgets)]
-    for m in ORDER:
-        cells = []
-        for b in budgets:
-            mine = [r for r in recs if r["method"] == m and r["budget_min"] == b]
-            cells.append(f"{_f(_mean(r['S'] for r in mine))} / {_f(_mean(r['frame_consistency_sym'] for r in mine), 2)}"
-                         if mine else "-")
-        if any(c != "-" for c in cells):
-            out.append(f"| {NAMES[m]} | " + " | ".join(cells) + " |")
-    return out
-
-
-#: The hinge tables the headline reads: (folder, evaluation JSON, frame-consistency JSON, core-minutes).
-HINGE_TABLES = (("table1_paper_hinge_45min", "laptop_scapo.json", "laptop_scapo_consistency.json", 45),
-                ("table1_paper_hinge_5min", "laptop_frames.json", "laptop_frames_consistency.json", 5))
-#: The label suffix of the rows with every hinge step.
-STEPS = "+hinge-axis+hinge-frames+view-prior"
-
-
-def _hinge(results: Path) -> list[str]:
-    body = []
-    for folder, table, cons, budget in HINGE_TABLES:
-        t, c = results / folder / table, results / folder / cons
-        if not (t.is_file() and c.is_file()):
-            continue
-        rows = [r for r in json.loads(t.read_text())["results"] if r.get("split", "test") == "test"]
-        fc = json.loads(c.read_text())["rows"]
-        for m in ORDER:
-            for label, name in ((m, NAMES[m]), (m + STEPS, NAMES[m] + " + hinge steps")):
-                s = [r["summary"] for r in rows if r["method"] == label]
-                f = [v["strict"] for k, v in fc.items() if k.rsplit("-s", 1)[0] == label]
-                if s and f:
-                    body.append(f"| {name} | {budget:g} | {_f(_mean(x['S'] for x in s))} | "
-                                f"{_f(_mean(x['D_median'] for x in s), 2)} | {_f(_mean(x['R_median'] for x in s), 2)}"
-                                f" | {_f(_mean(f), 2)} |")
-    if not body:
-        return []
-    return ["", "**Laptop with the hinge prediction steps** (`results/table1_paper_hinge_45min/`, "
-            "`results/table1_paper_hinge_5min/`: Table 1's cells in the paper's viewpoints, test split, training "
-            "seeds 0, 1, 2, scored one-pass and with `--option hinge=true, hinge_axis=true, hinge_frames=true, "
-            "hinge_view_prior=true`, prediction steps offered to every trained method; frame consistency: the object "
-            "frame's, 1 = one canonical frame, mean over seeds).", "",
-            "| method | core-min | S % | median D deg | median R deg | frame consistency |",
-            "|---|---|---|---|---|---|", *body]
 
 
 def headline(results: str | Path = "results") -> str:
-    """The block's text (without its markers) from the results folder ``results``."""
+    """The block's text (without its markers) from the results folder ``results``.
+
+    Raises:
+        ValueError: ``results`` has no paper-viewpoint Table 1."""
     results = Path(results)
-    return "\n".join([*_table1(results), *_table1_paper(results), *_ladder(results), *_compute(results),
-                      *_hinge(results)])
+    return "\n".join(_table1_paper(results))
 
 
 def update_readme(readme: str | Path = "README.md", results: str | Path = "results", check: bool = False) -> bool:
