@@ -43,3 +43,6 @@ def test_the_readme_is_read_in_two_minutes():
     (the reference is docs/usage.md, the developers' page docs/DEVELOPING.md)."""
     size = (ROOT / "README.md").stat().st_size
     assert size <= 8 * 1024, f"README.md is {size} bytes, over 8 KB: move detail to docs/"
+    size = (ROOT / "results" / "README.md").stat().st_size
+    assert size <= 10 * 1024, (f"results/README.md is {size} bytes, over 10 KB: one status paragraph per table, the "
+                               "narrative in docs/results_notes.md")

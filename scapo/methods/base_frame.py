@@ -3,7 +3,7 @@
 SCAPO's stage-1 frame is a function of the whole cloud. The principal axes of the whole cloud turn with the joint state
 and with what a view shows; those of the base part alone do not: with the ground-truth base points, the base's
 principal axes put 0.98 (laptop, paper viewpoints) and 1.00 (eyeglasses) of the ladder's val views within 15 deg of
-one frame, against 0.54 and 0.46 for the whole cloud (``results/canonical_ladder/README.md``, "The base part's
+one frame, against 0.54 and 0.46 for the whole cloud (``docs/canonical_ladder.md``, "The base part's
 axes"). This module snaps a prediction's frame to the principal axes of the points the prediction itself labels as
 the base, through a fixed offset fitted on the training split, and turns every part pose and joint with it:
 
@@ -37,7 +37,7 @@ on one side of the base in most views, so that an axis a mirror pair straddles i
 the ranks along which the other parts lie farthest, in units of the base's spread, in most views). The axes then have
 no ambiguity left, so the offset is fitted with no group and each view's base rotation is ``E O^T`` whatever the
 network's frame: on the eyeglasses' paper rung, where SCAPO's frame scatters, this is what can give one frame
-(``results/canonical_ladder/README.md``, "The base's axes signed by the other parts").
+(``docs/canonical_ladder.md``, "The base's axes signed by the other parts").
 """
 
 from __future__ import annotations

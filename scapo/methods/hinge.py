@@ -42,7 +42,7 @@ prediction (its labels, joint axis and pivot; no ground truth, no training):
    (:func:`part_axes`: the axis, signed by the pair's chirality, and the direction the part runs away from the hinge),
    through per-part offsets fitted on the training split (:class:`HingeFrames`); with ``hinge_view_prior=true`` each
    view's base chosen between its two parts by the training views' base orientation (a viewpoint prior, off under
-   views from the whole sphere). Measured in ``results/canonical_ladder/README.md``, "The part rotations from the
+   views from the whole sphere). Measured in ``docs/canonical_ladder.md``, "The part rotations from the
    hinges".
 
 What it assumes: parts that are thin in the section normal to their hinge (a box-shaped body beside a door is a

@@ -8,7 +8,7 @@ is then that canonical direction turned by the view's base rotation, signed as t
 
 What it needs from the method: a base pose that is one frame across views (frame consistency) and a segmentation
 that gives the child's points; nothing else is read (no ground truth, no labels). Measured in
-``results/canonical_ladder/README.md``, "The base's plane and the hinge axes from the sweep".
+``docs/canonical_ladder.md``, "The base's plane and the hinge axes from the sweep".
 """
 
 from __future__ import annotations

@@ -734,7 +734,7 @@ def base_first_labels(template: torch.Tensor, labels: torch.Tensor, num_parts: i
     :func:`base_first_order`), the others keep their order; with two, the order is kept (either part can be the root
     of one joint). Not the hub of the centroids, as :func:`base_first_order` orders keypoints: children folded onto
     their parent lie together, so their centroids are nearer each other than the parent's (an eyeglasses template
-    with its temples shut put a temple first in five of six training runs, ``results/canonical_ladder/README.md``),
+    with its temples shut put a temple first in five of six training runs, ``docs/canonical_ladder.md``),
     while the body a star-shaped tree's children hang from is the largest part of both benchmark categories
     with more than two parts (the eyeglasses' front: about 0.57 of the points; the basket's body)."""
     C = torch.stack([template[labels == p].mean(0) if bool((labels == p).any()) else template.mean(0)

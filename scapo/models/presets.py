@@ -121,7 +121,7 @@ class TrainConfig:
     (:func:`scapo.models.part_init.refit_from_joint_starts`), for clouds whose articulation is far from the template's
     (a folded eyeglasses temple where the template's is open; labelling takes about 25 times longer). An addition to
     the paper; "O" gave no gain and "A" a mixed result on the eyeglasses' paper rung
-    (results/canonical_ladder/README.md, sessions 31-32)."""
+    (docs/canonical_ladder.md, sessions 31-32)."""
     label_retry: float = 0.0
     """With ``split_labels`` and a rotation group in ``label_starts`` ("T", "O" or "I"): the share of the training
     clouds, those whose part-by-part template fit from the identity scores worst, that are fitted again from the
@@ -175,7 +175,7 @@ class TrainConfig:
     pseudo-labels on train). Needs ``split_labels``; the new labels and targets replace ``split_labels.npy`` and
     ``frame_targets.npy`` (a resume reads them), and what changed goes to ``relabel.json``. An addition to the paper,
     preset part ``relabel``; a negative result on the eyeglasses' paper rung (the targets read from the
-    network's labels halfway through stage 2 are one frame for fewer clouds; results/canonical_ladder/README.md)."""
+    network's labels halfway through stage 2 are one frame for fewer clouds; docs/canonical_ladder.md)."""
     relabel_frames: bool = True
     """With ``relabel`` and ``stage2_frame = "parts"``: whether a relabelling also reads each training cloud's target
     frame again from its new labels (True, the default) or keeps the targets read from the starting pseudo-labels
@@ -468,7 +468,7 @@ def get_preset(name: str) -> TrainConfig:
 #: stage 2 in each cloud's parts-signed frame with the split fitted again there, the base's directions from its
 #: dominant plane, the revolute axes from the temples' sweep and held there, ``L_dir_align`` off. Chosen on the val
 #: split of the eyeglasses' paper-regime ladder rung, one switch at a time over three seeds, each part with its own
-#: ablation row (results/canonical_ladder/README.md; ``split-fitted``: stage2_parts/scale/). On the
+#: ablation row (docs/canonical_ladder.md; ``split-fitted``: stage2_parts/scale/). On the
 #: laptop an early subset of these parts was worse (stage2_parts/laptop_paper/). ``split-overseg`` (more
 #: starts for the split fit) was chosen on the val split of Table 1's eyeglasses data against the table's
 #: own cells (stage2_parts/scale/, section 7); ``--set split_overseg=0`` is its ablation.

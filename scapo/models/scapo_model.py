@@ -174,7 +174,7 @@ class JointHead(nn.Module):
 
 #: ``TrainConfig.stage2_frame = "parts"``: how many times prediction reads the frame from the base stage 2 labels
 #: and runs stage 2 again in it (each pass labels the base in a better frame). Chosen on the eyeglasses' paper-rung
-#: val split (results/canonical_ladder/README.md, "Stage 2 in the parts-signed frame").
+#: val split (docs/canonical_ladder.md, "Stage 2 in the parts-signed frame").
 PARTS_PASSES = 2
 
 

@@ -2,7 +2,7 @@
 
 Used by SCAPO's prediction option ``base_frame=parts`` (:mod:`scapo.methods.base_frame`, which turns these
 ``ValueError`` into ``scapo:`` input errors) and by its training switch ``TrainConfig.split_frame = "parts"``
-(:mod:`scapo.models.train`). Measured in ``results/canonical_ladder/README.md``, "The base's axes signed by the
+(:mod:`scapo.models.train`). Measured in ``docs/canonical_ladder.md``, "The base's axes signed by the
 other parts".
 """
 
@@ -49,7 +49,7 @@ def plane_axes(Q: np.ndarray, tol: float = PLANE_TOL, trials: int = PLANE_TRIALS
     with the most points within ``tol`` times the largest standard deviation of ``Q``. A slab-shaped base part
     (a laptop's base, an eyeglasses' front) keeps its own axes where a segmentation gives it some points of a child
     part: those leave the plane, where they would turn the principal axes of all the points (an addition to the
-    paper; measured in ``results/canonical_ladder/README.md``, "The base's plane").
+    paper; measured in ``docs/canonical_ladder.md``, "The base's plane").
 
     Returns:
         the variances ``(3,)``, largest first, and the directions as columns ``(3, 3)``, as :func:`principal_axes`;
