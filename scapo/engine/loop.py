@@ -395,12 +395,18 @@ def compile_network(model: torch.nn.Module) -> list[torch.nn.Module]:
 
 
 def _called(module: torch.nn.Module) -> Callable:
-    """``module``'s call as a function of this file (torch 2.13's ``nn.Module.compile`` hands dynamo the bound
-    ``_call_impl``, a frame of torch itself, which it does not trace: that module would run eagerly)."""
+    """``module``'s call as a function of this file, with a code object of its own (torch 2.13's ``nn.Module.compile``
+    hands dynamo the bound ``_call_impl``, a frame of torch itself, which it does not trace: that module would run
+    eagerly). Dynamo keeps its compiled graphs and its recompilation count per code object, so one closure shared by
+    every part would give each part a recompilation of one frame and, past ``recompile_limit`` (8) parts and modes,
+    run the rest eagerly after compiling them."""
+    import types
+
     def call(*args, **kwargs):
         return module._call_impl(*args, **kwargs)
 
-    return call
+    code = call.__code__.replace(co_name=f"call_{type(module).__name__}_{id(module):x}")
+    return types.FunctionType(code, call.__globals__, code.co_name, call.__defaults__, call.__closure__)
 
 
 def uncompile_network(parts: list[torch.nn.Module]) -> list[torch.nn.Module]:
