@@ -6,7 +6,7 @@
 # JSON exists is skipped. CATEGORIES="safe oven" picks some (two shells, one per core, each take a share).
 #   OUT=results/symmetry/after bash bench/symmetry.sh            # the current assets
 # then the table of every asset version side by side (results/symmetry/README.md):
-#   python bench/symmetry_table.py --column v1=results/symmetry/before --column v2=results/symmetry/v2 \
+#   python bench/diagnostics/symmetry_table.py --column v1=results/symmetry/before --column v2=results/symmetry/v2 \
 #     --column v3=results/symmetry/after --out results/symmetry/README.md
 # The v1 column was measured by the same code on the assets of commit baf2096, v2 at 8dfd1b4 (see results/symmetry/).
 set -euo pipefail

@@ -14,12 +14,12 @@
 #   OPTION_ROWS="scapo:base-auto:base_frame=principal,base_slot=auto" ...  # rows of the same runs predicted with
 #                                                             # options (bench table1 --option-row; no training)
 #   HINGE=1 bash bench/table1_paper_two_categories.sh         # after FINISH: every cell's predictions with and without
-#                                                             # the hinge re-split, and with its axes too (bench/hinge_rows.py
+#                                                             # the hinge re-split, and with its axes too (bench/diagnostics/hinge_rows.py
 #                                                             # [--axis]), scored on test
 #                                                             # into results/table1_paper_hinge_<BUDGET>min/<category>.*
 #   FRAMES=1 bash bench/table1_paper_two_categories.sh        # after HINGE: the hinge-axis predictions with the part
 #                                                             # rotations from the hinges and the view prior
-#                                                             # (bench/hinge_rows.py --frames --view-prior; NPCS-style
+#                                                             # (bench/diagnostics/hinge_rows.py --frames --view-prior; NPCS-style
 #                                                             # predicted again with the options, ICP has no training
 #                                                             # split to fit on), scored on test beside the one-pass
 #                                                             # and hinge-axis rows into .../<category>_frames.*
@@ -37,8 +37,8 @@ if [ -n "${HINGE:-}" ]; then
   for data in "$work"/*_paper; do
     cat="$(basename "$data")"; cat="${cat%%_*}"
     preds=("$data"/predictions_*.npz)
-    "${PYTHON:-.venv/bin/python}" bench/hinge_rows.py --data "$data" --pred "${preds[@]}" --out-dir "$work/hinge/$cat"
-    "${PYTHON:-.venv/bin/python}" bench/hinge_rows.py --axis --data "$data" --pred "${preds[@]}" \
+    "${PYTHON:-.venv/bin/python}" bench/diagnostics/hinge_rows.py --data "$data" --pred "${preds[@]}" --out-dir "$work/hinge/$cat"
+    "${PYTHON:-.venv/bin/python}" bench/diagnostics/hinge_rows.py --axis --data "$data" --pred "${preds[@]}" \
       --out-dir "$work/hinge_axis/$cat"
     "$scapo" evaluate --data "$data" --pred "${preds[@]}" "$work/hinge/$cat"/*.npz "$work/hinge_axis/$cat"/*.npz \
       --split test --out "$out" --name "$cat" --no-progress
@@ -50,7 +50,7 @@ if [ -n "${FRAMES:-}" ]; then
   for data in "$work"/*_paper; do
     cat="$(basename "$data")"; cat="${cat%%_*}"
     dst="$work/hinge_frames/$cat"
-    "${PYTHON:-.venv/bin/python}" bench/hinge_rows.py --frames --view-prior --skip-without-train --data "$data" \
+    "${PYTHON:-.venv/bin/python}" bench/diagnostics/hinge_rows.py --frames --view-prior --skip-without-train --data "$data" \
       --pred "$work/hinge_axis/$cat"/*.npz --out-dir "$dst"
     for run in "$data"/run_npcs_*; do
       name="$(basename "$run")"

@@ -29,7 +29,7 @@
 #                                             chains skip its tasks; scapo.bench.archive.archive_conflict). Cells
 #                                             archived before datasets were pinned, on another CPU kind, are adopted
 #                                             by this machine's regeneration of their dataset only by
-#                                             bench/cross_cpu_check.py --adopt (scapo.bench.archive.adopt_dataset:
+#                                             bench/diagnostics/cross_cpu_check.py --adopt (scapo.bench.archive.adopt_dataset:
 #                                             the cells must score the same on it and ICP computed again on its
 #                                             inputs must give the archived predictions); run DATA=1 after it
 #   FINISH=1 bash bench/tables_two_cores.sh   write the three tables from the finished cells into $OUT, and Table 1

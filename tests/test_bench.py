@@ -836,7 +836,7 @@ def test_the_gpu_script_runs_on_cpu_with_the_test_presets(tmp_path):
 
 
 def test_the_budget_diagnostic_trains_longer_and_compares_with_the_table1_cell(bench, tmp_path):
-    """``bench/budget_diagnostic.sh`` (issue 31's gap attribution): SCAPO's preset with every stage's epochs x
+    """``bench/diagnostics/budget_diagnostic.sh`` (issue 31's gap attribution): SCAPO's preset with every stage's epochs x
     FACTOR on the dataset of a finished Table 1 cell, predicted one-pass and compared with that cell (rows, paired
     bootstrap lines, the runs' training steps and the commits); no cell is a clear error. (A rerun resumes through
     ``scapo train``, which returns at once for a finished run: tests/test_train.py.)"""
@@ -848,7 +848,7 @@ def test_the_budget_diagnostic_trains_longer_and_compares_with_the_table1_cell(b
     root = Path(__file__).resolve().parent.parent
     env = {**os.environ, "WORK": str(work), "PRESET": "test", "FACTOR": "2", "OUT": str(tmp_path / "out"),
            "SCAPO": str(Path(sys.executable).parent / "scapo")}
-    script = str(root / "bench" / "budget_diagnostic.sh")
+    script = str(root / "bench" / "diagnostics" / "budget_diagnostic.sh")
     run = subprocess.run(["bash", script], env=env, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
     got = json.loads((tmp_path / "out" / "laptop_x2_s0.json").read_text())
@@ -860,7 +860,7 @@ def test_the_budget_diagnostic_trains_longer_and_compares_with_the_table1_cell(b
     assert {p["a"] for p in got["bootstrap"]["metrics"]["S"]} == {"test"}
     assert "## Paired bootstrap" in (tmp_path / "out" / "laptop_x2_s0.md").read_text()
     none = subprocess.run(["bash", script], env={**env, "SEED": "7"}, capture_output=True, text=True, timeout=60)
-    assert none.returncode == 2 and "scapo: bench/budget_diagnostic.sh: 0 finished Table 1 cells" in none.stderr
+    assert none.returncode == 2 and "scapo: bench/diagnostics/budget_diagnostic.sh: 0 finished Table 1 cells" in none.stderr
 
 
 def test_cells_of_an_unpinned_dataset_are_adopted_by_its_regeneration_only_when_they_show_it_is_theirs(
@@ -966,13 +966,13 @@ def test_compute_counts_each_training_once():
 
 
 def test_table_digest_reads_the_tables_numbers(tmp_path):
-    """``bench/table_digest.py`` (the numbers of issue 31's status paragraphs): the Mean row is the mean over
+    """``bench/diagnostics/table_digest.py`` (the numbers of issue 31's status paragraphs): the Mean row is the mean over
     categories of the per-category means over seeds, a pair's interval is signed as asked, a cell two tables share
     (same dataset hash and key) counts once in the compute, and bad input ends with a ``scapo:`` message."""
     import subprocess
     import sys
 
-    script = Path(__file__).resolve().parents[1] / "bench" / "table_digest.py"
+    script = Path(__file__).resolve().parents[1] / "bench" / "diagnostics" / "table_digest.py"
     t1 = _digest_table([("a", "x", 0, 10.0), ("a", "x", 1, 20.0), ("a", "y", 0, 30.0), ("b", "x", 0, 40.0),
                         ("b", "y", 0, 40.0)], {"x": "h1", "y": "h2"})
     # a_s0 on x is t1's cell; a+refine_s0 predicts from a_s0's run: its training (repeated in its record) is not new
@@ -999,13 +999,13 @@ def test_table_digest_reads_the_tables_numbers(tmp_path):
 
 
 def test_regime_compare_puts_two_tables_beside_the_papers_rows(tmp_path):
-    """``bench/regime_compare.py``: per category and method the mean over training seeds of each table's cells (with
+    """``bench/diagnostics/regime_compare.py``: per category and method the mean over training seeds of each table's cells (with
     their spread), the paper's row beside them, the within-2x check on the first table's R sym, and ``scapo:``
     errors for a missing table or a method it does not hold."""
     import subprocess
     import sys
 
-    script = Path(__file__).resolve().parents[1] / "bench" / "regime_compare.py"
+    script = Path(__file__).resolve().parents[1] / "bench" / "diagnostics" / "regime_compare.py"
 
     def table(vals, rotated):
         res = [{"method": "npcs", "category": "laptop", "seed": s, "summary": {"S": 90.0, "R": v, "R_sym": v,

@@ -80,7 +80,7 @@ def test_the_hinge_diagnosis_and_the_frame_consistency_refuse_missing_inputs(scr
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "bench" / f"{script}.py"
+    path = Path(__file__).resolve().parents[1] / "bench" / "diagnostics" / f"{script}.py"
     spec = importlib.util.spec_from_file_location(script, path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
@@ -413,7 +413,7 @@ def test_the_sweep_reads_a_bar_childs_axis_in_the_base_frame_and_turns_it_into_e
 
 
 def test_slot_identity_tells_a_right_split_with_exchanged_slots_from_a_wrong_one(laptop_data, tmp_path):
-    """``bench/slot_identity.py`` on hand-made labels of the training split: pseudo-labels right in every view but with
+    """``bench/diagnostics/slot_identity.py`` on hand-made labels of the training split: pseudo-labels right in every view but with
     base and lid exchanged in a third of the views score 1 per view and 2/3 for the best single permutation; a network
     that follows them in all but one view is counted so; a run without ``split_labels.npy`` is refused."""
     import importlib.util
@@ -423,7 +423,7 @@ def test_slot_identity_tells_a_right_split_with_exchanged_slots_from_a_wrong_one
     from scapo.data import load
     from scapo.errors import PredictionError
 
-    path = Path(__file__).resolve().parents[1] / "bench" / "slot_identity.py"
+    path = Path(__file__).resolve().parents[1] / "bench" / "diagnostics" / "slot_identity.py"
     spec = importlib.util.spec_from_file_location("slot_identity", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

@@ -228,14 +228,14 @@ def test_ladder_refuses_bad_arguments(tmp_path, capsys, args, match):
 
 
 def test_frame_spread_separates_view_dependence_from_shape_dependence():
-    """``bench/frame_spread.py``: offsets that differ only between instances have no within-instance spread; offsets
+    """``bench/diagnostics/frame_spread.py``: offsets that differ only between instances have no within-instance spread; offsets
     that differ only between the views of each instance have instance means near the common one."""
     import importlib.util
 
     from scipy.spatial.transform import Rotation
 
     spec = importlib.util.spec_from_file_location("frame_spread", Path(__file__).resolve().parents[1] / "bench" /
-                                                  "frame_spread.py")
+                                                  "diagnostics" / "frame_spread.py")
     fs = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(fs)
     inst = np.repeat(np.arange(4), 6)
@@ -265,7 +265,7 @@ def _bench_script(name: str):
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "bench" / f"{name}.py"
+    path = Path(__file__).resolve().parents[1] / "bench" / "diagnostics" / f"{name}.py"
     spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
@@ -273,7 +273,7 @@ def _bench_script(name: str):
 
 
 def test_frame_by_state_splits_the_symmetry_aware_inliers_by_joint_state_and_ground_truth():
-    """``bench/frame_by_state.py``: one canonical frame through the own ground truth at low states and through the twin
+    """``bench/diagnostics/frame_by_state.py``: one canonical frame through the own ground truth at low states and through the twin
     at middle ones, and frames of their own at high states: the bins show where the frame holds, own / twin which
     ground truth it holds through."""
     from scapo.eval.frames import frame_inliers

@@ -150,14 +150,14 @@ def test_a_trained_method_predicts_with_the_hinge_resplit(name, axis, laptop_dat
     if name == "npcs":  # a supervised method's file holds no training split to choose the ranks on
         with pytest.raises(PredictionError, match="training-split"):
             hinge_predictions(laptop_data, tmp_path / "a.npz", axis_from_bars=True)
-    else:  # the diagnosis with the true split (bench/hinge_rows.py --true-labels): labels replaced, joints the method's
+    else:  # the diagnosis with the true split (bench/diagnostics/hinge_rows.py --true-labels): labels replaced, joints the method's
         import importlib.util
         from pathlib import Path
 
         from scapo.eval.predictions import Predictions
         from scapo.methods.hinge import prediction_arrays
 
-        path = Path(__file__).resolve().parents[1] / "bench" / "hinge_rows.py"
+        path = Path(__file__).resolve().parents[1] / "bench" / "diagnostics" / "hinge_rows.py"
         spec = importlib.util.spec_from_file_location("hinge_rows", path)
         mod = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(mod)
@@ -912,13 +912,13 @@ def test_npcs_infer_points_splits_the_cloud_into_training_density_subsets(traine
 
 
 def test_npcs_diagnosis_ladder_is_exact_from_ground_truth_maps(trained_test_runs, laptop_data, tmp_path):
-    """``bench/npcs_diagnosis.py``: fed the ground-truth labels and maps, NPCS-style's pose fitting and the evaluator
+    """``bench/diagnostics/npcs_diagnosis.py``: fed the ground-truth labels and maps, NPCS-style's pose fitting and the evaluator
     give zero error (so what the ladder's other rungs lose is the network's), and every rung and map is reported."""
     import importlib.util
     import json
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "bench" / "npcs_diagnosis.py"
+    path = Path(__file__).resolve().parents[1] / "bench" / "diagnostics" / "npcs_diagnosis.py"
     spec = importlib.util.spec_from_file_location("npcs_diagnosis", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

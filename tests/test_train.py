@@ -592,12 +592,12 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     if bool(found.any()):  # the frames read from the base: rotations E_i E_Y^T
         assert torch.allclose(F[found] @ F[found].transpose(1, 2), torch.eye(3).expand(int(found.sum()), 3, 3),
                               atol=1e-4)
-    # bench/parts_frame.py: the ground-truth diagnosis of such a run, pass by pass and on its training targets
+    # bench/diagnostics/parts_frame.py: the ground-truth diagnosis of such a run, pass by pass and on its training targets
     import importlib.util
     from pathlib import Path
 
     spec = importlib.util.spec_from_file_location("parts_frame", Path(__file__).resolve().parents[1] / "bench" /
-                                                  "parts_frame.py")
+                                                  "diagnostics" / "parts_frame.py")
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     assert bench.main(["--data", str(laptop_data), "--run", f"r={tmp_path / 't'}", "--passes", "2", "--split", "test",

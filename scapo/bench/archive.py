@@ -315,7 +315,8 @@ def archive_conflict(data: Path, archive: Path) -> str:
     if cells and have not in cells:
         return (f"the archived cells name dataset {', '.join(h[:12] for h in cells)}, which is not pinned, and "
                 f"this machine generated {have[:12]}; a machine that generates theirs pins it (--data-only), or "
-                "this machine's is adopted if the cells show it is theirs (bench/cross_cpu_check.py --adopt)")
+                "this machine's is adopted if the cells show it is theirs "
+                "(bench/diagnostics/cross_cpu_check.py --adopt)")
     return ""
 
 

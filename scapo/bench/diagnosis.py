@@ -1,7 +1,8 @@
-"""Shared parts of the bench diagnoses: the command line of those that read predictions files
-(``bench/hinge_diagnosis.py``, ``bench/frame_consistency.py``: ``--data DATA --pred LABEL=FILE ... [--split] --out
-NAME``) and of the ground-truth ones (``bench/split_init_diagnosis.py``, ``bench/axis_init_diagnosis.py``: ``--data
-DATA --out NAME [--clouds C] [--seed S]``), and their ``<out>.{md,json}`` writer with provenance."""
+"""Shared parts of the bench diagnoses (the scripts of ``bench/diagnostics/``; the package never loads them): the
+command line of those that read predictions files (``hinge_diagnosis.py``, ``frame_consistency.py``: ``--data DATA
+--pred LABEL=FILE ... [--split] --out NAME``) and of the ground-truth ones (``split_init_diagnosis.py``,
+``axis_init_diagnosis.py``: ``--data DATA --out NAME [--clouds C] [--seed S]``), and their ``<out>.{md,json}`` writer
+with provenance."""
 
 from __future__ import annotations
 
@@ -9,23 +10,6 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-
-
-def bench_script(name: str, folder: str | Path):
-    """The bench script ``<folder>/<name>.py`` loaded as a module (the scripts in ``bench/`` are not a package; one
-    diagnosis reuses another's functions this way).
-
-    Raises:
-        FileNotFoundError: no such script."""
-    import importlib.util
-
-    path = Path(folder) / f"{name}.py"
-    if not path.is_file():
-        raise FileNotFoundError(f"no bench script {path}")
-    spec = importlib.util.spec_from_file_location(name, path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def diagnosis_args(argv, description: str, options: Sequence[tuple[str, dict]] = ()):

@@ -98,7 +98,7 @@ class LossConfig:
     "gaussian", the one-hot of the most likely part under Gaussians fitted to the current soft segmentation
     (:func:`~scapo.losses.scapo_losses.gaussian_part_labels`; an addition to the paper: a nearest-keypoint cell
     of two parts is a half-space, which cannot hold a small door flush with a large body, see
-    ``bench/seg_ceiling.py``; preset suffix ``/seg-gaussian``)."""
+    ``bench/diagnostics/seg_ceiling.py``; preset suffix ``/seg-gaussian``)."""
 
     def __post_init__(self):
         from scapo.config import check_settings

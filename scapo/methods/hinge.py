@@ -4,7 +4,8 @@ A self-supervised segmentation learned from motion is weakest next to a revolute
 moves little whichever part it is given to, so the losses that separate parts by their motion (SCAPO's cycle and
 cross-space terms) barely see it. On the laptop's paper viewpoints, most of SCAPO's mislabelled points lie within a
 tenth of the bounding-box diagonal of the hinge, and its predicted pivot lies a twentieth to a tenth of the diagonal
-from the true hinge line, while its predicted axis is within a few degrees (``bench/hinge_diagnosis.py``; the
+from the true hinge line, while its predicted axis is within a few degrees (``bench/diagnostics/hinge_diagnosis.py``;
+the
 measurements are in ``results/canonical_ladder/hinge/``).
 
 This step re-estimates the pivot from the points and re-splits them, view by view, from a method's own one-pass
@@ -782,7 +783,7 @@ def hinge_frame_predictions(dataset, preds, view_prior: bool = False):
     p = preds if isinstance(preds, Predictions) else Predictions.load(preds)
     if "hinge" not in p.info:
         raise PredictionError(f"predictions of {p.method!r} did not go through the hinge step; hinge_frames reads "
-                              "its re-split labels and pivots: run bench/hinge_rows.py on them first")
+                              "its re-split labels and pivots: run bench/diagnostics/hinge_rows.py on them first")
     if "hinge_frames" in p.info:
         raise PredictionError(f"predictions of {p.method!r} already went through the hinge_frames step")
     if not (p.split == "train").any():

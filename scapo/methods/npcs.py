@@ -60,7 +60,8 @@ Details:
   points (:meth:`NPCSNet.outputs`), so that the network meets test clouds at the density it trained at. Inferring
   all 1024 points at once (``infer_points=100000``, what the committed Tables 1-3 did) halves the span of the
   ``vn`` backbone's k-nearest-neighbour patches: on paper-regime laptops (val) the labels fall to 40 % point accuracy
-  and the mean part rotation error rises from 5.7 to 121 deg (``bench/npcs_diagnosis.py``, results/paper_regime/).
+  and the mean part rotation error rises from 5.7 to 121 deg (``bench/diagnostics/npcs_diagnosis.py``,
+  results/paper_regime/).
 - Joints: from the relative motion of the child's pose against the parent's
   (:func:`~scapo.methods.joints.joint_from_part_poses`), signed by the training rest axes (which also
   stand in for an undefined axis at a tiny motion), or the rest joint carried by the parent (``joints``).
@@ -138,7 +139,7 @@ class NPCSOptions(LearnedOptions):
     subset's label and coordinates; the poses are then fitted to all N points. n >= 16: subsets of about n points;
     n >= N (e.g. 100000): every point at once, as the committed Tables 1-3 did, where the k nearest neighbours of
     the ``vn`` backbone span about half the distance they did in training (1024 against 256 points) and the
-    labels and maps break down (``bench/npcs_diagnosis.py``; results/paper_regime/: chosen on val)."""
+    labels and maps break down (``bench/diagnostics/npcs_diagnosis.py``; results/paper_regime/: chosen on val)."""
 
     def __post_init__(self):
         super().__post_init__()
@@ -266,7 +267,7 @@ class NPCSNet(nn.Module):
     def fit_poses(self, pts: np.ndarray, lab_np: np.ndarray, co: np.ndarray, pco: np.ndarray | None,
                   scale: np.ndarray) -> dict:
         """Part poses and joints from per-point labels and coordinate maps (the pose half of :meth:`infer`; also fed
-        ground-truth maps by ``bench/npcs_diagnosis.py``).
+        ground-truth maps by ``bench/diagnostics/npcs_diagnosis.py``).
 
         Args:
             pts: ``(B, N, 3)`` float64 points, camera frame, metres. lab_np: ``(B, N)`` int part labels.

@@ -679,7 +679,7 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
     lowest of the fits does (the keypoint split still wins when no fit keeps ``P`` parts).
     With ``overseg`` (``TrainConfig.split_overseg``, 0: off) the fits from :func:`overseg_starts` (the template in
     ``overseg`` k-means clusters, every grouping into ``P`` parts) are candidates too, after the others (which stay as
-    they were). With the frame given (``bench/split_init_diagnosis.py``, three seeds, no
+    they were). With the frame given (``bench/diagnostics/split_init_diagnosis.py``, three seeds, no
     labels used), on eyeglasses the chosen split's mean IoU with the true parts is about twice the keypoint split's
     (about 0.7 against 0.3, on complete clouds and on the paper's partial views); the figures per seed and the laptop's
     are in ``results/canonical_ladder/split_init/``.

@@ -358,7 +358,8 @@ class ScapoJob:
         """Write ``template_split.npz`` to the run folder: the training sample stage 2's template was drawn from
         (``sample``, int64, an index into the training split), its points' indices in that cloud (``points (M,)``
         int64), the split stage 2 starts from (``labels (M,)`` int64) and, with ``split_frame = "refit"``, the split
-        fitted again (``labels_refit (M,)``). Not read by training or prediction: ``bench/pseudo_label_confusion.py``
+        fitted again (``labels_refit (M,)``). Not read by training or prediction:
+        ``bench/diagnostics/pseudo_label_confusion.py``
         scores the template's split against the true labels of those points (a diagnosis of the split)."""
         import io
 
