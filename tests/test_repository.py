@@ -46,3 +46,19 @@ def test_the_readme_is_read_in_two_minutes():
     size = (ROOT / "results" / "README.md").stat().st_size
     assert size <= 10 * 1024, (f"results/README.md is {size} bytes, over 10 KB: one status paragraph per table, the "
                                "narrative in docs/results_notes.md")
+
+
+def test_the_package_loads_no_script_and_cites_no_work_log():
+    """The library never loads a file of ``bench/`` (no module loading by path, no ``bench`` path joined), and its
+    docstrings say what and why, not in which session or issue it was measured."""
+    import re
+
+    loads, cites = [], []
+    for p in (ROOT / "scapo").rglob("*.py"):
+        text = p.read_text()
+        if re.search(r"spec_from_file_location|runpy|exec_module|[\"']bench[\"']\s*/|/\s*[\"']bench[\"']", text):
+            loads.append(str(p.relative_to(ROOT)))
+        cites += [f"{p.relative_to(ROOT)}:{i}" for i, line in enumerate(text.splitlines(), 1)
+                  if re.search(r"\b(session|issue) [0-9]", line)]
+    assert not loads, f"modules of scapo/ that load files by path: {loads}"
+    assert not cites, f"work-log citations in scapo/: {cites[:5]}"
