@@ -321,13 +321,14 @@ def test_a_corrected_rerun_starts_over_after_a_run_that_failed_before_its_first_
 
 # ---------------------------------------------------------------------------------------------- compiled steps
 def _compile_job(compile_: bool):
-    """Two stages of a small network with batch norm and a noisy loss (torch's RNG), on clouds subsampled per step."""
+    """Two stages of a small network with batch norm and dropout (torch's RNG inside the compiled part) and a noisy
+    loss (outside it), on clouds subsampled per step."""
     from scapo.engine import Stage, TrainJob
 
     torch.manual_seed(0)
     net = torch.nn.Module()
     net.body = torch.nn.Sequential(torch.nn.Linear(3, 16, bias=False), torch.nn.BatchNorm1d(16), torch.nn.ReLU(),
-                                   torch.nn.Linear(16, 3))
+                                   torch.nn.Dropout(0.2), torch.nn.Linear(16, 3))  # random inside the compiled part
     data = CloudSet({"points": torch.randn(24, 40, 3, generator=torch.Generator().manual_seed(1))}, 32)
 
     def losses(batch, progress):
@@ -357,8 +358,9 @@ def _train_toy(run: Path, compile_: bool) -> tuple[list[float], dict]:
 def test_a_compiled_run_trains_the_same_losses_and_charges_its_compilation(tmp_path):
     """``FitConfig.compile``: the same losses step by step as the eager run (float32 kernels fused differently:
     within 1e-4 relative), the same state-dict keys, each stage's compilation in its own ledger phase (one-time
-    work: :func:`scapo.engine.ledger.one_time_s`), and the warm-up leaves the batch-norm statistics and random
-    generators alone (the first step's loss, which reads them, agrees)."""
+    work: :func:`scapo.engine.ledger.one_time_s`), the dropout inside the compiled part draws torch's random numbers
+    as the eager step does, and the warm-up leaves the batch-norm statistics and random generators alone (the first
+    step's loss, which reads them, agrees)."""
     from scapo.engine.ledger import one_time_s
 
     eager, e = _train_toy(tmp_path / "eager", False)

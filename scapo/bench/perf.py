@@ -312,11 +312,11 @@ def budget_schedule(row: dict, preset, minutes: float) -> dict:
 def bench_agreement(data: str | Path, method: str, preset: str = "cpu", steps: int = 200, seed: int = 0
                     ) -> list[dict]:
     """The compiled training step against the eager one (``scapo bench perf --what agreement``): ``method``'s
-    ``preset`` trained twice on ``data`` for its first ``steps`` optimiser steps (the preset's schedule replaced: one
-    epoch per stage, ``steps`` split evenly over the stages), eagerly and compiled (``compile``), from one seed, and
-    the logged loss totals compared step by step: the largest and median relative difference over the steps and
-    over the first 10, the eager run's charged core-seconds per step beside the compiled one's, and the compiled
-    run's compilation (its ``stage<k>/compile`` phases). One row per path.
+    ``preset`` trained twice on ``data`` for its first ``steps`` optimiser steps (the preset's schedule replaced: each
+    stage's epochs and steps per epoch set so that the stages share ``steps`` evenly), eagerly and compiled
+    (``compile``), from one seed, and the first ``steps`` logged loss totals compared step by step: the largest and
+    median relative difference over the steps and over the first 10, the eager run's charged core-seconds per step
+    beside the compiled one's, and the compiled run's compilation (its ``stage<k>/compile`` phases). One row per path.
 
     Raises:
         UnknownNameError: unknown method or preset. ConfigError: a method that is not trained, ``steps`` below the
@@ -334,8 +334,14 @@ def bench_agreement(data: str | Path, method: str, preset: str = "cpu", steps: i
     fields = schedule_fields(entry.preset(preset))
     if steps < len(fields):
         raise ConfigError(f"--steps must be at least {len(fields)} (one per training stage), got {steps}")
-    overrides = {**{f: 1 for f in fields}, "max_steps_per_epoch": steps // len(fields), "iterations": 0}
-    if not hasattr(entry.preset(preset), "iterations"):
+    pc = entry.preset(preset)
+    per_stage = -(-steps // len(fields))
+    from scapo.data.dataset import load
+
+    per_epoch = max(1, len(load(data, "train")) // pc.batch_size)  # the epoch of one process
+    epochs = -(-per_stage // per_epoch)
+    overrides = {**{f: epochs for f in fields}, "max_steps_per_epoch": -(-per_stage // epochs), "iterations": 0}
+    if not hasattr(pc, "iterations"):
         overrides.pop("iterations")
     rows, totals = [], {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -352,7 +358,7 @@ def bench_agreement(data: str | Path, method: str, preset: str = "cpu", steps: i
                          "charged_s_per_step": round(step_s / max(len(totals[path]), 1), 4),
                          "compile_s": round(sum(float(p["charged_s"]) for k, p in phases.items()
                                                 if k.endswith("/compile")), 1)})
-    n = min(len(totals["eager"]), len(totals["compiled"]))
+    n = min(len(totals["eager"]), len(totals["compiled"]), steps)
     rel = np.abs(totals["compiled"][:n] - totals["eager"][:n]) / np.maximum(np.abs(totals["eager"][:n]), 1e-12)
     for row in rows:
         row["speedup_vs_eager"] = round(rows[0]["charged_s_per_step"] / max(row["charged_s_per_step"], 1e-12), 2)

@@ -383,11 +383,15 @@ def compile_network(model: torch.nn.Module) -> list[torch.nn.Module]:
     and state-dict keys unchanged), each direct child of ``model`` that holds parameters; returns them. Compilation
     itself happens at their first call (:func:`warm_up`). Inductor's compiled kernels are cached on disk
     (``TORCHINDUCTOR_CACHE_DIR``, default ``~/.cache/scapo/inductor`` where it is not set), so a later run of the
-    same network and shapes compiles less."""
+    same network and shapes compiles less. Random operations inside the compiled parts draw from torch's generator as
+    eagerly (inductor's ``fallback_random``; its own generator would give a run other noise and augmentations)."""
 
     import os
 
     os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(Path.home() / ".cache" / "scapo" / "inductor"))
+    import torch._inductor.config
+
+    torch._inductor.config.fallback_random = True  # random numbers from torch's generator, as the eager step draws them
     parts = [m for m in model.children() if any(True for _ in m.parameters())]
     for m in parts:
         m._compiled_call_impl = torch.compile(_called(m))
