@@ -15,7 +15,8 @@ def test_compute_curve_end_to_end(tmp_path, capsys):
             "--preset", "test", "--instances", "10", "--views", "1", "--train-views", "4", "--work", str(tmp_path / "w"),
             "--out", str(tmp_path / "o"), "--no-progress", "--workers", "1"]  # rendered in this process
     assert main([*args, "--data-only"]) == 0
-    assert (tmp_path / "w" / "ladder" / "speed_npcs_test_cpu.json").is_file()  # measured alone, before any cell
+    speeds = list((tmp_path / "w" / "ladder").glob("speed_npcs_test_cpu_laptop_one_*.json"))  # named by its data
+    assert len(speeds) == 1  # measured alone, before any cell
     assert not (tmp_path / "w" / "ladder" / "compute").exists() and not (tmp_path / "o").exists()
     capsys.readouterr()
     assert main(args) == 0

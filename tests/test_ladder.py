@@ -4,6 +4,7 @@ and a small end-to-end ladder."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -151,7 +152,8 @@ def test_a_cells_consistency_is_scored_again_when_it_predates_the_twin_object_fr
     for name, card in (("sym", {"symmetry": {"parts": [1, 0]}}), ("plain", {})):
         (tmp_path / name).mkdir()
         (tmp_path / name / "card.json").write_text(json.dumps(card))
-    old = {"frame_consistency": 0.2, "frame_consistency_sym": 0.3, "resampling_deg": 4.0}
+    old = {"method": "npcs", "seed": 0, "dataset_hash": "h", "S": 50.0, "frame_consistency": 0.2,
+           "frame_consistency_sym": 0.3, "resampling_deg": 4.0}
     for name in ("sym", "plain"):
         (tmp_path / f"{name}_s0.json").write_text(json.dumps(old))
     assert ladder._upgrade(tmp_path / "plain_s0.json", tmp_path / "plain", "npcs", None) == old and not calls
@@ -459,3 +461,70 @@ def test_a_cell_over_its_budget_is_refused_and_the_others_are_computed(tmp_path,
         ladder.run_ladder("laptop", ["npcs"], ["paper"], [0, 1], work=tmp_path / "w", out=tmp_path / "o")
     table = json.loads((tmp_path / "o" / "ladder_laptop.json").read_text())
     assert [r["seed"] for r in table["records"]] == [1]
+
+
+def test_a_finished_cell_is_not_reused_for_another_dataset_schedule_or_budget(tmp_path):
+    """A ladder or compute cell is found by rung, method and seed; ``check_reuse`` refuses it for a run of another
+    dataset, schedule or budget (a table at 0.2 core-minutes once came back with the 0.05-minute cell, silently), and
+    a record that is damaged (truncated, ``[]``, a field missing, NaN) is a clear error naming the file."""
+    from scapo.bench.ladder import check_reuse, read_record
+    from scapo.errors import ConfigError
+
+    rec = {"method": "npcs", "seed": 0, "dataset_hash": "a" * 64, "S": 50.0, "frame_consistency": 0.5,
+           "budget_values": {"epochs": 3}, "plan": {"budget_s": 3.0}}
+    path = tmp_path / "npcs_s0.json"
+    check_reuse(rec, path, "a" * 64, {"epochs": 3}, 3.0)  # the same conditions: reused
+    for kw, what in (({"data_hash": "b" * 64}, "dataset aaaaaaaaaaaa (asked: bbbbbbbbbbbb)"),
+                     ({"values": {"epochs": 12}}, "schedule {'epochs': 3} (asked: {'epochs': 12})"),
+                     ({"budget_s": 12.0}, "a budget of 0.05 minutes (asked: 0.2)")):
+        args = {"data_hash": "a" * 64, "values": {"epochs": 3}, "budget_s": 3.0, **kw}
+        with pytest.raises(ConfigError, match=r"finished cell .*npcs_s0.json was made with " + re.escape(what)):
+            check_reuse(rec, path, args["data_hash"], args["values"], args["budget_s"])
+    for text, why in (('{"method": "np', "Unterminated string"), ("[]", "a JSON list, not an object"),
+                      (json.dumps({**rec, "S": float("nan")}), "field 'S' is nan"),
+                      (json.dumps({k: v for k, v in rec.items() if k != "dataset_hash"}), "no field 'dataset_hash'")):
+        path.write_text(text)
+        with pytest.raises(ConfigError, match=rf"the cell record .*npcs_s0.json is damaged \({why}"):
+            read_record(path)
+
+
+def test_a_speed_file_of_another_dataset_or_damaged_is_refused_naming_it(tmp_path):
+    """The ladder's speed file is named by the dataset it was measured on (two categories' ladders share a work
+    folder); one whose rows name another dataset, or a damaged one, is refused with what to do."""
+    from scapo.bench.ladder import _speed_rows, speed_file
+    from scapo.errors import ConfigError
+
+    data = tmp_path / "laptop_one_i10_v2_t8_s0"
+    assert speed_file(tmp_path, "npcs", data=data).name == "speed_npcs_laptop_one_i10_v2_t8_s0.json"
+
+    class Split(list):
+        pass
+
+    import scapo.data as sd
+
+    orig = sd.load
+    sd.load = lambda d, split: Split(range(40))
+    try:
+        row = {"method": "npcs", "batch_size": 4, "stage1_clouds_per_s": 10.0, "data": str(data), "train_clouds": 40}
+        path = tmp_path / "speed.json"
+        path.write_text(json.dumps([row]))
+        assert _speed_rows(path, "npcs", data) == [row]
+        path.write_text(json.dumps([{**row, "data": "/w/eyeglasses_one_i10_v2_t8_s0"}]))
+        with pytest.raises(ConfigError, match=r"speed.json belongs to another dataset .*laptop_one_i10_v2_t8_s0 \(40"):
+            _speed_rows(path, "npcs", data)
+        assert _speed_rows(path, "npcs", data, check=False) is None
+        for text, why in (("[]", "no row of npcs"), ("{}", "not a list of rows"),
+                          (json.dumps([{**row, "stage1_clouds_per_s": float("nan")}]), "field 'stage1_clouds_per_s'")):
+            path.write_text(text)
+            with pytest.raises(ConfigError, match=rf"speed.json is damaged \({why}"):
+                _speed_rows(path, "npcs", data)
+    finally:
+        sd.load = orig
+
+
+def test_a_budget_folder_is_named_by_the_exact_budget():
+    """``--budgets 0.05,0.05000001`` once put two budgets in one cell folder (``b{budget:g}``)."""
+    from scapo.bench.compute import budget_dir
+
+    assert budget_dir("w", 5.0).name == "b5" and budget_dir("w", 2.5).name == "b2.5"
+    assert budget_dir("w", 0.05).name == "b0.05" and budget_dir("w", 0.05000001).name == "b0.05000001"

@@ -48,6 +48,9 @@ from scapo.bench.ladder import (
     _training_presets,
     _upgrade,
     cells_dir,
+    check_reuse,
+    dataset_hash,
+    read_record,
     rung_config,
     rung_dir,
 )
@@ -64,8 +67,10 @@ CURVE_PANELS = (("S", "S (%)"), ("R_sym_median", "median R sym (deg)"),
 
 
 def budget_dir(work: Path, budget: float) -> Path:
-    """The cells' folder of one budget: ``<work>/compute/b<budget>`` (``b5``, ``b15``, ``b2.5``)."""
-    return Path(work) / "compute" / f"b{budget:g}"
+    """The cells' folder of one budget: ``<work>/compute/b<budget>`` (``b5``, ``b15``, ``b2.5``; the exact value where
+    the short form would name another budget too: ``b0.05000001``)."""
+    short = f"{budget:g}"
+    return Path(work) / "compute" / f"b{short if float(short) == float(budget) else repr(float(budget))}"
 
 
 def _check(methods, budgets, seeds, rung):
@@ -328,6 +333,7 @@ def _write_finished(work: Path, data: Path, meta: dict, cells, out: Path, preset
     for b, m, s in cells:
         path = budget_dir(work, b) / meta["category"] / meta["rung"] / f"{m}_s{s}.json"
         if path.is_file():
+            check_reuse(read_record(path), path, dataset_hash(data), budget_s=60.0 * b)
             rec = _upgrade(path, data, m, METHODS.get(m).preset(preset))
             records.append({**rec, "budget_min": b})
         else:

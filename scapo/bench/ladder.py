@@ -95,17 +95,18 @@ def rung_config(category: str, rung: str, instances: int, views: int, train_view
                        val_fraction=0.1, cropped="reject", **RUNGS[rung])
 
 
-def speed_file(work: Path, method: str, preset: str = "cpu", device: str | None = None, sets: dict | None = None
-               ) -> Path:
+def speed_file(work: Path, method: str, preset: str = "cpu", device: str | None = None, sets: dict | None = None,
+               data: Path | None = None) -> Path:
     """Where the ladder keeps ``method``'s measured training speed: ``<work>/speed_<method>.json`` for the ``cpu``
     preset on the CPU (the tables' budget), ``speed_<method>_<preset>_<device>.json`` otherwise; a variant's fields
-    ``sets`` add ``_v<hash>`` (a variant's one-time work and steps can cost more than its base's)."""
-    tag = ""
+    ``sets`` add ``_v<hash>`` (a variant's one-time work and steps can cost more than its base's); the dataset it is
+    measured on, ``data``, adds ``_<its folder name>`` (the ladders of two categories may share a work folder)."""
+    tag = f"_{Path(data).name}" if data is not None else ""
     if sets:
         import hashlib
 
         tag = "_v" + hashlib.sha256(json.dumps(sorted((str(k), str(v)) for k, v in sets.items())).encode()
-                                    ).hexdigest()[:8]
+                                    ).hexdigest()[:8] + tag
     if preset == "cpu" and device in (None, "cpu"):
         return work / f"speed_{method}{tag}.json"
     return work / f"speed_{method}_{preset.replace('/', '+')}_{(device or 'cpu').replace(':', '')}{tag}.json"
@@ -138,10 +139,13 @@ def _training_presets(methods: Sequence, data: Path, budget_minutes: float, pres
     trained = [(m, p, sets) for m, p, sets in keys if METHODS.get(m).trained]
     clouds = len(load(data, "train"))
     out = {}
-    for m, p, sets in trained:  # one file per method, preset and fields, so that ladders can share the folder
-        path = speed_file(work, m, p, device, sets)
-        runs = work / "speed_runs" if path.name == f"speed_{m}.json" else work / f"speed_runs_{path.stem[6:]}"
-        if path.is_file() and not all("unit" in r for r in json.loads(path.read_text())):
+    for m, p, sets in trained:  # one file per method, preset, fields and dataset, so that ladders can share the folder
+        path = speed_file(work, m, p, device, sets, data)
+        old_path = speed_file(work, m, p, device, sets)  # named without the dataset (before it was in the name)
+        if not path.is_file() and old_path.is_file() and _speed_rows(old_path, m, data, check=False) is not None:
+            old_path.rename(path)  # measured on this very dataset: kept under its new name
+        runs = work / f"speed_runs_{path.stem[6:]}"
+        if path.is_file() and not all("unit" in r for r in _speed_rows(path, m, data)):
             path.rename(path.with_suffix(".pre-ledger.json"))  # kept: wall-clock rates, one-time work uncharged
             old = runs / f"{m}_{p.replace('/', '-')}"
             if old.exists():
@@ -152,12 +156,46 @@ def _training_presets(methods: Sequence, data: Path, budget_minutes: float, pres
             steps = max(2, min(10, clouds // METHODS.get(m).preset(p).batch_size))
             write_json(path, bench_train_data(data, [m], preset=p, steps=steps, work=runs, device=device,
                                               sets=sets))
-        r = training_budget([r for r in json.loads(path.read_text()) if r["method"] == m], budget_minutes, clouds)[0]
+        r = training_budget(_speed_rows(path, m, data), budget_minutes, clouds)[0]
         base = override(METHODS.get(m).preset(p), sets, f"{m} preset") if sets else METHODS.get(m).preset(p)
         values = budget_schedule(r, base, budget_minutes)
         key = m if (p, sets) == (preset, {}) else (m, p, tuple(sorted(sets.items())))
         out[key] = (override(base, values, f"{m} preset"), values, budget_plan(r, values, budget_minutes, clouds))
     return out
+
+
+def _speed_rows(path: Path, method: str, data: Path, check: bool = True) -> list[dict] | None:
+    """``method``'s rows of the speed file ``path`` (:func:`scapo.bench.perf.bench_train_data`), checked: a list of
+    objects with the method's row, a positive finite batch size and stage-1 rate, measured on ``data`` (its folder name
+    and training-split size). Without ``check``, None where the file is not that (it is then measured again).
+
+    Raises:
+        ConfigError: (with ``check``) the file is damaged or was measured on another dataset (names it)."""
+    from scapo.data import load
+
+    try:
+        rows = json.loads(Path(path).read_text())
+        if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+            raise ValueError("not a list of rows")
+        mine = [r for r in rows if r.get("method") == method]
+        if not mine:
+            raise ValueError(f"no row of {method}")
+        for r in mine:
+            for k in ("batch_size", "stage1_clouds_per_s"):
+                v = r.get(k)
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                    raise ValueError(f"field {k!r} is {v!r}")
+        where = {(Path(str(r.get("data", ""))).name, r.get("train_clouds")) for r in mine}
+        if where != {(Path(data).name, len(load(data, "train")))}:
+            raise LookupError(f"it was measured on {sorted(map(str, where))}, this ladder's training data is "
+                              f"{Path(data).name} ({len(load(data, 'train'))} clouds)")
+    except (OSError, ValueError, LookupError) as e:
+        if not check:
+            return None
+        what = "belongs to another dataset" if isinstance(e, LookupError) else "is damaged"
+        raise ConfigError(f"the speed file {path} {what} ({e}); delete it (the speed is measured again) or give "
+                          "another --work") from None
+    return mine
 
 
 def budget_plan(row: dict, values: dict, budget_minutes: float, train_clouds: int) -> dict:
@@ -256,6 +294,65 @@ def _stability(run: Path, data: Path, method: str, preset, limit: int = 64, devi
                                                 n)))
 
 
+#: The fields of a cell record that its table reads, with their types (a record without one of them is damaged).
+RECORD_FIELDS = {"method": str, "seed": int, "dataset_hash": str, "S": (int, float), "frame_consistency": (int, float)}
+
+
+def read_record(path: Path) -> dict:
+    """A ladder or compute-curve cell's record, checked on read.
+
+    Raises:
+        ConfigError: the file is not JSON, not an object, lacks a field of :data:`RECORD_FIELDS` or holds one of
+            another type or a non-finite score (names the file and what to do: move it away, the cell is computed
+            again)."""
+    path = Path(path)
+    try:
+        rec = json.loads(path.read_text())
+        if not isinstance(rec, dict):
+            raise ValueError(f"a JSON {type(rec).__name__}, not an object")
+        for k, t in RECORD_FIELDS.items():
+            if k not in rec:
+                raise ValueError(f"no field {k!r}")
+            if not isinstance(rec[k], t) or isinstance(rec[k], bool) or (
+                    isinstance(rec[k], float) and not math.isfinite(rec[k])):
+                raise ValueError(f"field {k!r} is {rec[k]!r}")
+    except (OSError, ValueError) as e:
+        raise ConfigError(f"the cell record {path} is damaged ({e}); move it away (with its predictions and run) and "
+                          "run again: the cell is computed again") from None
+    return rec
+
+
+def dataset_hash(data: Path) -> str:
+    """The hash of the dataset ``data`` (its val split's, as the cells' records hold it)."""
+    from scapo.data import load
+
+    return load(data, "val").dataset_hash
+
+
+def check_reuse(rec: dict, path: Path, data_hash: str, values: dict | None = None, budget_s: float | None = None
+                ) -> None:
+    """Refuse to reuse the finished cell ``rec`` (its record at ``path``) for a run of other conditions: another
+    dataset, another schedule (``values``: the preset fields the budget set, with a variant's fields), another budget
+    (``budget_s``, charged seconds). A cell is found by its rung, method and seed; this is what keeps a table from
+    being built of cells made under other conditions.
+
+    Raises:
+        ConfigError: what differs, and what to do (another ``--work``, or the cell moved away)."""
+    why = []
+    if rec.get("dataset_hash") != data_hash:
+        why.append(f"dataset {str(rec.get('dataset_hash'))[:12]} (asked: {data_hash[:12]})")
+    if values is not None and rec.get("budget_values") is not None and \
+            json.loads(json.dumps(rec["budget_values"])) != json.loads(json.dumps(values, default=str)):
+        why.append(f"schedule {rec['budget_values']} (asked: {values})")
+    planned = (rec.get("plan") or {}).get("budget_s")
+    if budget_s is not None and planned is not None and abs(float(planned) - float(budget_s)) > 1e-6:
+        why.append(f"a budget of {float(planned) / 60:g} minutes (asked: {float(budget_s) / 60:g})")
+    if why:
+        raise ConfigError(f"the finished cell {path} was made with {'; '.join(why)}; it is not reused for this run: "
+                          "give another --work, or move the cell (its record, predictions and run) away to compute "
+                          "it again")
+
+
 def _upgrade(rec_path: Path, data: Path, method: str, preset) -> dict:
     """A cell's record, with the symmetry-aware consistency and the resampling stability added when it was written
     before they existed, and the consistency scored again when it predates :data:`CONSISTENCY_VERSION` on a category
@@ -264,7 +361,7 @@ def _upgrade(rec_path: Path, data: Path, method: str, preset) -> dict:
     from scapo.methods import METHODS
     from scapo.provenance import git_commit
 
-    rec = json.loads(rec_path.read_text())
+    rec = read_record(rec_path)
     stale = (rec.get("consistency_version", 1) < CONSISTENCY_VERSION
              and bool(json.loads((Path(data) / "card.json").read_text()).get("symmetry")))
     if "frame_consistency_sym" in rec and "resampling_deg" in rec and not stale:
@@ -301,6 +398,8 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
     cells = cells_dir(work, category, rung, preset_name, device)  # a cell's record, predictions and run
     rec_path = cells / f"{key}_s{seed}.json"
     if rec_path.is_file():
+        check_reuse(read_record(rec_path), rec_path, dataset_hash(data), values if METHODS.get(method).trained
+                    else None, plan["budget_s"] if plan else None)
         return _upgrade(rec_path, data, method, preset)
     run = cells / f"{key}_s{seed}_run"
     wall = {}
@@ -342,7 +441,7 @@ def _cell(data: Path, work: Path, category: str, rung: str, method: str, seed: i
         "R": s.get("R"), "R_median": s.get("R_median"), "R_sym": s.get("R_sym"), "R_sym_median": s.get("R_sym_median"),
         "R_over90": s.get("R_over90"), "R_sym_over90": s.get("R_sym_over90"),
         "ledger": ledger, "plan": plan,
-        "charged_min": None if ledger is None else round(ledger["charged_s"] / 60, 2),
+        "charged_min": None if ledger is None else round(ledger["charged_s"] / 60, 4),
         "infer_ms_per_cloud": preds.info.get("ms_per_cloud_val"),
         "infer_cpu_ms_per_cloud": preds.info.get("cpu_ms_per_cloud_val"),
         "wall": {**wall, "cell_s": round(time.perf_counter() - t0, 1)}, "torch_threads": threads,
@@ -466,6 +565,8 @@ def _write_finished(work: Path, category: str, rungs, methods, parsed, seeds, ou
                             preset = override(METHODS.get(m).preset(base), rest, f"{m} preset")
                     data = rung_dir(work, category, r, meta["instances"], meta["views"], meta["train_views"],
                                     meta["data_seed"])
+                    check_reuse(read_record(path), path, dataset_hash(data),
+                                budget_s=60.0 * meta["budget_minutes"] if METHODS.get(m).trained else None)
                     records.append(_upgrade(path, data, m, preset))
                 else:
                     missing.append(f"{r}/{key}_s{s}")
