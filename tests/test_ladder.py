@@ -528,3 +528,32 @@ def test_a_budget_folder_is_named_by_the_exact_budget():
 
     assert budget_dir("w", 5.0).name == "b5" and budget_dir("w", 2.5).name == "b2.5"
     assert budget_dir("w", 0.05).name == "b0.05" and budget_dir("w", 0.05000001).name == "b0.05000001"
+
+
+def test_a_narrower_rerun_does_not_replace_a_table_and_zero_sizes_are_refused(tmp_path, capsys):
+    """A rerun into the same --out that would rewrite the table without rows it holds is refused before any work
+    (``--methods icp`` once dropped the npcs rows); ``--views 0`` and its kin are errors, not the defaults; the ladder's
+    default output is the work folder's, never the committed results/."""
+    from scapo.bench.ladder import check_table_rows
+    from scapo.cli.main import main
+    from scapo.errors import ConfigError
+
+    table = tmp_path / "ladder_laptop.json"
+    table.write_text(json.dumps({"records": [{"rung": "one", "method": "npcs", "seed": 0},
+                                             {"rung": "one", "method": "icp", "seed": 0}]}))
+    check_table_rows(table, {("one", "npcs", 0), ("one", "icp", 0), ("one", "icp", 1)}, ("rung", "method", "seed"),
+                     "scapo bench ladder")  # a wider run: fine
+    with pytest.raises(ConfigError, match=r"holds 1 row\(s\) this run does not make \(\('one', 'npcs', 0\); as rung, "
+                                          r"method, seed\), which rewriting it would lose"):
+        check_table_rows(table, {("one", "icp", 0)}, ("rung", "method", "seed"), "scapo bench ladder")
+    args = ["bench", "ladder", "--category", "laptop", "--rungs", "one", "--methods", "icp", "--work",
+            str(tmp_path / "w"), "--out", str(tmp_path), "--dry-run"]
+    assert main(args) == 0  # a dry run writes nothing, so it is not refused
+    assert main([*args[:-1]]) == 2
+    assert "holds 1 row(s) this run does not make" in capsys.readouterr().err
+    for flag in ("--views", "--instances", "--train-views"):
+        assert main([*args, flag, "0"]) == 2
+        assert f"{flag} must be >= 1, got 0" in capsys.readouterr().err
+    assert main(["bench", "ladder", "--category", "laptop", "--rungs", "one", "--methods", "icp", "--work",
+                 str(tmp_path / "w"), "--dry-run"]) == 0
+    assert (tmp_path / "w" / "results").is_dir()  # the default --out: the work folder's results/

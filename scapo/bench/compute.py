@@ -49,6 +49,7 @@ from scapo.bench.ladder import (
     _upgrade,
     cells_dir,
     check_reuse,
+    check_table_rows,
     dataset_hash,
     read_record,
     rung_config,
@@ -226,6 +227,9 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
             else rung_dir(work, category, rung, instances, views, train_views, data_seed))
     name = ("accuracy_vs_compute" if (category, rung) == ("laptop", "paper")
             else f"accuracy_vs_compute_{category}_{rung}")
+    if not dry_run and not data_only:
+        check_table_rows(Path(out) / f"{name}.json", {(m, b, s) for m in methods for b in budgets for s in seeds},
+                         ("method", "budget_min", "seed"), "scapo bench compute")
     meta = {"name": name, "category": category, "rung": rung, "methods": methods, "budgets": budgets, "seeds": seeds,
             "split": "val", "dataset": data.name, "instances": instances, "views": views, "train_views": train_views,
             "data_seed": data_seed, "preset": preset, "protocol": protocol, "command": command,

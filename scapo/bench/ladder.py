@@ -322,6 +322,29 @@ def read_record(path: Path) -> dict:
     return rec
 
 
+def check_table_rows(path: Path, made: set, fields: Sequence[str], command: str) -> None:
+    """Refuse to replace the table ``path`` (a ladder's or compute curve's ``.json``, written before into the same
+    ``--out``) by one without some of its rows: ``made`` is the set of ``fields`` tuples this run writes. A narrower
+    rerun once rewrote the table without the rows it was not asked for.
+
+    Raises:
+        ConfigError: rows of the table this run does not make (up to five named), and what to do."""
+    if not Path(path).is_file():
+        return
+    try:
+        rows = json.loads(Path(path).read_text())["records"]
+        have = {tuple(r[f] for f in fields) for r in rows}
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise ConfigError(f"{path} is not a table of {command} ({type(e).__name__}: {e}); give another --out or move "
+                          "it away") from None
+    lost = sorted(have - made, key=str)
+    if lost:
+        more = ", ..." if len(lost) > 5 else ""
+        raise ConfigError(f"{path} holds {len(lost)} row(s) this run does not make ({', '.join(map(str, lost[:5]))}"
+                          f"{more}; as {', '.join(fields)}), which rewriting it would lose: ask for them too (their "
+                          "finished cells are reused), or give another --out")
+
+
 def dataset_hash(data: Path) -> str:
     """The hash of the dataset ``data`` (its val split's, as the cells' records hold it)."""
     from scapo.data import load
@@ -639,6 +662,11 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         raise ConfigError("--variant: two variants with one METHOD:LABEL")
     work = check_output_dir(work, "ladder work folder")
     check_output_dir(out, "ladder output folder")
+    if not dry_run and not data_only:
+        names = list(methods) + [f"{m}:{label}" for m, label, _ in parsed]
+        check_table_rows(Path(out) / f"ladder_{category}.json", {(r, n, s) for r in rungs for n in names
+                                                                  for s in seeds}, ("rung", "method", "seed"),
+                         "scapo bench ladder")
     cfgs = {r: rung_config(category, r, instances, views, train_views, data_seed) for r in rungs}
     print(f"scapo bench ladder: {category}, rungs {', '.join(rungs)}; methods {', '.join(methods)}; seeds "
           f"{seeds}; {budget_minutes} {_unit({'device': device})} per trained cell", flush=True)

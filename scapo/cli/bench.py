@@ -69,7 +69,7 @@ def cmd_bench_ladder(args) -> int:
     methods = args.methods if args.methods is not None else list(LADDER_METHODS)
     cmd = "scapo bench ladder " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "scapo bench ladder"
     paths = run_ladder(args.category, methods, rungs, args.seeds, work=args.work / "ladder",
-                       out=args.out or Path("results/canonical_ladder"),
+                       out=args.out or args.work / "results",
                        budget_minutes=5.0 if args.budget_minutes is None else args.budget_minutes,
                        instances=args.instances or 60, views=args.views or 8,
                        train_views=16 if args.train_views is None else args.train_views, data_seed=args.seed,
@@ -99,7 +99,7 @@ def cmd_bench_compute(args) -> int:
     paths = run_compute_curve(args.category, args.methods if args.methods is not None else list(LADDER_METHODS),
                               args.budgets if args.budgets is not None else list(COMPUTE_BUDGETS), args.seeds,
                               work=args.work if args.from_table else args.work / "ladder",
-                              out=args.out or Path("results"), rung=rungs[0],
+                              out=args.out or args.work / "results", rung=rungs[0],
                               instances=args.instances or (150 if args.from_table else 60), views=args.views or 8,
                               train_views=train_views,
                               data_seed=args.seed, preset=args.preset, workers=max(args.workers), command=cmd,
@@ -111,6 +111,10 @@ def cmd_bench_compute(args) -> int:
 
 
 def cmd_bench(args) -> int:
+    for flag in ("instances", "views", "train_views"):  # 0 once fell back to the default without a word
+        value = getattr(args, flag, None)
+        if value is not None and value < 1:
+            raise ConfigError(f"--{flag.replace('_', '-')} must be >= 1, got {value}; leave it out for the default")
     if args.what == "compute":
         return cmd_bench_compute(args)
     if args.what == "choose":
@@ -227,7 +231,7 @@ def cmd_bench_table(args) -> int:
     if min(args.workers) < 1 or instances < 1 or views < 1:
         raise ConfigError("--workers, --instances and --views must be >= 1")
     run_table(args.what, args.methods, args.categories, instances=instances, views=views, data_seed=args.seed,
-              work_dir=args.work, out_dir=args.out or Path("results"), preset=args.preset, seeds=args.seeds,
+              work_dir=args.work, out_dir=args.out or args.work / "results", preset=args.preset, seeds=args.seeds,
               category_seeds=parse_category_seeds(args.category_seeds), protocol=args.protocol, name=args.name,
               workers=args.workers[0], cache_dir=args.cache, dry_run=args.dry_run, progress=not args.no_progress,
               device=args.device, finished_only=args.finished_only, recompute_dirty=args.recompute_dirty,
@@ -366,6 +370,7 @@ def add_parsers(sub) -> None:
                     "by a changed evaluator or adopted by a dataset regenerated on another CPU kind")
     sp.add_argument("--name", default=None, help="table1/3: file name stem (table1_synthetic, table3_ablation)")
     sp.add_argument("--no-progress", action="store_true")
-    sp.add_argument("--out", type=Path, default=None, help="write result files here (table1/3: default results/)")
+    sp.add_argument("--out", type=Path, default=None, help="write result files here (table1/3, ladder, compute: "
+                    "default WORK/results; the committed results/ only when named)")
     add_cache(sp)
     sp.set_defaults(func=cmd_bench)
