@@ -156,14 +156,14 @@ def _convert(key: str, value: Any, tp: Any, what: str) -> Any:
             raise bad
         try:
             return int(value) if not isinstance(value, str) else int(value.strip())
-        except ValueError:
+        except (TypeError, ValueError, OverflowError):  # e.g. a TOML date, inf
             raise bad from None
     if tp is float:
         if isinstance(value, bool):
             raise bad
         try:
             return float(value)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise bad from None
     if tp is str:
         if not isinstance(value, (str, int, float)) or isinstance(value, bool):
@@ -180,7 +180,8 @@ def override(settings: Any, values: Mapping[str, Any], what: str = "preset") -> 
 
     Raises:
         ConfigError: an unknown field (the message lists the valid ones at that level), a value that does not
-            convert, or one the dataclass's own checks refuse (their message)."""
+            convert (a TOML date for a number), a preset's ``name`` (its identity: ``--preset`` chooses it), or one
+            the dataclass's own checks refuse (their message)."""
     if not values:
         return settings
     nested: dict[str, dict[str, Any]] = {}
@@ -194,6 +195,9 @@ def override(settings: Any, values: Mapping[str, Any], what: str = "preset") -> 
     for head in [*direct, *nested]:
         if head not in fields:
             raise ConfigError(f"unknown {what} field {head!r}; valid fields: {', '.join(fields)}")
+    if "name" in direct and "preset" in what and "name" in fields:
+        raise ConfigError(f"{what}: 'name' is the preset's identity, not a setting (a run trained with one preset's "
+                          f"settings would record another's name); give --preset NAME to train that preset")
     for head, value in direct.items():
         if dataclasses.is_dataclass(getattr(settings, head)):
             sub = getattr(settings, head)

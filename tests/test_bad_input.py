@@ -758,3 +758,21 @@ def test_predictions_files_and_options_that_would_be_guessed_at_are_refused(smal
     pytest.importorskip("viser")
     assert_clear_error(cli("view", "--data", small / "lap1", "--pred", preds, "--port", "0"), "view",
                        "was made on dataset")
+
+
+def test_a_preset_name_date_slot_and_label_are_clear_errors(laptop_data, run, tmp_path):
+    """The probe's cases: ``--set name=cpu`` once trained the ``test`` schedule under the name ``cpu``; a TOML date as
+    a number and ``base_slot=²`` (``'²'.isdigit()`` is true) were internal errors; a prediction label with ``../``
+    named files outside ``--out``. Each is refused before anything is written."""
+    assert_clear_error(cli("train", "--method", "npcs", "--data", laptop_data, "--preset", "test", "--set", "name=cpu",
+                           "--out", tmp_path / "r1"), "train", "'name' is the preset's identity", "--preset NAME")
+    config = tmp_path / "c.toml"
+    config.write_text("epochs = 1979-05-27\n")
+    assert_clear_error(cli("train", "--method", "npcs", "--data", laptop_data, "--preset", "test", "--config", config,
+                           "--out", tmp_path / "r2"), "train", "epochs=datetime.date(1979, 5, 27) is not a valid int")
+    assert not (tmp_path / "r1").exists() and not (tmp_path / "r2" / "checkpoint.pt").exists()
+    assert_clear_error(cli("predict", "--run", run, "--data", laptop_data, "--option", "base_slot=²", "--out",
+                           tmp_path / "p.npz"), "predict", "base_slot must be a part slot number or 'auto'")
+    assert_clear_error(cli("predict", "--run", run, "--data", laptop_data, "--option", "label=../../esc", "--out",
+                           tmp_path / "p.npz"), "predict", "label '../../esc' must be a plain file name")
+    assert not (tmp_path / "p.npz").exists()

@@ -107,6 +107,10 @@ def cmd_evaluate(args) -> int:
                         "choose another --out folder or --name")
     results = [evaluate(args.data, preds, protocol=protocol, split=args.split) for _, preds in named]
     _one_file_per_run(results, args.pred)
+    if args.out:  # the rows' labels name the per-sample files: each must stay inside --out (checked before writing)
+        for res, path in zip(results, args.pred):
+            check_name(res.method, f"the method label of {path} (its predictions' 'method'; rename the row with "
+                                   "--pred LABEL=FILE)")
     _print_summary(results, protocol)
     if args.out:
         from scapo.data import load

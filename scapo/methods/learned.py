@@ -297,6 +297,10 @@ class LearnedOptions:
     def __post_init__(self):
         if self.batch_size < 1:
             raise ConfigError(f"batch_size must be >= 1, got {self.batch_size}")
+        if self.label:  # it names the evaluator's output files: it must stay inside their folder
+            from scapo.files import check_name
+
+            check_name(self.label, "label")
         if self.hinge_axis and not self.hinge:
             raise ConfigError("hinge_axis=true re-estimates the axes within the hinge step; give hinge=true too")
         if self.hinge_bar_axis and not self.hinge:

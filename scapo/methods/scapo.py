@@ -73,7 +73,7 @@ class SCAPOOptions(LearnedOptions):
             raise ConfigError(f"parts_axes must be '' (the run's), 'pca' or 'plane', got {self.parts_axes!r}")
         if self.base_frame not in ("", "principal", "parts"):
             raise ConfigError(f"base_frame must be '' (off), 'principal' or 'parts', got {self.base_frame!r}")
-        if str(self.base_slot) != "auto" and not str(self.base_slot).isdigit():
+        if str(self.base_slot) != "auto" and not (str(self.base_slot).isascii() and str(self.base_slot).isdigit()):
             raise ConfigError(f"base_slot must be a part slot number or 'auto', got {self.base_slot!r}")
         if self.hinge_frames and self.base_frame:
             raise ConfigError(f"hinge_frames=true and base_frame={self.base_frame} both set the part rotations; give "

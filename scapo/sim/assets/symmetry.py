@@ -71,7 +71,8 @@ class Symmetry:
         for name, perm in (("parts", self.parts), ("joints", self.joints)):
             if sorted(perm) != list(range(len(perm))):
                 raise ConfigError(f"a symmetry's {name} must be a permutation of 0..{len(perm) - 1}, got {perm}")
-        if self.center != "origin" and not (self.center.startswith("pivot:") and self.center[6:].isdigit()
+        if self.center != "origin" and not (self.center.startswith("pivot:") and self.center[6:].isascii()
+                                            and self.center[6:].isdigit()
                                             and int(self.center[6:]) < len(self.joints)):
             raise ConfigError(f"a symmetry's center must be 'origin' or 'pivot:J' with J a joint index, got "
                               f"{self.center!r}")
