@@ -776,3 +776,18 @@ def test_a_preset_name_date_slot_and_label_are_clear_errors(laptop_data, run, tm
     assert_clear_error(cli("predict", "--run", run, "--data", laptop_data, "--option", "label=../../esc", "--out",
                            tmp_path / "p.npz"), "predict", "label '../../esc' must be a plain file name")
     assert not (tmp_path / "p.npz").exists()
+
+
+def test_a_damaged_run_json_is_named_not_the_checkpoint(laptop_data, run, tmp_path):
+    """A truncated or ``[]`` ``run.json`` once ended in "KeyError: 'model_config' ... delete the damaged file first",
+    pointing at the healthy checkpoint: prediction reads the checkpoint alone and succeeds; training into the folder
+    names ``run.json``; the checkpoint is kept."""
+    for text in ('{"method": "sca', "[]"):
+        copy = tmp_path / f"run{len(text)}"
+        shutil.copytree(run, copy)
+        (copy / "run.json").write_text(text)
+        code, _, err = cli("predict", "--run", copy, "--data", laptop_data, "--out", tmp_path / f"p{len(text)}.npz")
+        assert code == 0, err
+        assert_clear_error(cli("train", "--data", laptop_data, "--out", copy), "train", "run.json is damaged",
+                           "Give --preset NAME")
+        assert (copy / "checkpoint.pt").is_file()

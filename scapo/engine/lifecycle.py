@@ -85,12 +85,16 @@ def run_preset(spec: RunSpec, run: str | Path | None = None, preset=None, overri
 
     Raises:
         UnknownNameError: an unknown preset name. ConfigError: an unknown field or a bad value in ``overrides``,
-            a seed that is not an integer in [0, 2**32).
+            a seed that is not an integer in [0, 2**32), a damaged ``run.json`` where the run's own preset is read.
     """
     from scapo.config import override
 
     if preset is None:
         stored = read_run_json(run) if run is not None else None
+        if run is not None and stored is None and (Path(run) / "run.json").is_file():
+            raise ConfigError(f"{Path(run) / 'run.json'} is damaged (not a JSON object): a run resumed without "
+                              "--preset reads its preset there. Give --preset NAME (the run's own preset) to resume, "
+                              "or restore run.json; its checkpoint is kept")
         preset = (spec.stored_preset(stored) if isinstance(stored, dict) else None) or DEFAULT_PRESET
     pc = spec.preset(preset) if isinstance(preset, str) else preset
     if overrides:
