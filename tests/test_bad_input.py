@@ -791,3 +791,19 @@ def test_a_damaged_run_json_is_named_not_the_checkpoint(laptop_data, run, tmp_pa
         assert_clear_error(cli("train", "--data", laptop_data, "--out", copy), "train", "run.json is damaged",
                            "Give --preset NAME")
         assert (copy / "checkpoint.pt").is_file()
+
+
+def test_predictions_of_another_run_are_not_replaced_and_an_option_is_given_once(laptop_data, run, tmp_path):
+    """``scapo predict --out`` once replaced another run's predictions file without a word; the same run's file is
+    replaced (a rerun); a repeated ``--option`` key once let the last win."""
+    out = tmp_path / "p.npz"
+    assert cli("predict", "--method", "icp", "--data", laptop_data, "--out", out, *QUICK_ICP)[0] == 0
+    before = out.read_bytes()
+    assert_clear_error(cli("predict", "--run", run, "--data", laptop_data, "--out", out), "predict",
+                       "holds the predictions of icp (a fitted method), not of scapo from run", "give another --out")
+    assert out.read_bytes() == before
+    assert cli("predict", "--run", run, "--data", laptop_data, "--out", tmp_path / "q.npz")[0] == 0
+    assert cli("predict", "--run", run, "--data", laptop_data, "--out", tmp_path / "q.npz")[0] == 0  # a rerun
+    assert_clear_error(cli("predict", "--run", run, "--data", laptop_data, "--option", "base_slot=0", "--option",
+                           "base_slot=1", "--out", tmp_path / "r.npz"), "predict",
+                       "--option base_slot is given twice ('0' and '1')")

@@ -210,7 +210,7 @@ def test_set_and_config_override_preset_fields_and_are_recorded(tmp_path):
     (["--set", "batch_size=100000"], "no training step would run"),
     (["--set", "min_lr=1"], "exceeds a stage's learning rate"),
     (["--set", "refine.lr=nan"], "must be finite numbers"),
-    (["--set", "name="], "needs a name"),
+    (["--set", "name="], "'name' is the preset's identity"),
     (["--set", "template_points=100000"], "lower template_points"),
 ])
 def test_bad_overrides_are_clear_errors_before_anything_is_written(args, fragment, tmp_path):

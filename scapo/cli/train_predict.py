@@ -54,6 +54,8 @@ def cmd_predict(args) -> int:
             raise ConfigError(f"--option {kv!r} is not of the form key=value")
         if k.strip() in ("run", "device"):
             raise ConfigError(f"--option {k.strip()}=... is given as --{k.strip()} {v} (a flag of its own)")
+        if k.strip() in opts:  # the last once won without a word
+            raise ConfigError(f"--option {k.strip()} is given twice ({opts[k.strip()]!r} and {v!r}); give it once")
         opts[k.strip()] = v  # converted to the option's type by the method's options dataclass
     method = args.method
     if args.run is not None:

@@ -268,6 +268,7 @@ def run_method(name: str, data: str | Path, out: str | Path | None = None, **opt
         from scapo.eval.predictions import is_predictions_file
 
         check_output_file(out, "predictions file", "predictions.npz", replaceable=is_predictions_file)
+        _check_replace(Path(out), name, options.get("run"))
     train = load(data, "train")
     test = load(data, "test")
     if len(test) == 0:
@@ -304,6 +305,34 @@ def run_method(name: str, data: str | Path, out: str | Path | None = None, **opt
     if out is not None:
         preds.save(out)
     return preds
+
+
+def _check_replace(out: Path, method: str, run) -> None:
+    """Refuse to replace the predictions file ``out`` with those of another run (a trained method's predictions name
+    their run; a new prediction from the same run replaces them, as a rerun does, and a fitted method's replace a
+    fitted method's); a file that cannot be read is left to :func:`~scapo.files.check_output_file`'s rule.
+
+    Raises:
+        OutputError: ``out`` holds the predictions of another run (names it)."""
+    import numpy as np
+
+    from scapo.errors import OutputError
+
+    if not out.is_file():
+        return
+    try:
+        with np.load(out, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+        had_run = meta["info"].get("run")
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return
+    same = (had_run is None and run is None) or (
+        had_run is not None and run is not None and Path(str(had_run)).resolve() == Path(str(run)).resolve())
+    if not same:
+        raise OutputError(f"{out} holds the predictions of {meta.get('method', 'another method')}"
+                          + (f" from run {had_run}" if had_run else " (a fitted method)") + f", not of {method}"
+                          + (f" from run {run}" if run is not None else "") + ": give another --out, or delete it "
+                          "first")
 
 
 def method_of_run(run: str | Path) -> str:
