@@ -75,3 +75,16 @@ def test_look_at_opencv_convention():
     np.testing.assert_allclose(T[:3, 1], [0, 0, -1], atol=1e-12)  # +y is down
     np.testing.assert_allclose(T[:3, 0], [0, -1, 0], atol=1e-12)  # +x is right (world -y seen from -x)
     np.testing.assert_allclose(R_CV_GL @ [0, 1, -1], [0, -1, 1])
+
+
+def test_umeyama_returns_the_best_rotation_when_the_best_orthogonal_map_is_a_reflection():
+    """``dst`` the mirror image of ``src`` through the plane of its least spread (``diag(1, 1, -1)``): the best
+    orthogonal map is that reflection, the best rotation (Umeyama's sign correction, 1991, eq. 39) flips nothing, the
+    identity, with the mirrored points' centroid as translation; a fit without the correction would return the
+    reflection (det -1)."""
+    src = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-0.5, 0.5) for z in (-0.1, 0.1)])  # a box's corners
+    dst = src * [1.0, 1.0, -1.0] + [0.3, -0.2, 1.0]
+    T, s = umeyama(src, dst)
+    assert s == 1.0 and np.linalg.det(T[:3, :3]) == pytest.approx(1.0)
+    np.testing.assert_allclose(T[:3, :3], np.eye(3), atol=1e-9)
+    np.testing.assert_allclose(T[:3, 3], [0.3, -0.2, 1.0], atol=1e-9)

@@ -256,3 +256,33 @@ def test_chance_rotation_error_is_the_mean_angle_of_uniform_random_rotations():
     assert abs(angle.mean() - chance_rotation_error_deg()) < 0.3
     assert abs(np.minimum(angle, 180 - angle).mean() - chance_rotation_error_deg(folded=True)) < 0.3
     assert chance_rotation_error_deg() == pytest.approx(90 + 360 / np.pi**2)
+
+
+def test_the_bootstrap_resamples_test_instances_not_views():
+    """The views of one test instance move together in the bootstrap: ``a`` beats ``b`` by 30 points of S on every
+    view of 3 instances and loses by 29 on every view of 3 others (50 views each). Resampling the 300 views one by one
+    would call a's mean +0.5 points supported (the views' noise is small); resampling the 6 instances, the interval
+    spans 0. With the same per-instance gap on 40 instances it is supported."""
+    import numpy as np
+
+    from scapo.eval.evaluator import EvalResult
+    from scapo.eval.tables import pairwise_bootstrap
+
+    def result(method, gaps, views=50):
+        rng = np.random.default_rng(len(method))
+        n = len(gaps) * views
+        s = 50 + np.repeat(gaps, views) + rng.normal(0, 0.1, n)
+        ps = pd.DataFrame({"instance_id": np.repeat(np.arange(len(gaps)), views), "view_id": np.tile(np.arange(
+            views), len(gaps)), "S": s, "D": np.full(n, 5.0), "C": np.full(n, 0.1), "R_p0": np.full(n, 10.0),
+            "R_p1": np.full(n, 10.0)})
+        summary = {"S": float(ps.S.mean()), "D": 5.0, "C": 0.1, "R_median": 10.0}
+        return EvalResult(method=method, category="laptop", split="test", per_sample=ps, summary=summary,
+                          info={"seed": 0, "supervision": {"pose": False, "segmentation": False, "joint": False}})
+
+    mixed = [30.0] * 3 + [-29.0] * 3
+    pair = pairwise_bootstrap([result("a", mixed), result("b", [0.0] * 6)], draws=400)["metrics"]["S"][0]
+    assert pair["diff"] == pytest.approx(0.5, abs=0.05) and not pair["supported"]
+    assert pair["interval"][0] < -5 and pair["interval"][1] > 5  # the instances' spread, not the views'
+    many = [1.0] * 40
+    pair = pairwise_bootstrap([result("a", many), result("b", [0.0] * 40)], draws=400)["metrics"]["S"][0]
+    assert pair["supported"] and pair["better"] == "a"
