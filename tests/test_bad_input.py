@@ -807,3 +807,18 @@ def test_predictions_of_another_run_are_not_replaced_and_an_option_is_given_once
     assert_clear_error(cli("predict", "--run", run, "--data", laptop_data, "--option", "base_slot=0", "--option",
                            "base_slot=1", "--out", tmp_path / "r.npz"), "predict",
                        "--option base_slot is given twice ('0' and '1')")
+
+
+def test_the_python_api_refuses_a_run_whose_weights_are_nan(run, tmp_path):
+    """``scapo.methods.load(run).predict_points`` once returned NaN poses without a word for a checkpoint whose
+    weights are NaN (the command line refused it); loading it is now a ``TrainingError`` naming a tensor."""
+    import scapo.methods
+
+    copy = tmp_path / "nan_run"
+    shutil.copytree(run, copy)
+    state = torch.load(copy / "checkpoint.pt", weights_only=False)
+    name = next(k for k, v in state["model"].items() if v.is_floating_point())
+    state["model"][name] = torch.full_like(state["model"][name], float("nan"))
+    torch.save(state, copy / "checkpoint.pt")
+    with pytest.raises(TrainingError, match=rf"weights hold NaN or infinite values \(1 tensor\(s\), first: {name}\)"):
+        scapo.methods.load(copy)

@@ -354,8 +354,8 @@ def load_run(run: str | Path, device: str | None = None, **options):
     options (:func:`options_class`).
 
     Raises:
-        TrainingError: no run there (no checkpoint), a damaged checkpoint, an unfinished run. ConfigError: a run
-        of a method that is not trained, an unknown option, an unavailable device.
+        TrainingError: no run there (no checkpoint), a damaged checkpoint, an unfinished run, weights that are NaN or
+        infinite. ConfigError: a run of a method that is not trained, an unknown option, an unavailable device.
     """
     from scapo.errors import TrainingError
 
@@ -369,7 +369,16 @@ def load_run(run: str | Path, device: str | None = None, **options):
     if not entry.trained:
         raise ConfigError(f"{run} names method {name!r}, which is not trained")
     method = entry.factory(run=run, device=device, **options)
-    return method.load()
+    loaded = method.load()
+    module = getattr(loaded, "module", None)
+    if module is not None:  # as the command line does: a run whose weights are NaN predicts nothing
+        import torch
+
+        bad = [n for n, t in module.state_dict().items() if t.is_floating_point() and not bool(torch.isfinite(t).all())]
+        if bad:
+            raise TrainingError(f"{run}: the checkpoint's weights hold NaN or infinite values ({len(bad)} tensor(s), "
+                                f"first: {bad[0]}); it would predict NaN poses. Train the run again (another --out)")
+    return loaded
 
 
 #: training seeds are 32-bit: the engine derives each epoch's seed from them (scapo.engine.loop)
