@@ -163,3 +163,19 @@ def test_bad_object_inputs(two_objects, tmp_path, capsys):
     assert "textured_objs/door.obj" in capsys.readouterr().err
     assert main(["generate", "--object", str(tmp_path / "nothing"), "--views", "1", "--out", str(tmp_path / "z")]) == 2
     assert "no such file or folder" in capsys.readouterr().err
+
+
+def test_an_object_without_a_movable_joint_is_refused_at_generation(tmp_path, capsys):
+    """A rigid object once made a dataset (exit 0) on which ``scapo train`` then ended in an internal error: it is
+    refused when the dataset is generated, naming the object, and nothing is written."""
+    d = tmp_path / "box"
+    (d / "textured_objs").mkdir(parents=True)
+    trimesh.creation.box([0.3, 0.3, 0.3]).export(d / "textured_objs" / "body.obj")
+    (d / "mobility.urdf").write_text('<?xml version="1.0"?><robot name="box"><link name="base"/><link name="body">'
+                                     '<visual><geometry><mesh filename="textured_objs/body.obj"/></geometry></visual>'
+                                     '</link><joint name="j" type="fixed"><parent link="base"/><child link="body"/>'
+                                     '</joint></robot>')
+    assert main(["generate", "--object", str(d), "--views", "2", "--out", str(tmp_path / "data")]) == 2
+    err = capsys.readouterr().err
+    assert "box" in err and "has no movable joint (a rigid object)" in err and err.count("\n") == 1
+    assert not (tmp_path / "data" / "card.json").exists()

@@ -242,7 +242,7 @@ def derive_object(source: ObjectSource, slots: tuple[tuple[str, str], ...], scal
 
     Raises:
         URDFError / MissingMeshError: the source object is malformed (the message names the file).
-        ConfigError: the part map cannot be applied (see :func:`select_parts`).
+        ConfigError: the part map cannot be applied (see :func:`select_parts`), or the object has no movable joint.
     """
     src = load_object(source.path)
     where = f"object {source.path}"
@@ -258,6 +258,9 @@ def derive_object(source: ObjectSource, slots: tuple[tuple[str, str], ...], scal
     else:
         chosen = list(range(1, src.num_parts))
         names = [src.part_names[k] for k in chosen]
+    if not chosen or not any(j.child_part in chosen for j in src.gt_joints):
+        raise ConfigError(f"{where} has no movable joint (a rigid object): the datasets are of articulated objects "
+                          "(parts and joints to estimate); give an object with a revolute or prismatic joint")
     kind, value = parse_scale(scale)
     s = value / src.bbox_diag if kind == "fit" else value
     kept = [j.name for j in src.gt_joints if j.child_part in chosen]
