@@ -105,3 +105,34 @@ def test_bad_predictions_are_refused(laptop_data, tmp_path):
     (tmp_path / "junk.npz").write_bytes(b"junk")
     with pytest.raises(PredictionError, match="cannot be read"):
         Predictions.load(tmp_path / "junk.npz")
+
+
+def test_the_alignment_estimator_finds_the_common_offset_when_a_share_of_the_samples_are_half_turns():
+    """A hand case of the default estimator ("ransac-offsets"): 60 of 100 training samples have the canonical-frame
+    offset ``Q`` (a 40-deg turn, with 2-deg noise, translation (0.1, 0, 0)), 40 have ``Q`` turned by a half turn about
+    z (a flipped frame, translation (0.5, 0, 0)). The offset is ``Q`` within a degree, its translation the inliers'
+    median, its inlier ratio 0.6; OP-Align's "ransac-sample-means" (a mean of 5 samples) finds it within a few degrees."""
+    from scipy.spatial.transform import Rotation
+
+    from scapo.eval.alignment import estimate_alignment
+    from scapo.eval.metrics import rotation_error_deg
+    from scapo.ops.rigid import as_transform, invert_transform
+
+    rng = np.random.default_rng(0)
+    Q = Rotation.from_euler("xyz", [40, 10, -20], degrees=True).as_matrix()
+    flip = Rotation.from_euler("z", 180, degrees=True).as_matrix()
+    offsets = []
+    for m in range(100):
+        noise = Rotation.from_rotvec(rng.normal(size=3) * np.radians(1.0)).as_matrix()
+        R, t = (Q @ noise, [0.1, 0, 0]) if m < 60 else (Q @ flip @ noise, [0.5, 0, 0])
+        offsets.append(as_transform(R, np.array(t)))
+    O = np.stack(offsets)[:, None]  # (M, 1, 4, 4): P_gt = P_pred @ O with P_gt the identity
+    gt = np.tile(np.eye(4), (100, 1, 1, 1))
+    axis, state = np.tile([0.0, 0.0, 1.0], (100, 1, 1)), np.zeros((100, 1))
+    est = estimate_alignment(invert_transform(O), gt, axis, axis, state, state)
+    assert rotation_error_deg(est.part_offset[0, :3, :3], Q) < 1.0
+    np.testing.assert_allclose(est.part_offset[0, :3, 3], [0.1, 0, 0], atol=1e-9)
+    assert est.inlier_ratio[0] == pytest.approx(0.6)
+    means = estimate_alignment(invert_transform(O), gt, axis, axis, state, state, method="ransac-sample-means",
+                               inlier_deg=10.0)
+    assert rotation_error_deg(means.part_offset[0, :3, :3], Q) < 4.0  # a mean of 5 noisy samples
