@@ -105,7 +105,10 @@ class PresetName(NamedTuple):
 def parse_preset(name: str) -> PresetName:
     """Take a preset name ``BASE[/MOD...]`` apart (the one parser of the preset syntax; each method decides
     which parts it accepts). A part ``sj``, ``s`` or ``j`` names the semi-supervised setting, ``no-TERM``
-    switches something off."""
+    switches something off, ``epochs-N[-M]`` or ``iterations-N`` sets the schedule.
+
+    Raises:
+        UnknownNameError: a part that starts as a schedule and is not one (``epochs-abc``)."""
     base, *mods = str(name).split("/")
     sup = [m.upper() for m in mods if m.upper() in SUPERVISIONS]
     off = tuple(m[3:] for m in mods if m.startswith("no-"))
@@ -116,6 +119,9 @@ def parse_preset(name: str) -> PresetName:
         hit = _SCHEDULE.fullmatch(m)
         if hit:
             schedule[hit.group(1)] = tuple(int(v) for v in hit.group(2).split("-"))
+        elif m.startswith(("epochs-", "iterations-")):
+            raise UnknownNameError(f"unknown preset {name!r}: {m!r} is not a schedule; write epochs-N (one stage), "
+                                   "epochs-N-M (two stages) or iterations-N with N, M whole numbers")
         else:
             rest.append(m)
     return PresetName(base, tuple(mods), sup[-1] if sup else None, off, tuple(rest), schedule)

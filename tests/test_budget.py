@@ -125,3 +125,14 @@ def test_source_commit_of_a_copy_without_git(tmp_path, monkeypatch):
         assert prov.git_commit().startswith("v")
     finally:
         prov.git_commit.cache_clear()
+
+
+def test_a_schedule_part_that_is_not_one_says_how_to_write_it():
+    """``test/epochs-abc`` was refused as "not 'no-TERM'"; it is named as a schedule, with the forms it takes."""
+    from scapo.errors import UnknownNameError
+    from scapo.methods import METHODS
+
+    for method in ("scapo", "npcs"):
+        with pytest.raises(UnknownNameError, match=r"'epochs-abc' is not a schedule; write epochs-N \(one stage\), "
+                                                   r"epochs-N-M \(two stages\) or iterations-N"):
+            METHODS.get(method).preset("test/epochs-abc")
