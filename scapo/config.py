@@ -48,8 +48,11 @@ def read_config(path: str | Path) -> dict[str, Any]:
             file that is not a table of settings, a setting given twice (a repeated YAML key, or one key spelled
             both dotted and in its table), or YAML without PyYAML installed."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ConfigError(f"--config {path}: no such file")
+    if not path.is_file():  # a folder, a FIFO, a device (/dev/zero would never end): never read
+        kind = "a folder" if path.is_dir() else "not a regular file (a pipe or a device)"
+        raise ConfigError(f"--config {path} is {kind}; give a .toml or .yaml file of settings")
     suffix = path.suffix.lower()
     try:
         text = path.read_text()

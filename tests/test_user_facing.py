@@ -592,3 +592,17 @@ def test_progress_bars_draw_only_on_a_terminal(monkeypatch):
     quiet = Terminal()
     list(progress_bar(range(3), file=quiet))
     assert quiet.getvalue() == ""
+
+
+def test_a_config_that_is_a_pipe_a_device_or_a_folder_is_named_so_and_never_read(tmp_path):
+    """``--config /dev/zero`` or a FIFO was called "no such file" (and reading either would never end)."""
+    import os
+
+    from scapo.config import read_config
+    from scapo.errors import ConfigError
+
+    fifo = tmp_path / "settings.toml"
+    os.mkfifo(fifo)
+    for path, kind in ((fifo, "not a regular file"), ("/dev/zero", "not a regular file"), (tmp_path, "a folder")):
+        with pytest.raises(ConfigError, match=f"is {kind}"):
+            read_config(path)
