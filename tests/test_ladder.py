@@ -557,3 +557,22 @@ def test_a_narrower_rerun_does_not_replace_a_table_and_zero_sizes_are_refused(tm
     assert main(["bench", "ladder", "--category", "laptop", "--rungs", "one", "--methods", "icp", "--work",
                  str(tmp_path / "w"), "--dry-run"]) == 0
     assert (tmp_path / "w" / "results").is_dir()  # the default --out: the work folder's results/
+
+
+def test_too_few_training_clouds_for_the_speed_run_name_the_ladders_own_options(tmp_path, monkeypatch, capsys):
+    """The speed run's error once advised "a smaller --steps", which the ladder does not take; the demo's advised
+    "set batch_size", which ``scapo demo`` does not take."""
+    import scapo.data
+    from scapo.bench.ladder import _training_presets
+    from scapo.cli.main import main
+    from scapo.errors import ConfigError
+
+    monkeypatch.setattr(scapo.data, "load", lambda data, split: [0, 1, 2])  # 3 training clouds, batch 4 (test)
+    with pytest.raises(ConfigError, match=r"3 training clouds, fewer than the two batches of 4 that measuring npcs's "
+                                          r"training speed needs: give more --instances or --train-views"):
+        _training_presets(["npcs"], tmp_path / "laptop_one_i10_v1_t1_s0", 1.0, "test", tmp_path)
+    monkeypatch.undo()
+    assert main(["demo", "--instances", "2", "--out", str(tmp_path / "demo")]) == 2
+    assert "give 12 training clouds, fewer than the demo preset's batch of 16: give more --instances or --views" in \
+        capsys.readouterr().err
+    assert not (tmp_path / "demo").exists()

@@ -63,8 +63,16 @@ def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12,
     from scapo.sim.assets import build_category
 
     t0 = time.perf_counter()
-    METHODS.get("scapo").preset(preset)  # an unknown preset is refused before any work
-    make_config(category, instances, views, seed, test_fraction=0.25)  # so are bad sizes
+    batch = METHODS.get("scapo").preset(preset).batch_size  # an unknown preset is refused before any work
+    from scapo.data.generate import plan
+    from scapo.errors import ConfigError
+
+    train = sum(len(t.items) for t in plan(make_config(category, instances, views, seed, test_fraction=0.25))
+                if t.split == "train")  # so are bad sizes
+    if train < batch:  # the demo trains SCAPO: at least one batch of training clouds
+        raise ConfigError(f"--instances {instances} --views {views} give {train} training clouds, fewer than the "
+                          f"{preset} preset's batch of {batch}: give more --instances or --views (the default is 24 "
+                          "x 12)")
     out = check_output_dir(out, "demo output folder")
     _step(f"render device: {render_device()}")
     _step(f"building {instances} procedural {category} instances (URDF + meshes)")

@@ -153,7 +153,11 @@ def _training_presets(methods: Sequence, data: Path, budget_minutes: float, pres
         if not path.is_file():
             what = p + "".join(f", {k}={v}" for k, v in sets.items())
             print(f"scapo bench ladder: measuring the training speed of {m} ({what}) on {data.name}", flush=True)
-            steps = max(2, min(10, clouds // METHODS.get(m).preset(p).batch_size))
+            batch = METHODS.get(m).preset(p).batch_size
+            if clouds < 2 * batch:  # the speed run trains two steps at least
+                raise ConfigError(f"{data.name}: {clouds} training clouds, fewer than the two batches of {batch} that "
+                                  f"measuring {m}'s training speed needs: give more --instances or --train-views")
+            steps = max(2, min(10, clouds // batch))
             write_json(path, bench_train_data(data, [m], preset=p, steps=steps, work=runs, device=device,
                                               sets=sets))
         r = training_budget(_speed_rows(path, m, data), budget_minutes, clouds)[0]
