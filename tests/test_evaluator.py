@@ -136,3 +136,31 @@ def test_the_alignment_estimator_finds_the_common_offset_when_a_share_of_the_sam
     means = estimate_alignment(invert_transform(O), gt, axis, axis, state, state, method="ransac-sample-means",
                                inlier_deg=10.0)
     assert rotation_error_deg(means.part_offset[0, :3, :3], Q) < 4.0  # a mean of 5 noisy samples
+
+
+def test_a_joint_that_connects_the_wrong_parts_scores_as_unmatched(laptop_data):
+    """Hand case: the oracle's joints written between slot 0 and itself (not the laptop's two parts): every joint is
+    unmatched, so its direction error is 90 deg, its pivot error one bounding-box diagonal, its state unscored, no
+    joint passes any AP threshold; the parts keep their perfect scores."""
+    preds = oracle(laptop_data, "test")
+    preds.joint_parts = np.zeros_like(preds.joint_parts)
+    res = evaluate(laptop_data, preds)
+    s, ps = res.summary, res.per_sample
+    assert (ps["joints_matched"] == 0).all() and s["joint_match_rate"] == 0.0
+    assert ps["D"].to_numpy() == pytest.approx(90.0) and s["D"] == pytest.approx(90.0)
+    assert ps["C"].to_numpy() == pytest.approx(1.0)  # the scapo protocol's unit: the bounding-box diagonal
+    assert np.isnan(ps["state_deg"]).all()
+    assert s["ap_joint_5"] == s["ap_joint_15"] == 0.0 and s["S"] == pytest.approx(100.0) and s["ap_part_5"] == 100.0
+
+
+def test_part_ap_under_a_known_translation_error_at_each_threshold(laptop_data):
+    """Hand case: the base part moved 7 cm along x in every test view, the lid exact: the base fails 5 deg / 5 cm and
+    passes 10 / 10 and 15 / 15, the lid passes all; part AP (the mean over parts) is 50, 100, 100 %, and the base's
+    translation error is 7 cm."""
+    preds = oracle(laptop_data, "test")
+    preds.part_pose = preds.part_pose.copy()
+    preds.part_pose[:, 0, 0, 3] += 0.07
+    res = evaluate(laptop_data, preds)
+    s = res.summary
+    assert (s["ap_part_5"], s["ap_part_10"], s["ap_part_15"]) == (50.0, 100.0, 100.0)
+    assert res.per_sample["t_cm"].to_numpy() == pytest.approx(3.5)  # the mean over the two parts
