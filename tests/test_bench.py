@@ -189,9 +189,16 @@ def test_a_lost_work_folder_is_restored_from_the_cells_archive(bench, monkeypatc
                        **SMALL)  # done cells are archived as the bench meets them
     assert _same(first, results)
     kept = archive / "laptop_i10_v2_s0"
+    stems = sorted(f"{m}_test_s0.{p}" for m in ("npcs", "scapo") for p in ("eap", "op-align", "scapo"))
     assert sorted(p.name for p in (kept / "cells").iterdir()) == sorted(  # scored under each archived protocol
-        f"{m}_test_s0.{p}.{k}" for m in ("npcs", "scapo") for p in ("eap", "op-align", "scapo")
-        for k in ("json", "parquet"))
+        [f"{stem}.json" for stem in stems] + ["per_sample.parquet"])  # every cell's per-sample metrics in one file
+    import pandas as pd
+
+    from scapo.bench.archive import archived_per_sample
+
+    for stem in stems:  # each cell's own table comes back from the packed file
+        own = pd.read_parquet(work / "laptop_i10_v2_s0" / "cells" / f"{stem}.parquet")
+        assert archived_per_sample(kept / "cells", stem).equals(own)
     assert sorted(p.name for p in (kept / "run_scapo_test_s0").iterdir()) == ["run.json", "timing.json"]
     original = work / "laptop_i10_v2_s0" / "predictions_scapo_test_s0.npz"
     assert not list(kept.glob("predictions_*"))  # their sha256 is in the records
@@ -1048,3 +1055,30 @@ def test_the_agreement_benchmark_trains_a_method_eagerly_and_compiled_and_compar
     assert rows[1]["rel_diff_max"] < 1e-4
     assert main(["bench", "perf", "--what", "agreement", "--data", str(data)]) == 2
     assert "needs --data DATASET and --method METHOD" in capsys.readouterr().err
+
+
+def test_an_archive_of_per_cell_metrics_files_is_packed_into_one_and_each_cells_table_comes_back(tmp_path):
+    """``pack_archive``: an older archive's per-cell parquet files (cells of other columns: another protocol, another
+    number of parts) go into one packed file; each cell's table comes back with its own columns, order and dtypes
+    (integers stay integers although another cell lacks the column); the old files are deleted; a cell the archive does
+    not hold is None."""
+    import numpy as np
+    import pandas as pd
+
+    from scapo.bench.archive import PACKED, archived_per_sample, pack_archive
+
+    cells = tmp_path / "archive" / "laptop_i10_v2_s0" / "cells"
+    cells.mkdir(parents=True)
+    a = pd.DataFrame({"instance_id": np.arange(4), "view_id": np.zeros(4, dtype=np.int64), "S": [1.5, 2.0, np.nan, 4.0],
+                      "joints_matched": np.ones(4, dtype=np.int64)})
+    b = pd.DataFrame({"instance_id": np.arange(3), "R_sym": [0.1, 0.2, 0.3], "view_id": np.ones(3, dtype=np.int64)})
+    a.to_parquet(cells / "npcs_test_s0.scapo.parquet", index=False)
+    b.to_parquet(cells / "icp.eap.parquet", index=False)
+    assert archived_per_sample(cells, "icp.eap").equals(b)  # an older archive is read as it is
+    assert pack_archive(tmp_path / "archive") == 2
+    assert sorted(p.name for p in cells.iterdir()) == [PACKED]
+    for stem, df in (("npcs_test_s0.scapo", a), ("icp.eap", b)):
+        back = archived_per_sample(cells, stem)
+        assert back.equals(df) and list(back.dtypes) == list(df.dtypes)
+    assert archived_per_sample(cells, "scapo_test_s0.scapo") is None
+    assert pack_archive(tmp_path / "archive") == 0  # nothing left to pack

@@ -8,7 +8,11 @@ recomputes every cell. The archive keeps, per finished cell, what makes its reco
 
     <archive>/<dataset folder name>/
         cells/<key>.<protocol>.json       the cell's record (scores, provenance, dataset hash, predictions' sha256)
-        cells/<key>.<protocol>.parquet    its per-sample metrics
+        cells/per_sample.parquet          every cell's per-sample metrics in one compressed columnar file (a column
+                                          ``_cell`` names the cell, ``<key>.<protocol>``; the schema's metadata keeps
+                                          each cell's columns and dtypes, so that its own table comes back exactly;
+                                          :func:`archived_per_sample`); an older archive's ``<key>.<protocol>.parquet``
+                                          per cell is still read, and :func:`pack_archive` packs it
         predictions_<key>.npz.xz          only with ``predictions=True``: its predictions, xz-compressed (restored
                                           byte for byte: the sha256 holds)
         run_<run key>/run.json            the trained run's identity (preset fields, dataset, seed) ...
@@ -104,6 +108,94 @@ def _copy(src: Path, dst: Path) -> None:
     _write(dst, data)
 
 
+#: The file of an archive's dataset folder that holds every cell's per-sample metrics (``cells/`` beside the records).
+PACKED = "per_sample.parquet"
+
+
+def archived_per_sample(cells: Path, stem: str):
+    """The archived per-sample metrics (a ``pandas.DataFrame``, the cell's own columns and dtypes) of the cell
+    ``stem`` (``<key>.<protocol>``) in the archive folder ``cells``: from the packed file, else from the cell's own
+    parquet file (an archive written before the packed file); None where neither has it.
+
+    Raises:
+        ConfigError: the file holding it cannot be read (names it: remove the cell's files so that it is computed
+            again)."""
+    import pandas as pd
+
+    packed, own = Path(cells) / PACKED, Path(cells) / f"{stem}.parquet"
+    try:
+        if own.is_file():
+            return pd.read_parquet(own)
+        return _from_packed(packed, stem) if packed.is_file() else None
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        path = own if own.is_file() else packed
+        raise ConfigError(f"the archived per-sample metrics {path} are unreadable ({e}); remove the cell's files from "
+                          "the archive so that it is computed again") from e
+
+
+def _from_packed(packed: Path, stem: str):
+    """Cell ``stem``'s table from the packed file ``packed`` (its own columns, in order, and dtypes), or None."""
+    import pyarrow.parquet as pq
+
+    layout = json.loads((pq.read_schema(packed).metadata or {}).get(b"scapo_cells", b"{}")).get(stem)
+    if layout is None:
+        return None
+    df = pq.read_table(packed, filters=[("_cell", "=", stem)]).to_pandas()
+    return df[layout["columns"]].astype(layout["dtypes"]).reset_index(drop=True)
+
+
+def _pack(cells: Path, frames: dict) -> None:
+    """Put the per-sample metrics ``frames`` (stem -> DataFrame) into ``cells``' packed file, replacing those stems'
+    rows (written atomically; the other cells' rows and layouts kept)."""
+    import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    packed = Path(cells) / PACKED
+    layouts, parts = {}, []
+    if packed.is_file():
+        layouts = json.loads((pq.read_schema(packed).metadata or {}).get(b"scapo_cells", b"{}"))
+        old = pq.read_table(packed).to_pandas()
+        parts.append(old[~old["_cell"].isin(list(frames))])
+        layouts = {k: v for k, v in layouts.items() if k not in frames}
+    for stem, df in frames.items():
+        layouts[stem] = {"columns": list(map(str, df.columns)),
+                         "dtypes": {str(c): str(t) for c, t in df.dtypes.items()}}
+        parts.append(df.assign(_cell=stem))
+    table = pa.Table.from_pandas(pd.concat(parts, ignore_index=True, sort=False), preserve_index=False)
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                           b"scapo_cells": json.dumps(layouts, sort_keys=True).encode()})
+    buf = pa.BufferOutputStream()
+    pq.write_table(table, buf, compression="zstd")
+    _write(packed, buf.getvalue().to_pybytes())
+
+
+def pack_archive(archive: Path) -> int:
+    """Pack every dataset folder of ``archive`` whose cells keep their per-sample metrics in a file each (an archive
+    written before :data:`PACKED`): their tables go into the packed file, checked to come back equal, and the files
+    are deleted. Returns the number of cells packed.
+
+    Raises:
+        ConfigError: a cell's metrics do not come back equal from the packed file (nothing is deleted)."""
+    import pandas as pd
+
+    n = 0
+    for cells in sorted(p for p in Path(archive).rglob("cells") if p.is_dir()):
+        own = sorted(f for f in cells.glob("*.parquet") if f.name != PACKED)
+        if not own:
+            continue
+        frames = {f.name[:-len(".parquet")]: pd.read_parquet(f) for f in own}
+        _pack(cells, frames)
+        for stem, df in frames.items():  # read back from the packed file alone before anything is deleted
+            back = _from_packed(cells / PACKED, stem)
+            if back is None or not back.equals(df.reset_index(drop=True)):
+                raise ConfigError(f"{cells / PACKED}: the metrics of {stem} do not come back equal; nothing deleted")
+        for f in own:
+            f.unlink()
+        n += len(own)
+    return n
+
+
 def archive_cell(data: Path, cell: Cell, protocol: str, archive: Path, predictions: bool = False) -> bool:
     """Copy one done cell's small files from its dataset folder ``data`` into ``archive/<data.name>/``.
 
@@ -135,7 +227,14 @@ def archive_cell(data: Path, cell: Cell, protocol: str, archive: Path, predictio
         for name in RUN_FILES:
             if (src.run / name).is_file():
                 _copy(src.run / name, dst.run / name)
-    _copy(src.per_sample, dst.per_sample)
+    import pandas as pd
+
+    try:
+        _pack(dst.per_sample.parent, {dst.per_sample.name[:-len(".parquet")]: pd.read_parquet(src.per_sample)})
+    except (OSError, ValueError) as e:
+        raise OutputError(f"could not archive {src.per_sample} ({e})") from e
+    if dst.per_sample.is_file():  # an older archive's own file of this cell: the packed rows replace it
+        dst.per_sample.unlink()
     _write(dst.record, record)
     return True
 
@@ -179,8 +278,10 @@ def restore_cells(data: Path, archive: Path, dataset_hash: str) -> list[str]:
             for name in RUN_FILES:  # a partial run of the work folder keeps its own files
                 if (src.run / name).is_file() and not (dst.run / name).exists():
                     _copy(src.run / name, dst.run / name)
-        if src.per_sample.is_file() and not dst.per_sample.exists():
-            _copy(src.per_sample, dst.per_sample)
+        if not dst.per_sample.exists():
+            df = archived_per_sample(src.per_sample.parent, src.per_sample.name[:-len(".parquet")])
+            if df is not None:
+                _write(dst.per_sample, df.to_parquet(index=False))
         _copy(rec_path, dst.record)
         restored.append(rec_path.name)
     return restored
@@ -520,11 +621,10 @@ def rescore_cell(root: Path, rec_path: Path, data: Path) -> dict | None:
     if preds is None:
         return None
     res = evaluate(data, preds, protocol=protocol, check_hash=False)
-    try:
-        old = pd.read_parquet(rec_path.with_suffix(".parquet"))
-    except (OSError, ValueError) as e:
-        raise ConfigError(f"the archived per-sample metrics {rec_path.with_suffix('.parquet')} are unreadable "
-                          f"({e}); remove the cell's files from the archive so that it is computed again") from e
+    old = archived_per_sample(rec_path.parent, rec_path.name[:-len(".json")])
+    if old is None:
+        raise ConfigError(f"no archived per-sample metrics of {rec_path.name[:-len('.json')]} in {rec_path.parent}; "
+                          "remove the cell's files from the archive so that it is computed again")
     new = res.per_sample.reset_index(drop=True)
     ids = [c for c in ("instance_id", "view_id") if c in old.columns and c in new.columns]
     same_rows = len(old) == len(new) and all(np.array_equal(old[c].to_numpy(), new[c].to_numpy()) for c in ids)
@@ -691,6 +791,7 @@ def adopt_dataset(data: Path, archive: Path, atol: float = ADOPT_ATOL, progress:
     prov = provenance()
     writes: list[tuple[Path, bytes]] = []
     finals: list[tuple[Path, bytes]] = []
+    metrics: dict = {}  # the adopted cells' per-sample metrics, packed
     evidence = []
     for rec_path, rec, row in rows:
         preds = row["predictions"]
@@ -699,8 +800,9 @@ def adopt_dataset(data: Path, archive: Path, atol: float = ADOPT_ATOL, progress:
         with tempfile.TemporaryDirectory() as tmp:
             raw = preds.save(Path(tmp) / "predictions.npz").read_bytes()
         sha = hashlib.sha256(raw).hexdigest()
-        writes += [(root / (rec["predictions"] + ".xz"), lzma.compress(raw, preset=6)),
-                   (rec_path.with_suffix(".parquet"), row["result"].per_sample.to_parquet(index=False))]
+        writes.append((root / (rec["predictions"] + ".xz"), lzma.compress(raw, preset=6)))
+        metrics.setdefault(rec_path.parent, {})[rec_path.name[:-len(".json")]] = \
+            row["result"].per_sample.reset_index(drop=True)
         evidence.append({k: row[k] for k in ("cell", "protocol", "samples", "S_identical", "nan_pattern_same",
                                             "max_abs_diff", "worst_column", "summary_S", "summary_R")}
                         | {"record_sha256": hashlib.sha256(rec_path.read_bytes()).hexdigest(),
@@ -715,7 +817,13 @@ def adopt_dataset(data: Path, archive: Path, atol: float = ADOPT_ATOL, progress:
     report = {"status": "adopted", "from": old, "dataset_hash": have, "cells": len(evidence),
               "max_abs_diff": max(e["max_abs_diff"] for e in evidence), "untrained": untrained, "atol": atol,
               "provenance": prov, "cell_evidence": evidence}
-    for path, raw in writes + finals:
+    for path, raw in writes:
+        _write(path, raw)
+    for cells, frames in metrics.items():
+        _pack(cells, frames)
+        for stem in frames:  # an older archive's own files of these cells: the packed rows replace them
+            (cells / f"{stem}.parquet").unlink(missing_ok=True)
+    for path, raw in finals:
         _write(path, raw)
     _write(root / DATASET / ADOPTED, raw := _json_bytes(report))
     pinned = archive_dataset(data, archive)
@@ -727,4 +835,5 @@ def adopt_dataset(data: Path, archive: Path, atol: float = ADOPT_ATOL, progress:
 
 __all__ = ["ADOPTED", "ADOPT_ATOL", "DATASET", "DOUBLE_FIELDS", "RECONCILE_ATOL", "RECONCILE_RTOL", "RUN_FILES",
            "UNTRAINED_DETERMINISTIC", "adopt_dataset", "archive_cell", "archive_conflict", "archive_dataset",
-           "archived_dataset_hashes", "reconcile_dataset", "rescore_cell", "restore_cells"]
+           "archived_dataset_hashes", "archived_per_sample", "pack_archive", "PACKED", "reconcile_dataset",
+           "rescore_cell", "restore_cells"]
