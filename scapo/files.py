@@ -117,9 +117,13 @@ def _probe_writable(folder: Path, what: str) -> None:
     try:
         with open(probe, "wb") as f:
             f.write(b"ok")
-        probe.unlink()
     except OSError as e:
         raise OutputError(f"{what} {folder} is not writable ({e.strerror or e}); choose a writable location") from e
+    finally:  # also after a full disk, which creates the file and fails the write: never left to count as the user's
+        try:
+            probe.unlink()
+        except OSError:
+            pass
 
 
 def _make_dir(folder: Path, what: str) -> None:

@@ -182,3 +182,36 @@ def test_a_twin_without_a_moving_part_is_a_clear_error(laptop_data, tmp_path):
     preds.part_label[:] = np.where(preds.part_label >= 0, 0, -1)  # every point given to the base
     with pytest.raises(ConfigError, match="no moving part"):
         export_twin(laptop_data, preds, 0, tmp_path / "twin")
+
+
+def test_an_export_interrupted_by_a_full_disk_leaves_nothing_that_refuses_the_rerun(laptop_data, tmp_path,
+                                                                                      monkeypatch):
+    """After a disk-full export, freeing space and running it again was refused: the half-written folder's leftover
+    temporary (the write probe's ``.scapo-write-test.tmp-<pid>``) counted as the user's file. The probe is removed
+    even when its write fails, and an interrupted export's temporaries of dead processes are cleaned."""
+    import errno
+    import subprocess
+
+    import scapo.files as files
+
+    out = tmp_path / "twin"
+    out.mkdir()
+    real_open = open
+
+    def full_disk(path, mode="r", *a, **k):
+        f = real_open(path, mode, *a, **k)
+        if ".scapo-write-test.tmp-" in str(path):
+            f.close()
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return f
+
+    monkeypatch.setattr(files, "open", full_disk, raising=False)
+    with pytest.raises(Exception, match="No space left on device"):
+        export_twin(laptop_data, oracle(laptop_data), 0, out)
+    monkeypatch.undo()
+    assert list(out.iterdir()) == []  # the probe is gone
+    dead = subprocess.Popen(["true"])
+    dead.wait()
+    (out / f".mobility.urdf.tmp-{dead.pid}").write_text("half")  # a temporary of a killed export
+    export_twin(laptop_data, oracle(laptop_data), 0, out)
+    assert (out / "twin.json").is_file() and not list(out.glob(".*tmp-*"))

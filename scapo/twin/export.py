@@ -39,7 +39,7 @@ from scapo.data.dataset import load
 from scapo.errors import ConfigError, PredictionError
 from scapo.eval.metrics import match_parts
 from scapo.eval.predictions import Predictions
-from scapo.files import atomic_write_text, check_output_dir
+from scapo.files import atomic_write_text, check_output_dir, clean_stale_temps
 from scapo.ops.rigid import invert_transform, normalize, transform_points
 from scapo.sim.assets.objects import origin_strings
 
@@ -133,6 +133,8 @@ def export_twin(data: str | Path, predictions: str | Path | Predictions, sample:
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} is a file; give a folder for the twin")
     ours = {"meshes", "mobility.urdf", "semantics.txt", "twin.json"}  # what an export writes (twin.json last)
+    if out.is_dir():  # the temporaries of an interrupted export (a full disk, a kill) are its own, not the user's
+        clean_stale_temps(out)
     if out.is_dir() and not (out / "twin.json").is_file() and not {p.name for p in out.iterdir()} <= ours:
         raise ConfigError(f"--out {out} is a non-empty folder without a twin; give a new or empty folder")
     if not (np.isfinite(density) and density > 0):
