@@ -13,6 +13,7 @@ from scapo.eval.metrics import (
     joint_state_error,
     line_distance,
     match_parts,
+    origin_offset_difference,
     precision_under,
     relabel,
     rotation_error_deg,
@@ -151,3 +152,17 @@ def test_symmetry_aware_rotation_error_equals_a_brute_force_minimum_over_the_sym
     np.testing.assert_allclose(brute, np.degrees(0.2), atol=0.2)  # only the tilt about x is left
     with pytest.raises(ValueError):
         symmetry_rotations(discrete=[2 * np.eye(3)])
+
+
+def test_eaps_pivot_error_compares_distances_to_the_origin_even_when_the_predicted_axis_differs():
+    """Hand case of the EAP protocol's pivot error (:func:`origin_offset_difference`): the centroid at the origin, the
+    true axis the line x = 1 along z (distance 1); a predicted axis through (0, 2, 0) along x (distance 2, and 90 deg
+    off) scores |2 - 1| = 1; one through (0, -1, 0) along x, just as wrong in direction, scores 0, since it lies as far
+    from the centroid as the true one: the error reads distances to the centroid only, not where the lines lie."""
+    o = np.zeros(3)
+    gt_p, gt_d = np.array([1.0, 0, 0]), np.array([0, 0, 1.0])
+    assert origin_offset_difference(o, np.array([0, 2.0, 0]), np.array([1.0, 0, 0]), gt_p, gt_d) == pytest.approx(1.0)
+    assert origin_offset_difference(o, np.array([0, -1.0, 0]), np.array([1.0, 0, 0]), gt_p, gt_d) == \
+        pytest.approx(0.0, abs=1e-12)
+    # the line-to-line error (SCAPO's protocol) of the second: the two lines are 1 apart (skew, perpendicular)
+    assert line_distance(np.array([0, -1.0, 0]), np.array([1.0, 0, 0]), gt_p, gt_d) == pytest.approx(1.0)
