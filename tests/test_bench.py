@@ -1082,3 +1082,13 @@ def test_an_archive_of_per_cell_metrics_files_is_packed_into_one_and_each_cells_
         assert back.equals(df) and list(back.dtypes) == list(df.dtypes)
     assert archived_per_sample(cells, "scapo_test_s0.scapo") is None
     assert pack_archive(tmp_path / "archive") == 0  # nothing left to pack
+
+
+def test_an_option_row_the_run_would_refuse_is_refused_by_the_dry_run_too():
+    """``--option-row scapo:axis:hinge_axis=true`` passed the dry run and was refused by the options' own rule
+    (hinge_axis needs hinge) after training; the rules between options are checked with the cells."""
+    with pytest.raises(ConfigError, match="hinge_axis=true re-estimates the axes within the hinge step; give "
+                                          "hinge=true too"):
+        table1_cells(["icp", "scapo"], ["laptop"], "cpu", [0], option_rows=["scapo:axis:hinge_axis=true"])
+    cells = table1_cells(["icp", "scapo"], ["laptop"], "cpu", [0], option_rows=["scapo:hinge:hinge=true,hinge_axis=true"])
+    assert "scapo-hinge" in [c.label for c in cells]

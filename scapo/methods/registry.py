@@ -233,8 +233,8 @@ def validate_options(name: str, options: dict[str, Any]) -> dict[str, Any]:
 
     Raises:
         UnknownNameError: unknown method.
-        ConfigError: an unknown option (the message lists the valid ones) or a value that does not
-            convert to the field's type.
+        ConfigError: an unknown option (the message lists the valid ones), a value that does not convert to the
+            field's type, or options that the options dataclass's own checks refuse together.
     """
     cls = options_class(name)
     fields = {f.name: f for f in dataclasses.fields(cls)}
@@ -244,6 +244,10 @@ def validate_options(name: str, options: dict[str, Any]) -> dict[str, Any]:
         if k not in fields:
             raise ConfigError(f"unknown option {k!r} for method {name!r}; valid options: {', '.join(fields)}")
         out[k] = _parse_text(name, k, v, hints[k]) if isinstance(v, str) else v
+    try:  # the options' own rules between fields (e.g. hinge_axis needs hinge), before any work that uses them
+        cls(**out)
+    except TypeError as e:
+        raise ConfigError(f"options of method {name!r}: {e}") from None
     return out
 
 
