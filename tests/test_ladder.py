@@ -576,3 +576,13 @@ def test_too_few_training_clouds_for_the_speed_run_name_the_ladders_own_options(
     assert "give 12 training clouds, fewer than the demo preset's batch of 16: give more --instances or --views" in \
         capsys.readouterr().err
     assert not (tmp_path / "demo").exists()
+
+
+def test_a_variant_of_a_method_not_in_methods_is_refused(tmp_path, capsys):
+    """A ``--variant`` of a method left out of ``--methods`` was dropped without a word."""
+    from scapo.cli.main import main
+
+    assert main(["bench", "ladder", "--category", "laptop", "--rungs", "one", "--methods", "icp", "--variant",
+                 "npcs:wide:lr=0.002", "--work", str(tmp_path / "w"), "--out", str(tmp_path / "o"), "--dry-run"]) == 2
+    assert "'npcs' is not among --methods (icp); a variant is compared with its method's row" in \
+        capsys.readouterr().err

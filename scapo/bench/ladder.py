@@ -660,6 +660,9 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
     for m, label, sets in parsed:
         if not METHODS.get(m).trained:
             raise ConfigError(f"--variant {m}:{label}: {m!r} is not trained; a variant replaces fields of its preset")
+        if m not in methods:  # a variant row is read against its method's own row
+            raise ConfigError(f"--variant {m}:{label}: {m!r} is not among --methods ({', '.join(methods)}); a variant "
+                              f"is compared with its method's row: add {m} to --methods")
         base, rest = variant_preset(sets, preset)
         override(METHODS.get(m).preset(base), rest, f"{m} preset (--variant {label})")  # bad keys before any work
     if len({(m, label) for m, label, _ in parsed}) != len(parsed):
