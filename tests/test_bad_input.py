@@ -822,3 +822,12 @@ def test_the_python_api_refuses_a_run_whose_weights_are_nan(run, tmp_path):
     torch.save(state, copy / "checkpoint.pt")
     with pytest.raises(TrainingError, match=rf"weights hold NaN or infinite values \(1 tensor\(s\), first: {name}\)"):
         scapo.methods.load(copy)
+
+
+def test_stage2_starts_on_a_run_without_the_parts_frame_is_refused(laptop_data, run, tmp_path):
+    """``--option stage2_starts=O`` on a run whose stage 2 does not train in the parts frame tried no start but
+    labelled the rows ``+starts-O``; it is refused naming the preset part it needs ("off" stays allowed)."""
+    assert_clear_error(cli("predict", "--run", run, "--data", laptop_data, "--option", "stage2_starts=O", "--out",
+                           tmp_path / "p.npz"), "predict", "stage2_starts=O applies to a run trained with "
+                       "stage2_frame='parts'")
+    assert not (tmp_path / "p.npz").exists()

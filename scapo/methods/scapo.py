@@ -280,6 +280,10 @@ class SCAPOMethod:
             except ValueError as e:
                 raise ConfigError(str(e)) from None
         if o.stage2_starts is not None:
+            if _starts(o.stage2_starts) and not self.predictor.model.uses_parts_frame:  # it would change nothing
+                raise ConfigError(f"stage2_starts={o.stage2_starts} applies to a run trained with stage2_frame='parts' "
+                                  f"(preset part stage2-parts); {self.run} was not, so its rows would be labelled "
+                                  "+starts without a start tried: drop the option")
             self.predictor.refine = dataclasses.replace(self.predictor.refine, stage2_starts=_starts(o.stage2_starts))
         if o.parts_axes:
             model = self.predictor.model
