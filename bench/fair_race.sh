@@ -13,7 +13,8 @@
 #                                                         # speed files (no predictions, no runs)
 #   WORK=... RESTORE=results/fair_race/cells/NAME bash bench/fair_race.sh   # put them back into a new work folder
 #
-# WT: a clean worktree of the commit the cells record (git worktree add); its code computes the cells. Several
+# WT: a clean worktree of the commit the cells record (git worktree add); its code computes the cells (each ladder
+# runs from inside WT: run from elsewhere, python -m would import the scapo of the current folder). Several
 # chains may share WORK (each its own methods) once the data exist; the data step runs in the first chain. A restored
 # cell is not computed again (its record is found); check that the regenerated datasets have the records' hashes.
 set -euo pipefail
@@ -40,10 +41,12 @@ if [ -n "$(git -C "$wt" status --porcelain --untracked-files=no)" ]; then
   echo "fair_race.sh: $wt has uncommitted changes; the cells must come from one clean commit" >&2
   exit 2
 fi
-ladder() {  # category, then ladder options
-  local cat="$1"; shift
-  OMP_NUM_THREADS=1 PYTHONPATH="$wt" "$py" -m scapo.cli bench ladder --category "$cat" --rungs paper --seeds 0,1,2 \
-    --instances 150 --views 8 --train-views 64 --budget-minutes "$budget" --seed 1 --work "$work" --no-progress "$@"
+work="$(realpath -m "$work")"
+ladder() {  # category, then ladder options; run from inside WT, so that its code is the code imported
+  local cat="$1"; shift  # (python -m puts the current folder first on sys.path, before PYTHONPATH)
+  (cd "$wt" && OMP_NUM_THREADS=1 PYTHONPATH="$wt" "$py" -m scapo.cli bench ladder --category "$cat" --rungs paper \
+    --seeds 0,1,2 --instances 150 --views 8 --train-views 64 --budget-minutes "$budget" --seed 1 --work "$work" \
+    --no-progress "$@")
 }
 variants() {  # SCAPO's per-category preset of a category, where it has one
   case "$1" in
@@ -58,7 +61,7 @@ if [ -n "${FINISH:-}" ]; then
   for cat in $cats; do
     # shellcheck disable=SC2046
     ladder "$cat" --finished-only --methods "${METHODS:-scapo,op-align,eap,npcs}" $(variants "$cat") \
-      --out "${OUT:-$work/out}"
+      --out "$(realpath -m "${OUT:-$work/out}")"
   done
   exit 0
 fi
