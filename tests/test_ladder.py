@@ -586,3 +586,15 @@ def test_a_variant_of_a_method_not_in_methods_is_refused(tmp_path, capsys):
                  "npcs:wide:lr=0.002", "--work", str(tmp_path / "w"), "--out", str(tmp_path / "o"), "--dry-run"]) == 2
     assert "'npcs' is not among --methods (icp); a variant is compared with its method's row" in \
         capsys.readouterr().err
+
+
+def test_a_work_folder_inside_a_dataset_or_run_folder_is_refused(laptop_data, tmp_path, capsys):
+    """``--work`` inside a dataset (or run) folder was accepted (``--out`` refuses one): the bench's own datasets and
+    runs would be written among the dataset's files."""
+    from scapo.cli.main import main
+
+    for work in (laptop_data / "w", laptop_data):
+        assert main(["bench", "ladder", "--category", "laptop", "--rungs", "one", "--methods", "icp", "--work",
+                     str(work), "--out", str(tmp_path / "o"), "--dry-run"]) == 2
+        assert "the scapo dataset folder" in capsys.readouterr().err
+    assert not (laptop_data / "w").exists()

@@ -111,6 +111,15 @@ def cmd_bench_compute(args) -> int:
 
 
 def cmd_bench(args) -> int:
+    from scapo.files import owner_of
+
+    work = Path(args.work).resolve()
+    for folder in (work, *work.parents):  # the bench writes datasets and runs of its own under --work
+        owner = owner_of(folder) if folder.is_dir() else None
+        if owner is not None:
+            raise ConfigError(f"--work {args.work} is {'' if folder == work else 'inside '}the scapo {owner} folder "
+                              f"{folder}, whose files the bench's datasets and runs could replace; give a folder "
+                              "outside it")
     for flag in ("instances", "views", "train_views"):  # 0 once fell back to the default without a word
         value = getattr(args, flag, None)
         if value is not None and value < 1:
