@@ -166,3 +166,17 @@ def test_eaps_pivot_error_compares_distances_to_the_origin_even_when_the_predict
         pytest.approx(0.0, abs=1e-12)
     # the line-to-line error (SCAPO's protocol) of the second: the two lines are 1 apart (skew, perpendicular)
     assert line_distance(np.array([0, -1.0, 0]), np.array([1.0, 0, 0]), gt_p, gt_d) == pytest.approx(1.0)
+
+
+def test_line_distance_of_nearly_parallel_lines_pinned_intersecting_and_skew():
+    """The usual case of a good prediction, pinned by hand: axes 1 deg apart. Skew (the lines in the parallel planes
+    z = 0 and z = 0.05) they are 0.05 apart whatever the angle; coplanar (offset 0.05 within the plane) they cross
+    about 2.9 m away, so the line-to-line distance is 0 although the pivots are 0.05 apart near the object (a property
+    of the metric, as ANCSH defines it); exactly parallel lines fall back to the point-to-line distance, 0.05."""
+    eps = np.radians(1.0)
+    d1, d2 = np.array([1.0, 0, 0]), np.array([np.cos(eps), np.sin(eps), 0])
+    assert line_distance([0, 0, 0], d1, [0, 0, 0.05], d2) == pytest.approx(0.05, abs=1e-12)
+    assert line_distance([0, 0, 0], d1, [0, 0.05, 0], d2) == pytest.approx(0.0, abs=1e-12)
+    assert line_distance([0, 0, 0], d1, [0, 0.05, 0], d1) == pytest.approx(0.05, abs=1e-12)
+    tiny = np.array([1.0, 1e-9, 0])  # below the parallel threshold: the parallel case's answer
+    assert line_distance([0, 0, 0], d1, [0, 0.05, 0], tiny) == pytest.approx(0.05, abs=1e-9)
