@@ -429,3 +429,30 @@ def test_template_loss_compares_each_view_in_metres_and_trains_the_template():
     terms = stage1_terms(model, X, model.stage1(X), on.losses, scale=torch.ones(4))
     assert "template" in terms and torch.isfinite(terms["template"])
     assert "template" not in stage1_terms(model, X, model.stage1(X), LossConfig(), scale=torch.ones(4))
+
+
+def test_each_loss_term_gets_the_papers_weight_in_each_stage():
+    """Hand case of ``weighted_total``: every term a different value, so a weight given to the wrong term shows. The
+    paper's weights (Sec. 4): stage 1 rec 1, ortho / aug_consist / can_consist 0.1 (lambda_1-3); stage 2 cycle 10,
+    recon 10, kp_seg 1, seg 1, shape_var 10, dir_align 0.1, joint_prox 1, joint_boundary 3; our align term 10 (an
+    addition). In stage 2 the stage-1 terms are scaled by ``stage1_in_stage2``; a switched-off term weighs 0."""
+    import dataclasses
+
+    import torch
+
+    from scapo.losses import LossConfig, weighted_total
+
+    paper = {"rec": 1.0, "ortho": 0.1, "aug_consist": 0.1, "can_consist": 0.1, "align": 10.0, "cycle": 10.0,
+             "recon": 10.0, "kp_seg": 1.0, "seg": 1.0, "shape_var": 10.0, "dir_align": 0.1, "joint_prox": 1.0,
+             "joint_boundary": 3.0}
+    values = {k: float(i + 2) for i, k in enumerate(paper)}  # 2, 3, 4, ...
+    terms = {k: torch.tensor(v) for k, v in values.items()}
+    stage1 = ("rec", "ortho", "aug_consist", "can_consist", "align")
+    cfg = LossConfig()
+    s1 = {k: terms[k] for k in stage1}
+    assert float(weighted_total(s1, cfg, 1)) == pytest.approx(sum(paper[k] * values[k] for k in stage1))
+    assert float(weighted_total(terms, cfg, 2)) == pytest.approx(sum(paper[k] * values[k] for k in paper))
+    half = dataclasses.replace(cfg, stage1_in_stage2=0.5, disabled=("seg",))
+    want = sum(paper[k] * values[k] * (0.5 if k in stage1 else 1.0) for k in paper if k != "seg")
+    assert float(weighted_total(terms, half, 2)) == pytest.approx(want)
+    assert float(weighted_total(s1, half, 1)) == pytest.approx(sum(paper[k] * values[k] for k in stage1))
