@@ -252,18 +252,56 @@ def cmd_bench_table(args) -> int:
     return 0
 
 
+#: The subcommands of ``scapo bench`` and their one-line help.
+COMMANDS = {
+    "perf": "speed, as ratios against a reference measured in the same run (--what generate|model|train|agreement|icp|"
+            "maniskill|growth)",
+    "table1": "Table 1: every method on the paper's metrics, resumable per cell, three seeds, one clean commit",
+    "table2": "Table 2: real-world style (realistic sensor), with the semi-supervised rows",
+    "table3": "Table 3: SCAPO's ablations",
+    "choose": "choose an option value on the val split (--candidate VALUE=GLOB ...)",
+    "ladder": "the canonical-frame diagnosis ladder: where each method's frame breaks, at equal compute, on val",
+    "compute": "accuracy against training compute (--budgets), on val",
+}
+_TABLES = ("table1", "table2", "table3")
+#: The subcommands each option belongs to (by its destination); the others do not take it.
+USES = {
+    "rungs": ("ladder", "compute"), "viewpoints": _TABLES, "upright": _TABLES,
+    "train_views": (*_TABLES, "ladder", "compute"), "variant": ("ladder",), "part": _TABLES, "option_row": _TABLES,
+    "no_sj": _TABLES, "data": ("choose", "perf"), "candidate": ("choose",), "criterion": ("choose",),
+    "protocol": ("choose", *_TABLES), "limit": ("perf",), "sizes": ("perf",), "target": ("perf",),
+    "budget_minutes": ("perf", *_TABLES, "ladder"), "no_refine_rows": _TABLES, "budgets": ("compute",),
+    "train_clouds": ("perf",), "iters": ("perf",), "steps": ("perf",), "baseline": ("perf",),
+    "preset": ("perf", *_TABLES, "ladder", "compute"), "method": ("perf",), "device": ("perf", *_TABLES, "ladder"),
+    "category": ("perf", "ladder", "compute"), "categories": _TABLES, "methods": (*_TABLES, "ladder", "compute"),
+    "instances": ("perf", *_TABLES, "ladder", "compute"), "views": ("perf", *_TABLES, "ladder", "compute"),
+    "workers": ("perf", *_TABLES, "ladder", "compute"), "seed": ("perf", *_TABLES, "ladder", "compute"),
+    "seeds": (*_TABLES, "ladder", "compute"), "category_seeds": _TABLES, "from_table": ("compute",),
+    "dry_run": (*_TABLES, "ladder", "compute"), "finished_only": (*_TABLES, "ladder", "compute"),
+    "data_only": (*_TABLES, "ladder", "compute"), "recompute_dirty": _TABLES, "allow_dirty": _TABLES,
+    "allow_mixed_commits": _TABLES, "archive": _TABLES, "archive_predictions": _TABLES, "name": _TABLES,
+}
+
+
 def add_parsers(sub) -> None:
-    """Add this group's commands to the ``scapo`` parser's sub-parsers ``sub``."""
-    sp = sub.add_parser("bench", help="benchmarks: perf (throughput), table1 / table3 (the paper's tables, resumable "
-                        "per cell), choose (an option value on the val split)")
-    sp.add_argument("what", choices=["perf", "table1", "table2", "table3", "choose", "ladder", "compute"])
-    sp.add_argument("--rungs", type=names, default=None, help="ladder: rungs, easiest first (default one,complete,"
+    """Add ``scapo bench`` and its subcommands (:data:`COMMANDS`) to the ``scapo`` parser's sub-parsers ``sub``: each
+    subcommand takes the options of :data:`USES` that name it (and ``--work``, ``--out``, ``--cache``,
+    ``--no-progress``), with its own help; an option it does not take is a usage error."""
+    sp = sub.add_parser("bench", help="benchmarks: " + ", ".join(COMMANDS) + " (scapo bench COMMAND --help)")
+    bsub = sp.add_subparsers(dest="what", metavar="COMMAND", required=True)
+    parsers = {w: bsub.add_parser(w, help=h, description=h) for w, h in COMMANDS.items()}
+    options: list[tuple[tuple, dict]] = []
+
+    def opt(*flags, **kwargs):
+        options.append((flags, kwargs))
+
+    opt("--rungs", type=names, default=None, help="ladder: rungs, easiest first (default one,complete,"
                     "paper,sphere: complete clouds of one shape at rest; of all instances and states; single views in "
                     "the paper's regime; from the whole sphere; 'aligned', asked for by name: complete clouds of all "
                     "instances and states with no rotation, the frame given). Scored on val; --budget-minutes "
                     "(default 5) core-minutes of training per cell; --instances 60, --views 8, --train-views 16, "
-                    "--methods scapo,op-align,eap,npcs by default; results in --out (default results/canonical_ladder)")
-    sp.add_argument("--viewpoints", default=None, choices=["paper", "sphere", "upright"],
+                    "--methods scapo,op-align,eap,npcs by default; results in --out (default WORK/results)")
+    opt("--viewpoints", default=None, choices=["paper", "sphere", "upright"],
                     help="table1, table3: paper (default: EAP's views per source dataset, which the SCAPO paper "
                          "follows, see 'scapo generate --help'; datasets named ..._paper, --train-views views per "
                          "training instance), sphere (whole sphere: objects under uniform SO(3) rotations, harder than "
@@ -271,35 +309,35 @@ def add_parsers(sub) -> None:
                          "upright (the category's view ranges, the rotation diagnostic; datasets and cells in "
                          "WORK/upright/, table named <table>_upright). Table 2 is upright (real scans are natural "
                          "views)")
-    sp.add_argument("--upright", action="store_true", help="table1, table3: --viewpoints upright")
-    sp.add_argument("--train-views", type=int, default=None,
+    opt("--upright", action="store_true", help="table1, table3: --viewpoints upright")
+    opt("--train-views", type=int, default=None,
                     help="table1, table3: views per training instance (default: 64 with --viewpoints paper, chosen on "
                          "val (results/paper_regime/); --views otherwise)")
-    sp.add_argument("--variant", action="append", default=[], metavar="METHOD:LABEL:KEY=VALUE[,KEY=VALUE]",
+    opt("--variant", action="append", default=[], metavar="METHOD:LABEL:KEY=VALUE[,KEY=VALUE]",
                     help="ladder: an extra row of METHOD with preset fields replaced (scapo train --set keys), same "
                     "budget, e.g. scapo:consensus:losses.consensus=1; preset=NAME trains another preset of METHOD "
                     "(its own measured speed), e.g. scapo:cpu-laptop:preset=cpu-laptop; repeatable")
-    sp.add_argument("--part", action="append", default=[], metavar="METHOD/PART",
+    opt("--part", action="append", default=[], metavar="METHOD/PART",
                     help="table1: an extra row of trained METHOD with its preset's part PART (preset <preset>/PART, "
                     "e.g. scapo/principal), labelled METHOD-PART, same seeds and budget; repeatable")
-    sp.add_argument("--option-row", action="append", default=[], metavar="METHOD:LABEL:KEY=VALUE[,KEY=VALUE]",
+    opt("--option-row", action="append", default=[], metavar="METHOD:LABEL:KEY=VALUE[,KEY=VALUE]",
                     help="table1: an extra row of trained METHOD's own runs predicted with these prediction options "
                     "(scapo predict --option keys, e.g. scapo:base-frame:base_frame=principal), labelled "
                     "METHOD-LABEL; no training; repeatable")
-    sp.add_argument("--no-sj", action="store_true", help="table2: leave out the semi-supervised (SJ) rows")
-    sp.add_argument("--data", type=Path, action="append", default=[], help="choose: the dataset (its val split is "
+    opt("--no-sj", action="store_true", help="table2: leave out the semi-supervised (SJ) rows")
+    opt("--data", type=Path, action="append", default=[], help="choose: the dataset (its val split is "
                     "used); repeat to choose one value for several datasets (mean of their scores); perf --what "
                     "icp / --method: the dataset")
-    sp.add_argument("--candidate", action="append", default=[], help="choose: VALUE=GLOB of that value's "
+    opt("--candidate", action="append", default=[], help="choose: VALUE=GLOB of that value's "
                     "predictions files (one per training seed; with several --data, {data} stands for each "
                     "dataset); repeat per value")
-    sp.add_argument("--criterion", default="D+R", help="choose: what to minimise on val, averaged over seeds "
+    opt("--criterion", default="D+R", help="choose: what to minimise on val, averaged over seeds "
                     "(D+R, R, D, R_median, -S)")
-    sp.add_argument("--protocol", default=None, help="choose, table1, table3: evaluation protocol (default scapo); "
+    opt("--protocol", default=None, help="choose, table1, table3: evaluation protocol (default scapo); "
                     "table2: default op-align, as the paper's Table 2")
-    sp.add_argument("--limit", type=int, default=0, help="perf --what icp: time the first N test clouds (0: all)")
-    sp.add_argument("--sizes", type=ints, default=[100, 1000, 10000], help="perf --what growth: dataset sizes")
-    sp.add_argument("--what", dest="target", choices=["generate", "model", "train", "agreement", "icp",
+    opt("--limit", type=int, default=0, help="perf --what icp: time the first N test clouds (0: all)")
+    opt("--sizes", type=ints, default=[100, 1000, 10000], help="perf --what growth: dataset sizes")
+    opt("--what", dest="target", choices=["generate", "model", "train", "agreement", "icp",
                                                                 "maniskill", "growth"],
                     default="generate",
                     help="perf: generation throughput (generate), SCAPO's or a method's training/inference speed "
@@ -307,79 +345,87 @@ def add_parsers(sub) -> None:
                     "method's first --steps (200) training losses eager and compiled (agreement, with --data), "
                     "ICP's two searches (icp, with --data), the ManiSkill3 backend against SAPIEN "
                     "(maniskill), generation and evaluation time against dataset size (growth)")
-    sp.add_argument("--budget-minutes", type=float, default=None, help="perf --what train: the training budget per "
+    opt("--budget-minutes", type=float, default=None, help="perf --what train: the training budget per "
                     "cell in minutes (one torch thread); adds each preset's planned minutes and the epochs per stage "
                     "that fill the budget. table1, table3: every trained cell trains for the epochs that fill this "
                     "many core-minutes (speeds measured once per dataset and method; run the cells one torch thread "
                     "per core); its preset is named PRESET/epochs-... . ladder: per trained cell (default 5)")
-    sp.add_argument("--no-refine-rows", action="store_true", help="table1, table2: one-pass rows only (no "
+    opt("--no-refine-rows", action="store_true", help="table1, table2: one-pass rows only (no "
                     "METHOD+refine rows)")
-    sp.add_argument("--budgets", type=floats, default=None, help="compute: training budgets in core-minutes per "
+    opt("--budgets", type=floats, default=None, help="compute: training budgets in core-minutes per "
                     "cell (default 5,15,45,120); accuracy against training compute on one ladder rung (--rungs, "
                     "default paper), val split, --methods scapo,op-align,eap,npcs by default, one --seeds seed; "
                     "datasets and speeds shared with the ladder (WORK/ladder); writes OUT (default results)/"
                     "accuracy_vs_compute.{md,csv,json,png}")
-    sp.add_argument("--train-clouds", type=int, default=None, help="perf --what train --budget-minutes: training "
+    opt("--train-clouds", type=int, default=None, help="perf --what train --budget-minutes: training "
                     "clouds of a cell (default: the --data training split, else 840: the tables' 150 instances x 8 "
                     "views, 105 training instances)")
-    sp.add_argument("--iters", type=int, default=None, help="perf --what train (without --data): timed optimiser "
+    opt("--iters", type=int, default=None, help="perf --what train (without --data): timed optimiser "
                     "steps per method and stage after a warm-up, default 5; the median is reported (more: less noise)")
-    sp.add_argument("--steps", type=int, default=None, help="perf --what train --data: steps per epoch of the timed "
+    opt("--steps", type=int, default=None, help="perf --what train --data: steps per epoch of the timed "
                     "two-epoch run (per stage; default 20); perf --what agreement: training steps compared (default "
                     "200)")
-    sp.add_argument("--baseline", default=None, help="perf --what train: an earlier run's .json (e.g. at another "
+    opt("--baseline", default=None, help="perf --what train: an earlier run's .json (e.g. at another "
                     "commit, same machine and threads): adds each stage's clouds/s before and the speed-up")
-    sp.add_argument("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3, "
+    opt("--preset", default="cpu", help="preset of trained methods (perf --what model, table1, table3, "
                     "ladder, compute), the same for every category; a per-category preset is a labelled row "
                     "(ladder: --variant METHOD:LABEL:preset=NAME)")
-    sp.add_argument("--method", default=None, help="perf --what model: time this method's inference (default: "
+    opt("--method", default=None, help="perf --what model: time this method's inference (default: "
                     "SCAPO training and inference; icp also needs --data)")
-    sp.add_argument("--device", default=None, help="perf --what model, table1, table3, ladder: cpu | cuda "
+    opt("--device", default=None, help="perf --what model, table1, table3, ladder: cpu | cuda "
                     "(ladder: its budget is then minutes of that device)")
-    sp.add_argument("--category", default="laptop", help="perf: category")
-    sp.add_argument("--categories", type=names, default=None,
+    opt("--category", default="laptop", help="perf: category")
+    opt("--categories", type=names, default=None,
                     help="table1: default laptop,safe,eyeglasses,oven,washer; table3: default laptop,eyeglasses")
-    sp.add_argument("--methods", type=names, default=None, help="table1: default every registered method")
-    sp.add_argument("--instances", type=int, default=None,
+    opt("--methods", type=names, default=None, help="table1: default every registered method")
+    opt("--instances", type=int, default=None,
                     help="instances per category (tables: 150, a fifth of them test; perf: 20)")
-    sp.add_argument("--views", type=int, default=None, help="views per instance (tables: 8; perf: 30)")
-    sp.add_argument("--workers", type=ints, default=[1, 2])
-    sp.add_argument("--seed", type=int, default=0, help="seed of the data (assets, splits, views)")
-    sp.add_argument("--seeds", type=ints, default=[0], help="table1/3: training seeds of trained methods (e.g. 0,1,2)")
-    sp.add_argument("--category-seeds", action="append", default=[], metavar="CAT=SEEDS",
+    opt("--views", type=int, default=None, help="views per instance (tables: 8; perf: 30)")
+    opt("--workers", type=ints, default=[1, 2])
+    opt("--seed", type=int, default=0, help="seed of the data (assets, splits, views)")
+    opt("--seeds", type=ints, default=[0], help="table1/3: training seeds of trained methods (e.g. 0,1,2)")
+    opt("--category-seeds", action="append", default=[], metavar="CAT=SEEDS",
                     help="table1/3: training seeds for one category instead of --seeds (e.g. safe=0); repeatable")
-    sp.add_argument("--work", type=Path, default=Path("bench_work"), help="table1/3: datasets, runs, predictions, "
+    opt("--work", type=Path, default=Path("bench_work"), help="table1/3: datasets, runs, predictions, "
                     "cell records")
-    sp.add_argument("--from-table", action="store_true",
+    opt("--from-table", action="store_true",
                     help="compute: the curve of a table's own cells: --work is a 'bench table1 --budget-minutes' work "
                          "folder whose dataset (default --instances 150, --views 8, --train-views 64 in the paper's "
                          "viewpoints), measured speeds, presets and budget rule (one-time work charged) are used; a "
                          "cell at the table's own budget and seed starts from the table's finished run")
-    sp.add_argument("--dry-run", action="store_true", help="table1/3: list the cells and which are done; compute "
+    opt("--dry-run", action="store_true", help="table1/3: list the cells and which are done; compute "
                     "nothing")
-    sp.add_argument("--finished-only", action="store_true", help="table1/2/3: train and predict nothing; write the "
+    opt("--finished-only", action="store_true", help="table1/2/3: train and predict nothing; write the "
                     "tables of the cells that are done or predicted (scored again when the evaluator changed "
                     "since; the others are listed in the provenance)")
-    sp.add_argument("--data-only", action="store_true", help="table1/2/3: generate the datasets (with --archive: "
+    opt("--data-only", action="store_true", help="table1/2/3: generate the datasets (with --archive: "
                     "made the archived dataset's bytes where they differ only by rounding, pinned in the archive "
                     "otherwise, their archived cells restored) and compute no cell")
-    sp.add_argument("--recompute-dirty", action="store_true", help="table1/2/3: compute again, from scratch, the done "
+    opt("--recompute-dirty", action="store_true", help="table1/2/3: compute again, from scratch, the done "
                     "cells whose record names a -dirty commit (computed from uncommitted code; the old files are "
                     "moved to <dataset>/dirty/)")
-    sp.add_argument("--allow-dirty", action="store_true", help="table1/2/3: compute or score cells from a checkout "
+    opt("--allow-dirty", action="store_true", help="table1/2/3: compute or score cells from a checkout "
                     "with uncommitted changes (refused otherwise: their code could not be recovered)")
-    sp.add_argument("--allow-mixed-commits", action="store_true", help="table1/2/3: write a table whose cells come "
+    opt("--allow-mixed-commits", action="store_true", help="table1/2/3: write a table whose cells come "
                     "from several commits (refused otherwise, naming the cells of each commit)")
-    sp.add_argument("--archive", type=Path, default=None, help="table1/2/3: keep every done cell's small files "
+    opt("--archive", type=Path, default=None, help="table1/2/3: keep every done cell's small files "
                     "(record with its predictions' sha256, per-sample metrics, run identity) in this folder, and "
                     "restore the cells archived there once their dataset is generated (a lost work folder then costs "
                     "only the datasets; a restored cell is tabled from its record and per-sample metrics)")
-    sp.add_argument("--archive-predictions", action="store_true", help="table1/2/3 --archive: also keep each "
+    opt("--archive-predictions", action="store_true", help="table1/2/3 --archive: also keep each "
                     "cell's predictions (xz; most of an archive's size), so that a restored cell can be scored again "
                     "by a changed evaluator or adopted by a dataset regenerated on another CPU kind")
-    sp.add_argument("--name", default=None, help="table1/3: file name stem (table1_synthetic, table3_ablation)")
-    sp.add_argument("--no-progress", action="store_true")
-    sp.add_argument("--out", type=Path, default=None, help="write result files here (table1/3, ladder, compute: "
+    opt("--name", default=None, help="table1/3: file name stem (table1_synthetic, table3_ablation)")
+    opt("--no-progress", action="store_true")
+    opt("--out", type=Path, default=None, help="write result files here (table1/3, ladder, compute: "
                     "default WORK/results; the committed results/ only when named)")
-    add_cache(sp)
-    sp.set_defaults(func=cmd_bench)
+    for what, parser in parsers.items():
+        defaults = {}
+        for flags, kwargs in options:
+            dest = kwargs.get("dest") or next(f for f in flags if f.startswith("--"))[2:].replace("-", "_")
+            if dest in USES and what not in USES[dest]:
+                defaults[dest] = kwargs.get("default", False if kwargs.get("action") == "store_true" else None)
+            else:
+                parser.add_argument(*flags, **kwargs)
+        add_cache(parser)
+        parser.set_defaults(func=cmd_bench, **defaults)
