@@ -179,3 +179,22 @@ def test_an_object_without_a_movable_joint_is_refused_at_generation(tmp_path, ca
     err = capsys.readouterr().err
     assert "box" in err and "has no movable joint (a rigid object)" in err and err.count("\n") == 1
     assert not (tmp_path / "data" / "card.json").exists()
+
+
+def test_the_card_says_paper_or_mixed_viewpoints_when_objects_turn_their_own_views():
+    """An object's own ``object_euler_deg`` (``--object-options``) renders it in the paper's viewpoints; a dataset of
+    such objects had a card saying ``upright``. Every object turned: "paper"; some: "mixed"; none: the dataset's."""
+    from types import SimpleNamespace
+
+    from scapo.data.generate import _card_viewpoints
+
+    def cfg(viewpoints, *views):
+        return SimpleNamespace(view_config=SimpleNamespace(viewpoints=viewpoints),
+                               objects=[SimpleNamespace(view=tuple(v.items())) for v in views])
+
+    euler = {"object_euler_deg": ((-20, 20), (-180, 180), (-10, 10))}
+    assert _card_viewpoints(cfg("upright", euler, euler)) == "paper"
+    assert _card_viewpoints(cfg("upright", euler, {})) == "mixed"
+    assert _card_viewpoints(cfg("upright", {}, {"azimuth_deg": (-30, 30)})) == "upright"
+    assert _card_viewpoints(cfg("paper", euler, {})) == "paper"
+    assert _card_viewpoints(cfg("sphere")) == "sphere"

@@ -699,6 +699,17 @@ def _run_pool(args: tuple, todo: list[ShardTask], workers: int, bar, done) -> No
         th.join(timeout=5)
 
 
+
+def _card_viewpoints(cfg) -> str:
+    """The card's ``viewpoints``: the dataset's setting, unless objects turn it by their own ``object_euler_deg``
+    (``--object-options``): then "paper" when every object does (or the dataset's setting is the paper's already),
+    "mixed" when some do."""
+    own = cfg.view_config.viewpoints
+    turned = [dict(o.view).get("object_euler_deg") is not None for o in cfg.objects]
+    if not any(turned) or own == "paper":
+        return own
+    return "paper" if all(turned) else "mixed"
+
 def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records, recorded: dict[str, str]) -> dict:
     """Check every shard against its record, write ``manifest.parquet`` and ``card.json``; returns the card."""
     shard_dir = out / "shards"
@@ -750,7 +761,7 @@ def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records, r
         "joint_type": spec.joint_type.tolist(),
         "joint_parts": spec.joint_parts.tolist(),
         "num_points": cfg.render.num_points,
-        "viewpoints": cfg.view_config.viewpoints,
+        "viewpoints": _card_viewpoints(cfg),
         "views_per_instance": {"train": cfg.views_train, "val": cfg.views, "test": cfg.views},
         "config": cfg.to_dict(),
         "splits": splits,
