@@ -164,3 +164,19 @@ def test_part_ap_under_a_known_translation_error_at_each_threshold(laptop_data):
     s = res.summary
     assert (s["ap_part_5"], s["ap_part_10"], s["ap_part_15"]) == (50.0, 100.0, 100.0)
     assert res.per_sample["t_cm"].to_numpy() == pytest.approx(3.5)  # the mean over the two parts
+
+
+def test_joint_ap_under_a_known_pivot_error_at_each_threshold(laptop_data):
+    """Hand case: every joint's pivot moved 7 cm perpendicular to its (exact) axis: the pivot error is 7 cm (parallel
+    lines: the point-to-line distance), so the joint fails 5 deg / 5 cm and passes 10 / 10 and 15 / 15: joint AP 0,
+    100, 100 %; the directions stay exact."""
+    preds = oracle(laptop_data, "test")
+    a = preds.joint_axis / np.linalg.norm(preds.joint_axis, axis=-1, keepdims=True)
+    side = np.cross(a, [0.0, 0.0, 1.0])
+    side = np.where(np.linalg.norm(side, axis=-1, keepdims=True) > 1e-6, side, np.cross(a, [1.0, 0.0, 0.0]))
+    preds.joint_pivot = preds.joint_pivot + 0.07 * side / np.linalg.norm(side, axis=-1, keepdims=True)
+    res = evaluate(laptop_data, preds)
+    s = res.summary
+    assert res.per_sample["C_cm"].to_numpy() == pytest.approx(7.0)
+    assert (s["ap_joint_5"], s["ap_joint_10"], s["ap_joint_15"]) == (0.0, 100.0, 100.0)
+    assert s["D"] == pytest.approx(0.0, abs=1e-6)
