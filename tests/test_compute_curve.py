@@ -36,6 +36,10 @@ def test_compute_curve_end_to_end(tmp_path, capsys):
     assert main(args) == 0
     assert "measuring" not in capsys.readouterr().out
     assert json.loads((tmp_path / "o" / f"{name}.json").read_text())["records"] == table["records"]
+    narrower = [a if a != "0.05,0.2" else "0.05" for a in args]  # a rerun with fewer budgets into the same --out
+    assert main(narrower) == 2
+    assert "row(s) this run does not make" in capsys.readouterr().err
+    assert json.loads((tmp_path / "o" / f"{name}.json").read_text())["records"] == table["records"]  # kept
 
 
 @pytest.mark.parametrize("args,match", [
