@@ -598,3 +598,18 @@ def test_a_work_folder_inside_a_dataset_or_run_folder_is_refused(laptop_data, tm
                      str(work), "--out", str(tmp_path / "o"), "--dry-run"]) == 2
         assert "the scapo dataset folder" in capsys.readouterr().err
     assert not (laptop_data / "w").exists()
+
+
+def test_a_ladder_table_of_cells_from_several_commits_is_refused():
+    """The first after side of the fair race mixed cells computed by three commits' code without a word; a ladder
+    or compute-curve table of several commits is refused naming them, unless --allow-mixed-commits."""
+    from scapo.bench.ladder import check_one_commit
+    from scapo.errors import ConfigError
+
+    recs = [{"rung": "paper", "method": "op-align", "seed": s, "provenance": {"commit": c}}
+            for s, c in ((0, "8707392aaaaa"), (1, "3609d42bbbbb"), (2, "3609d42bbbbb"))]
+    check_one_commit(recs[1:])  # one commit: fine
+    with pytest.raises(ConfigError, match=r"the cells come from 2 commits \(3609d42bbbbb: paper/op-align_s1, "
+                                          r"paper/op-align_s2; 8707392aaaaa: paper/op-align_s0\)"):
+        check_one_commit(recs)
+    check_one_commit(recs, allow=True)

@@ -48,6 +48,7 @@ from scapo.bench.ladder import (
     _training_presets,
     _upgrade,
     cells_dir,
+    check_one_commit,
     check_reuse,
     check_table_rows,
     dataset_hash,
@@ -191,7 +192,8 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
                       instances: int = 60, views: int = 8, train_views: int = 16, data_seed: int = 1,
                       preset: str = "cpu", protocol: str = "scapo", workers: int = 1,
                       command: str = "scapo bench compute", dry_run: bool = False, data_only: bool = False,
-                      finished_only: bool = False, from_table: bool = False) -> list[Path]:
+                      finished_only: bool = False, from_table: bool = False,
+                      allow_mixed_commits: bool = False) -> list[Path]:
     """Run (or resume) the accuracy-against-compute cells and write ``<out>/accuracy_vs_compute.{md,csv,json,png}``.
 
     Cells run budget by budget (smallest first), method by method, so an interrupted curve has its cheap points.
@@ -233,7 +235,8 @@ def run_compute_curve(category: str = "laptop", methods: Sequence[str] = LADDER_
     meta = {"name": name, "category": category, "rung": rung, "methods": methods, "budgets": budgets, "seeds": seeds,
             "split": "val", "dataset": data.name, "instances": instances, "views": views, "train_views": train_views,
             "data_seed": data_seed, "preset": preset, "protocol": protocol, "command": command,
-            "machine": device_description("cpu"), "from_table": bool(from_table)}
+            "machine": device_description("cpu"), "from_table": bool(from_table),
+            "allow_mixed_commits": bool(allow_mixed_commits)}
     if from_table:
         meta["note"] = ("The table's cells at other budgets (`--from-table`): each method trains with the preset "
                         "`scapo bench table1` gives it (the rows' `budget_values` name it with its schedule) and the "
@@ -346,4 +349,5 @@ def _write_finished(work: Path, data: Path, meta: dict, cells, out: Path, preset
         raise ConfigError(f"no finished cell of the compute curve in {work / 'compute'}; run it without "
                           "--finished-only")
     meta = {**meta, "missing": missing, "cell_options": CELL_OPTIONS}
+    check_one_commit(records, meta.get("allow_mixed_commits", False))
     return write_curve(records, out, meta)

@@ -349,6 +349,25 @@ def check_table_rows(path: Path, made: set, fields: Sequence[str], command: str)
                           "finished cells are reused), or give another --out")
 
 
+def check_one_commit(records: Sequence[dict], allow: bool = False) -> None:
+    """Refuse a table whose cells were computed by several commits' code (``provenance.commit`` of each record): a
+    table's cells come from one clean commit, and a cell made by other code would otherwise be reused silently.
+
+    Raises:
+        ConfigError: (without ``allow``, ``--allow-mixed-commits``) the commits and some cells of each."""
+    by: dict[str, list[str]] = {}
+    for r in records:
+        commit = str((r.get("provenance") or {}).get("commit", "unknown"))
+        where = r.get("rung", f"{r.get('budget_min', '?')} min")
+        by.setdefault(commit, []).append(f"{where}/{r.get('method')}_s{r.get('seed')}")
+    if len(by) > 1 and not allow:
+        listing = "; ".join(f"{c[:12]}: {', '.join(v[:3])}{', ...' if len(v) > 3 else ''}"
+                            for c, v in sorted(by.items()))
+        raise ConfigError(f"the cells come from {len(by)} commits ({listing}); a table's cells come from one commit: "
+                          "compute the others again at one commit (move their records, predictions and runs away), "
+                          "or give --allow-mixed-commits to write it anyway")
+
+
 def dataset_hash(data: Path) -> str:
     """The hash of the dataset ``data`` (its val split's, as the cells' records hold it)."""
     from scapo.data import load
@@ -600,6 +619,7 @@ def _write_finished(work: Path, category: str, rungs, methods, parsed, seeds, ou
     if not records:
         raise ConfigError(f"no finished ladder cell of {category} in {work}; run the ladder without --finished-only")
     meta["missing"] = missing
+    check_one_commit(records, meta.get("allow_mixed_commits", False))
     return write_ladder(records, out, f"ladder_{category}", meta)
 
 
@@ -609,7 +629,8 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
                budget_minutes: float = 5.0, instances: int = 60, views: int = 8, train_views: int = 16,
                data_seed: int = 1, preset: str = "cpu", protocol: str = "scapo", workers: int = 1,
                command: str = "scapo bench ladder", dry_run: bool = False, data_only: bool = False,
-               variants: Sequence[str] = (), finished_only: bool = False, device: str | None = None) -> list[Path]:
+               variants: Sequence[str] = (), finished_only: bool = False, device: str | None = None,
+               allow_mixed_commits: bool = False) -> list[Path]:
     """Run (or resume) the ladder for ``category``: generate each rung's dataset, train every method with the same
     budget, predict one-pass, score on val, write ``<out>/ladder_<category>.{md,json,csv}``.
 
@@ -652,7 +673,7 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
         return {"category": category, "rungs": rungs, "methods": methods, "seeds": seeds, "split": "val",
                 "budget_minutes": budget_minutes, "instances": instances, "views": views, "train_views": train_views,
                 "data_seed": data_seed, "preset": preset, "protocol": protocol, "command": command,
-                "variants": list(variants), "device": device or "cpu"}
+                "variants": list(variants), "device": device or "cpu", "allow_mixed_commits": allow_mixed_commits}
 
     parsed = [parse_variant(v) for v in variants]
     from scapo.config import override
@@ -736,6 +757,7 @@ def run_ladder(category: str = "laptop", methods: Sequence[str] = LADDER_METHODS
                 records.append(rec)
     if not records:
         raise BudgetError("every cell was refused over its budget:\n" + "\n".join(refused))
+    check_one_commit(records, allow_mixed_commits)
     paths = write_ladder(records, Path(out), f"ladder_{category}", meta)
     if refused:  # the table of the others is written; the refusals end the command with an error
         raise BudgetError(f"{len(refused)} cell(s) refused over their budget (the table lists the others):\n"

@@ -75,6 +75,7 @@ def cmd_bench_ladder(args) -> int:
                        train_views=16 if args.train_views is None else args.train_views, data_seed=args.seed,
                        preset=args.preset, workers=max(args.workers), command=cmd, dry_run=args.dry_run,
                        data_only=args.data_only, variants=args.variant, finished_only=args.finished_only,
+                       allow_mixed_commits=args.allow_mixed_commits,
                        device=args.device)
     for p in paths:
         print(f"wrote {p}")
@@ -104,6 +105,7 @@ def cmd_bench_compute(args) -> int:
                               train_views=train_views,
                               data_seed=args.seed, preset=args.preset, workers=max(args.workers), command=cmd,
                               dry_run=args.dry_run, data_only=args.data_only, finished_only=args.finished_only,
+                              allow_mixed_commits=args.allow_mixed_commits,
                               from_table=args.from_table)
     for p in paths:
         print(f"wrote {p}")
@@ -279,7 +281,8 @@ USES = {
     "seeds": (*_TABLES, "ladder", "compute"), "category_seeds": _TABLES, "from_table": ("compute",),
     "dry_run": (*_TABLES, "ladder", "compute"), "finished_only": (*_TABLES, "ladder", "compute"),
     "data_only": (*_TABLES, "ladder", "compute"), "recompute_dirty": _TABLES, "allow_dirty": _TABLES,
-    "allow_mixed_commits": _TABLES, "archive": _TABLES, "archive_predictions": _TABLES, "name": _TABLES,
+    "allow_mixed_commits": (*_TABLES, "ladder", "compute"), "archive": _TABLES, "archive_predictions": _TABLES,
+    "name": _TABLES,
 }
 
 
@@ -406,8 +409,8 @@ def add_parsers(sub) -> None:
                     "moved to <dataset>/dirty/)")
     opt("--allow-dirty", action="store_true", help="table1/2/3: compute or score cells from a checkout "
                     "with uncommitted changes (refused otherwise: their code could not be recovered)")
-    opt("--allow-mixed-commits", action="store_true", help="table1/2/3: write a table whose cells come "
-                    "from several commits (refused otherwise, naming the cells of each commit)")
+    opt("--allow-mixed-commits", action="store_true", help="table1/2/3, ladder, compute: write a table whose cells "
+                    "come from several commits (refused otherwise, naming the cells of each commit)")
     opt("--archive", type=Path, default=None, help="table1/2/3: keep every done cell's small files "
                     "(record with its predictions' sha256, per-sample metrics, run identity) in this folder, and "
                     "restore the cells archived there once their dataset is generated (a lost work folder then costs "
