@@ -136,3 +136,19 @@ def test_a_schedule_part_that_is_not_one_says_how_to_write_it():
         with pytest.raises(UnknownNameError, match=r"'epochs-abc' is not a schedule; write epochs-N \(one stage\), "
                                                    r"epochs-N-M \(two stages\) or iterations-N"):
             METHODS.get(method).preset("test/epochs-abc")
+
+
+def test_the_ledger_charges_the_cpu_seconds_of_child_processes():
+    """Work handed to a subprocess is the method's work too (``torch.compile`` runs the C++ compiler as child
+    processes): a phase that waits on a child busy for about 0.4 CPU seconds is charged them, though this process
+    only waited."""
+    import subprocess
+    import sys
+
+    from scapo.engine.ledger import Ledger
+
+    ledger = Ledger()
+    with ledger.phase("stage1/compile"):
+        subprocess.run([sys.executable, "-c", "import time\nt = time.process_time()\n"
+                        "while time.process_time() - t < 0.4: pass"], check=True)
+    assert ledger.charged("stage1/compile") >= 0.35

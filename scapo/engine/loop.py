@@ -41,7 +41,7 @@ from torch.utils.data import DataLoader, Dataset
 from torch.utils.data.distributed import DistributedSampler
 
 from scapo.engine.distributed import DistContext, dist_context, per_rank_threads, run_settings
-from scapo.engine.ledger import Ledger
+from scapo.engine.ledger import Ledger, cpu_seconds
 from scapo.engine.runs import RunFolder, plot_losses, truncate_log
 from scapo.errors import TrainingError
 from scapo.files import FolderLock, check_output_dir, clean_stale_temps
@@ -244,9 +244,9 @@ def train_run(folder: RunFolder, make_job: Callable[[torch.device, DistContext],
                 if ctx.is_main:
                     folder.write_identity()
                 try:
-                    c0, w0 = time.process_time(), time.perf_counter()
+                    c0, w0 = cpu_seconds(), time.perf_counter()
                     job = make_job(device, ctx)
-                    setup = (time.process_time() - c0, time.perf_counter() - w0)
+                    setup = (cpu_seconds() - c0, time.perf_counter() - w0)
                     return fit(job, folder, state, device, progress, ctx, setup=setup)
                 except (TrainingError, OSError) as e:
                     if ctx.is_main and not folder.checkpoint.exists():  # nothing of value was trained: a
@@ -289,7 +289,7 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
     columns = list(dict.fromkeys([*BASE_COLUMNS, *[t for s in job.stages for t in s.terms]]))
     board = _tensorboard(folder, steps * done_before) if ctx.is_main else None
     t0 = plotted = time.perf_counter()
-    c0 = time.process_time()
+    c0 = cpu_seconds()
     before = float(state.get("seconds", 0.0)) if state is not None else 0.0  # earlier sessions' training time
     ledger = Ledger(device.type != "cpu", state.get("ledger") if state is not None else None, world=ctx.world)
     ledger.add("setup", *setup)
@@ -330,7 +330,7 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                     run_epoch(job, stage, epoch, opt, sched, steps, folder, bar, device, ctx, columns, board)
                     _check_weights(job.model, stage.index, epoch)  # before the checkpoint: the last good one is kept
                 te = time.perf_counter()
-                ce = time.process_time()
+                ce = cpu_seconds()
                 part["steps"], part["epochs"], part["step_s"] = part["steps"] + steps, part["epochs"] + 1, \
                     part["step_s"] + te - ts
                 last_stage = stage is live[-1]
@@ -342,8 +342,8 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                 extras = job.extras(done) if job.extras is not None else {}
                 if done:  # the final extras (e.g. statistics over the training split) happen once per run
                     final_s += time.perf_counter() - te
-                    ledger.add("final", time.process_time() - ce, time.perf_counter() - te)
-                    te, ce = time.perf_counter(), time.process_time()
+                    ledger.add("final", cpu_seconds() - ce, time.perf_counter() - te)
+                    te, ce = time.perf_counter(), cpu_seconds()
                 if ctx.is_main:  # every rank holds the same model, optimiser and schedule
                     folder.save({"model": job.model.state_dict(), "optimizer": opt.state_dict(),
                                  "scheduler": sched.state_dict(), "stage": nxt[0], "epoch": nxt[1], "done": done,
@@ -354,7 +354,7 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                         plotted = time.perf_counter()
                 ctx.barrier()
                 part["epoch_s"] += time.perf_counter() - te
-                ledger.add(f"{name}/epochs", time.process_time() - ce, time.perf_counter() - te)
+                ledger.add(f"{name}/epochs", cpu_seconds() - ce, time.perf_counter() - te)
     except TrainingError:
         if ctx.is_main:  # the curves up to the failing step, to look at
             plot_losses(folder.log, folder.path / "losses.png")
@@ -369,7 +369,7 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
         spent = {k: (v["cpu_s"] - charged_before.get(k, {}).get("cpu_s", 0.0),
                      v["wall_s"] - charged_before.get(k, {}).get("wall_s", 0.0)) for k, v in ledger.phases.items()}
         w = ledger.world  # spent is charged for every rank; this process's own seconds in fit are what remains
-        ledger.add("other", time.process_time() - c0 - sum(c for c, _ in spent.values()) / w,
+        ledger.add("other", cpu_seconds() - c0 - sum(c for c, _ in spent.values()) / w,
                    time.perf_counter() - t0 - sum(s for _, s in spent.values()) / w)
         folder.write_timing(before + time.perf_counter() - t0, device, ctx.world,
                             steps=sum(stage.epochs * steps for stage in live),
@@ -392,6 +392,7 @@ def compile_network(model: torch.nn.Module) -> list[torch.nn.Module]:
     import torch._inductor.config
 
     torch._inductor.config.fallback_random = True  # random numbers from torch's generator, as the eager step draws them
+    torch._inductor.config.compile_threads = 1  # no worker pool: the C++ compilers are children that finish (charged)
     parts = [m for m in model.children() if any(True for _ in m.parameters())]
     for m in parts:
         m._compiled_call_impl = torch.compile(_called(m))
