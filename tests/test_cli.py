@@ -61,3 +61,19 @@ def test_a_command_takes_its_commit_as_it_starts(capsys, monkeypatch):
     n = len(calls)
     assert provenance.provenance()["commit"] == "abc123" and len(calls) == n  # ...and reused afterwards
     provenance.git_commit.cache_clear()
+
+
+def test_the_console_script_ignores_ctrl_c_once_the_command_is_done(capsys):
+    """``scapo`` (the console script) is :func:`main` and then ignores Ctrl-C while the interpreter shuts down: a
+    Ctrl-C during torch's exit hooks once printed a traceback after the command had finished."""
+    import signal
+
+    from scapo.cli.main import console
+
+    before = signal.getsignal(signal.SIGINT)
+    try:
+        assert console(["list"]) == 0
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, before)
+    assert "laptop" in capsys.readouterr().out

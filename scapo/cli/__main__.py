@@ -2,6 +2,6 @@
 
 import sys
 
-from scapo.cli.main import main
+from scapo.cli.main import console
 
-sys.exit(main())
+sys.exit(console())

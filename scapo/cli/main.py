@@ -121,5 +121,16 @@ def main(argv: list[str] | None = None) -> int:
             os.environ["TQDM_DISABLE"] = env_before
 
 
+def console(argv: list[str] | None = None) -> int:
+    """The ``scapo`` console script (and ``python -m scapo.cli``): :func:`main`, then Ctrl-C ignored while the
+    interpreter shuts down. The command's work is done and written by then; a Ctrl-C that came while torch's exit
+    hooks ran once printed their traceback."""
+    import signal
+
+    code = main(argv)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return code
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(console())
