@@ -389,3 +389,21 @@ def test_a_failed_compilation_warns_and_trains_eagerly_with_the_same_losses(tmp_
                                             r"compiler found\); training eagerly"):
         fast, _ = _train_toy(tmp_path / "fallback", True)
     assert fast == eager
+
+
+def test_step_seconds_times_the_eager_and_the_compiled_step_and_leaves_the_network_eager():
+    """``scapo.engine.speed.step_seconds`` (``bench perf --what train`` of a compiling preset): the eager step, the
+    compiled step and the first compiled step's extra seconds, measured in one run; the network is eager afterwards."""
+    from scapo.engine.speed import step_seconds
+
+    job = _compile_job(False)
+    batch = {"points": job.data.tensors["points"][:8, :32]}
+
+    def step():
+        _, total = job.stages[0].losses(batch, 0.0)
+        total.backward()
+
+    t = step_seconds(step, job.model, True, 2, False)
+    assert set(t) == {"step_s", "eager_s", "compile_s"} and min(t.values()) >= 0 and t["step_s"] > 0
+    assert job.model.body._compiled_call_impl is None
+    assert set(step_seconds(step, job.model, False, 2, False)) == {"step_s"}

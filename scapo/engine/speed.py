@@ -41,6 +41,25 @@ def median_seconds(fn, iters: int, cuda: bool, warm_up: bool = True) -> float:
     return float(np.median(times))
 
 
+def step_seconds(step, net, compile_: bool, iters: int, cuda: bool) -> dict:
+    """The median seconds of one training ``step()`` of ``net`` (``{"step_s"}``); with ``compile_``, of the step
+    with ``net``'s parts compiled (:func:`scapo.engine.loop.compile_network`), beside the eager step's measured first
+    in the same run (``eager_s``) and the first compiled step's seconds beyond a compiled step's (``compile_s``, a
+    one-time cost); ``net`` is left eager."""
+    from scapo.engine.loop import compile_network, uncompile_network
+
+    if not compile_:
+        return {"step_s": median_seconds(step, iters, cuda)}
+    eager = median_seconds(step, iters, cuda)
+    parts = compile_network(net)
+    try:
+        first = median_seconds(step, 0, cuda, warm_up=False)
+        sec = median_seconds(step, iters, cuda)
+    finally:
+        uncompile_network(parts)
+    return {"step_s": sec, "eager_s": eager, "compile_s": max(first - sec, 0.0)}
+
+
 def inference_speed(fn, device, num_points: int, iters: int) -> dict:
     """``fn(points (B, N, 3))`` timed on box clouds on ``device``: ms per cloud and clouds/s at batch 1,
     clouds/s at batch 32 (medians over ``iters`` calls after a warm-up)."""

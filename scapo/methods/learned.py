@@ -670,9 +670,8 @@ def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "c
         UnknownNameError: unknown preset. ConfigError: an unavailable device."""
     import dataclasses
 
-    from scapo.engine.loop import compile_network, uncompile_network
     from scapo.engine.runs import resolve_device
-    from scapo.engine.speed import box_clouds, median_seconds
+    from scapo.engine.speed import box_clouds, step_seconds
 
     dev = resolve_device(device)
     pc = resolve_preset(spec, preset)
@@ -697,7 +696,6 @@ def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "c
 
     losses = [st["losses"] for st in net.training_stages()] if hasattr(net, "training_stages") else [net.losses]
     row = {"batch_size": pc.batch_size, "points": pc.points, "compile": pc.compile}
-    parts = compile_network(net) if pc.compile else []
     for k, fn in enumerate(losses, 1):
         def step(fn=fn):
             _, total = fn(batch, 0.5)
@@ -705,17 +703,11 @@ def learned_train_speed(spec: LearnedSpec, preset: str = "cpu", device: str = "c
             total.backward()
             opt.step()
 
-        if parts:  # the eager step first (the reference, same run), then the first compiled step apart
-            parts = uncompile_network(parts)
-            eager = median_seconds(step, iters, dev.type == "cuda")
-            parts = compile_network(net)
-            first = median_seconds(step, 0, dev.type == "cuda", warm_up=False)
-        sec = median_seconds(step, iters, dev.type == "cuda")
-        row[f"stage{k}_clouds_per_s"] = round(pc.batch_size / sec, 2)
-        if parts:
-            row[f"stage{k}_eager_clouds_per_s"] = round(pc.batch_size / eager, 2)
-            row[f"stage{k}_speedup_vs_eager"] = round(eager / sec, 2)
-            row[f"stage{k}_compile_s"] = round(max(first - sec, 0.0), 2)
-    uncompile_network(parts)
+        t = step_seconds(step, net, pc.compile, iters, dev.type == "cuda")
+        row[f"stage{k}_clouds_per_s"] = round(pc.batch_size / t["step_s"], 2)
+        if pc.compile:
+            row[f"stage{k}_eager_clouds_per_s"] = round(pc.batch_size / t["eager_s"], 2)
+            row[f"stage{k}_speedup_vs_eager"] = round(t["eager_s"] / t["step_s"], 2)
+            row[f"stage{k}_compile_s"] = round(t["compile_s"], 2)
     row.update({f"stage{k}_epochs": getattr(pc, f) for k, f in enumerate(schedule_fields(pc), 1)})
     return {**row, "max_steps_per_epoch": pc.max_steps_per_epoch, "iterations": pc.iterations}

@@ -7,9 +7,8 @@ import functools
 
 import torch
 
-from scapo.engine.loop import compile_network, uncompile_network
 from scapo.engine.runs import resolve_device
-from scapo.engine.speed import box_clouds, inference_speed, median_seconds
+from scapo.engine.speed import box_clouds, inference_speed, median_seconds, step_seconds
 from scapo.models.presets import get_preset
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.models.train import loss_terms
@@ -74,20 +73,13 @@ def _train_speed(pc, d: torch.device, iters: int) -> tuple[SCAPOModel, dict]:
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
     pts = torch.from_numpy(box_clouds(pc.batch_size, pc.train_points)).to(d)
     out = {}
-    parts = compile_network(model) if pc.compile else []
     for stage in (1, 2):
         step = functools.partial(train_step, model, opt, pts, stage, pc.losses)
-        if parts:  # the eager step first (the reference, same run), then the first compiled step apart
-            parts = uncompile_network(parts)
-            eager = median_seconds(step, iters, d.type == "cuda")
-            parts = compile_network(model)
-            first = median_seconds(step, 0, d.type == "cuda", warm_up=False)
-        sec = median_seconds(step, iters, d.type == "cuda")
-        out[stage] = round(pc.batch_size / sec, 2)
-        if parts:
-            out[f"eager{stage}"] = round(pc.batch_size / eager, 2)
-            out[f"compile{stage}"] = round(max(first - sec, 0.0), 2)
-    uncompile_network(parts)
+        t = step_seconds(step, model, pc.compile, iters, d.type == "cuda")
+        out[stage] = round(pc.batch_size / t["step_s"], 2)
+        if pc.compile:
+            out[f"eager{stage}"] = round(pc.batch_size / t["eager_s"], 2)
+            out[f"compile{stage}"] = round(t["compile_s"], 2)
     return model, out
 
 
