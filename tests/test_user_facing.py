@@ -606,3 +606,30 @@ def test_a_config_that_is_a_pipe_a_device_or_a_folder_is_named_so_and_never_read
     for path, kind in ((fifo, "not a regular file"), ("/dev/zero", "not a regular file"), (tmp_path, "a folder")):
         with pytest.raises(ConfigError, match=f"is {kind}"):
             read_config(path)
+
+
+def test_a_commit_git_cannot_verify_is_never_recorded_as_a_release(monkeypatch):
+    """On a loaded machine ``git status`` once timed out and the provenance said ``v0.1.0``, as if released code had
+    run; a checkout's commit is now ``<sha>-unverified`` then (a table treats it as dirty), ``unknown`` without one."""
+    import subprocess
+
+    import scapo.provenance as prov
+    from scapo.bench.cells import dirty_sha
+
+    real = subprocess.run
+
+    def slow_status(cmd, *a, **k):
+        if cmd[:2] == ["git", "status"]:
+            raise subprocess.TimeoutExpired(cmd, 120)
+        return real(cmd, *a, **k)
+
+    monkeypatch.setattr(prov.subprocess, "run", slow_status)
+    commit = prov.git_commit.__wrapped__()  # past the once-per-process cache
+    assert commit.endswith("-unverified") and len(commit.split("-")[0]) == 40 and dirty_sha(commit)
+
+    def no_git(cmd, *a, **k):
+        raise OSError("git not found")
+
+    monkeypatch.setattr(prov.subprocess, "run", no_git)
+    commit = prov.git_commit.__wrapped__()  # past the once-per-process cache
+    assert commit == "unknown" and dirty_sha(commit)

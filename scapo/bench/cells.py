@@ -220,8 +220,9 @@ def _set_aside(paths: CellPaths, cell: Cell, why: str) -> Path:
 
 
 def dirty_sha(commit: str) -> bool:
-    """A commit as provenance records it names uncommitted code (``<sha>-dirty``) or none (``unknown``)."""
-    return commit.endswith("-dirty") or commit == "unknown"
+    """A commit as provenance records it names uncommitted code (``<sha>-dirty``), code whose state git could not
+    verify (``<sha>-unverified``) or none (``unknown``)."""
+    return commit.endswith(("-dirty", "-unverified")) or commit == "unknown"
 
 
 def dirty_commit(rec: dict) -> bool:
