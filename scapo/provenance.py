@@ -25,10 +25,11 @@ def package_version() -> str:
 @lru_cache(maxsize=1)
 def git_commit() -> str:
     """``<sha>`` of the source checkout, ``<sha>-dirty`` with uncommitted changes (``<sha>-unverified`` when git could
-    not say, e.g. timed out on a loaded machine; ``unknown`` when it could not name the commit), or, for an installed
-    package that is not a git checkout (a wheel), ``v<version>`` (the released code it names; not dirty); for a copy
-    of a checkout without its ``.git`` (e.g. sent to a GPU machine), ``<sha>-copy`` where ``SCAPO_SOURCE_COMMIT``
-    states the commit it was copied from (40 hex digits; the caller vouches for it).
+    not say, e.g. timed out on a loaded machine; ``unknown`` when it ran and could not name the commit), or, for an
+    installed package that is not a git checkout (a wheel) or where git is not installed, ``v<version>`` (the
+    released code it names; not dirty); for a copy of a checkout without its ``.git`` (e.g. sent to a GPU machine),
+    ``<sha>-copy`` where ``SCAPO_SOURCE_COMMIT`` states the commit it was copied from (40 hex digits; the caller
+    vouches for it).
 
     Taken once per process, at the first call; every ``scapo`` command calls it as it starts (:func:`scapo.cli.
     main.main`), so a long bench records the commit of the code it loaded, not the state of the checkout
@@ -43,8 +44,10 @@ def git_commit() -> str:
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
                              timeout=120, check=True).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"  # a checkout whose commit git could not tell (no git, a damaged .git): never a version
+    except OSError:  # no git here: the package's own version names the code
+        return f"v{package_version()}"
+    except subprocess.SubprocessError:
+        return "unknown"  # git ran and could not tell (timed out, a damaged .git): never a version
     try:
         dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
                                capture_output=True, text=True, timeout=120, check=True).stdout.strip()

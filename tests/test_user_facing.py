@@ -610,7 +610,8 @@ def test_a_config_that_is_a_pipe_a_device_or_a_folder_is_named_so_and_never_read
 
 def test_a_commit_git_cannot_verify_is_never_recorded_as_a_release(monkeypatch):
     """On a loaded machine ``git status`` once timed out and the provenance said ``v0.1.0``, as if released code had
-    run; a checkout's commit is now ``<sha>-unverified`` then (a table treats it as dirty), ``unknown`` without one."""
+    run; a checkout's commit is now ``<sha>-unverified`` then (a table treats it as dirty), ``unknown`` when git
+    cannot name the commit either."""
     import subprocess
 
     import scapo.provenance as prov
@@ -627,9 +628,9 @@ def test_a_commit_git_cannot_verify_is_never_recorded_as_a_release(monkeypatch):
     commit = prov.git_commit.__wrapped__()  # past the once-per-process cache
     assert commit.endswith("-unverified") and len(commit.split("-")[0]) == 40 and dirty_sha(commit)
 
-    def no_git(cmd, *a, **k):
-        raise OSError("git not found")
+    def slow_git(cmd, *a, **k):
+        raise subprocess.TimeoutExpired(cmd, 120)
 
-    monkeypatch.setattr(prov.subprocess, "run", no_git)
+    monkeypatch.setattr(prov.subprocess, "run", slow_git)
     commit = prov.git_commit.__wrapped__()  # past the once-per-process cache
     assert commit == "unknown" and dirty_sha(commit)
