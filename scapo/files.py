@@ -74,13 +74,37 @@ def write_json(path: str | Path, obj) -> None:
 
 
 def atomic_savefig(fig, path: str | Path, **kwargs) -> Path:
-    """Save a matplotlib figure atomically (rendered to memory first); returns ``path``."""
+    """Save a matplotlib figure atomically (rendered to memory first); returns ``path``. A PNG is written with a
+    palette of 256 colours (:func:`palette_png`: about a third of the bytes, the plots' colours kept); its text fields
+    (``metadata=``) are kept."""
     path = Path(path)
     buf = io.BytesIO()
     fmt = path.suffix.lstrip(".") or "png"
     fig.savefig(buf, format=fmt, **kwargs)
-    atomic_write_bytes(path, buf.getvalue())
+    data = buf.getvalue()
+    atomic_write_bytes(path, palette_png(data) if fmt == "png" else data)
     return path
+
+
+def palette_png(data: bytes) -> bytes:
+    """The PNG ``data`` as a PNG of at most 256 colours (Pillow's median cut, over a white background where it is
+    transparent), with its text fields and resolution kept; ``data`` itself where that is not smaller. A figure of
+    point clouds and curves keeps its colours (the shaded axis panes included) at about a third of the bytes."""
+    from PIL import Image, PngImagePlugin
+
+    with Image.open(io.BytesIO(data)) as im:
+        im.load()
+        info = PngImagePlugin.PngInfo()
+        for k, v in getattr(im, "text", {}).items():
+            info.add_text(k, v)
+        rgb = im.convert("RGB")
+        if im.mode in ("RGBA", "LA") or (im.mode == "P" and "transparency" in im.info):
+            rgb = Image.new("RGB", im.size, (255, 255, 255))
+            rgb.paste(im.convert("RGBA"), mask=im.convert("RGBA").split()[3])
+        out = io.BytesIO()
+        kw = {"dpi": im.info["dpi"]} if "dpi" in im.info else {}
+        rgb.quantize(colors=256, method=Image.Quantize.MEDIANCUT).save(out, "PNG", optimize=True, pnginfo=info, **kw)
+    return out.getvalue() if out.tell() < len(data) else data
 
 
 def read_json(path: str | Path, what: str, error: type[Exception], hint: str = "") -> dict:

@@ -194,11 +194,11 @@ def test_a_lost_work_folder_is_restored_from_the_cells_archive(bench, monkeypatc
         [f"{stem}.json" for stem in stems] + ["per_sample.parquet"])  # every cell's per-sample metrics in one file
     import pandas as pd
 
-    from scapo.bench.archive import archived_per_sample
+    from scapo.bench.archive import archived_per_sample, same_as_archived
 
-    for stem in stems:  # each cell's own table comes back from the packed file
+    for stem in stems:  # each cell's own table comes back from the packed file (floats within float32 rounding)
         own = pd.read_parquet(work / "laptop_i10_v2_s0" / "cells" / f"{stem}.parquet")
-        assert archived_per_sample(kept / "cells", stem).equals(own)
+        assert same_as_archived(archived_per_sample(kept / "cells", stem), own)
     assert sorted(p.name for p in (kept / "run_scapo_test_s0").iterdir()) == ["run.json", "timing.json"]
     original = work / "laptop_i10_v2_s0" / "predictions_scapo_test_s0.npz"
     assert not list(kept.glob("predictions_*"))  # their sha256 is in the records
@@ -1065,7 +1065,7 @@ def test_an_archive_of_per_cell_metrics_files_is_packed_into_one_and_each_cells_
     import numpy as np
     import pandas as pd
 
-    from scapo.bench.archive import PACKED, archived_per_sample, pack_archive
+    from scapo.bench.archive import PACKED, archived_per_sample, pack_archive, same_as_archived
 
     cells = tmp_path / "archive" / "laptop_i10_v2_s0" / "cells"
     cells.mkdir(parents=True)
@@ -1079,9 +1079,53 @@ def test_an_archive_of_per_cell_metrics_files_is_packed_into_one_and_each_cells_
     assert sorted(p.name for p in cells.iterdir()) == [PACKED]
     for stem, df in (("npcs_test_s0.scapo", a), ("icp.eap", b)):
         back = archived_per_sample(cells, stem)
-        assert back.equals(df) and list(back.dtypes) == list(df.dtypes)
+        assert same_as_archived(back, df) and list(back.dtypes) == list(df.dtypes)
     assert archived_per_sample(cells, "scapo_test_s0.scapo") is None
     assert pack_archive(tmp_path / "archive") == 0  # nothing left to pack
+
+
+def test_a_packed_archive_keeps_floats_as_float32_and_unit_columns_as_their_rule(tmp_path):
+    """The packed file stores float64 metrics as float32 and a column that is another times a unit factor (``t_cm`` =
+    100 ``t``) as that rule; each cell comes back with its own columns, order and dtypes, floats within float32
+    rounding, NaNs where they were; a packed file of the earlier float64 layout is read as it is and repacked by
+    ``pack_archive``; a column that only looks like a unit column (not 100 times its base) is stored."""
+    import json
+
+    import numpy as np
+    import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from scapo.bench.archive import PACKED, PRECISION, archived_per_sample, as_archived, pack_archive, same_as_archived
+
+    rng = np.random.default_rng(0)
+    t = rng.random(50)
+    df = pd.DataFrame({"instance_id": np.arange(50), "t": t, "t_cm": 100 * t, "R": rng.random(50) * 180,
+                       "C_j0": np.where(np.arange(50) % 7 == 0, np.nan, t), "C_cm_j0": np.nan,
+                       "state_cm": rng.random(50)})
+    df["C_cm_j0"] = 100 * df["C_j0"]
+    cells = tmp_path / "archive" / "laptop_i10_v2_s0" / "cells"
+    cells.mkdir(parents=True)
+    layout = {"columns": list(df.columns), "dtypes": {c: str(d) for c, d in df.dtypes.items()}}  # earlier layout
+    table = pa.Table.from_pandas(df.assign(_cell="icp.eap"), preserve_index=False)
+    pq.write_table(table.replace_schema_metadata({b"scapo_cells": json.dumps({"icp.eap": layout}).encode()}),
+                   cells / PACKED)
+    assert archived_per_sample(cells, "icp.eap").equals(df)  # the earlier layout comes back exactly
+    assert pack_archive(tmp_path / "archive") == 1
+    meta = json.loads(pq.read_schema(cells / PACKED).metadata[b"scapo_cells"])["icp.eap"]
+    assert meta["precision"] == PRECISION and sorted(meta["derived"]) == ["C_cm_j0", "t_cm"]
+    stored = pq.read_table(cells / PACKED)
+    assert "t_cm" not in stored.column_names and "state_cm" in stored.column_names
+    assert stored.schema.field("R").type == pa.float32()
+    back = archived_per_sample(cells, "icp.eap")
+    assert same_as_archived(back, df) and not back.equals(df)  # float32 rounding, within 1e-6
+    assert list(back.columns) == list(df.columns) and list(back.dtypes) == list(df.dtypes)
+    assert np.array_equal(np.isnan(back["C_cm_j0"]), np.isnan(df["C_cm_j0"]))
+    assert as_archived(df).equals(back)  # what a cell scored again is compared with
+    assert pack_archive(tmp_path / "archive") == 0  # nothing left to pack
+    off = df.copy()
+    off.loc[3, "R"] += 1e-3
+    assert not same_as_archived(back, off)
 
 
 def test_an_option_row_the_run_would_refuse_is_refused_by_the_dry_run_too():

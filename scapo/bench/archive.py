@@ -9,10 +9,12 @@ recomputes every cell. The archive keeps, per finished cell, what makes its reco
     <archive>/<dataset folder name>/
         cells/<key>.<protocol>.json       the cell's record (scores, provenance, dataset hash, predictions' sha256)
         cells/per_sample.parquet          every cell's per-sample metrics in one compressed columnar file (a column
-                                          ``_cell`` names the cell, ``<key>.<protocol>``; the schema's metadata keeps
-                                          each cell's columns and dtypes, so that its own table comes back exactly;
-                                          :func:`archived_per_sample`); an older archive's ``<key>.<protocol>.parquet``
-                                          per cell is still read, and :func:`pack_archive` packs it
+                                          ``_cell`` names the cell, ``<key>.<protocol>``; floats stored as float32 and
+                                          unit columns such as ``t_cm`` derived, :data:`PRECISION`; the schema's
+                                          metadata keeps each cell's columns, dtypes and derived columns, so that its
+                                          own table comes back, :func:`archived_per_sample`); an older archive's
+                                          ``<key>.<protocol>.parquet`` per cell, or float64 packed file, is still read,
+                                          and :func:`pack_archive` packs it
         predictions_<key>.npz.xz          only with ``predictions=True``: its predictions, xz-compressed (restored
                                           byte for byte: the sha256 holds)
         run_<run key>/run.json            the trained run's identity (preset fields, dataset, seed) ...
@@ -111,11 +113,83 @@ def _copy(src: Path, dst: Path) -> None:
 #: The file of an archive's dataset folder that holds every cell's per-sample metrics (``cells/`` beside the records).
 PACKED = "per_sample.parquet"
 
+#: How the packed file stores a cell's float64 metrics: as float32 (about seven significant digits; the tables print
+#: one or two decimals of degrees, centimetres and percent, and the bootstrap resamples the same values), and a
+#: column that is another one times a unit factor (``t_cm`` = 100 ``t``, ``C_cm_j0`` = 100 ``C_j0``, within 1e-9)
+#: as that rule only. A layout without ``"precision"`` (an archive packed before) holds float64 as it was.
+PRECISION = "float32"
+
+#: The unit columns a packed file derives instead of storing: the part of a column's name that, taken out, names
+#: the column it is a multiple of, and the factor (:func:`scapo.eval.metrics`' centimetres from metres).
+_DERIVED_UNITS = {"_cm": 100.0}
+
+
+def _unit_base(column: str) -> tuple[str, float] | None:
+    """``("t_p0", 100.0)`` for ``"t_cm_p0"``: the column ``column`` is a multiple of and the factor, or None."""
+    for part, factor in _DERIVED_UNITS.items():
+        if part in column:
+            return column.replace(part, "", 1), factor
+    return None
+
+
+def _compact(df):
+    """``(stored, derived)``: the cell table ``df`` as the packed file stores it (float64 columns as float32, the
+    derived unit columns dropped) and the derived columns' rules ``{column: [base column, factor]}``."""
+    import numpy as np
+
+    derived = {}
+    for c in df.columns:
+        rule = _unit_base(str(c))
+        if rule is None or rule[0] not in df.columns or df[c].dtype != np.float64 or df[rule[0]].dtype != np.float64:
+            continue
+        a, b = df[c].to_numpy(), rule[1] * df[rule[0]].to_numpy()
+        if np.array_equal(np.isnan(a), np.isnan(b)) and np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
+            derived[str(c)] = [rule[0], rule[1]]
+    out = df.drop(columns=list(derived))
+    floats = [c for c in out.columns if out[c].dtype == np.float64]
+    return out.astype({c: np.float32 for c in floats}), derived
+
+
+def _expand(stored, layout: dict):
+    """A cell's own table (its columns, in order, and dtypes) from its ``stored`` rows and ``layout``."""
+    stored = stored.copy()
+    for c, (base, factor) in (layout.get("derived") or {}).items():
+        stored[c] = stored[base].astype("float64") * float(factor)
+    return stored[layout["columns"]].astype(layout["dtypes"]).reset_index(drop=True)
+
+
+def as_archived(df):
+    """The per-sample table ``df`` as it comes back from a packed archive (:data:`PRECISION`): what a table
+    made again from the archive reads, and what a cell scored again is compared with (:func:`rescore_cell`)."""
+    stored, derived = _compact(df.reset_index(drop=True))
+    return _expand(stored, {"columns": list(map(str, df.columns)), "dtypes": {str(c): str(t) for c, t in
+                                                                          df.dtypes.items()}, "derived": derived})
+
+
+def same_as_archived(back, df) -> bool:
+    """Whether ``back`` (from the archive) is the cell table ``df`` as the archive keeps it: the same columns,
+    dtypes and rows, integers and NaNs exactly, floats within float32 rounding (relative 1e-6)."""
+    import numpy as np
+
+    df = df.reset_index(drop=True)
+    if back is None or list(back.columns) != list(df.columns) or list(back.dtypes) != list(df.dtypes) \
+            or len(back) != len(df):
+        return False
+    for c in df.columns:
+        a, b = back[c].to_numpy(), df[c].to_numpy()
+        if np.issubdtype(b.dtype, np.floating):
+            if not (np.array_equal(np.isnan(a), np.isnan(b)) and np.allclose(a, b, rtol=1e-6, atol=0, equal_nan=True)):
+                return False
+        elif not np.array_equal(a, b):
+            return False
+    return True
+
 
 def archived_per_sample(cells: Path, stem: str):
     """The archived per-sample metrics (a ``pandas.DataFrame``, the cell's own columns and dtypes) of the cell
-    ``stem`` (``<key>.<protocol>``) in the archive folder ``cells``: from the packed file, else from the cell's own
-    parquet file (an archive written before the packed file); None where neither has it.
+    ``stem`` (``<key>.<protocol>``) in the archive folder ``cells``: from the packed file (its floats as the file keeps
+    them, :data:`PRECISION`), else from the cell's own parquet file (an archive written before the packed file); None
+    where neither has it.
 
     Raises:
         ConfigError: the file holding it cannot be read (names it: remove the cell's files so that it is computed
@@ -133,66 +207,79 @@ def archived_per_sample(cells: Path, stem: str):
                           "the archive so that it is computed again") from e
 
 
+def _layouts(packed: Path) -> dict:
+    import pyarrow.parquet as pq
+
+    return json.loads((pq.read_schema(packed).metadata or {}).get(b"scapo_cells", b"{}"))
+
+
 def _from_packed(packed: Path, stem: str):
     """Cell ``stem``'s table from the packed file ``packed`` (its own columns, in order, and dtypes), or None."""
     import pyarrow.parquet as pq
 
-    layout = json.loads((pq.read_schema(packed).metadata or {}).get(b"scapo_cells", b"{}")).get(stem)
+    layout = _layouts(packed).get(stem)
     if layout is None:
         return None
     df = pq.read_table(packed, filters=[("_cell", "=", stem)]).to_pandas()
-    return df[layout["columns"]].astype(layout["dtypes"]).reset_index(drop=True)
+    return _expand(df, layout)
 
 
 def _pack(cells: Path, frames: dict) -> None:
     """Put the per-sample metrics ``frames`` (stem -> DataFrame) into ``cells``' packed file, replacing those stems'
-    rows (written atomically; the other cells' rows and layouts kept)."""
+    rows (written atomically; the other cells' rows kept, those of an earlier float64 layout stored again as
+    :data:`PRECISION`)."""
     import pandas as pd
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     packed = Path(cells) / PACKED
-    layouts, parts = {}, []
+    frames = dict(frames)
     if packed.is_file():
-        layouts = json.loads((pq.read_schema(packed).metadata or {}).get(b"scapo_cells", b"{}"))
-        old = pq.read_table(packed).to_pandas()
-        parts.append(old[~old["_cell"].isin(list(frames))])
-        layouts = {k: v for k, v in layouts.items() if k not in frames}
-    for stem, df in frames.items():
+        for stem in _layouts(packed):
+            if stem not in frames:
+                frames[stem] = _from_packed(packed, stem)
+    layouts, parts = {}, []
+    for stem, df in sorted(frames.items()):
+        stored, derived = _compact(df.reset_index(drop=True))
         layouts[stem] = {"columns": list(map(str, df.columns)),
-                         "dtypes": {str(c): str(t) for c, t in df.dtypes.items()}}
-        parts.append(df.assign(_cell=stem))
+                         "dtypes": {str(c): str(t) for c, t in df.dtypes.items()},
+                         "derived": derived, "precision": PRECISION}
+        parts.append(stored.assign(_cell=stem))
     table = pa.Table.from_pandas(pd.concat(parts, ignore_index=True, sort=False), preserve_index=False)
     table = table.replace_schema_metadata({**(table.schema.metadata or {}),
                                            b"scapo_cells": json.dumps(layouts, sort_keys=True).encode()})
+    floats = [f.name for f in table.schema if pa.types.is_floating(f.type)]
     buf = pa.BufferOutputStream()
-    pq.write_table(table, buf, compression="zstd")
+    pq.write_table(table, buf, compression="zstd", compression_level=19, use_byte_stream_split=floats or False)
     _write(packed, buf.getvalue().to_pybytes())
 
 
 def pack_archive(archive: Path) -> int:
     """Pack every dataset folder of ``archive`` whose cells keep their per-sample metrics in a file each (an archive
-    written before :data:`PACKED`): their tables go into the packed file, checked to come back equal, and the files
-    are deleted. Returns the number of cells packed.
+    written before :data:`PACKED`) or in a packed file of an earlier layout (float64): their tables go into the packed
+    file as :data:`PRECISION`, checked to come back the same (:func:`same_as_archived`), and the per-cell files are
+    deleted. Returns the number of cells packed.
 
     Raises:
-        ConfigError: a cell's metrics do not come back equal from the packed file (nothing is deleted)."""
+        ConfigError: a cell's metrics do not come back the same from the packed file (nothing is deleted)."""
     import pandas as pd
 
     n = 0
     for cells in sorted(p for p in Path(archive).rglob("cells") if p.is_dir()):
         own = sorted(f for f in cells.glob("*.parquet") if f.name != PACKED)
-        if not own:
+        packed = cells / PACKED
+        earlier = {s: _from_packed(packed, s) for s, lay in _layouts(packed).items()
+                   if lay.get("precision") != PRECISION} if packed.is_file() else {}
+        if not own and not earlier:
             continue
-        frames = {f.name[:-len(".parquet")]: pd.read_parquet(f) for f in own}
+        frames = {**earlier, **{f.name[:-len(".parquet")]: pd.read_parquet(f) for f in own}}
         _pack(cells, frames)
         for stem, df in frames.items():  # read back from the packed file alone before anything is deleted
-            back = _from_packed(cells / PACKED, stem)
-            if back is None or not back.equals(df.reset_index(drop=True)):
-                raise ConfigError(f"{cells / PACKED}: the metrics of {stem} do not come back equal; nothing deleted")
+            if not same_as_archived(_from_packed(packed, stem), df):
+                raise ConfigError(f"{packed}: the metrics of {stem} do not come back the same; nothing deleted")
         for f in own:
             f.unlink()
-        n += len(own)
+        n += len(frames)
     return n
 
 
@@ -570,7 +657,8 @@ def reconcile_dataset(data: Path, archive: Path, rtol: float = RECONCILE_RTOL,
 #: How far a per-sample error of an archived cell scored again on a regenerated dataset, and a float of an untrained
 #: method's predictions computed again on it, may be from the archived one (absolute, in the metric's unit:
 #: degrees, centimetres, metres). Rounding of double-precision ground truth moves them by 1e-12 (measured on issue
-#: 31's 73 archived cells, ``results/diagnostics/cross_cpu``); a float32 input one ulp off moves them by 1e-8.
+#: 31's 73 archived cells, ``results/diagnostics/cross_cpu`` (at 9a79e15)); a float32 input one ulp off moves them by
+#: 1e-8.
 ADOPT_ATOL = 1e-9
 #: The evidence file of :func:`adopt_dataset`, in ``<archive>/<dataset folder name>/dataset/``.
 ADOPTED = "adopted.json"
@@ -626,6 +714,10 @@ def rescore_cell(root: Path, rec_path: Path, data: Path) -> dict | None:
         raise ConfigError(f"no archived per-sample metrics of {rec_path.name[:-len('.json')]} in {rec_path.parent}; "
                           "remove the cell's files from the archive so that it is computed again")
     new = res.per_sample.reset_index(drop=True)
+    packed = rec_path.parent / PACKED
+    stem = rec_path.name[:-len(".json")]
+    if packed.is_file() and (_layouts(packed).get(stem) or {}).get("precision") == PRECISION:
+        new = as_archived(new)  # compared as the archive keeps it (float32)
     ids = [c for c in ("instance_id", "view_id") if c in old.columns and c in new.columns]
     same_rows = len(old) == len(new) and all(np.array_equal(old[c].to_numpy(), new[c].to_numpy()) for c in ids)
     cols = [c for c in old.columns if c in new.columns and pd.api.types.is_numeric_dtype(old[c])]
@@ -835,5 +927,6 @@ def adopt_dataset(data: Path, archive: Path, atol: float = ADOPT_ATOL, progress:
 
 __all__ = ["ADOPTED", "ADOPT_ATOL", "DATASET", "DOUBLE_FIELDS", "RECONCILE_ATOL", "RECONCILE_RTOL", "RUN_FILES",
            "UNTRAINED_DETERMINISTIC", "adopt_dataset", "archive_cell", "archive_conflict", "archive_dataset",
-           "archived_dataset_hashes", "archived_per_sample", "pack_archive", "PACKED", "reconcile_dataset",
+           "archived_dataset_hashes", "archived_per_sample", "as_archived", "pack_archive", "PACKED", "PRECISION",
+           "same_as_archived", "reconcile_dataset",
            "rescore_cell", "restore_cells"]

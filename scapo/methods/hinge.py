@@ -6,7 +6,7 @@ cross-space terms) barely see it. On the laptop's paper viewpoints, most of SCAP
 tenth of the bounding-box diagonal of the hinge, and its predicted pivot lies a twentieth to a tenth of the diagonal
 from the true hinge line, while its predicted axis is within a few degrees (``bench/diagnostics/hinge_diagnosis.py``;
 the
-measurements are in ``results/canonical_ladder/hinge/``).
+measurements are in ``results/canonical_ladder/hinge/`` (at 9a79e15)).
 
 This step re-estimates the pivot from the points and re-splits them, view by view, from a method's own one-pass
 prediction (its labels, joint axis and pivot; no ground truth, no training):
@@ -36,7 +36,8 @@ prediction (its labels, joint axis and pivot; no ground truth, no training):
    parent's principal direction the child's length is most nearly perpendicular to in every view; each view's axis
    is then its parent's principal direction of that rank (:func:`bar_axis`) and its pivot the lines' intersection
    about it. That joint's split is not re-fitted: a shut bar lies along its parent, where two rays cannot split it
-   (measured in ``results/canonical_ladder/bar_axis/``: from the true eyeglasses split, the two-ray re-split keeps
+   (measured in ``results/canonical_ladder/bar_axis/`` (at 9a79e15): from the true eyeglasses split, the two-ray
+   re-split keeps
    60-66 % of S).
 
 6. Optionally (``hinge_frames=true``, after the steps above): each part's rotation read from its hinge
@@ -52,7 +53,7 @@ pivot, never the axis). It reads only what the method predicts, so it is offered
 (``scapo predict --option hinge=true``; the predictions' label gets ``+hinge`` and ``info["hinge"]`` records the share
 of points that changed part and the median pivot move; :func:`hinge_predictions` applies it to a predictions file
 already written). It is not free: a method whose split is already right but whose pivot is far off loses (ICP on
-Table 1's laptop views, ``results/table1_paper_hinge_5min/``).
+Table 1's laptop views, ``results/table1_paper_hinge_5min/`` (at 9a79e15)).
 """
 
 from __future__ import annotations
@@ -584,7 +585,8 @@ class HingeFrames:
     With ``view_prior`` (the option ``hinge_view_prior=true``), each view also chooses which of its base joint's two
     parts is the base (:meth:`fit` chooses the base slot): a laptop's base and lid are exchanged by a half-turn about
     the bisector of the opening, and a network can give the base's slot to the lid in a whole view, turning every part
-    by 180 deg (the views are the same across training seeds: ``results/canonical_ladder/hinge/``). Each training
+    by 180 deg (the views are the same across training seeds: ``results/canonical_ladder/hinge/`` (at 9a79e15)). Each
+    training
     view offers two hypotheses for the base's camera-frame axes ``E_base``: its base slot's, and the other part's
     with the two exchanged; when the views come from a limited range of viewpoints (the paper's), one orientation
     ``M`` is reached by most views with one of their two (:meth:`_fit_prior`), and a view takes the exchanged split
@@ -731,7 +733,7 @@ class HingeFrames:
         its parent and child exchange points, the joint's state is the old child's motion seen from the other part,
         which about the same axis and pivot is the opposite turn (the evaluator matches the exchanged joint with its
         parent and child reversed and negates it back). Without this the view prior's exchanged views score their
-        state with the wrong sign (measured in ``results/table1_paper_hinge_5min/joint_state_sign.md``)."""
+        state with the wrong sign (measured in ``results/table1_paper_hinge_5min/joint_state_sign.md`` (at 9a79e15))."""
         js = np.array(joint_state, dtype=np.float64, copy=True)
         pair = self._root_pair()
         if pair is None:

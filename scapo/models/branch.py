@@ -2,7 +2,7 @@
 
 Stage 1 (paper Sec. 3.1) canonicalises each cloud by an SE(3)-equivariant auto-encoder. On shapes
 whose largest part is near-symmetric its frames are bimodal: measured on the val split
-(``results/scapo_upright_choice/``), a laptop's frame takes a half turn that swaps base and screen
+(``results/scapo_upright_choice/`` (at 9a79e15)), a laptop's frame takes a half turn that swaps base and screen
 on about 40 % of the views and eyeglasses are turned upside down on about 60 %. Stage 2 then fits
 one template, one part split and one set of joints to canonical clouds that come in two
 orientations, and the part split it finds mixes them (eyeglasses: a lens with the opposite temple).

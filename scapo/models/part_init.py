@@ -305,7 +305,7 @@ def axis_from_turns(clouds: torch.Tensor, labels: torch.Tensor, child: int, min_
     (``min(gap to the nearest eigenvalue, largest) / largest``: the roll of a thin bar about its own length, or the
     in-plane axes of a round disc, are not seen, and weigh nothing). Registration of the part across clouds
     (:func:`estimate_axes`) reads such unseen rolls as motion: on eyeglasses' temples (thin bars) it gives axes 84-90
-    deg off with the true split, where this gives 2-4 deg (``results/canonical_ladder/axis_init/``).
+    deg off with the true split, where this gives 2-4 deg (``results/canonical_ladder/axis_init/`` (at 9a79e15)).
 
     Args:
         clouds: ``(B, n, 3)`` clouds in one frame (canonical, normalised units), the parent part held still in it.
@@ -502,7 +502,8 @@ def label_clouds(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Ten
     :data:`RETRY_STRIDE`-th point of the cloud, then the part-by-part fit on all of them), and each of those clouds
     keeps whichever of its two fits scores lower (a minimum over hypotheses; an addition to the paper:
     on the table's eyeglasses data the clouds labelled at random are those whose frame is far from the template's,
-    and their identity fit is the worse, ``results/canonical_ladder/stage2_parts/scale/README.md``, section 10).
+    and their identity fit is the worse, ``results/canonical_ladder/stage2_parts/scale/README.md`` (at 9a79e15),
+    section 10).
     ``record``, when given, gets ``{"retried", "kept_retry"}``: the shares of the clouds fitted again and of those
     whose second fit was kept.
 
@@ -647,7 +648,7 @@ def overseg_starts(template: torch.Tensor, num_parts: int, clusters: int, seed: 
     every grouping of the clusters into ``num_parts`` parts (:func:`set_partitions`) -> a list of ``S(clusters,
     num_parts)`` label tensors ``(M,)`` int64. Random keypoint starts rarely draw a part made of the template's far
     ends (an eyeglasses temple on either side of the front); groups of clusters can (results/canonical_ladder/
-    stage2_parts/scale/).
+    stage2_parts/scale/ at 9a79e15).
 
     Raises:
         ValueError: ``clusters`` outside ``[num_parts, MAX_OVERSEG_CLUSTERS]`` or above the template's points."""
@@ -682,7 +683,7 @@ def choose_split(clouds: torch.Tensor, template: torch.Tensor, K: torch.Tensor, 
     they were). With the frame given (``bench/diagnostics/split_init_diagnosis.py``, three seeds, no
     labels used), on eyeglasses the chosen split's mean IoU with the true parts is about twice the keypoint split's
     (about 0.7 against 0.3, on complete clouds and on the paper's partial views); the figures per seed and the laptop's
-    are in ``results/canonical_ladder/split_init/``.
+    are in ``results/canonical_ladder/split_init/`` (at 9a79e15).
 
     Args:
         clouds: ``(B, n, 3)`` canonical training clouds (``B >= 2``). template: ``(M, 3)`` one of them (stage 2's

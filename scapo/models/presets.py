@@ -87,14 +87,14 @@ class TrainConfig:
     ``split-fit``); "fitted", the most rigid of the fitted splits only (the keypoint split is scored, and kept only
     when no fit keeps every part; preset part ``split-fitted``): on eyeglasses data other than the one "fit" was chosen
     on, the keypoint split, whose Voronoi cells cannot hold a folded temple, sometimes wins the score and the
-    pseudo-labels built on it lose the frame (results/canonical_ladder/stage2_parts/scale/)."""
+    pseudo-labels built on it lose the frame (results/canonical_ladder/stage2_parts/scale/ (at 9a79e15))."""
     split_overseg: int = 0
     """With ``split_init`` "fit" or "fitted": the template is also cut into this many k-means clusters and every
     grouping of them into the category's parts starts a fit (:func:`scapo.models.part_init.overseg_starts`; 6 gives 90
     more fits on three parts, 31 on two). 0: off, the keypoint and random starts only. At most
     :data:`scapo.models.part_init.MAX_OVERSEG_CLUSTERS`. An addition to the paper, preset part ``split-overseg``; on
     the eyeglasses' stage-2 start it finds splits more rigid than the random starts' (results/canonical_ladder/
-    stage2_parts/scale/)."""
+    stage2_parts/scale/ at 9a79e15)."""
     split_labels: bool = False
     """At the start of stage 2, label every training cloud with stage 2's starting split (the template, split as it
     starts, fitted part by part to the cloud in its stage-1 frame: :func:`scapo.models.part_init.label_clouds`) and
@@ -131,7 +131,8 @@ class TrainConfig:
     chance, those whose frame at stage 2's start is far from the template's; the starts rescue half of their base,
     and the training targets in one frame rise from 0.76-0.82 to 0.84-0.90 over three seeds, but the val result
     does not change (S 54.4 -> 54.3, median R 14.2 -> 15.1, nothing supported: a negative result;
-    results/canonical_ladder/stage2_parts/scale/README.md, section 10). 0 (default): every cloud fitted once, as
+    results/canonical_ladder/stage2_parts/scale/README.md at 9a79e15, section 10). 0 (default): every cloud fitted
+    once, as
     ``label_starts`` says."""
     label_stride: int = 1
     """With ``split_labels``: the pseudo-labelling at the start of stage 2 reads each training cloud's stage-1 frame
@@ -308,10 +309,11 @@ PRESETS.add("cpu", TrainConfig(
     # root_motion: the stage-1 frame sits between a laptop's base and screen, so the base must be able to
     # turn about the hinge; refine: a test-time fit of the posed template to each view; starts="octahedral":
     # some views' stage-1 frame is 60-90 deg off, which the local fit cannot undo; margin: chosen on the
-    # val split by bench/scapo_laptop_seeds.sh (results/scapo_laptop_cpu_seeds/choice_refine_margin_val.json);
+    # val split by bench/scapo_laptop_seeds.sh (results/scapo_laptop_cpu_seeds/choice_refine_margin_val.json (at
+    # 9a79e15));
     # upright_deg: about half of the views' frames took the half-turned branch of a near-symmetric shape
     # (laptop base and screen swapped, eyeglasses upside down); the prior, chosen on the val split over two
-    # laptop seeds and one eyeglasses run (results/scapo_upright_choice/), resolves most of them
+    # laptop seeds and one eyeglasses run (results/scapo_upright_choice/ (at 9a79e15)), resolves most of them
     # epochs: the tables' equal training budget, 15 minutes of training per cell on one core for the tables' 840
     # training clouds at the speed measured by scapo bench perf --what train --data (results/perf/
     # train_cpu_laptop_i150_v8_s1_scapo.md; before it, 20 + 16)
@@ -477,20 +479,23 @@ EYEGLASSES_PARTS = ("split-fitted", "split-overseg", "split-labels", "stage2-par
 #: ``cpu-eyeglasses``' inference setting: one-pass prediction from the identity and the three half turns of the
 #: stage-1 frame (``RefineConfig.stage2_starts = "D2"``). Chosen on the val split of Table 1's eyeglasses
 #: data, three seeds, against "" and "O" by the laptop's criterion (the mean object-frame consistency; D2 0.853 and
-#: O 0.847 within 0.02 of each other, so the cheaper set) (results/canonical_ladder/stage2_parts/scale/stage2_starts/);
+#: O 0.847 within 0.02 of each other, so the cheaper set) (results/canonical_ladder/stage2_parts/scale/stage2_starts/
+#: (at 9a79e15));
 #: ``--option stage2_starts=off`` is its ablation row.
 EYEGLASSES_STAGE2_STARTS = "D2"
 PRESETS.add("cpu-eyeglasses", replace(get_preset("cpu/" + "/".join(EYEGLASSES_PARTS)), name="cpu-eyeglasses",
                                       refine=replace(get_preset("cpu").refine, stage2_starts=EYEGLASSES_STAGE2_STARTS)))
 #: The parts of ``cpu`` that make SCAPO's per-category preset for the laptop (``cpu-laptop``): the whole eyeglasses
 #: recipe. Chosen on the val split of Table 1's paper-regime laptop data
-#: against ``cpu``, three seeds each at the table's schedule (results/canonical_ladder/stage2_parts/laptop_table/).
+#: against ``cpu``, three seeds each at the table's schedule (results/canonical_ladder/stage2_parts/laptop_table/ (at
+#: 9a79e15)).
 LAPTOP_PARTS = EYEGLASSES_PARTS
 #: ``cpu-laptop``'s inference setting (not part of a run, so it applies to every ``cpu-laptop`` run): one-pass
 #: prediction from the 24 cube-group turns of the stage-1 frame, each view keeping the start whose posed template fits
 #: its points best (``RefineConfig.stage2_starts = "O"``, :meth:`scapo.models.scapo_model.SCAPOModel.passes`). Chosen
 #: on the val split of Table 1's laptop data, three seeds, against "" and "D2"
-#: (results/canonical_ladder/stage2_parts/laptop_table/stage2_starts/); ``--option stage2_starts=off`` is its
+#: (results/canonical_ladder/stage2_parts/laptop_table/stage2_starts/ (at 9a79e15)); ``--option stage2_starts=off``
+#: is its
 #: ablation row.
 LAPTOP_STAGE2_STARTS = "O"
 PRESETS.add("cpu-laptop", replace(get_preset("cpu/" + "/".join(LAPTOP_PARTS)), name="cpu-laptop",
