@@ -93,6 +93,32 @@ def cpu_name() -> str:
     return platform.processor() or "unknown CPU"
 
 
+@lru_cache(maxsize=1)
+def cpu_kind() -> str:
+    """The kind of CPU, finer than its marketing name: ``"AMD EPYC, family 25 model 17, avx512"`` (vendor's model
+    name, ``/proc/cpuinfo``'s family and model, and whether it has AVX-512 or AVX2). Two machines of one name can
+    differ in speed by tens of percent (e.g. AMD EPYC of families 25 model 1 and model 17), so a core-second is only
+    compared between cells whose kind is the same (the compute ledger, :mod:`scapo.engine.ledger`, records it)."""
+    fields = {}
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, sep, value = line.partition(":")
+            if sep and key.strip() in ("cpu family", "model", "flags") and key.strip() not in fields:
+                fields[key.strip()] = value.strip()
+            if line.strip() == "" and fields:
+                break
+    except OSError:
+        pass
+    flags = set(fields.get("flags", "").split())
+    vector = "avx512" if "avx512f" in flags else "avx2" if "avx2" in flags else "no avx2" if flags else ""
+    parts = [cpu_name()]
+    if "cpu family" in fields or "model" in fields:
+        parts.append(f"family {fields.get('cpu family', '?')} model {fields.get('model', '?')}")
+    if vector:
+        parts.append(vector)
+    return ", ".join(parts) if len(parts) > 1 else f"{platform.machine()} {cpu_name()}"
+
+
 def device_description(torch_device: str | None = None) -> str:
     """Short description such as ``"cpu: 2 cores, Intel(R) ..."`` or ``"cuda: NVIDIA H100 ..."``."""
     if torch_device and torch_device.startswith("cuda"):
@@ -135,6 +161,7 @@ def provenance(**extra) -> dict:
         "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "host": platform.node(),
         "device": device_description(extra.pop("torch_device", None)),
+        "cpu_kind": cpu_kind(),
         "python": platform.python_version(),
         "numpy": numpy.__version__,
         "torch": torch.__version__,

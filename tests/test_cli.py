@@ -30,7 +30,7 @@ def test_generate_predict_evaluate_round_trip(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "icp" in out and (tmp_path / "t" / "table1.md").is_file()
     assert main(["preview", "--data", str(d), "--count", "2", "--out", str(tmp_path / "p.png")]) == 0
-    assert (tmp_path / "p.png").stat().st_size > 10_000
+    assert (tmp_path / "p.png").stat().st_size > 4_000  # drawn (a blank 256-colour PNG is about 1 KB)
     assert main(["predict", "--method", "nope", "--data", str(d), "--out", str(tmp_path / "x.npz")]) == 2
     # LABEL=FILE: a file's predictions as a row of its own name (two variants of one method side by side)
     from scapo.eval.predictions import Predictions

@@ -183,9 +183,10 @@ def test_parse_variant():
             parse_variant(bad)
 
 
-def test_ladder_end_to_end(tmp_path, capsys):
+def test_ladder_end_to_end(tmp_path, capsys, monkeypatch):
     """A tiny ladder (one rung, NPCS-style and a variant of it at their test presets) writes its table and resumes
-    without recomputing. (In this process, as the compute curve's test: two interpreters' start took half its time.)"""
+    without recomputing; a speed file measured on another kind of CPU is set aside and measured again. (In this
+    process, as the compute curve's test: two interpreters' start took half its time.)"""
     from scapo.cli.main import main
 
     cmd = ["bench", "ladder", "--category", "laptop", "--rungs", "one",
@@ -208,6 +209,22 @@ def test_ladder_end_to_end(tmp_path, capsys):
     capsys.readouterr()
     assert main(cmd) == 0 and "measuring" not in capsys.readouterr().out
     assert json.loads((tmp_path / "o" / "ladder_laptop.json").read_text())["records"] == table["records"]
+    # a speed file measured on another kind of CPU is kept aside and measured again on this one
+    speed = next(p for p in (tmp_path / "w" / "ladder").glob("speed_npcs*.json") if "cpu_v" not in p.name)
+    rows = json.loads(speed.read_text())
+    speed.write_text(json.dumps([{**r, "cpu_kind": "Other CPU, family 1 model 2, avx2"} for r in rows]))
+    import scapo.bench.perf as perf
+    from scapo.bench.ladder import _training_presets
+
+    monkeypatch.setattr(perf, "bench_train_data", lambda *a, **k: rows)  # the measurement, as this machine made it
+    data = next((tmp_path / "w" / "ladder" / "data").iterdir())
+    _training_presets(["npcs"], data, 0.05, "test", tmp_path / "w" / "ladder")
+    out = capsys.readouterr().out
+    assert f"{speed.name} was measured on another kind of CPU (Other CPU, family 1 model 2, avx2; this is" in out
+    assert len(list(speed.parent.glob(speed.stem + ".*.other-cpu.json"))) == 1
+    from scapo.provenance import cpu_kind
+
+    assert {r["cpu_kind"] for r in json.loads(speed.read_text())} == {cpu_kind()}
 
 
 @pytest.mark.parametrize("args,match", [
@@ -480,6 +497,14 @@ def test_a_finished_cell_is_not_reused_for_another_dataset_schedule_or_budget(tm
         args = {"data_hash": "a" * 64, "values": {"epochs": 3}, "budget_s": 3.0, **kw}
         with pytest.raises(ConfigError, match=r"finished cell .*npcs_s0.json was made with " + re.escape(what)):
             check_reuse(rec, path, args["data_hash"], args["values"], args["budget_s"])
+    from scapo.provenance import cpu_kind  # a trained cell charged in core-seconds of another kind of CPU
+
+    charged = {**rec, "ledger": {"unit": "core-seconds", "charged_s": 3.0}, "provenance": {"cpu_kind": cpu_kind()}}
+    check_reuse(charged, path, "a" * 64, {"epochs": 3}, 3.0)
+    for prov, what in (({"cpu_kind": "Other CPU, family 1 model 2, avx2"}, "core-seconds of Other CPU, family 1 model "
+                        f"2, avx2 (this machine: {cpu_kind()})"), ({}, "core-seconds of a kind of CPU not recorded")):
+        with pytest.raises(ConfigError, match=r"npcs_s0.json was made with " + re.escape(what)):
+            check_reuse({**charged, "provenance": prov}, path, "a" * 64, {"epochs": 3}, 3.0)
     for text, why in (('{"method": "np', "Unterminated string"), ("[]", "a JSON list, not an object"),
                       (json.dumps({**rec, "S": float("nan")}), "field 'S' is nan"),
                       (json.dumps({k: v for k, v in rec.items() if k != "dataset_hash"}), "no field 'dataset_hash'")):
@@ -612,4 +637,30 @@ def test_a_ladder_table_of_cells_from_several_commits_is_refused():
     with pytest.raises(ConfigError, match=r"the cells come from 2 commits \(3609d42bbbbb: paper/op-align_s1, "
                                           r"paper/op-align_s2; 8707392aaaaa: paper/op-align_s0\)"):
         check_one_commit(recs)
+    check_one_commit(recs, allow=True)
+
+
+def test_a_ladder_table_of_trained_cells_charged_on_several_kinds_of_cpu_is_refused(monkeypatch):
+    """A core-second of one kind of CPU buys other steps than one of another (the same OP-Align-style cell charged
+    883 and 761 core-seconds on two AMD EPYC kinds): the provenance names the kind (family, model, vector unit), a
+    table of trained cells charged on several kinds is refused naming them (a record without the kind counts as one),
+    untrained cells (no ledger) do not count, and --allow-mixed-commits writes it anyway."""
+    from scapo.bench.ladder import check_one_commit
+    from scapo.errors import ConfigError
+    from scapo.provenance import cpu_kind, provenance
+
+    kind = cpu_kind()
+    assert kind == provenance()["cpu_kind"] and kind.count(",") >= 1  # the name and at least family / model
+    a, b = "AMD EPYC, family 25 model 17, avx512", "AMD EPYC, family 25 model 1, avx2"
+    recs = [{"rung": "paper", "method": m, "seed": s, "charged_min": 15.0, "provenance": {"commit": "c", "cpu_kind": k}}
+            for m, s, k in (("op-align", 0, a), ("scapo", 0, a), ("op-align", 1, b))]
+    icp = {"rung": "paper", "method": "icp", "seed": None, "provenance": {"commit": "c", "cpu_kind": b}}
+    check_one_commit(recs[:2] + [icp])  # one kind among the trained cells
+    with pytest.raises(ConfigError, match=r"charged on 2 kinds of CPU \(AMD EPYC, family 25 model 1, avx2: "
+                                          r"paper/op-align_s1; AMD EPYC, family 25 model 17, avx512: "
+                                          r"paper/op-align_s0, paper/scapo_s0\)"):
+        check_one_commit(recs)
+    old = {"rung": "paper", "method": "eap", "seed": 0, "charged_min": 15.0, "provenance": {"commit": "c"}}
+    with pytest.raises(ConfigError, match="kind not recorded: paper/eap_s0"):
+        check_one_commit(recs[:2] + [old])
     check_one_commit(recs, allow=True)

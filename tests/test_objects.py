@@ -112,7 +112,7 @@ def test_cli_generates_and_previews_an_object_dataset(two_objects, tmp_path, cap
     assert main(args) == 0
     assert json.loads((d / "config.json").read_text())["objects"][1]["view"] == {"azimuth_deg": [-30, 30]}
     assert main(["preview", "--data", str(d), "--split", "all", "--count", "2", "--out", str(tmp_path / "p.png")]) == 0
-    assert (tmp_path / "p.png").stat().st_size > 10_000
+    assert (tmp_path / "p.png").stat().st_size > 4_000  # drawn (a blank 256-colour PNG is about 1 KB)
     assert main(["generate", "--category", "laptop", "--instances", "2", "--views", "1", "--parts", "door", "--out",
                  str(tmp_path / "bad")]) == 2
     assert "apply to existing objects" in capsys.readouterr().err

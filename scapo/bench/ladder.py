@@ -134,6 +134,7 @@ def _training_presets(methods: Sequence, data: Path, budget_minutes: float, pres
     from scapo.config import override
     from scapo.data import load
     from scapo.methods import METHODS
+    from scapo.provenance import cpu_kind
 
     keys = [(k[0], k[1], dict(k[2])) if isinstance(k, tuple) else (k, preset, {}) for k in methods]
     trained = [(m, p, sets) for m, p, sets in keys if METHODS.get(m).trained]
@@ -150,6 +151,17 @@ def _training_presets(methods: Sequence, data: Path, budget_minutes: float, pres
             old = runs / f"{m}_{p.replace('/', '-')}"
             if old.exists():
                 old.rename(old.with_name(old.name + ".pre-ledger"))
+        if path.is_file() and (device or "cpu") == "cpu" and {
+                r.get("cpu_kind") for r in _speed_rows(path, m, data)} != {cpu_kind()}:
+            # measured on another kind of CPU (or before the kind was recorded): its core-seconds buy other steps
+            kept = path.with_suffix(f".{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.other-cpu.json")
+            print(f"scapo bench ladder: {path.name} was measured on another kind of CPU "
+                  f"({', '.join(sorted(str(r.get('cpu_kind', 'not recorded')) for r in _speed_rows(path, m, data)))}; "
+                  f"this is {cpu_kind()}): kept as {kept.name}, measured again", flush=True)
+            path.rename(kept)
+            old = runs / f"{m}_{p.replace('/', '-')}"
+            if old.exists():
+                old.rename(old.with_name(old.name + kept.suffixes[0]))
         if not path.is_file():
             what = p + "".join(f", {k}={v}" for k, v in sets.items())
             print(f"scapo bench ladder: measuring the training speed of {m} ({what}) on {data.name}", flush=True)
@@ -350,22 +362,39 @@ def check_table_rows(path: Path, made: set, fields: Sequence[str], command: str)
 
 
 def check_one_commit(records: Sequence[dict], allow: bool = False) -> None:
-    """Refuse a table whose cells were computed by several commits' code (``provenance.commit`` of each record): a
-    table's cells come from one clean commit, and a cell made by other code would otherwise be reused silently.
+    """Refuse a table whose cells were computed by several commits' code (``provenance.commit`` of each record), or
+    whose trained cells were charged on several kinds of CPU (``provenance.cpu_kind``,
+    :func:`scapo.provenance.cpu_kind`; a record without it counts as a kind of its own): a table's cells come from one
+    clean commit, a cell made by other code would otherwise be reused silently, and a core-second of one kind of CPU
+    buys other steps than one of another (measured: the same 1,500 OP-Align-style steps on one ladder cell charged 883
+    core-seconds on one AMD EPYC and 761 on another of the same name, with nothing else running), so the equal budget
+    holds only among cells of one kind.
 
     Raises:
-        ConfigError: (without ``allow``, ``--allow-mixed-commits``) the commits and some cells of each."""
+        ConfigError: (without ``allow``, ``--allow-mixed-commits``) the commits or the kinds, and some cells of each."""
+    def where(r: dict) -> str:
+        return f"{r.get('rung', str(r.get('budget_min', '?')) + ' min')}/{r.get('method')}_s{r.get('seed')}"
+
+    def listing(by: dict, width: int = 80) -> str:
+        return "; ".join(f"{k[:width]}: {', '.join(v[:3])}{', ...' if len(v) > 3 else ''}"
+                         for k, v in sorted(by.items()))
+
     by: dict[str, list[str]] = {}
+    kinds: dict[str, list[str]] = {}
     for r in records:
-        commit = str((r.get("provenance") or {}).get("commit", "unknown"))
-        where = r.get("rung", f"{r.get('budget_min', '?')} min")
-        by.setdefault(commit, []).append(f"{where}/{r.get('method')}_s{r.get('seed')}")
+        prov = r.get("provenance") or {}
+        by.setdefault(str(prov.get("commit", "unknown")), []).append(where(r))
+        if r.get("charged_min") is not None or r.get("ledger"):
+            kinds.setdefault(str(prov.get("cpu_kind", "kind not recorded")), []).append(where(r))
     if len(by) > 1 and not allow:
-        listing = "; ".join(f"{c[:12]}: {', '.join(v[:3])}{', ...' if len(v) > 3 else ''}"
-                            for c, v in sorted(by.items()))
-        raise ConfigError(f"the cells come from {len(by)} commits ({listing}); a table's cells come from one commit: "
-                          "compute the others again at one commit (move their records, predictions and runs away), "
-                          "or give --allow-mixed-commits to write it anyway")
+        raise ConfigError(f"the cells come from {len(by)} commits ({listing(by, 12)}); a table's cells come from one "
+                          "commit: compute the others again at one commit (move their records, predictions and runs "
+                          "away), or give --allow-mixed-commits to write it anyway")
+    if len(kinds) > 1 and not allow:
+        raise ConfigError(f"the trained cells were charged on {len(kinds)} kinds of CPU ({listing(kinds)}); a "
+                          "core-second of one kind buys other steps than one of another, so a table's budget is "
+                          "equal only on one kind: compute the others again on one kind (move their records, "
+                          "predictions and runs away), or give --allow-mixed-commits to write it anyway")
 
 
 def dataset_hash(data: Path) -> str:
@@ -379,8 +408,10 @@ def check_reuse(rec: dict, path: Path, data_hash: str, values: dict | None = Non
                 ) -> None:
     """Refuse to reuse the finished cell ``rec`` (its record at ``path``) for a run of other conditions: another
     dataset, another schedule (``values``: the preset fields the budget set, with a variant's fields), another budget
-    (``budget_s``, charged seconds). A cell is found by its rung, method and seed; this is what keeps a table from
-    being built of cells made under other conditions.
+    (``budget_s``, charged seconds), or charged on another kind of CPU (a record with a ledger in core-seconds whose
+    ``provenance.cpu_kind`` is not this machine's: its budget bought other steps, :func:`check_one_commit`). A cell is
+    found by its rung, method and seed; this is what keeps a table from being built of cells made under other
+    conditions.
 
     Raises:
         ConfigError: what differs, and what to do (another ``--work``, or the cell moved away)."""
@@ -393,6 +424,12 @@ def check_reuse(rec: dict, path: Path, data_hash: str, values: dict | None = Non
     planned = (rec.get("plan") or {}).get("budget_s")
     if budget_s is not None and planned is not None and abs(float(planned) - float(budget_s)) > 1e-6:
         why.append(f"a budget of {float(planned) / 60:g} minutes (asked: {float(budget_s) / 60:g})")
+    if (rec.get("ledger") or {}).get("unit") == "core-seconds":  # charged in core-seconds of its kind of CPU
+        from scapo.provenance import cpu_kind
+
+        kind = str((rec.get("provenance") or {}).get("cpu_kind", "a kind of CPU not recorded"))
+        if kind != cpu_kind():
+            why.append(f"core-seconds of {kind} (this machine: {cpu_kind()})")
     if why:
         raise ConfigError(f"the finished cell {path} was made with {'; '.join(why)}; it is not reused for this run: "
                           "give another --work, or move the cell (its record, predictions and run) away to compute "

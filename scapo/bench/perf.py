@@ -196,6 +196,7 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
     from scapo.engine.ledger import one_time_s
     from scapo.errors import ConfigError
     from scapo.methods import METHODS, train_method
+    from scapo.provenance import cpu_kind
 
     if steps < 2:
         raise ConfigError(f"--steps must be >= 2, got {steps}")
@@ -240,7 +241,7 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
         row.update(max_steps_per_epoch=base.max_steps_per_epoch, fixed_s=round(fixed, 1),
                    one_time_s={n: round(v, 1) for n, v in one_time.items()}, unit=ledger["unit"], train_clouds=clouds,
                    data=str(data), device=timing.get("device") or device or "cpu",
-                   threads=torch.get_num_threads())
+                   threads=torch.get_num_threads(), cpu_kind=cpu_kind())
         rows.append(row)
     return rows
 

@@ -24,6 +24,11 @@ phase                        what
 A cell of a table (:func:`scapo.bench.ladder`, :mod:`scapo.bench.experiments`) plans its steps from the charged
 rates measured on the same data (:func:`scapo.bench.perf.training_budget`: the budget less the one-time phases)
 and is refused by :func:`check_budget` when its ledger exceeds :data:`OVER_BUDGET` times the budget.
+
+A core-second is a second of one core of the machine's kind of CPU (:func:`scapo.provenance.cpu_kind`, in every
+record's provenance and speed file): the same steps cost 16 % fewer core-seconds on one AMD EPYC than on another of
+the same name, so speeds are measured on the kind that computes the cells, and a table's trained cells share one kind
+(:func:`scapo.bench.ladder.check_one_commit`, :func:`scapo.bench.ladder.check_reuse`).
 """
 
 from __future__ import annotations
