@@ -775,7 +775,7 @@ def test_the_bench_refuses_a_dirty_checkout_and_a_table_of_mixed_commits_unless_
 def test_table1_rows_are_one_pass_and_the_refined_prediction_is_a_row_of_its_own(bench, tmp_path):
     """Equal treatment (issue 29): SCAPO's Table 1 row predicts without its test-time refinement, as every other
     method does; "SCAPO (ours) + refine" is a separate row predicted from the same trained run (trained once) by
-    the method-independent refinement (scapo.methods.refine) that every refinable method gets; Table 3's rows
+    the method-independent refinement (scapo.steps.refine) that every refinable method gets; Table 3's rows
     are one-pass too."""
     import shutil
 

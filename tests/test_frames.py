@@ -198,8 +198,8 @@ def test_the_base_frame_snap_recovers_one_frame_from_noisy_ones():
     kept; a view with no base points keeps its frame."""
     import numpy as np
 
-    from scapo.methods.base_frame import fit_base_offset, snap_to_base
     from scapo.ops.so3 import rotation_from_rotvec
+    from scapo.steps.base_frame import fit_base_offset, snap_to_base
 
     g = torch.Generator().manual_seed(3)
     V = 40
@@ -216,7 +216,7 @@ def test_the_base_frame_snap_recovers_one_frame_from_noisy_ones():
     pose[:, :, :3, 3] = pts.mean(1)[:, None]
     out = {"part_label": label, "part_pose": pose, "T_cam_obj": pose[:, 0].copy(),
            "joint_axis": pose[:, 0, :3, 0][:, None], "joint_pivot": pts.mean(1)[:, None]}
-    from scapo.methods.base_frame import base_axes
+    from scapo.steps.base_frame import base_axes
 
     E, ok = base_axes(pts, label)
     assert ok.all()
@@ -266,7 +266,7 @@ def test_the_base_axes_signed_by_the_other_parts_give_one_frame_whatever_the_net
     import numpy as np
 
     from scapo.errors import InputError
-    from scapo.methods.base_frame import choose_signed_pair, fit_base_offset, parts_signed_axes, snap_to_base
+    from scapo.steps.base_frame import choose_signed_pair, fit_base_offset, parts_signed_axes, snap_to_base
 
     rng = np.random.default_rng(0)
     g = torch.Generator().manual_seed(4)
@@ -311,12 +311,17 @@ def test_the_base_frame_option_is_checked():
     with pytest.raises(ConfigError, match="base_slot"):
         SCAPOOptions(run="r", base_frame="principal", base_slot="lid")
     assert SCAPOMethod(SCAPOOptions(run="r", base_slot="auto")).label == "scapo+slot-auto"  # the object frame alone
-    assert SCAPOMethod(SCAPOOptions(run="r", base_frame="parts", base_slot="1")).label == "scapo"
+    # a snapped frame is a labelled row (it was labelled "scapo", the main row's label)
+    assert SCAPOMethod(SCAPOOptions(run="r", base_frame="parts", base_slot="1")).label == "scapo+base-parts+slot-1"
     with pytest.raises(ConfigError, match="hinge_frames"):  # the hinge frames choose their own base slot
         SCAPOOptions(run="r", hinge_frames=True, hinge=True, hinge_axis=True, base_slot="auto")
-    m = SCAPOMethod(SCAPOOptions(run="r", base_frame="principal"))
+    import numpy as np
+
+    from scapo.steps import StepPipeline
+
+    steps = StepPipeline(SCAPOOptions(run="r", base_frame="principal"), [0], [[0, 1]])
     with pytest.raises(ConfigError, match="fit"):  # no offset fitted on a training split
-        m._base_frame(None, {})
+        steps.apply(np.zeros((1, 8, 3)), {})
     with pytest.raises(ConfigError, match="parts_axes"):
         SCAPOOptions(run="r", parts_axes="ransac")
     assert SCAPOMethod(SCAPOOptions(run="r", parts_axes="plane")).label == "scapo+parts-plane"
@@ -330,8 +335,8 @@ def test_the_base_slot_is_the_part_whose_rotations_spread_least():
     import numpy as np
 
     from scapo.errors import InputError
-    from scapo.methods.base_frame import base_axes, choose_base_slot, fit_base_offset, snap_to_base
     from scapo.ops.so3 import rotation_from_rotvec
+    from scapo.steps.base_frame import base_axes, choose_base_slot, fit_base_offset, snap_to_base
 
     g = torch.Generator().manual_seed(5)
     V = 40

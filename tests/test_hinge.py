@@ -1,4 +1,4 @@
-"""The two-ray re-split about a revolute joint (scapo.methods.hinge) on hand-built two-slab views."""
+"""The two-ray re-split about a revolute joint (scapo.steps.hinge) on hand-built two-slab views."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from scapo.errors import InputError
-from scapo.methods.hinge import hinge_fit, hinge_prediction
+from scapo.steps.hinge import hinge_fit, hinge_prediction
 
 
 def _slabs(rng, opening_deg=110.0, n=600):
@@ -92,7 +92,7 @@ def test_the_hinge_diagnosis_and_the_frame_consistency_refuse_missing_inputs(scr
 def test_the_axis_from_the_parts_planes_corrects_a_tilted_axis_and_keeps_it_for_a_bar():
     from scipy.spatial.transform import Rotation
 
-    from scapo.methods.hinge import plane_axis
+    from scapo.steps.hinge import plane_axis
 
     rng = np.random.default_rng(3)
     pts, gt, pivot, axis, s = _slabs(rng)
@@ -136,7 +136,7 @@ def _glasses(rng, n=400, angles=None):
 def test_a_bar_childs_axis_is_its_parents_principal_direction_chosen_over_the_training_views():
     """``bar_axes``: an eyeglasses temple turns about the front's height (its middle principal direction); the rank
     is chosen over views, each view's axis read from its own front, and the split kept; a laptop's lid is no bar."""
-    from scapo.methods.hinge import bar_axis, bar_axis_choice
+    from scapo.steps.hinge import bar_axis, bar_axis_choice
 
     rng = np.random.default_rng(0)
     views = [_glasses(rng) for _ in range(24)]
@@ -165,7 +165,7 @@ def test_a_part_on_several_hinges_reads_its_axes_from_its_first_only():
     """An eyeglasses front is the parent of both hinges: its axes come from the first, at one offset in the front;
     where the first temple is shut the front keeps the method's rotation, never the second hinge's axes (those sit
     in the front at another offset: a half turn)."""
-    from scapo.methods.hinge import part_axes
+    from scapo.steps.hinge import part_axes
 
     rng = np.random.default_rng(1)
     views = [_glasses(rng, angles=(0.0 if k % 2 else 60.0, 70.0)) for k in range(8)]
@@ -185,19 +185,48 @@ def test_a_part_on_several_hinges_reads_its_axes_from_its_first_only():
 
 def test_the_hinge_axis_option_needs_the_hinge_step():
     from scapo.errors import ConfigError
-    from scapo.methods.learned import LearnedOptions, post_suffix
+    from scapo.methods.learned import LearnedOptions
 
     with pytest.raises(ConfigError, match="hinge=true"):
         LearnedOptions(run="r", hinge_axis=True)
-    assert post_suffix(LearnedOptions(run="r", hinge=True, hinge_axis=True)) == "+hinge-axis"
-    assert post_suffix(LearnedOptions(run="r", hinge=True)) == "+hinge"
+    assert LearnedOptions(run="r", hinge=True, hinge_axis=True).label_suffix() == "+hinge-axis"
+    assert LearnedOptions(run="r", hinge=True).label_suffix() == "+hinge"
     with pytest.raises(ConfigError, match="hinge=true"):
         LearnedOptions(run="r", hinge_bar_axis=True)
-    assert post_suffix(LearnedOptions(run="r", hinge=True, hinge_bar_axis=True, hinge_frames=True)) == \
+    assert LearnedOptions(run="r", hinge=True, hinge_bar_axis=True, hinge_frames=True).label_suffix() == \
         "+hinge-bar+hinge-frames"
-    assert post_suffix(LearnedOptions(run="r", hinge=True, axis_sweep=True)) == "+hinge+axis-sweep"
+    assert LearnedOptions(run="r", hinge=True, axis_sweep=True).label_suffix() == "+hinge+axis-sweep"
     with pytest.raises(ConfigError, match="axis_sweep"):  # two steps that both set the axes
         LearnedOptions(run="r", hinge=True, hinge_bar_axis=True, axis_sweep=True)
+
+
+def test_one_step_options_type_holds_every_rule_and_builds_every_label():
+    """``scapo.steps.StepOptions``: the prediction steps of every trained method (the baselines' and SCAPO's options
+    inherit them), every needs/excludes rule in one place, the label built in one place in the order earlier tables'
+    rows carry it; ``base_frame`` and ``base_slot``, once SCAPO's alone, are offered to every trained method."""
+    from scapo.errors import ConfigError
+    from scapo.methods.learned import LearnedOptions
+    from scapo.methods.scapo import SCAPOOptions
+    from scapo.steps import StepOptions, StepPipeline, step_options
+
+    for cls in (StepOptions, LearnedOptions, SCAPOOptions):
+        kw = {} if cls is StepOptions else {"run": "r"}
+        for bad, match in (({"base_frame": "bogus"}, "base_frame must be"), ({"base_slot": "x"}, "base_slot must be"),
+                           ({"hinge": True, "hinge_frames": True, "base_frame": "principal"}, "both set the part"),
+                           ({"hinge": True, "hinge_frames": True, "base_slot": "auto"}, "chooses its own base slot"),
+                           ({"hinge_view_prior": True}, "hinge_frames=true too")):
+            with pytest.raises(ConfigError, match=match):
+                cls(**kw, **bad)
+        o = cls(**kw, refine=True, hinge=True, hinge_axis=True, hinge_frames=True, hinge_view_prior=True)
+        assert o.label_suffix() == "+refine+hinge-axis+hinge-frames+view-prior"
+        assert cls(**kw, base_frame="parts", base_slot="auto").label_suffix() == "+base-parts+slot-auto"
+        assert cls(**kw, base_slot="1").object_slot_only and not cls(**kw, base_slot="0").object_slot_only
+        assert not cls(**kw).fitted and cls(**kw, axis_sweep=True).fitted and cls(**kw).label_suffix() == ""
+    opts = SCAPOOptions(run="r", hinge=True, refine_steps=0, base_slot="auto")
+    assert step_options(opts) == StepOptions(hinge=True, base_slot="auto")
+    pipe = StepPipeline(opts, [0], [[0, 1]])
+    with pytest.raises(ConfigError, match=r"prediction steps \+hinge\+slot-auto are fitted on a training split"):
+        pipe.apply(np.zeros((1, 8, 3)), {})
 
 
 def _posed_slabs(rng, opening_deg, n=600):
@@ -220,7 +249,7 @@ def _angle_deg(A, B):
 
 
 def test_the_part_axes_are_rigid_with_each_part_whatever_the_view_and_the_axis_sign():
-    from scapo.methods.hinge import part_axes
+    from scapo.steps.hinge import part_axes
 
     rng = np.random.default_rng(1)
     want = np.stack([[0.0, 0, 1], [1, 0, 0], [0, 1, 0]], 1)  # [a, u, a x u] in the part's own coordinates
@@ -247,7 +276,7 @@ def test_the_part_axes_are_rigid_with_each_part_whatever_the_view_and_the_axis_s
 def test_hinge_frames_give_every_view_the_rotation_most_training_views_agree_on():
     from scipy.spatial.transform import Rotation
 
-    from scapo.methods.hinge import HingeFrames
+    from scapo.steps.hinge import HingeFrames
 
     rng = np.random.default_rng(2)
     Q = Rotation.random(2, random_state=rng).as_matrix()  # the method's canonical part frames, in object terms
@@ -281,16 +310,16 @@ def test_hinge_frames_give_every_view_the_rotation_most_training_views_agree_on(
 
 def test_the_hinge_frames_option_needs_the_hinge_step_and_excludes_the_base_axes_snap():
     from scapo.errors import ConfigError
-    from scapo.methods.learned import LearnedOptions, post_suffix
+    from scapo.methods.learned import LearnedOptions
     from scapo.methods.scapo import SCAPOOptions
 
     with pytest.raises(ConfigError, match="hinge=true"):
         LearnedOptions(run="r", hinge_frames=True)
-    assert post_suffix(LearnedOptions(run="r", hinge=True, hinge_axis=True, hinge_frames=True)) == \
+    assert LearnedOptions(run="r", hinge=True, hinge_axis=True, hinge_frames=True).label_suffix() == \
         "+hinge-axis+hinge-frames"
     with pytest.raises(ConfigError, match="give one"):
         SCAPOOptions(run="r", hinge=True, hinge_frames=True, base_frame="principal")
-    from scapo.methods.hinge import HingeFrames
+    from scapo.steps.hinge import HingeFrames
 
     with pytest.raises(ConfigError, match="prismatic: predict without hinge_frames"):
         HingeFrames([1], [[0, 1]])  # a drawer
@@ -299,7 +328,7 @@ def test_the_hinge_frames_option_needs_the_hinge_step_and_excludes_the_base_axes
 def test_the_view_prior_gives_back_the_base_slot_a_view_gave_to_the_lid_and_stays_off_for_the_whole_sphere():
     from scipy.spatial.transform import Rotation
 
-    from scapo.methods.hinge import HingeFrames
+    from scapo.steps.hinge import HingeFrames
 
     def views(rng, k, sphere):
         vs = []
@@ -367,7 +396,7 @@ def test_a_diagnosis_writes_its_markdown_and_a_record_of_its_inputs_or_refuses_a
 
 
 def test_the_sweep_reads_a_bar_childs_axis_in_the_base_frame_and_turns_it_into_each_view():
-    """``axis_sweep`` (:mod:`scapo.methods.sweep`): hand-built eyeglasses views (front, two temple bars opening
+    """``axis_sweep`` (:mod:`scapo.steps.sweep`): hand-built eyeglasses views (front, two temple bars opening
     20-90 deg about the height axis z) under random camera rotations, with the true base poses: the temples' long
     directions in the base frame sweep the plane normal to z, so the fitted axes are z within 2 deg, and each view's
     axis becomes its base rotation of z, signed as the method's own; a wrong method axis is replaced. A joint whose
@@ -376,9 +405,9 @@ def test_the_sweep_reads_a_bar_childs_axis_in_the_base_frame_and_turns_it_into_e
     import torch
 
     from scapo.errors import TrainingError
-    from scapo.methods.sweep import SweepAxes
     from scapo.ops.groups import random_rotation
     from scapo.ops.sweep import sweep_axis
+    from scapo.steps.sweep import SweepAxes
     from tests.test_frames import _glasses_view
 
     rng = np.random.default_rng(2)

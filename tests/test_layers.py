@@ -18,6 +18,7 @@ STAGES = [
     ("scapo.losses",),
     ("scapo.engine",),
     ("scapo.models",),
+    ("scapo.steps",),
     ("scapo.methods",),
     ("scapo.bench",),
     ("scapo.cli",),

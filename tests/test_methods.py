@@ -128,7 +128,7 @@ def test_a_trained_method_predicts_with_the_hinge_resplit(name, axis, laptop_dat
         a = plain.joint_axis / np.linalg.norm(plain.joint_axis, axis=-1, keepdims=True)
         assert np.abs((move * a).sum(-1)).max() < 1e-5 and np.allclose(preds.joint_axis, plain.joint_axis)
     assert np.allclose(preds.part_pose, plain.part_pose)
-    from scapo.methods.hinge import hinge_predictions  # the same step on the file already written
+    from scapo.steps.hinge import hinge_predictions  # the same step on the file already written
 
     post = hinge_predictions(laptop_data, tmp_path / "a.npz", axis_from_planes=axis)
     assert post.method == name + suffix and (post.part_label == preds.part_label).all()
@@ -155,7 +155,7 @@ def test_a_trained_method_predicts_with_the_hinge_resplit(name, axis, laptop_dat
         from pathlib import Path
 
         from scapo.eval.predictions import Predictions
-        from scapo.methods.hinge import prediction_arrays
+        from scapo.steps.hinge import prediction_arrays
 
         path = Path(__file__).resolve().parents[1] / "bench" / "diagnostics" / "hinge_rows.py"
         spec = importlib.util.spec_from_file_location("hinge_rows", path)
@@ -207,17 +207,22 @@ def test_scapo_takes_its_object_frame_from_the_base_slot_chosen_on_the_training_
     assert "object_slot" not in plain.info and "base_frame" not in auto.info
     m = SCAPOMethod(SCAPOOptions(run=trained_runs["scapo"], base_slot="auto")).load()
     with pytest.raises(ConfigError, match="fit"):  # the slot is chosen on a training split first
-        m._base_frame(None, {})
+        m.steps.apply(np.zeros((1, 64, 3)), {})
+    m = SCAPOMethod(SCAPOOptions(run=trained_runs["scapo"], base_slot="5")).load()
     with pytest.raises(ConfigError, match="part slots 0-1"):
-        SCAPOMethod(SCAPOOptions(run=trained_runs["scapo"], base_slot="5")).load().fit_base_slot(
-            np.random.default_rng(0).normal(size=(2, 64, 3)) * 0.1)
+        m.steps.fit(np.random.default_rng(0).normal(size=(2, 64, 3)) * 0.1, m._network)
+    # one pipeline of prediction steps for every trained method: a baseline takes the same step, alike
+    base = run_method("npcs", laptop_data, tmp_path / "d.npz", run=trained_runs["npcs"])
+    slot = run_method("npcs", laptop_data, tmp_path / "e.npz", run=trained_runs["npcs"], base_slot="auto")
+    assert slot.method == "npcs+slot-auto" and slot.info["object_slot"]["option"] == "auto"
+    assert np.allclose(slot.T_cam_obj, base.part_pose[:, slot.info["object_slot"]["slot"]], atol=1e-6)
 
 
 @pytest.mark.parametrize("name", ["scapo", "npcs"])
 def test_a_trained_method_reads_its_part_rotations_from_its_hinges(name, laptop_data, trained_runs, tmp_path):
     """``hinge_frames=true``: offsets fitted on the training split, then the part rotations from the hinges; for a
     self-supervised method's file (it holds the training split), ``hinge_frame_predictions`` gives the same."""
-    from scapo.methods.hinge import hinge_frame_predictions
+    from scapo.steps.hinge import hinge_frame_predictions
 
     kw = {"run": trained_runs[name], "hinge": True, "hinge_axis": True}
     hinged = run_method(name, laptop_data, tmp_path / "h.npz", **kw)

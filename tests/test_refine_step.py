@@ -1,4 +1,4 @@
-"""The method-independent test-time refinement (scapo.methods.refine, issue 29): hand-built articulated models
+"""The method-independent test-time refinement (scapo.steps.refine, issue 29): hand-built articulated models
 with known poses, and its plumbing (options, labels, CLI, bench rows)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from scapo.errors import ConfigError, InputError
 from scapo.methods import METHODS, describe
-from scapo.methods.refine import TEST_TIME_REFINE, refine_prediction
+from scapo.steps.refine import TEST_TIME_REFINE, refine_prediction
 
 
 def _T(R, t):

@@ -1,4 +1,4 @@
-"""Would the base part's principal axes give one canonical frame? (issue 52; :mod:`scapo.methods.base_frame`)
+"""Would the base part's principal axes give one canonical frame? (issue 52; :mod:`scapo.steps.base_frame`)
 
 Two measurements on a ladder rung's dataset and trained SCAPO runs (nothing is trained):
 
@@ -12,7 +12,7 @@ Two measurements on a ladder rung's dataset and trained SCAPO runs (nothing is t
    part-0 points: the true segmentation with the network's choice of which part is its base). Symmetry-aware object-
    frame consistency on val before and after, as ``scapo bench ladder`` computes it, with the offset's support on
    the training views. Each source is scored with the base in slot 0 and, where it differs, in the slot
-   ``base_slot=auto`` chooses on the training views (:func:`scapo.methods.base_frame.choose_base_slot`; for
+   ``base_slot=auto`` chooses on the training views (:func:`scapo.steps.base_frame.choose_base_slot`; for
    ``gt-as-network``, the true part holding most of that slot's points is the base).
 
     python bench/diagnostics/base_frame_snap.py --data DATA --run LABEL=RUN [--run ...] --out \\
@@ -34,9 +34,9 @@ import numpy as np
 def axes_consistency(R_gt: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0) -> tuple[float, float]:
     """Share of views (and their median angle, deg) whose axes ``E (V, 3, 3)``, in the true object frame, agree with
     one frame within ``inlier_deg`` after each view's best signed permutation
-    (:func:`scapo.methods.base_frame.fit_base_offset` with the true rotations ``R_gt (V, 3, 3)`` as the "network",
+    (:func:`scapo.steps.base_frame.fit_base_offset` with the true rotations ``R_gt (V, 3, 3)`` as the "network",
     every view tried as the reference)."""
-    from scapo.methods.base_frame import fit_base_offset
+    from scapo.steps.base_frame import fit_base_offset
 
     _, share, angle = fit_base_offset(R_gt, E, inlier_deg, candidates=len(E))
     return share, float(np.median(angle))
@@ -74,8 +74,8 @@ def main(argv=None) -> int:
     from scapo.eval.evaluator import object_frame_twins
     from scapo.eval.frames import frame_consistency
     from scapo.methods import load_run
-    from scapo.methods.base_frame import base_axes, choose_base_slot, fit_base_offset, rotation_dispersion, snap_to_base
     from scapo.provenance import provenance
+    from scapo.steps.base_frame import base_axes, choose_base_slot, fit_base_offset, rotation_dispersion, snap_to_base
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True)
@@ -136,7 +136,7 @@ def main(argv=None) -> int:
                 print(lines[-1], flush=True)
     cmd = "python bench/diagnostics/base_frame_snap.py " + " ".join(sys.argv[1:] if argv is None else argv)
     lines += ["", "Which slot is the base (`base_slot=auto`): the spread of each slot's predicted rotations over the "
-              "training views (:func:`scapo.methods.base_frame.choose_base_slot`; 0 = one rotation), the slot it "
+              "training views (:func:`scapo.steps.base_frame.choose_base_slot`; 0 = one rotation), the slot it "
               "chooses, and, as a diagnosis with ground truth, the share of training views where each slot's points "
               "are mostly the true base (true base rotations spread "
               f"{rotation_dispersion(np.asarray(A['T_cam_obj'])[:, :3, :3]):.3f}):", "",

@@ -1,6 +1,6 @@
 """Accuracy against training compute with the hinge prediction steps (issue 52): the compute curve's cells
 (``scapo bench compute``: one training run per method and budget, one-pass predictions on the curve's dataset) scored
-again after ``hinge=true, hinge_axis=true, hinge_frames=true, hinge_view_prior=true`` (:mod:`scapo.methods.hinge`; no
+again after ``hinge=true, hinge_axis=true, hinge_frames=true, hinge_view_prior=true`` (:mod:`scapo.steps.hinge`; no
 training: the steps read each prediction and its points), beside the one-pass rows, as the curve's table and figure.
 
     python bench/diagnostics/compute_hinge.py --data DATA --pred BUDGET:LABEL=PREDICTIONS.npz [...] --steps \\
@@ -84,7 +84,7 @@ def main(argv=None) -> int:
                 "predictions": "one-pass and with the hinge steps",
                 "note": "Rows named `<method>+hinge-axis+hinge-frames+view-prior` are the same cells' predictions "
                         "after the hinge steps (`hinge=true, hinge_axis=true, hinge_frames=true, "
-                        "hinge_view_prior=true`, `scapo.methods.hinge`): no training, so their compute is the cell's. "
+                        "hinge_view_prior=true`, `scapo.steps.hinge`): no training, so their compute is the cell's. "
                         "Their steps are the cell's training steps."}
         paths = write_curve(records, Path(a.out), meta)
     except (ScapoError, OSError) as e:

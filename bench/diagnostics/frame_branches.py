@@ -55,7 +55,7 @@ def file_offsets(data: Path, preds, split: str):
     import numpy as np
 
     from scapo.errors import PredictionError
-    from scapo.methods.hinge import prediction_arrays
+    from scapo.steps.hinge import prediction_arrays
 
     rows = np.flatnonzero(preds.split == split)
     if len(rows) == 0:

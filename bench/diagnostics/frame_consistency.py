@@ -25,7 +25,7 @@ def base_on_base(data: Path, preds, split: str) -> float:
     sample."""
     import numpy as np
 
-    from scapo.methods.hinge import prediction_arrays
+    from scapo.steps.hinge import prediction_arrays
 
     rows = np.flatnonzero(preds.split == split)
     gt = prediction_arrays(data, preds, ("part_label",))["part_label"][rows]

@@ -1,10 +1,10 @@
 """Where a method's part split breaks next to its joints, and what the hinge re-split recovers (issue 52;
-:mod:`scapo.methods.hinge`).
+:mod:`scapo.steps.hinge`).
 
 From a dataset and predictions files of any methods (``scapo predict`` output; nothing is trained or predicted here),
 on one split (val by default), per predictions file:
 
-- ``own``: S of the method's labels; ``hinge``: S after :func:`scapo.methods.hinge.hinge_prediction` on the method's
+- ``own``: S of the method's labels; ``hinge``: S after :func:`scapo.steps.hinge.hinge_prediction` on the method's
   own labels, axes and pivots (what ``--option hinge=true`` gives);
 - diagnoses with ground truth (**not** method rows): the re-split started from the true joint (axis and pivot), from
   the predicted axis and the true pivot, and from the true axis and the predicted pivot (the fit moves the pivot in
@@ -44,7 +44,7 @@ def score(B: dict, pred, split: str) -> dict:
     """The rows of one predictions object ``pred`` (:class:`~scapo.eval.predictions.Predictions`) on the split's
     arrays ``B`` (ground truth): see the module docstring."""
     from scapo.eval.metrics import match_parts, relabel
-    from scapo.methods.hinge import hinge_fit, hinge_prediction
+    from scapo.steps.hinge import hinge_fit, hinge_prediction
 
     sel = np.asarray(pred.split) == split
     key = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(pred.instance_id[sel], pred.view_id[sel]))}

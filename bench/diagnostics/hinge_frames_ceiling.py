@@ -1,6 +1,6 @@
 """The ceiling of the ``hinge_frames`` step: a diagnosis with ground truth, not a method row (issue 52).
 
-The step reads each part's rotation from its hinge (:mod:`scapo.methods.hinge`): the joint's axis and pivot and the
+The step reads each part's rotation from its hinge (:mod:`scapo.steps.hinge`): the joint's axis and pivot and the
 split of the points. This script gives it the **true** split, axes and pivots of every sample (train and the scored
 split) and keeps the method's own part poses (they set only the per-part offsets, fitted on the training split), then
 applies the step with the view prior. Scored by ``scapo evaluate``, the part rotation errors say what the step can

@@ -1,4 +1,4 @@
-"""The hinge step (:mod:`scapo.methods.hinge`) applied to predictions files already written, e.g. a table's cells.
+"""The hinge step (:mod:`scapo.steps.hinge`) applied to predictions files already written, e.g. a table's cells.
 
     python bench/diagnostics/hinge_rows.py --data DATA --pred PREDICTIONS.npz [...] --out-dir DIR [--axis] \\
         [--bar-axis] [--frames]
@@ -20,14 +20,14 @@ from pathlib import Path
 
 def with_true_joints(data, preds):
     """A copy of ``preds`` whose ``part_label``, ``joint_axis`` and ``joint_pivot`` are the dataset's ground truth of
-    each sample (marked as passed through the hinge step, so that :func:`scapo.methods.hinge.hinge_frame_predictions`
+    each sample (marked as passed through the hinge step, so that :func:`scapo.steps.hinge.hinge_frame_predictions`
     takes it).
 
     Raises:
         PredictionError: samples the dataset lacks, or another dataset's predictions.
     """
     from scapo.eval.predictions import Predictions
-    from scapo.methods.hinge import prediction_arrays
+    from scapo.steps.hinge import prediction_arrays
 
     gt = prediction_arrays(data, preds, ("part_label", "joint_axis", "joint_pivot"))
     kw = {k: getattr(preds, k) for k in ("instance_id", "view_id", "split", "part_pose", "joint_parts", "joint_type",
@@ -48,7 +48,7 @@ def with_true_labels(data, preds):
         PredictionError: samples the dataset lacks, or another dataset's predictions.
     """
     from scapo.eval.predictions import Predictions
-    from scapo.methods.hinge import prediction_arrays
+    from scapo.steps.hinge import prediction_arrays
 
     gt = prediction_arrays(data, preds, ("part_label",))
     kw = {k: getattr(preds, k) for k in ("instance_id", "view_id", "split", "part_pose", "joint_parts", "joint_type",
@@ -62,7 +62,7 @@ def with_true_labels(data, preds):
 def main(argv=None) -> int:
     from scapo.errors import PredictionError, ScapoError
     from scapo.eval.predictions import Predictions
-    from scapo.methods.hinge import hinge_frame_predictions, hinge_predictions
+    from scapo.steps.hinge import hinge_frame_predictions, hinge_predictions
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True)
@@ -71,7 +71,7 @@ def main(argv=None) -> int:
     ap.add_argument("--axis", action="store_true", help="also the axes from the parts' planes (hinge_axis=true)")
     ap.add_argument("--bar-axis", action="store_true",
                     help="also the axes of bar-shaped children from their parents' principal directions, the rank "
-                         "chosen on each file's training split (scapo.methods.hinge.bar_axis_choice)")
+                         "chosen on each file's training split (scapo.steps.hinge.bar_axis_choice)")
     ap.add_argument("--frames", action="store_true",
                     help="then the part rotations from the hinges (hinge_frames=true; offsets fitted on each file's "
                          "training split); a file already hinged goes through this step alone")

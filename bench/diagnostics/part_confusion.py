@@ -58,7 +58,7 @@ def diagnose(data: Path, preds, split: str, bins: list[float]) -> dict:
     import numpy as np
 
     from scapo.data import load
-    from scapo.methods.hinge import prediction_arrays
+    from scapo.steps.hinge import prediction_arrays
 
     card = load(data, split).card
     rows = np.flatnonzero(preds.split == split)

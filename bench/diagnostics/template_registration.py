@@ -73,8 +73,8 @@ def diagnose(data: Path, preds, split: str, rounds: int) -> dict:
     import torch
 
     from scapo.eval.frames import frame_consistency
-    from scapo.methods.hinge import prediction_arrays
     from scapo.ops.groups import rotation_group
+    from scapo.steps.hinge import prediction_arrays
 
     gt = prediction_arrays(data, preds, ("points", "T_cam_obj"))
     g = torch.Generator().manual_seed(0)

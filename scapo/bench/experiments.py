@@ -101,7 +101,7 @@ def table1_cells(methods: Sequence[str], categories: Sequence[str], preset: str,
     (``category_seeds[cat]`` overrides ``seeds`` for that category). Every row is a one-pass prediction: a method
     with a test-time refinement of its own (its entry's ``one_pass`` options) predicts without it, and with
     ``refine_rows`` every method with a whole-object model (``MethodEntry.refinable``) gets the method-independent
-    refinement (:mod:`scapo.methods.refine`) of the same run's one-pass prediction as a row of its own, labelled
+    refinement (:mod:`scapo.steps.refine`) of the same run's one-pass prediction as a row of its own, labelled
     ``<method>+refine`` (equal treatment: no row gets a test-time search another lacks). ``parts``: extra rows
     ``METHOD/PART`` (e.g. ``scapo/principal``): that trained method, one of ``methods``, trained with its preset
     ``<preset>/PART`` (a preset part the method's registry knows, e.g. :func:`scapo.models.presets.get_preset`'s
@@ -801,7 +801,7 @@ class BenchOptions:
     ``scapo:base-frame:base_frame=principal``: the method's own runs predicted with those options, labelled
     ``<method>-<LABEL>``."""
     refine_rows: bool = True
-    """Tables 1 and 2: a ``<method>+refine`` row (:mod:`scapo.methods.refine`) beside the one-pass row of every
+    """Tables 1 and 2: a ``<method>+refine`` row (:mod:`scapo.steps.refine`) beside the one-pass row of every
     method with a whole-object model (``MethodEntry.refinable``)."""
     allow_dirty: bool = False
     """Compute or score cells from a checkout with uncommitted changes, and write tables holding such cells (their

@@ -262,7 +262,7 @@ def add_parsers(sub) -> None:
     sp.add_argument("--out", type=Path, required=True)
     sp.add_argument("--option", action="append", help="method option key=value (repeatable)")
     sp.add_argument("--refine", action="store_true", help="fit the method's own whole-object model (canonical shape "
-                    "or template) to each view after its one-pass prediction (scapo.methods.refine); the "
+                    "or template) to each view after its one-pass prediction (scapo.steps.refine); the "
                     "predictions are labelled METHOD+refine")
     sp.set_defaults(func=cmd_predict)
 

@@ -89,7 +89,7 @@ def _cells(results: Sequence[EvalResult], metrics) -> dict[tuple[str, str, str],
 
 
 def is_refined(label: str) -> bool:
-    """Whether a row is a method's "+ refine" row (label ``<method>+refine``, :mod:`scapo.methods.refine`): the
+    """Whether a row is a method's "+ refine" row (label ``<method>+refine``, :mod:`scapo.steps.refine`): the
     tables put these after the one-pass rows and order the self-supervised rows of each kind apart (a test-time
     search is never mixed with one-pass rows)."""
     return label.endswith("+refine")

@@ -374,7 +374,7 @@ class EAPNet(nn.Module):
     @torch.no_grad()
     def infer(self, points: torch.Tensor) -> dict:
         """Predictions for ``points (B, N, 3)`` metres (camera frame); numpy arrays (see Predictions), and the posed
-        template parts as the whole-object model of :mod:`scapo.methods.refine`: ``template (B, P M, 3)`` (metres,
+        template parts as the whole-object model of :mod:`scapo.steps.refine`: ``template (B, P M, 3)`` (metres,
         each point in its part's frame) and ``template_label (B, P M)``.
 
         The network sees ``preset.points`` points, as in training: a larger cloud is split into interleaved subsets

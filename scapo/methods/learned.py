@@ -36,6 +36,7 @@ from scapo.engine.runs import read_checkpoint, resolve_device
 from scapo.errors import ConfigError, TrainingError
 from scapo.eval.predictions import Predictions
 from scapo.registry import Registry, apply_schedule, parse_preset
+from scapo.steps import StepOptions, StepPipeline, training_views
 
 
 @dataclass(frozen=True)
@@ -249,9 +250,7 @@ def learned_job(spec: LearnedSpec, pc, train: ArticulationDataset, dev: torch.de
 
 # ---------------------------------------------------------------------------------------------- predict
 @dataclass(frozen=True)
-class LearnedOptions:
-    """Options of a learned baseline at prediction time (``scapo predict --run RUN --option k=v``)."""
-
+class _RunOptions:
     run: Path | None = None
     """Run folder written by ``scapo train --method NAME``; required. Prediction never trains."""
     device: str | None = None
@@ -259,79 +258,28 @@ class LearnedOptions:
     batch_size: int = 32
     """Clouds per inference batch."""
     label: str = ""
-    """Method name written into the predictions (default: the method's name)."""
+    """Method name written into the predictions (default: the method's name and the steps' labels,
+    :meth:`scapo.steps.StepOptions.label_suffix`)."""
     cross_category: bool = False
     """Allow predicting on a dataset of another category with the same kinematic structure."""
     progress: bool = False
-    refine: bool = False
-    """Fit the method's own whole-object model to each view after its one-pass prediction
-    (:mod:`scapo.methods.refine`, ``scapo predict --refine``); the label becomes ``<method>+refine``. Only for
-    methods with a canonical shape or template (``scapo list``)."""
-    hinge: bool = False
-    """Re-fit each view's part split and pivot about every revolute joint from the method's own one-pass prediction
-    (:mod:`scapo.methods.hinge`, an addition to the paper offered to every trained method); the label gets
-    ``+hinge``. Applied to the one-pass output, before ``refine`` when both are given."""
-    hinge_axis: bool = False
-    """With ``hinge``: also re-estimate each revolute axis as the line where its two parts' planes meet, where both
-    are planar (:func:`scapo.methods.hinge.plane_axis`); the label gets ``+hinge-axis``."""
-    hinge_bar_axis: bool = False
-    """With ``hinge``: a joint whose child is a bar (an eyeglasses temple) takes as its axis its parent's principal
-    direction of the rank its child's length is perpendicular to over the training views
-    (:func:`scapo.methods.hinge.bar_axis_choice`, fitted on the training split; :func:`scapo.methods.hinge.bar_axis`
-    per view) and its pivot from the two lines about it, its split kept; the label gets ``-bar``."""
-    hinge_frames: bool = False
-    """With ``hinge``: read each part's rotation from its hinge (the axis and the direction the part runs away from
-    it, :func:`scapo.methods.hinge.part_axes`), through per-part offsets fitted on the training split
-    (:class:`scapo.methods.hinge.HingeFrames`); the label gets ``+hinge-frames``."""
-    hinge_view_prior: bool = False
-    """With ``hinge_frames``: choose each view's root part among its root joint's two parts by the training views'
-    root orientation in the camera (a viewpoint prior fitted on the training split, used only where those views
-    agree; :class:`scapo.methods.hinge.HingeFrames`); the label gets ``+view-prior``."""
-    axis_sweep: bool = False
-    """Replace each revolute axis by the one its child part sweeps about in the method's base frame over the
-    training views (:class:`scapo.methods.sweep.SweepAxes`, fitted on the training split's one-pass predictions; an
-    addition to the paper offered to every trained method), turned into each view by its base
-    rotation; applied first, so that ``hinge`` fits its pivots and split about these axes (``hinge_axis`` and
-    ``hinge_bar_axis``, which set the axes again, are refused with it); the label gets ``+axis-sweep``."""
+
+
+@dataclass(frozen=True)
+class LearnedOptions(StepOptions, _RunOptions):
+    """Options of a learned baseline at prediction time (``scapo predict --run RUN --option k=v``): the run and how
+    it is read (``run``, ``device``, ``batch_size``, ``label``, ``cross_category``, ``progress``) and the prediction
+    steps every trained method takes alike (:class:`scapo.steps.StepOptions`: ``refine``, ``hinge``..., all off by
+    default)."""
 
     def __post_init__(self):
+        super().__post_init__()  # the steps' rules
         if self.batch_size < 1:
             raise ConfigError(f"batch_size must be >= 1, got {self.batch_size}")
         if self.label:  # it names the evaluator's output files: it must stay inside their folder
             from scapo.files import check_name
 
             check_name(self.label, "label")
-        if self.hinge_axis and not self.hinge:
-            raise ConfigError("hinge_axis=true re-estimates the axes within the hinge step; give hinge=true too")
-        if self.hinge_bar_axis and not self.hinge:
-            raise ConfigError("hinge_bar_axis=true re-estimates the axes within the hinge step; give hinge=true too")
-        if self.hinge_frames and not self.hinge:
-            raise ConfigError("hinge_frames=true reads the hinge step's split and pivots; give hinge=true too")
-        if self.axis_sweep and (self.hinge_axis or self.hinge_bar_axis):
-            raise ConfigError("axis_sweep=true sets the revolute axes; hinge_axis and hinge_bar_axis set them again: "
-                              "give one of them")
-        if self.hinge_view_prior and not self.hinge_frames:
-            raise ConfigError("hinge_view_prior=true is part of the hinge_frames step; give hinge=true and "
-                              "hinge_frames=true too")
-
-
-def post_suffix(options) -> str:
-    """The label suffix of the prediction steps ``options`` turn on: ``+refine`` and/or ``+hinge`` (``+hinge-axis``)."""
-    hinge = ""
-    if getattr(options, "hinge", False):
-        hinge = "+hinge-axis" if getattr(options, "hinge_axis", False) else "+hinge"
-        hinge += "-bar" if getattr(options, "hinge_bar_axis", False) else ""
-    if getattr(options, "hinge_frames", False):
-        hinge += "+hinge-frames" + ("+view-prior" if getattr(options, "hinge_view_prior", False) else "")
-    if getattr(options, "axis_sweep", False):
-        hinge += "+axis-sweep"
-    return ("+refine" if options.refine else "") + hinge
-
-
-def training_views(n: int, most: int = 512) -> np.ndarray:
-    """Indices of up to ``most`` evenly spaced views of ``n`` training views: what a prediction step fitted on the
-    training split (``base_frame``, ``hinge_frames``) reads."""
-    return np.unique(np.linspace(0, n - 1, min(n, int(most))).round().astype(int))
 
 
 def training_points(train: ArticulationDataset, most: int = 512) -> np.ndarray:
@@ -385,37 +333,18 @@ class LearnedMethod:
             raise ConfigError(f"the {spec.method} method needs a trained run: --run RUN (a folder written by "
                               f"'scapo train --method {spec.method}')")
         self.run = Path(options.run)
-        self.label = options.label or (spec.method + post_suffix(options))
+        self.label = options.label or (spec.method + options.label_suffix())
         self.net = None
-        self.frames = None
-        self.bar_ranks: list | None = None
-        """``hinge_bar_axis``: per joint the rank of :func:`scapo.methods.hinge.bar_axis_choice` (fitted in ``fit``)."""
-        self.sweep = None
-        """The ``axis_sweep`` step (:class:`scapo.methods.sweep.SweepAxes`), fitted on the training split."""
+        self.steps: StepPipeline | None = None
+        """The prediction steps (:class:`scapo.steps.StepPipeline`), made by :meth:`load`, fitted by :meth:`fit`."""
 
     def fit(self, train: ArticulationDataset) -> None:
-        """Load the finished run (:meth:`load`) and check it against ``train``'s category and structure."""
+        """Load the finished run (:meth:`load`), check it against ``train``'s category and structure, and fit the
+        prediction steps that need it on the training split (:meth:`scapo.steps.StepPipeline.fit`)."""
         self.load(f"--data {train.root} ")
         check_run_fits(self.run, self.identity, train, self.options.cross_category, f"train a run on this dataset "
                        f"first ('scapo train --method {self.spec.method} --data {train.root} --out RUN')")
-        if self.options.axis_sweep or self.options.hinge_bar_axis or self.options.hinge_frames:  # one one-pass of
-            pts = training_points(train)  # the training views for all three
-            raw = self._infer(pts)
-        if self.options.axis_sweep:  # first: the other steps read its axes
-            from scapo.methods.sweep import SweepAxes
-
-            self.sweep = SweepAxes(self.identity["joint_type"], self.identity["joint_parts"]).fit(pts, raw)
-            raw = self.sweep(raw)
-        if self.options.hinge_bar_axis or self.options.hinge_frames:
-            from scapo.methods.hinge import HingeFrames, bar_axis_choice
-
-            if self.options.hinge_bar_axis:
-                self.bar_ranks = bar_axis_choice(pts, raw["part_label"], self.identity["joint_type"],
-                                                 self.identity["joint_parts"])
-            if self.options.hinge_frames:
-                self.frames = HingeFrames(self.identity["joint_type"], self.identity["joint_parts"],
-                                          self.options.hinge_view_prior)
-                self.frames.fit(pts, self._hinged(pts, raw))
+        self.steps.fit(train.arrays(["points"])["points"], self._infer)
 
     def load(self, data_hint: str = "") -> LearnedMethod:
         """Load the finished run (no dataset needed; :func:`scapo.methods.load`); returns self.
@@ -455,10 +384,11 @@ class LearnedMethod:
 
             self.supervision = supervision_marks(sup)
             if not o.label:
-                self.label = f"{self.spec.method}-{sup.lower()}" + post_suffix(o)
+                self.label = f"{self.spec.method}-{sup.lower()}" + o.label_suffix()
         if o.refine and self.spec.method not in refinable_methods():
             raise ConfigError(f"method {self.spec.method!r} has no canonical shape or template for the test-time "
                               f"refinement; --refine applies to: {', '.join(refinable_methods())}")
+        self.steps = StepPipeline(o, ident["joint_type"], ident["joint_parts"], "template", o.batch_size)
         return self
 
     @property
@@ -471,7 +401,7 @@ class LearnedMethod:
         """The network's outputs for clouds ``points (B, N, 3)`` (camera frame, metres; numpy or torch): numpy
         arrays ``part_label (B, N)``, ``part_pose (B, P, 4, 4)``, ``joint_axis``, ``joint_pivot (B, J, 3)``,
         ``joint_state (B, J)``, ``T_cam_obj (B, 4, 4)`` (one-pass, even with the ``refine`` option), and for a
-        refinable method ``template (B, M, 3)``, ``template_label (B, M)`` (:mod:`scapo.methods.refine`).
+        refinable method ``template (B, M, 3)``, ``template_label (B, M)`` (:mod:`scapo.steps.refine`).
 
         Raises:
             InputError: not a finite ``(B, N, 3)`` array of real numbers. TrainingError: not loaded."""
@@ -493,44 +423,6 @@ class LearnedMethod:
             outs.append(self.net.infer(X.to(self.device)))
         return {k: np.concatenate([d[k] for d in outs]) for k in outs[0]} if outs else {}
 
-    def _hinged(self, points: np.ndarray, o: dict) -> dict:
-        """The hinge step (:func:`scapo.methods.hinge.hinge_prediction`) on the one-pass outputs ``o``.
-
-        Raises:
-            TrainingError: ``hinge_bar_axis`` before ``fit`` chose the bar axes' ranks."""
-        from scapo.methods.hinge import hinge_prediction
-
-        if self.options.hinge_bar_axis and self.bar_ranks is None:
-            raise TrainingError("hinge_bar_axis needs its ranks chosen on the training split first: fit(train)")
-        return hinge_prediction(points, o, self.identity["joint_type"], self.identity["joint_parts"],
-                                axis_from_planes=self.options.hinge_axis, bar_axes=self.bar_ranks)
-
-    def _swept(self, o: dict) -> dict:
-        """The ``axis_sweep`` step on the one-pass outputs ``o`` (``o`` itself without it).
-
-        Raises:
-            TrainingError: before :meth:`fit` fitted the axes on the training split."""
-        if not self.options.axis_sweep:
-            return o
-        if self.sweep is None:
-            raise TrainingError("axis_sweep needs its axes fitted on the training split first: fit(train)")
-        return self.sweep(o)
-
-    def _steps(self, points: np.ndarray, o: dict) -> dict:
-        """The prediction steps the options turn on, in order, on the one-pass outputs ``o`` of ``points (M, N, 3)``:
-        ``axis_sweep``, ``hinge`` (its pivots and split about the swept axes), ``hinge_frames``.
-
-        Raises:
-            TrainingError: a step fitted on the training split before :meth:`fit`."""
-        o = self._swept(o)
-        if self.options.hinge:
-            o = self._hinged(points, o)
-        if self.options.hinge_frames:
-            if self.frames is None:
-                raise TrainingError("hinge_frames needs its offsets fitted on the training split first: fit(train)")
-            o = self.frames(points, o)
-        return o
-
     @torch.no_grad()
     def predict(self, dataset: ArticulationDataset) -> Predictions:
         """Predictions for every sample of ``dataset`` (batches of ``batch_size`` clouds, no gradient);
@@ -539,22 +431,8 @@ class LearnedMethod:
         M = len(a["points"])
         t0 = time.perf_counter()
         o = self._infer(a["points"], f"{self.spec.method} {dataset.split}" if self.options.progress else "")
-        o = self._steps(a["points"], o)
-        info = {}
-        if self.options.hinge:
-            from scapo.methods.hinge import hinge_info
-
-            info["hinge"] = hinge_info(o, self.options.hinge_axis, self.bar_ranks)
-        if self.options.hinge_frames:
-            info["hinge_frames"] = self.frames.info(o)
-        if self.options.axis_sweep:
-            info["axis_sweep"] = self.sweep.info()
-        if self.options.refine:
-            from scapo.methods.refine import refine_info, refine_prediction
-
-            o = refine_prediction(a["points"], o, o["template"], o["template_label"], self.identity["joint_type"],
-                                  self.identity["joint_parts"], batch_size=self.options.batch_size)
-            info.update(refine_info(o))
+        o = self.steps.apply(a["points"], o)
+        info = self.steps.info(o)
         seconds = time.perf_counter() - t0
         jt = np.array(self.identity["joint_type"], dtype=np.int64)
         jp = np.array(self.identity["joint_parts"], dtype=np.int64).reshape(-1, 2)
@@ -582,7 +460,7 @@ def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, need
                      refinable: bool = False):
     """Register a learned baseline (its factory takes :class:`LearnedOptions` fields; trained by
     :func:`train_learned`). ``refinable``: the network's ``infer`` also returns ``template (B, M, 3)`` and
-    ``template_label (B, M)`` (its whole-object model, :mod:`scapo.methods.refine`)."""
+    ``template_label (B, M)`` (its whole-object model, :mod:`scapo.steps.refine`)."""
     from scapo.methods.registry import register_method
 
     options_cls = spec.options or LearnedOptions

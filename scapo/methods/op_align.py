@@ -445,7 +445,7 @@ class OPAlignNet(nn.Module):
     @torch.no_grad()
     def infer(self, points: torch.Tensor) -> dict:
         """Predictions for ``points (B, N, 3)`` metres (camera frame); numpy arrays (see Predictions), and the
-        decoded canonical shape as the whole-object model of :mod:`scapo.methods.refine`: ``template (B, M, 3)``
+        decoded canonical shape as the whole-object model of :mod:`scapo.steps.refine`: ``template (B, M, 3)``
         (``sc Y``, metres, the canonical frame, which every part pose maps to the camera) and
         ``template_label (B, M)`` (the part-level network's segmentation of ``Y``).
 

@@ -88,7 +88,7 @@ class MethodEntry:
         quick_options: prediction options for a quick run of a fitted method (tests, smoke runs); a trained
             method's quick run is its ``test`` preset.
         refinable: the method has a whole-object model (a canonical shape or template) and takes the
-            method-independent test-time refinement (:mod:`scapo.methods.refine`; option ``refine=True``,
+            method-independent test-time refinement (:mod:`scapo.steps.refine`; option ``refine=True``,
             ``scapo predict --refine``, label ``<method>+refine``); Table 1 reports it as its own row.
         train_speed: for trained methods, ``train_speed(preset, device, iters) -> dict`` of one training step's
             clouds/s per stage (``stage1_clouds_per_s``, ...) with ``batch_size`` and ``points``
@@ -167,7 +167,7 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
 
 def describe(label: str) -> tuple[str, dict] | None:
     """(display name, supervision marks) for a predictions label: a registered name, or one of an
-    entry's variants (``scapo-no-refine``) or ``<label>+refine`` (:mod:`scapo.methods.refine`), either with a
+    entry's variants (``scapo-no-refine``) or ``<label>+refine`` (:mod:`scapo.steps.refine`), either with a
     supervision suffix ``-sj`` / ``-s`` / ``-j`` (a run
     trained with those labels, :mod:`scapo.losses.supervised`: "SCAPO (ours) (SJ)" with its marks); None
     for a label no entry knows."""

@@ -17,17 +17,19 @@ from scapo.data.dataset import ArticulationDataset
 from scapo.errors import ConfigError
 from scapo.eval.predictions import Predictions
 from scapo.losses.supervised import supervision_marks
-from scapo.methods.learned import LearnedOptions, check_run_fits, post_suffix, training_points, training_views
+from scapo.methods.learned import LearnedOptions, check_run_fits
 from scapo.methods.registry import register_method
 from scapo.models.predict import Predictor
 from scapo.models.presets import ABLATIONS, PRESETS, get_preset
+from scapo.steps import StepPipeline
 
 
 @dataclass(frozen=True)
 class SCAPOOptions(LearnedOptions):
     """Options of the ``scapo`` method (``scapo predict --run RUN --option k=v``): those of every trained
-    method (:class:`~scapo.methods.learned.LearnedOptions`; ``label`` defaults to ``scapo``, e.g.
-    ``scapo-no-refine`` for a second row of one run) and the test-time refinement's."""
+    method (:class:`~scapo.methods.learned.LearnedOptions`, with the prediction steps of
+    :class:`scapo.steps.StepOptions`; ``label`` defaults to ``scapo``, e.g. ``scapo-no-refine`` for a second row of
+    one run) and SCAPO's own test-time refinement's."""
 
     refine_steps: int | None = None
     """Steps of the test-time refinement (default: the run's preset; 0 turns it off)."""
@@ -36,21 +38,6 @@ class SCAPOOptions(LearnedOptions):
     refine_upright_deg: float | None = None
     """Cone of the refinement's upright prior in degrees (default: the run's preset; 0 turns it off;
     :class:`~scapo.models.refine.RefineConfig`); its direction is fitted on the training split."""
-    base_frame: str = ""
-    """"principal": snap each prediction's frame to the principal axes of the points it labels as the base part,
-    through an offset fitted on the training split (:mod:`scapo.methods.base_frame`, an addition to the paper; a
-    one-pass inference step on the method's own segmentation, no ground truth), each view's signed permutation of
-    the axes the one nearest the network's frame; "parts": the same axes with their signs from the other parts'
-    centroid (:func:`scapo.methods.base_frame.parts_signed_axes`), the network's frame used for nothing but the
-    offset; "" (default): the network's frame."""
-    base_slot: str = "0"
-    """The part slot taken as the base: "0" (default; the model's base slot), another slot number, or "auto": the
-    slot whose predicted camera-frame rotations spread least over up to 512 training views
-    (:func:`scapo.methods.base_frame.choose_base_slot`: a base turns with the viewpoint alone, a child also with its
-    joint; no labels). With ``base_frame`` the snap works on that slot and the snapped frame is its pose; without it
-    the object frame ``T_cam_obj`` is that slot's pose and nothing else changes (part labels, part poses and joints
-    stay as the network gives them; the label gets ``+slot-<option>``): an object frame on the part that acts as the
-    base when the network's slot 0 holds a child (an addition to the paper)."""
     stage2_starts: str | None = None
     """The hypothesis set of stage 2's first frame in one-pass prediction, for a run trained with ``stage2_frame =
     "parts"`` (:attr:`scapo.models.refine.RefineConfig.stage2_starts`): "off", "D2" (the stage-1 frame and its half
@@ -71,15 +58,6 @@ class SCAPOOptions(LearnedOptions):
                               f"{self.stage2_starts!r}")
         if self.parts_axes not in ("", "pca", "plane"):
             raise ConfigError(f"parts_axes must be '' (the run's), 'pca' or 'plane', got {self.parts_axes!r}")
-        if self.base_frame not in ("", "principal", "parts"):
-            raise ConfigError(f"base_frame must be '' (off), 'principal' or 'parts', got {self.base_frame!r}")
-        if str(self.base_slot) != "auto" and not (str(self.base_slot).isascii() and str(self.base_slot).isdigit()):
-            raise ConfigError(f"base_slot must be a part slot number or 'auto', got {self.base_slot!r}")
-        if self.hinge_frames and self.base_frame:
-            raise ConfigError(f"hinge_frames=true and base_frame={self.base_frame} both set the part rotations; give "
-                              "one")
-        if self.hinge_frames and str(self.base_slot) != "0":
-            raise ConfigError(f"hinge_frames=true chooses its own base slot; drop base_slot={self.base_slot}")
         if self.refine_steps is not None and self.refine_steps < 0:
             raise ConfigError(f"refine_steps must be >= 0, got {self.refine_steps}")
         if self.refine and self.refine_steps:
@@ -100,32 +78,15 @@ class SCAPOMethod:
             raise ConfigError("the scapo method needs a trained run: --run RUN (a folder written by 'scapo train')")
         self.run = Path(self.options.run)
         axes = f"+parts-{self.options.parts_axes}" if self.options.parts_axes else ""
-        slot = f"+slot-{self.options.base_slot}" if self.object_slot_only else ""
         starts = f"+starts-{self.options.stage2_starts}" if self.options.stage2_starts is not None else ""
-        self.label = str(self.options.label or ("scapo" + axes + starts + post_suffix(self.options) + slot))
+        self.label = str(self.options.label or ("scapo" + axes + starts + self.options.label_suffix()))
         self.predictor: Predictor | None = None
-        self.base_offset: np.ndarray | None = None
-        """``(3, 3)`` the fitted base-axes offset (``base_frame``, :func:`.base_frame.fit_base_offset`)."""
-        self.base_support = float("nan")
-        self.base_slot = 0
-        """The part slot taken as the base (``base_slot``; chosen on the training split when "auto")."""
-        self.base_pair: tuple[int, int] | None = None
-        """``base_frame=parts``: the signed ranks of the base's axes (:func:`.base_frame.choose_signed_pair`)."""
-        self.base_dispersion: np.ndarray | None = None
-        self.sweep = None
-        """The ``axis_sweep`` step (:class:`scapo.methods.sweep.SweepAxes`), fitted on the training split."""
-        self.frames = None
-        """The ``hinge_frames`` step (:class:`scapo.methods.hinge.HingeFrames`), fitted on the training split."""
-        self.bar_ranks: list | None = None
-        """``hinge_bar_axis``: per joint the rank of :func:`scapo.methods.hinge.bar_axis_choice` (fitted in ``fit``)."""
-
-    @property
-    def object_slot_only(self) -> bool:
-        """Whether ``base_slot`` sets the object frame alone (a slot other than 0 or "auto", without ``base_frame``)."""
-        return str(self.options.base_slot) != "0" and not self.options.base_frame
+        self.steps: StepPipeline | None = None
+        """The prediction steps (:class:`scapo.steps.StepPipeline`), made by :meth:`load`, fitted by :meth:`fit`."""
 
     def fit(self, train: ArticulationDataset) -> None:
-        """Load the run and check that it was trained on this dataset's category and kinematic structure.
+        """Load the run, check that it was trained on this dataset's category and kinematic structure, fit the
+        refinement's upright prior and the prediction steps that need it on the training split.
 
         Raises:
             TrainingError: see :meth:`Predictor.load`.
@@ -137,131 +98,15 @@ class SCAPOMethod:
         check_run_fits(self.run, ident, train, self.options.cross_category,
                        f"train a run on this dataset first ('scapo train --data {train.root} --out RUN')")
         rc = self.predictor.refine
+        points = train.arrays(["points"])["points"]
         if rc.steps > 0 and rc.starts == "octahedral" and rc.upright_deg > 0:
-            self.predictor.fit_upright(train.arrays(["points"])["points"])
-        raw = None
-        if self.options.hinge_bar_axis or self.options.hinge_frames or self.options.axis_sweep:  # one one-pass of
-            pts = training_points(train)  # the training views for all three
-            raw = self.predictor.predict(pts, self.options.batch_size, False)
-        mc = self.predictor.model.cfg
-        if self.options.axis_sweep:  # first: the other steps read its axes
-            from scapo.methods.sweep import SweepAxes
+            self.predictor.fit_upright(points)
+        self.steps.fit(points, self._network)
 
-            self.sweep = SweepAxes(mc.joint_types, mc.joint_parts).fit(pts, raw)
-            raw = self.sweep(raw)
-        if self.options.hinge_bar_axis:  # before the base frame's fit, whose one-pass predictions take the step
-            from scapo.methods.hinge import bar_axis_choice
-
-            self.bar_ranks = bar_axis_choice(pts, raw["part_label"], mc.joint_types, mc.joint_parts)
-        if self.options.base_frame:
-            self.fit_base_frame(train.arrays(["points"])["points"])
-        elif self.object_slot_only:
-            self.fit_base_slot(train.arrays(["points"])["points"])
-        if self.options.hinge_frames:
-            from scapo.methods.hinge import HingeFrames
-
-            self.frames = HingeFrames(mc.joint_types, mc.joint_parts, self.options.hinge_view_prior)
-            self.frames.fit(pts, self._hinged(pts, raw))
-
-    def fit_base_frame(self, points, max_views: int = 512) -> tuple[np.ndarray, float]:
-        """Fit the base-axes offset (``base_frame``) on training clouds ``(M, N, 3)`` (camera frame, metres; no
-        labels) from the network's predictions of up to ``max_views`` evenly spaced clouds, after choosing the base
-        slot (``base_slot``). Returns (``O (3, 3)``, the share of those views that agree with it within 15 deg).
-
-        Raises:
-            ConfigError: not loaded, or a base slot the model does not have. InputError: the network labels no
-            training view's points as the base.
-        """
-        from scapo.methods.base_frame import base_axes, choose_signed_pair, fit_base_offset, parts_signed_axes
-
-        pts, o = self.fit_base_slot(points, max_views)
-        pose, slot = np.asarray(o["part_pose"]), self.base_slot
-        if self.options.base_frame == "parts":
-            self.base_pair = choose_signed_pair(pts, o["part_label"], slot)
-            E, ok = parts_signed_axes(pts, o["part_label"], self.base_pair, slot)
-            self.base_offset, self.base_support, _ = fit_base_offset(pose[ok, slot, :3, :3], E[ok],
-                                                                     group=np.eye(3)[None])
-            return self.base_offset, self.base_support
-        E, ok = base_axes(pts, o["part_label"], slot=slot)
-        self.base_offset, self.base_support, _ = fit_base_offset(pose[ok, slot, :3, :3], E[ok])
-        return self.base_offset, self.base_support
-
-    def fit_base_slot(self, points, max_views: int = 512) -> tuple[np.ndarray, dict]:
-        """Choose the base slot (``base_slot``; "auto": :func:`~scapo.methods.base_frame.choose_base_slot` on the
-        network's one-pass part poses) from training clouds ``(M, N, 3)`` (camera frame, metres; no labels), of which
-        up to ``max_views`` evenly spaced ones are read. Sets :attr:`base_slot` and :attr:`base_dispersion` (each
-        slot's rotation dispersion); returns those clouds and their one-pass prediction.
-
-        Raises:
-            ConfigError: not loaded, or a base slot the model does not have.
-        """
-        from scapo.methods.base_frame import choose_base_slot
-
-        if self.predictor is None:
-            raise ConfigError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
-        pts = np.asarray(points)
-        pts = pts[training_views(len(pts), max_views)]
-        o = self._one_pass(pts, False)
-        pose = np.asarray(o["part_pose"])
-        slot, self.base_dispersion = choose_base_slot(pose)
-        if str(self.options.base_slot) != "auto":
-            slot = int(self.options.base_slot)
-            if slot >= pose.shape[1]:
-                raise ConfigError(f"base_slot={slot}: the model has part slots 0-{pose.shape[1] - 1}")
-        self.base_slot = slot
-        return pts, o
-
-    def _one_pass(self, points, progress: bool) -> dict:
-        """The network's prediction for ``points (B, N, 3)``, re-split about its hinges with ``hinge``
-        (:mod:`scapo.methods.hinge`; before the base-axes snap, which reads the base's points)."""
-        return self._hinged(points, self._swept(self.predictor.predict(points, self.options.batch_size, progress)))
-
-    def _swept(self, o: dict) -> dict:
-        """The ``axis_sweep`` step on the network's one-pass prediction ``o`` (``o`` itself without it).
-
-        Raises:
-            ConfigError: before ``fit`` fitted the axes on a training split."""
-        if not self.options.axis_sweep:
-            return o
-        if self.sweep is None:
-            raise ConfigError("axis_sweep=true needs its axes fitted on a training split first: fit(train)")
-        return self.sweep(o)
-
-    def _hinged(self, points, o: dict) -> dict:
-        """The hinge step on the network's one-pass prediction ``o`` of ``points (B, N, 3)`` (``o`` itself without
-        ``hinge``).
-
-        Raises:
-            ConfigError: ``hinge_bar_axis`` before ``fit`` chose the bar axes' ranks."""
-        if self.options.hinge:
-            from scapo.methods.hinge import hinge_prediction
-
-            if self.options.hinge_bar_axis and self.bar_ranks is None:
-                raise ConfigError("hinge_bar_axis=true needs its ranks chosen on a training split first: fit(train)")
-            mc = self.predictor.model.cfg
-            o = hinge_prediction(np.asarray(points), o, mc.joint_types, mc.joint_parts,
-                                 axis_from_planes=self.options.hinge_axis, bar_axes=self.bar_ranks)
-        return o
-
-    def _base_frame(self, points, o: dict) -> dict:
-        """The prediction steps on the part rotations: ``hinge_frames`` or ``base_frame`` (at most one is set)."""
-        if self.options.hinge_frames:
-            if self.frames is None:
-                raise ConfigError("hinge_frames=true needs its offsets fitted on a training split first: fit(train)")
-            return self.frames(np.asarray(points), o)
-        if self.object_slot_only:  # the object frame on the chosen slot; nothing else changes
-            if self.base_dispersion is None:
-                raise ConfigError(f"base_slot={self.options.base_slot} needs its slot chosen on a training split "
-                                  "first: fit(train) or fit_base_slot(points)")
-            return {**o, "T_cam_obj": np.asarray(o["part_pose"])[:, self.base_slot].copy()}
-        if not self.options.base_frame:
-            return o
-        if self.base_offset is None:
-            raise ConfigError("base_frame=principal needs its offset fitted on a training split first: fit(train) "
-                              "or fit_base_frame(points)")
-        from scapo.methods.base_frame import snap_to_base
-
-        return snap_to_base(np.asarray(points), o, self.base_offset, slot=self.base_slot, pair=self.base_pair)
+    def _network(self, points, progress: bool = False) -> dict:
+        """The network's prediction (with SCAPO's own refinement, as the run's inference settings say) for
+        ``points (B, N, 3)``."""
+        return self.predictor.predict(points, self.options.batch_size, progress)
 
     def load(self) -> SCAPOMethod:
         """Load the run (:meth:`Predictor.load <scapo.models.predict.Predictor.load>`; no dataset needed, so the
@@ -299,7 +144,9 @@ class SCAPOMethod:
         if sup:  # the semi-supervised setting: its marks, and a label of its own unless one was given
             self.supervision = supervision_marks(sup)
             if not self.options.label:
-                self.label = f"scapo-{sup.lower()}" + post_suffix(self.options)
+                self.label = f"scapo-{sup.lower()}" + self.options.label_suffix()
+        mc = self.predictor.model.cfg
+        self.steps = StepPipeline(o, mc.joint_types, mc.joint_parts, "template_rest", o.batch_size)
         return self
 
     @property
@@ -308,31 +155,18 @@ class SCAPOMethod:
         return None if self.predictor is None else self.predictor.model
 
     def predict_points(self, points) -> dict:
-        """:meth:`Predictor.predict <scapo.models.predict.Predictor.predict>` on clouds ``(B, N, 3)`` (metres)."""
+        """:meth:`Predictor.predict <scapo.models.predict.Predictor.predict>` on clouds ``(B, N, 3)`` (metres), then
+        the prediction steps."""
         if self.predictor is None:
             raise ConfigError(f"{self.run} is not loaded; call load() (or scapo.methods.load(run)) first")
-        return self._base_frame(points, self._one_pass(points, self.options.progress))
+        return self.steps.apply(points, self._network(points, self.options.progress))
 
     def predict(self, dataset: ArticulationDataset) -> Predictions:
         a = dataset.arrays(["points"])
         t0 = time.perf_counter()
-        o = self._base_frame(a["points"], self._one_pass(a["points"], self.options.progress))
+        o = self.steps.apply(a["points"], self._network(a["points"], self.options.progress))
         mc = self.predictor.model.cfg
-        extra = {}
-        if self.options.refine:
-            from scapo.methods.refine import refine_info, refine_prediction
-
-            o = refine_prediction(a["points"], o, o["template_rest"], o["template_label"], mc.joint_types,
-                                  mc.joint_parts, batch_size=self.options.batch_size)
-            extra = refine_info(o)
-        if self.options.hinge:
-            from scapo.methods.hinge import hinge_info
-
-            extra["hinge"] = hinge_info(o, self.options.hinge_axis, self.bar_ranks)
-        if self.options.hinge_frames:
-            extra["hinge_frames"] = self.frames.info(o)
-        if self.options.axis_sweep:
-            extra["axis_sweep"] = self.sweep.info()
+        extra = self.steps.info(o)
         seconds = time.perf_counter() - t0
         M = len(a["points"])
         return Predictions(
@@ -353,18 +187,7 @@ class SCAPOMethod:
                   "upright": None if self.predictor.upright is None else
                   np.round(self.predictor.upright.cpu().double().numpy(), 6).tolist(),
                   "upright_support": self.predictor.upright_support,
-                  "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2), **extra,
-                  **({"base_frame": {"offset": np.round(self.base_offset, 6).tolist(),
-                                     "train_support": round(self.base_support, 4),
-                                     "slot": self.base_slot, "slot_option": str(self.options.base_slot),
-                                     "dispersion": np.round(self.base_dispersion, 4).tolist(),
-                                     "snap_deg_median": round(float(np.median(o["base_snap_deg"])), 2),
-                                     "mode": self.options.base_frame,
-                                     **({"signed_ranks": list(self.base_pair)} if self.base_pair else {})}}
-                     if self.options.base_frame else {}),
-                  **({"object_slot": {"slot": self.base_slot, "option": str(self.options.base_slot),
-                                      "dispersion": np.round(self.base_dispersion, 4).tolist()}}
-                     if self.object_slot_only else {})},
+                  "predict_ms_per_cloud": round(1000 * seconds / max(M, 1), 2), **extra},
         )
 
 

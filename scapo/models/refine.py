@@ -42,7 +42,7 @@ from scapo.ops.groups import octahedral_rotations
 
 __all__ = ["STAGE2_STARTS", "RefineConfig", "TemplatePoser", "camera_direction_in_frame", "posed_template",
            "refine_articulation", "upright_direction"]
-_fit = fit_template  # the fit, shared with scapo.methods.refine (scapo.nn.template_fit)
+_fit = fit_template  # the fit, shared with scapo.steps.refine (scapo.nn.template_fit)
 
 
 def camera_direction_in_frame(R: torch.Tensor, v: torch.Tensor) -> torch.Tensor:

@@ -470,7 +470,7 @@ class SCAPOModel(nn.Module):
         ``canonical_shape (B, N, 3)`` (``S*`` in metres) and ``template (B, M, 3)``; the template in its rest
         state ``template_rest (B, M, 3)`` (``Y*`` in metres, the canonical rest frame that every ``part_pose``
         maps to the camera) with ``template_label (B, M)`` int64 (argmax of its skinning weights): the
-        whole-object model of :mod:`scapo.methods.refine`.
+        whole-object model of :mod:`scapo.steps.refine`.
         """
         was_training = self.training
         self.eval()

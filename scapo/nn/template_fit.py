@@ -1,5 +1,5 @@
 """Fitting an articulated template to an observed cloud: the optimisation shared by SCAPO's test-time refinement
-(:mod:`scapo.models.refine`) and the method-independent one (:mod:`scapo.methods.refine`).
+(:mod:`scapo.models.refine`) and the method-independent one (:mod:`scapo.steps.refine`).
 
 A template ``rest (B, M, 3)`` with skinning weights ``(B, M, P)`` (one-hot for rigid parts), its joints
 ``pivot, axis (B, J, 3)`` in the rest frame, is posed by joint states and moved by a rigid frame

@@ -5,7 +5,7 @@ A revolute child turns about one axis fixed in its parent's frame. Any direction
 that axis (an eyeglasses temple's length, a laptop lid's normal) therefore stays in the plane normal to it as the joint
 moves, while a direction along the axis stays put. Over the views of a category, in a frame that is one frame across
 them, the child's principal direction of largest variance thus sweeps a great circle whose normal is the axis, or
-stays on the axis. Used by the prediction step ``axis_sweep`` (:mod:`scapo.methods.sweep`) and by the training switch
+stays on the axis. Used by the prediction step ``axis_sweep`` (:mod:`scapo.steps.sweep`) and by the training switch
 ``TrainConfig.axis_init = "sweep"`` (:mod:`scapo.models.train`). Measured in ``docs/canonical_ladder.md``,
 "The base's plane and the hinge axes from the sweep".
 """

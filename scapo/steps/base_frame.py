@@ -186,7 +186,7 @@ def fit_base_offset(R_base: np.ndarray, E: np.ndarray, inlier_deg: float = 15.0,
         R_base: ``(V, 3, 3)`` the network's base rotations (canonical -> camera). E: ``(V, 3, 3)`` the base axes
             (:func:`base_axes`), only views with axes.
         group: ``(K, 3, 3)`` the rotations ``E`` is known up to (default: the 24 signed permutations; the identity
-            alone for axes with no ambiguity, :func:`scapo.methods.hinge.part_axes`).
+            alone for axes with no ambiguity, :func:`scapo.steps.hinge.part_axes`).
 
     Returns:
         ``O (3, 3)`` float64 rotation, the share of views within ``inlier_deg`` of it, and each view's angle to it

@@ -489,7 +489,7 @@ def part_axes(points: np.ndarray, out: dict, joint_type, joint_parts,
 def fit_part_frames(part_pose: np.ndarray, E: np.ndarray, ok: np.ndarray,
                     min_views: int = FRAME_MIN_VIEWS) -> tuple[np.ndarray, np.ndarray]:
     """Per part, the offset ``O_p`` with ``R_p O_p ~ E_p`` on most training views: where the part's hinge axes
-    (:func:`part_axes`) sit in the method's canonical part frame (by consensus, :func:`scapo.methods.base_frame.
+    (:func:`part_axes`) sit in the method's canonical part frame (by consensus, :func:`scapo.steps.base_frame.
     fit_base_offset` with no symmetry group; no labels).
 
     Args:
@@ -503,7 +503,7 @@ def fit_part_frames(part_pose: np.ndarray, E: np.ndarray, ok: np.ndarray,
     Raises:
         InputError: shapes that do not match.
     """
-    from scapo.methods.base_frame import fit_base_offset
+    from scapo.steps.base_frame import fit_base_offset
 
     R = np.asarray(part_pose, dtype=np.float64)[..., :3, :3]
     E, ok = np.asarray(E, dtype=np.float64), np.asarray(ok, dtype=bool)
@@ -539,7 +539,7 @@ def snap_to_part_axes(out: dict, E: np.ndarray, ok: np.ndarray, offsets: np.ndar
         A copy of ``out`` with ``part_pose`` and ``T_cam_obj`` turned and ``frame_snap_deg (B, P)`` float64, each
         part's correction angle (0 where kept).
     """
-    from scapo.methods.base_frame import _angle
+    from scapo.steps.base_frame import _angle
 
     pose = np.asarray(out["part_pose"], dtype=np.float64)
     use = np.asarray(ok, dtype=bool) & (np.asarray(support) > 0)[None]
@@ -624,12 +624,12 @@ class HingeFrames:
         """Fit on training views ``points (V, N, 3)`` and the method's hinged prediction of them, with no labels:
 
         1. the base slot: the part whose hinge axes spread least over the views where every part has axes (it turns
-           with the viewpoint only; :func:`scapo.methods.base_frame.choose_base_slot`, which keeps the kinematic
+           with the viewpoint only; :func:`scapo.steps.base_frame.choose_base_slot`, which keeps the kinematic
            root unless another slot spreads least in 95 % of bootstrap resamples);
         2. with ``view_prior``, the prior (the consensus of the base's axes) and each training view's split;
         3. each part's offset (:func:`fit_part_frames`) and the object frame's to the base's (the consensus of
-           ``R_base^T R_obj``, :func:`scapo.methods.base_frame.fit_base_offset`)."""
-        from scapo.methods.base_frame import choose_base_slot, fit_base_offset
+           ``R_base^T R_obj``, :func:`scapo.steps.base_frame.fit_base_offset`)."""
+        from scapo.steps.base_frame import choose_base_slot, fit_base_offset
 
         E, ok = part_axes(points, out, self.joint_type, self.joint_parts)
         pose = np.asarray(out["part_pose"], dtype=np.float64)
@@ -658,7 +658,7 @@ class HingeFrames:
         theirs, refined to the chordal mean of the nearer hypotheses of those views. A method that gives the base's
         slot to the child in half of its views still has one base orientation that most views reach. Returns the
         exchanged split's ``(labels, E, ok)`` (None without a base joint), which :meth:`_choose_root` reuses."""
-        from scapo.methods.base_frame import _angle
+        from scapo.steps.base_frame import _angle
 
         pair, b = self._root_pair(), self.base
         if pair is None:
@@ -693,7 +693,7 @@ class HingeFrames:
         """The ``view_prior`` step: per view, the split (as predicted or with the base's joint's two parts exchanged;
         ``exchanged``: that split's ``(labels, E, ok)`` when already computed) whose base axes lie nearer the prior.
         Returns (out, E, ok, swapped (B,) bool)."""
-        from scapo.methods.base_frame import _angle
+        from scapo.steps.base_frame import _angle
 
         B = len(ok)
         pair = self._root_pair()
