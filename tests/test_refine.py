@@ -244,6 +244,7 @@ def test_upright_direction_finds_the_majority_branch_of_a_two_fold_ambiguity():
 def test_stage2_starts_setting_option_and_preset(tmp_path):
     """``RefineConfig.stage2_starts`` (the hypothesis set of stage 2's first frame): the known sets, the half turns'
     group, the method option ("off") as predictions record it, and ``cpu-laptop`` choosing the cube group."""
+    import dataclasses
     import json
 
     from scapo.errors import ConfigError
@@ -251,23 +252,30 @@ def test_stage2_starts_setting_option_and_preset(tmp_path):
     from scapo.models.presets import get_preset
     from scapo.ops.groups import half_turns
 
-    assert RefineConfig().stage2_starts == "" and RefineConfig(stage2_starts="D2").stage2_starts == "D2"
-    with pytest.raises(ValueError, match="stage2_starts"):
-        RefineConfig(stage2_starts="octahedral")
+    assert RefineConfig().stage2_starts == "off" and RefineConfig(stage2_starts="D2").stage2_starts == "D2"
+    for bad in ("octahedral", "", "none"):  # one spelling of off
+        with pytest.raises(ValueError, match="stage2_starts"):
+            RefineConfig(stage2_starts=bad)
     H = half_turns()
     assert H.shape == (4, 3, 3) and np.array_equal(H[0], np.eye(3)) and not H.flags.writeable
     assert np.allclose(np.linalg.det(H), 1.0) and np.allclose(H @ H, np.eye(3))  # proper half turns
     assert get_preset("cpu-laptop").refine.stage2_starts == "O"
     assert get_preset("cpu-laptop/epochs-5-4").refine.stage2_starts == "O"  # a budget's schedule keeps it
-    assert get_preset("cpu-eyeglasses").refine.stage2_starts == "D2" and get_preset("cpu").refine.stage2_starts == ""
+    assert get_preset("cpu-eyeglasses").refine.stage2_starts == "D2" and get_preset("cpu").refine.stage2_starts == "off"
     assert get_preset("cpu-eyeglasses/epochs-6-5").refine.stage2_starts == "D2"
     with pytest.raises(ConfigError, match="stage2_starts"):
         SCAPOOptions(run=str(tmp_path), stage2_starts="X")
     run = tmp_path / "run"
     run.mkdir()
-    (run / "run.json").write_text(json.dumps({"preset": {"name": "cpu-laptop/epochs-5-4"}}))
+    stored = dataclasses.asdict(get_preset("cpu-laptop/epochs-5-4"))
+    (run / "run.json").write_text(json.dumps({"preset": stored}))
     assert inference_settings(run, {"refine_steps": 0})["stage2_starts"] == "O"
-    assert inference_settings(run, {"refine_steps": 0, "stage2_starts": "off"})["stage2_starts"] == ""
+    assert inference_settings(run, {"refine_steps": 0, "stage2_starts": "off"})["stage2_starts"] == "off"
+    # the setting is read back from the run, never from the preset's current definition; an old run's "" is "off"
+    (run / "run.json").write_text(json.dumps({"preset": {**stored, "refine": {**stored["refine"], "stage2_starts": ""}}}))
+    assert inference_settings(run, {})["stage2_starts"] == "off" and get_preset("cpu-laptop").refine.stage2_starts == "O"
+    (run / "run.json").write_text(json.dumps({"preset": {**stored, "refine": {**stored["refine"], "stage2_starts": "T"}}}))
+    assert inference_settings(run, {})["stage2_starts"] == "T"
     from scapo.methods.registry import validate_options
 
     assert validate_options("scapo", {"stage2_starts": "off"})["stage2_starts"] == "off"  # "none" reads as no value

@@ -485,7 +485,7 @@ def _check_stage2_starts(model, X: torch.Tensor, plain) -> None:
 
     G = stage2_start_rotations("D2")
     assert torch.equal(G[0], torch.eye(3)) and torch.allclose(G @ G.transpose(1, 2), torch.eye(3).expand(4, 3, 3))
-    assert torch.equal(model.passes(X, "").w, plain.w)  # "": the stage-1 frame alone
+    assert torch.equal(model.passes(X, "off").w, plain.w)  # "off": the stage-1 frame alone
     # the real outputs: the choice is the start of least one-sided Chamfer distance, cloud by cloud
     s1 = model.stage1(X)
     R0 = apply_branch(s1.enc.R, model.branch, model.branch_flip)
@@ -516,8 +516,9 @@ def _check_stage2_starts(model, X: torch.Tensor, plain) -> None:
     assert len(calls) == 4 and all(torch.allclose(f, R0 @ g) for f, g in zip(calls, G))
     with pytest.raises(ValueError, match="stage2_starts"):
         model.passes(X, "D3")
-    with pytest.raises(ValueError, match="stage2_starts"):
-        stage2_start_rotations("")
+    for name in ("", "off"):
+        with pytest.raises(ValueError, match="stage2_starts"):
+            stage2_start_rotations(name)
 
 
 def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_base_gives(laptop_data, tmp_path,

@@ -180,7 +180,12 @@ def _read_record(paths: CellPaths, dataset_hash: str) -> dict | None:
     entry = METHODS.get(cell.get("method", "")) if cell.get("method") in METHODS else None
     if entry is not None and entry.inference is not None and cell.get("seed") is not None:
         options = {str(k): v for k, v in cell.get("options", [])}
-        if rec.get("info", {}).get("inference") != json.loads(json.dumps(entry.inference(paths.run, options))):
+        stored = rec.get("info", {}).get("inference")
+        if isinstance(stored, dict):  # a record of before "off" was stage2_starts' one spelling
+            from scapo.nn.template_fit import current_refine_names
+
+            stored = current_refine_names(stored)
+        if stored != json.loads(json.dumps(entry.inference(paths.run, options))):
             return None
     return rec
 
@@ -282,7 +287,12 @@ def _predictions_fit(path: Path, dataset_hash: str, cell: Cell, run: Path) -> bo
     if not cell.trained:
         return True
     inference = METHODS.get(cell.method).inference
-    if inference is not None and p.info.get("inference") != inference(run, dict(cell.options)):
+    stored = p.info.get("inference")
+    if isinstance(stored, dict):  # predictions of before "off" was stage2_starts' one spelling
+        from scapo.nn.template_fit import current_refine_names
+
+        stored = current_refine_names(stored)
+    if inference is not None and stored != inference(run, dict(cell.options)):
         return False  # made under other inference settings (e.g. a preset's refinement changed since)
     return Path(str(p.info.get("run", ""))).name == Path(run).name
 

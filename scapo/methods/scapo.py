@@ -40,8 +40,9 @@ class SCAPOOptions(LearnedOptions):
     :class:`~scapo.models.refine.RefineConfig`); its direction is fitted on the training split."""
     stage2_starts: str | None = None
     """The hypothesis set of stage 2's first frame in one-pass prediction, for a run trained with ``stage2_frame =
-    "parts"`` (:attr:`scapo.models.refine.RefineConfig.stage2_starts`): "off", "D2" (the stage-1 frame and its half
-    turns), "T", "O" or "I"; default (also ``none``, which the option parser reads as no value): the run's preset.
+    "parts"`` (:attr:`scapo.models.refine.RefineConfig.stage2_starts`, checked by its one check,
+    :func:`scapo.models.refine.check_stage2_starts`): "off", "D2" (the stage-1 frame and its half turns), "T", "O" or
+    "I"; default (also ``none``, which the option parser reads as no value): the setting the run stored.
     Given, the label gets ``+starts-<value>`` (its ablation row: ``--option stage2_starts=off``)."""
     parts_axes: str = ""
     """For a run trained with ``stage2_frame = "parts"``: how its prediction passes find the base's directions,
@@ -51,11 +52,13 @@ class SCAPOOptions(LearnedOptions):
 
     def __post_init__(self):
         super().__post_init__()
-        from scapo.models.refine import STAGE2_STARTS
+        from scapo.models.refine import check_stage2_starts
 
-        if self.stage2_starts is not None and self.stage2_starts not in ("off", *STAGE2_STARTS[1:]):
-            raise ConfigError(f"stage2_starts must be 'off' or one of {', '.join(STAGE2_STARTS[1:])}, got "
-                              f"{self.stage2_starts!r}")
+        if self.stage2_starts is not None:
+            try:
+                check_stage2_starts(self.stage2_starts)
+            except ValueError as e:
+                raise ConfigError(str(e)) from None
         if self.parts_axes not in ("", "pca", "plane"):
             raise ConfigError(f"parts_axes must be '' (the run's), 'pca' or 'plane', got {self.parts_axes!r}")
         if self.refine_steps is not None and self.refine_steps < 0:
@@ -125,11 +128,11 @@ class SCAPOMethod:
             except ValueError as e:
                 raise ConfigError(str(e)) from None
         if o.stage2_starts is not None:
-            if _starts(o.stage2_starts) and not self.predictor.model.uses_parts_frame:  # it would change nothing
+            if o.stage2_starts != "off" and not self.predictor.model.uses_parts_frame:  # it would change nothing
                 raise ConfigError(f"stage2_starts={o.stage2_starts} applies to a run trained with stage2_frame='parts' "
                                   f"(preset part stage2-parts); {self.run} was not, so its rows would be labelled "
                                   "+starts without a start tried: drop the option")
-            self.predictor.refine = dataclasses.replace(self.predictor.refine, stage2_starts=_starts(o.stage2_starts))
+            self.predictor.refine = dataclasses.replace(self.predictor.refine, stage2_starts=o.stage2_starts)
         if o.parts_axes:
             model = self.predictor.model
             if not model.uses_parts_frame:
@@ -212,13 +215,8 @@ def inference_settings(run, options: dict | None = None) -> dict:
         if o.get(key) is not None:
             rc = dataclasses.replace(rc, **{name: type(getattr(rc, name))(o[key])})
     if o.get("stage2_starts") is not None:
-        rc = dataclasses.replace(rc, stage2_starts=_starts(str(o["stage2_starts"])))
+        rc = dataclasses.replace(rc, stage2_starts=str(o["stage2_starts"]))
     return dataclasses.asdict(rc)
-
-
-def _starts(option: str) -> str:
-    """:attr:`SCAPOOptions.stage2_starts` as :attr:`~scapo.models.refine.RefineConfig.stage2_starts` ("off": "")."""
-    return "" if option == "off" else option
 
 
 def _run_spec():

@@ -11,12 +11,9 @@ import torch
 
 from scapo.engine.runs import load_error_text, resolve_device
 from scapo.errors import ConfigError, InputError, TrainingError
-from scapo.models.presets import PRESETS, get_preset
-from scapo.models.refine import RefineConfig
+from scapo.models.refine import RefineConfig, refine_from_dict
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
-from scapo.models.train import preset_from_dict
 from scapo.nn.encoder import EncoderConfig
-from scapo.registry import parse_preset
 
 
 def _model_config(d: dict) -> ModelConfig:
@@ -96,11 +93,14 @@ def check_points(points) -> torch.Tensor:
 
 
 def stored_refine(stored: dict) -> RefineConfig:
-    """The refinement settings of a run whose preset is ``stored`` (``run.json``'s ``preset``): an
-    inference setting, so it follows the preset's current definition when the preset is registered
-    (or is an ablation of one), and the stored settings otherwise."""
-    registered = parse_preset(str(stored.get("name", ""))).base in PRESETS.names()
-    return (get_preset(stored["name"]) if registered else preset_from_dict(stored)).refine
+    """The inference settings a run was trained with (``run.json``'s ``preset``, ``stored``: its ``refine``, stored
+    at training time; :func:`scapo.models.refine.refine_from_dict` reads old spellings): read back from the run,
+    never from the preset's current definition, so that a run predicts as it did when it was made (a prediction
+    option, e.g. ``--option stage2_starts=off``, changes it for one prediction).
+
+    Raises:
+        ValueError, TypeError: a stored value the settings refuse."""
+    return refine_from_dict(stored.get("refine"))
 
 
 class Predictor:

@@ -37,11 +37,18 @@ import torch
 
 from scapo.nn.outputs import SCAPOOutput
 from scapo.nn.skinning import blend, bone_transforms
-from scapo.nn.template_fit import STAGE2_STARTS, RefineConfig, TemplatePoser, fit_template
+from scapo.nn.template_fit import (
+    STAGE2_STARTS,
+    RefineConfig,
+    TemplatePoser,
+    check_stage2_starts,
+    fit_template,
+    refine_from_dict,
+)
 from scapo.ops.groups import octahedral_rotations
 
-__all__ = ["STAGE2_STARTS", "RefineConfig", "TemplatePoser", "camera_direction_in_frame", "posed_template",
-           "refine_articulation", "upright_direction"]
+__all__ = ["STAGE2_STARTS", "RefineConfig", "TemplatePoser", "camera_direction_in_frame", "check_stage2_starts",
+           "posed_template", "refine_articulation", "refine_from_dict", "upright_direction"]
 _fit = fit_template  # the fit, shared with scapo.steps.refine (scapo.nn.template_fit)
 
 

@@ -26,7 +26,7 @@ import torch
 from torch import nn
 
 from scapo.models.branch import apply_branch
-from scapo.models.refine import STAGE2_STARTS, RefineConfig, refine_articulation
+from scapo.models.refine import RefineConfig, check_stage2_starts, refine_articulation
 from scapo.nn.encoder import EncoderConfig, EncoderOutput, SE3Encoder, ShapeDecoder
 from scapo.nn.outputs import SCAPOOutput, Stage1Output
 from scapo.nn.skinning import (
@@ -184,14 +184,14 @@ def stage2_start_rotations(name: str) -> torch.Tensor:
     (:func:`scapo.ops.groups.half_turns`), "T", "O", "I" :func:`scapo.ops.groups.rotation_group`.
 
     Raises:
-        ValueError: "" or an unknown name.
+        ValueError: "off" (no set) or an unknown name (:func:`scapo.models.refine.check_stage2_starts`).
     """
     import numpy as np
 
     from scapo.ops.groups import half_turns, rotation_group
 
-    if name not in STAGE2_STARTS or not name:
-        raise ValueError(f"unknown stage2_starts {name!r}; use one of {', '.join(k for k in STAGE2_STARTS if k)}")
+    if check_stage2_starts(name) == "off":
+        raise ValueError("stage2_starts 'off' has no start rotations: the stage-1 frame alone")
     return torch.from_numpy(np.array(half_turns() if name == "D2" else rotation_group(name))).float()
 
 
@@ -399,14 +399,14 @@ class SCAPOModel(nn.Module):
         return "plane" if int(self.parts_plane) else "pca"
 
     @torch.no_grad()
-    def passes(self, X: torch.Tensor, starts: str = "") -> SCAPOOutput:
+    def passes(self, X: torch.Tensor, starts: str = "off") -> SCAPOOutput:
         """Both stages on normalised points ``X (B, N, 3)`` as prediction runs them (in the module's current mode):
         one pass, then for a model trained with ``TrainConfig.stage2_frame = "parts"`` (:attr:`uses_parts_frame`)
         stage 2 :data:`PARTS_PASSES` more times, each in the frame read from the base the pass before labels
         (:meth:`parts_frames`); the last pass's :class:`~scapo.nn.outputs.SCAPOOutput`. Stage 1 runs once: its
         output does not depend on the frame, so the passes share it (the same outputs as :meth:`forward` per pass).
 
-        ``starts`` (:attr:`scapo.models.refine.RefineConfig.stage2_starts`; such a model only, "" for any other): a
+        ``starts`` (:attr:`scapo.models.refine.RefineConfig.stage2_starts`; such a model only, "off" for any other): a
         hypothesis set of the first pass's frame, ``F_k = R G_k`` with ``R`` stage 1's (branch-corrected) frame and
         ``G_k`` (K, 3, 3) the set's rotations (identity first; "D2": :func:`scapo.ops.groups.half_turns`, else
         :func:`scapo.ops.groups.rotation_group`). Each start runs all the passes, and each cloud keeps the outputs
@@ -420,10 +420,9 @@ class SCAPOModel(nn.Module):
         Raises:
             ValueError: an unknown ``starts`` (:data:`scapo.models.refine.STAGE2_STARTS`).
         """
-        if starts not in STAGE2_STARTS:
-            raise ValueError(f"unknown stage2_starts {starts!r}; use one of {STAGE2_STARTS}")
+        check_stage2_starts(starts)
         s1 = self.stage1(X)
-        if not starts or not self.uses_parts_frame:
+        if starts == "off" or not self.uses_parts_frame:
             return self._passes_from(X, s1)
         G = stage2_start_rotations(starts).to(X)
         R0 = apply_branch(s1.enc.R, self.branch, self.branch_flip)
@@ -476,7 +475,7 @@ class SCAPOModel(nn.Module):
         self.eval()
         try:
             X, scale = self.normalize(points)
-            out = self.passes(X, refine.stage2_starts if refine is not None else "")
+            out = self.passes(X, refine.stage2_starts if refine is not None else "off")
         finally:
             self.train(was_training)
         enc = out.enc

@@ -26,7 +26,7 @@ from scapo.files import write_json
 from scapo.losses import LossConfig, stage1_terms, stage2_terms, weighted_total
 from scapo.models.branch import apply_branch
 from scapo.models.presets import TrainConfig, get_preset
-from scapo.models.refine import RefineConfig
+from scapo.models.refine import refine_from_dict
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.nn.encoder import EncoderConfig
 
@@ -219,7 +219,7 @@ def preset_from_dict(d: dict) -> TrainConfig:
     loss = dict(d["losses"])
     loss["disabled"] = tuple(loss.get("disabled", ()))
     d["losses"] = LossConfig(**loss)
-    d["refine"] = RefineConfig(**d.get("refine", {}))  # runs from before the refinement existed: off
+    d["refine"] = refine_from_dict(d.get("refine"))  # runs from before the refinement existed: off
     return TrainConfig(**d)
 
 

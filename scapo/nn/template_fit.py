@@ -49,10 +49,10 @@ class RefineConfig:
     swapped by a half turn about their bisector, eyeglasses turned upside down), which the residual
     cannot: the capture setup (objects standing on a support, cameras above them with little roll) is
     the cue, no label is used. An addition to the paper."""
-    stage2_starts: str = ""
+    stage2_starts: str = "off"
     """A hypothesis set of stage 2's starting frame in one-pass prediction, for a model trained with
     ``TrainConfig.stage2_frame = "parts"`` (:meth:`scapo.models.scapo_model.SCAPOModel.passes`; an addition to the
-    paper, applied whatever ``steps`` is): "" (off) the stage-1 frame alone; "D2" the stage-1 frame and its three
+    paper, applied whatever ``steps`` is): "off" the stage-1 frame alone; "D2" the stage-1 frame and its three
     half turns about its own axes (:func:`scapo.ops.groups.half_turns`); "T", "O", "I" a rotation group's turns of it.
     Each start runs the prediction passes, and each view keeps the one whose template, posed as the view, lies nearest
     to its points (the one-sided Chamfer distance from the input, as OP-Align's and EAP's anchor choice). Not part
@@ -69,9 +69,7 @@ class RefineConfig:
                              f"points {self.points} (>= 8)")
         if self.starts not in START_SETS:
             raise ValueError(f"unknown refinement starts {self.starts!r}; known: {', '.join(START_SETS)}")
-        if self.stage2_starts not in STAGE2_STARTS:
-            raise ValueError(f"unknown stage2_starts {self.stage2_starts!r}; use one of "
-                             f"{', '.join(repr(k) for k in STAGE2_STARTS)} ('' off)")
+        check_stage2_starts(self.stage2_starts)
         if not 0.0 <= self.upright_deg <= 180.0:
             raise ValueError(f"upright_deg must be in [0, 180], got {self.upright_deg}")
         if self.screen_steps < 1 or self.screen_points < 8 or not 0.0 <= self.margin < 1.0:
@@ -80,8 +78,38 @@ class RefineConfig:
 
 
 START_SETS = ("network", "octahedral")
-#: The hypothesis sets of :attr:`RefineConfig.stage2_starts` ("" off).
-STAGE2_STARTS = ("", "D2", "T", "O", "I")
+#: The hypothesis sets of :attr:`RefineConfig.stage2_starts` ("off": the stage-1 frame alone; the one spelling).
+STAGE2_STARTS = ("off", "D2", "T", "O", "I")
+
+
+def check_stage2_starts(value) -> str:
+    """``value`` when it names a hypothesis set of :attr:`RefineConfig.stage2_starts` (:data:`STAGE2_STARTS`): the
+    one check of the setting, made by the config, the prediction option and the model alike.
+
+    Raises:
+        ValueError: another value (names the known ones)."""
+    if value not in STAGE2_STARTS:
+        raise ValueError(f"unknown stage2_starts {value!r}; use one of {', '.join(STAGE2_STARTS)}")
+    return value
+
+
+def refine_from_dict(stored: dict | None) -> RefineConfig:
+    """The :class:`RefineConfig` a run stored (``run.json``'s ``preset.refine``; {} or None for a run from before
+    the refinement existed: the defaults, off), with the old spelling translated: ``stage2_starts`` "" (off, before
+    "off" was its one spelling) reads as "off".
+
+    Raises:
+        ValueError: a stored value :class:`RefineConfig` refuses; TypeError: an unknown field."""
+    return RefineConfig(**current_refine_names(stored))
+
+
+def current_refine_names(stored: dict | None) -> dict:
+    """Stored refinement settings (a dict of :class:`RefineConfig` fields, e.g. a record's ``info["inference"]``) in
+    today's spelling: ``stage2_starts`` "" reads as "off". The one translation of old names."""
+    d = dict(stored or {})
+    if d.get("stage2_starts") == "":
+        d["stage2_starts"] = "off"
+    return d
 
 
 class TemplatePoser:
