@@ -553,6 +553,21 @@ def test_eap_base_is_the_largest_part_and_every_point_is_predicted_at_the_traini
     assert (o["part_label"] == 0).all()  # slot 1 is the card's base part 0
     np.testing.assert_array_equal(o["T_cam_obj"], o["part_pose"][:, 0])
 
+    # two interleaved subsets of one cloud (the cloud twice, its copies in different subsets), labelled by a network
+    # whose segmentation is a function of the point: each point and its copy get the same label, the rule's
+    def by_side(points):
+        out = real(points)
+        out["label"] = (points[..., 0] > 0.5).long()
+        out["base"] = torch.zeros_like(out["base"])
+        return out
+
+    monkeypatch.setattr(net, "_predict", by_side)
+    half = torch.rand(1, net.pc.points, 3) + torch.tensor([0.0, 0.0, 1.0])
+    o = net.infer(torch.cat([half, half], 1))
+    lab = o["part_label"][0]
+    np.testing.assert_array_equal(lab[:net.pc.points], lab[net.pc.points:])
+    np.testing.assert_array_equal(lab[:net.pc.points], (half[0, :, 0] > 0.5).long().numpy())
+
 
 def test_op_align_density_aware_chamfer_matches_the_original_rule_and_bounds_outliers():
     """OP-Align's ``1 - exp(-alpha d)`` Chamfer (art_metric.py 169-178, 234-239) on hand-made clouds."""
