@@ -806,7 +806,15 @@ def test_predictions_of_another_run_are_not_replaced_and_an_option_is_given_once
     assert cli("predict", "--run", run, "--data", laptop_data, "--out", tmp_path / "q.npz")[0] == 0  # a rerun
     assert_clear_error(cli("predict", "--run", run, "--data", laptop_data, "--option", "base_slot=0", "--option",
                            "base_slot=1", "--out", tmp_path / "r.npz"), "predict",
-                       "--option base_slot is given twice ('0' and '1')")
+                       "--set base_slot is given twice ('0' and '1')")
+    # one override syntax: predict takes --set FIELD=VALUE as train does (--option is its alias)
+    assert_clear_error(cli("predict", "--run", run, "--data", laptop_data, "--set", "refine_steps", "--out",
+                           tmp_path / "s.npz"), "predict", "--set 'refine_steps' is not of the form FIELD=VALUE")
+    assert cli("predict", "--run", run, "--data", laptop_data, "--set", "refine_steps=0", "--set",
+               "label=scapo-one-pass", "--out", tmp_path / "s.npz")[0] == 0
+    from scapo.eval import Predictions
+
+    assert Predictions.load(tmp_path / "s.npz").method == "scapo-one-pass"
 
 
 def test_the_python_api_refuses_a_run_whose_weights_are_nan(run, tmp_path):

@@ -48,14 +48,14 @@ def cmd_predict(args) -> int:
     from scapo.methods import method_of_run, run_method
 
     opts = {}
-    for kv in args.option or []:
+    for kv in args.option or []:  # --set FIELD=VALUE, as scapo train's (--option is its alias)
         k, eq, v = kv.partition("=")
         if not eq or not k.strip():
-            raise ConfigError(f"--option {kv!r} is not of the form key=value")
+            raise ConfigError(f"--set {kv!r} is not of the form FIELD=VALUE")
         if k.strip() in ("run", "device"):
-            raise ConfigError(f"--option {k.strip()}=... is given as --{k.strip()} {v} (a flag of its own)")
+            raise ConfigError(f"--set {k.strip()}=... is given as --{k.strip()} {v} (a flag of its own)")
         if k.strip() in opts:  # the last once won without a word
-            raise ConfigError(f"--option {k.strip()} is given twice ({opts[k.strip()]!r} and {v!r}); give it once")
+            raise ConfigError(f"--set {k.strip()} is given twice ({opts[k.strip()]!r} and {v!r}); give it once")
         opts[k.strip()] = v  # converted to the option's type by the method's options dataclass
     method = args.method
     if args.run is not None:
@@ -260,7 +260,10 @@ def add_parsers(sub) -> None:
     sp.add_argument("--device", default=None)
     sp.add_argument("--data", type=Path, required=True)
     sp.add_argument("--out", type=Path, required=True)
-    sp.add_argument("--option", action="append", help="method option key=value (repeatable)")
+    sp.add_argument("--set", "--option", dest="option", action="append", metavar="FIELD=VALUE",
+                    help="a prediction option of the method (repeat; the syntax of scapo train --set; --option is "
+                    "its alias): the prediction steps (scapo.steps.StepOptions: hinge=true, base_slot=auto, ...) and "
+                    "the method's own (scapo list; e.g. SCAPO's stage2_starts=off, refine_steps=0)")
     sp.add_argument("--refine", action="store_true", help="fit the method's own whole-object model (canonical shape "
                     "or template) to each view after its one-pass prediction (scapo.steps.refine); the "
                     "predictions are labelled METHOD+refine")
