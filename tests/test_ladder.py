@@ -664,3 +664,33 @@ def test_a_ladder_table_of_trained_cells_charged_on_several_kinds_of_cpu_is_refu
     with pytest.raises(ConfigError, match="kind not recorded: paper/eap_s0"):
         check_one_commit(recs[:2] + [old])
     check_one_commit(recs, allow=True)
+
+
+def test_a_speed_run_measured_on_a_busy_machine_is_set_aside_and_the_ladder_stops(tmp_path, monkeypatch):
+    """A speed run that shared its cores (a test run beside the chains: its steps' wall seconds per CPU second above
+    ``MAX_WALL_PER_CPU``) has inflated CPU times too, so every cell planned from it would stop short of its budget:
+    the ladder keeps it aside as ``*.busy.json`` and stops, naming what to do; a quiet one is the speed file."""
+    import scapo.bench.perf as perf
+    import scapo.data as sd
+    from scapo.bench.ladder import MAX_WALL_PER_CPU, _training_presets, speed_file
+    from scapo.errors import ConfigError
+
+    class Split(list):
+        pass
+
+    data = tmp_path / "laptop_one_i10_v2_t8_s0"
+    monkeypatch.setattr(sd, "load", lambda d, split: Split(range(40)))
+    row = {"method": "npcs", "preset": "test", "batch_size": 4, "stage1_clouds_per_s": 10.0, "stage1_epochs": 2,
+           "max_steps_per_epoch": 2, "fixed_s": 0.5, "unit": "core-seconds", "data": str(data), "train_clouds": 40,
+           "wall_per_cpu": MAX_WALL_PER_CPU + 0.3}
+    monkeypatch.setattr(perf, "bench_train_data", lambda *a, **k: [row])
+    with pytest.raises(ConfigError, match=r"measured on a busy machine \(its steps took 1\.55 wall seconds per CPU "
+                                          r"second.*Run the ladder again with nothing else busy"):
+        _training_presets(["npcs"], data, 0.05, "test", tmp_path)
+    path = speed_file(tmp_path, "npcs", "test", None, {}, data)
+    assert not path.exists() and len(list(tmp_path.glob(path.stem + ".*.busy.json"))) == 1
+    from scapo.provenance import cpu_kind
+
+    monkeypatch.setattr(perf, "bench_train_data", lambda *a, **k: [{**row, "wall_per_cpu": 1.05,
+                                                                     "cpu_kind": cpu_kind()}])
+    assert "npcs" in _training_presets(["npcs"], data, 0.05, "test", tmp_path) and path.is_file()

@@ -121,6 +121,13 @@ def cells_dir(work: Path, category: str, rung: str, preset: str = "cpu", device:
     return base / f"{preset.replace('/', '+')}_{(device or 'cpu').replace(':', '')}"
 
 
+#: A speed run whose steps took more than this many wall seconds per CPU second shared its cores with other work
+#: (a test run beside the chains of cells): its CPU time per step is inflated too (measured: OP-Align-style's steps
+#: 25.7 clouds/s with a test run beside two chains, 31.5 without), so every cell planned from it would stop short
+#: of its budget. It is set aside and the ladder stops, naming what to do. Two chains on two cores measure 1.0-1.1.
+MAX_WALL_PER_CPU = 1.25
+
+
 def _training_presets(methods: Sequence, data: Path, budget_minutes: float, preset: str, work: Path,
                       device: str | None = None) -> dict:
     """Per trained method, ``(preset, values, plan)``: its ``preset`` with the epochs (iterations) that fill
@@ -170,8 +177,17 @@ def _training_presets(methods: Sequence, data: Path, budget_minutes: float, pres
                 raise ConfigError(f"{data.name}: {clouds} training clouds, fewer than the two batches of {batch} that "
                                   f"measuring {m}'s training speed needs: give more --instances or --train-views")
             steps = max(2, min(10, clouds // batch))
-            write_json(path, bench_train_data(data, [m], preset=p, steps=steps, work=runs, device=device,
-                                              sets=sets))
+            rows = bench_train_data(data, [m], preset=p, steps=steps, work=runs, device=device, sets=sets)
+            busy = max((float(r.get("wall_per_cpu", 1.0)) for r in rows), default=1.0)
+            if busy > MAX_WALL_PER_CPU:
+                kept = path.with_suffix(f".{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.busy.json")
+                write_json(kept, rows)
+                raise ConfigError(f"the training speed of {m} was measured on a busy machine (its steps took "
+                                  f"{busy:.2f} wall seconds per CPU second, more than {MAX_WALL_PER_CPU}: other work "
+                                  f"shared the cores, which slows each step's CPU time too), so its cells would be "
+                                  f"planned short of their budget; kept as {kept.name}. Run the ladder again with "
+                                  "nothing else busy (one chain per core)")
+            write_json(path, rows)
         r = training_budget(_speed_rows(path, m, data), budget_minutes, clouds)[0]
         base = override(METHODS.get(m).preset(p), sets, f"{m} preset") if sets else METHODS.get(m).preset(p)
         values = budget_schedule(r, base, budget_minutes)
