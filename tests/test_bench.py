@@ -842,34 +842,6 @@ def test_the_gpu_script_runs_on_cpu_with_the_test_presets(tmp_path):
         assert gpu.returncode == 2 and "scapo: bench/gpu.sh: no CUDA device" in gpu.stderr
 
 
-def test_the_budget_diagnostic_trains_longer_and_compares_with_the_table1_cell(bench, tmp_path):
-    """``bench/diagnostics/budget_diagnostic.sh`` (issue 31's gap attribution): SCAPO's preset with every stage's epochs x
-    FACTOR on the dataset of a finished Table 1 cell, predicted one-pass and compared with that cell (rows, paired
-    bootstrap lines, the runs' training steps and the commits); no cell is a clear error. (A rerun resumes through
-    ``scapo train``, which returns at once for a finished run: tests/test_train.py.)"""
-    import os
-    import subprocess
-    import sys
-
-    work, _, _, _ = bench
-    root = Path(__file__).resolve().parent.parent
-    env = {**os.environ, "WORK": str(work), "PRESET": "test", "FACTOR": "2", "OUT": str(tmp_path / "out"),
-           "SCAPO": str(Path(sys.executable).parent / "scapo")}
-    script = str(root / "bench" / "diagnostics" / "budget_diagnostic.sh")
-    run = subprocess.run(["bash", script], env=env, capture_output=True, text=True, timeout=600)
-    assert run.returncode == 0, run.stderr[-2000:]
-    got = json.loads((tmp_path / "out" / "laptop_x2_s0.json").read_text())
-    assert [r["label"] for r in got["rows"]] == ["test", "test x2"]
-    assert all(0 <= r["align inliers"] <= 1 for r in got["rows"])  # SCAPO is scored in its own canonical frame
-    files = {f["label"]: f for f in got["files"]}
-    assert files["test x2"]["train_steps"] == 2 * files["test"]["train_steps"] > 0
-    assert files["test"]["commit"] and files["test x2"]["commit"] not in (None, "-")
-    assert {p["a"] for p in got["bootstrap"]["metrics"]["S"]} == {"test"}
-    assert "## Paired bootstrap" in (tmp_path / "out" / "laptop_x2_s0.md").read_text()
-    none = subprocess.run(["bash", script], env={**env, "SEED": "7"}, capture_output=True, text=True, timeout=60)
-    assert none.returncode == 2 and "scapo: bench/diagnostics/budget_diagnostic.sh: 0 finished Table 1 cells" in none.stderr
-
-
 def test_cells_of_an_unpinned_dataset_are_adopted_by_its_regeneration_only_when_they_show_it_is_theirs(
         bench, monkeypatch, tmp_path):
     """Issue 31's cells archived before datasets were pinned name a dataset that only a machine of their CPU kind

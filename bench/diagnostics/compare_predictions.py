@@ -1,6 +1,5 @@
 """Several prediction files of one dataset's test split side by side, with a paired bootstrap over test instances
-for every pair: what a diagnostic of issue 31's gap attribution reports (e.g. SCAPO's Table 1 cell against the same
-preset trained four times longer, ``bench/diagnostics/budget_diagnostic.sh``).
+for every pair (e.g. one Table 1 cell against the same preset trained longer, or against a prediction step's row).
 
 Each ``--pred LABEL=FILE`` is scored by :func:`scapo.eval.evaluate` under one protocol (default ``scapo``) and named
 LABEL; the table gives the means (S, D, C, R strict, R sym), the medians (D, R strict, R sym) and the flip rates
