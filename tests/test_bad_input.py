@@ -435,7 +435,7 @@ def test_method_options_are_validated_listing_the_valid_ones(laptop_data, run, t
     assert_clear_error(cli(*base, "--method", "icp", "--option", "max_iterations=0"), "predict",
                        "max_iterations=0")
     assert_clear_error(cli(*base, "--method", "icp", "--option", "hypotheses=Z"), "predict", "hypotheses in I, O, T")
-    assert_clear_error(cli(*base, "--method", "icp", "--option", "progress"), "predict", "key=value")
+    assert_clear_error(cli(*base, "--method", "icp", "--option", "progress"), "predict", "--set 'progress' is not of the form FIELD=VALUE")
     assert_clear_error(cli(*base, "--run", run, "--option", "refine_steps=-1"), "predict", "refine_steps must be >= 0")
     assert_clear_error(cli(*base, "--run", run, "--option", "preset=cpu"), "predict", "unknown option 'preset'",
                        "valid options: run, device")
