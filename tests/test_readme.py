@@ -64,3 +64,20 @@ def test_headline_refuses_a_results_folder_without_the_table_and_a_damaged_table
     err = capsys.readouterr().err
     assert "table1_paper_two_categories.json is not a table of scapo bench" in err and err.count("\n") == 1
     assert "the numbers" in readme.read_text()
+
+
+def test_the_option_reference_of_the_usage_page_is_generated_from_the_configs():
+    """docs/usage.md's option reference is what ``python -m scapo.cli.options_reference`` writes from the dataclasses'
+    field docs: every prediction step and every preset field, with its type and default; a stale block is found."""
+    import dataclasses
+
+    from scapo.cli.options_reference import field_docs, options_reference, update_usage
+    from scapo.steps import StepOptions
+
+    usage = ROOT / "docs" / "usage.md"
+    assert update_usage(usage, check=True), "docs/usage.md's option reference is stale: python -m scapo.cli.options_reference"
+    text = options_reference()
+    for f in dataclasses.fields(StepOptions):
+        assert f"| `{f.name}` |" in text and field_docs(StepOptions)[f.name]
+    assert "| `losses." in text and "| `refine.stage2_starts` | str | `'off'` |" in text  # SCAPO's groups, dotted
+    assert "| `stage0_epochs` |" in text and "| `drct_noise` |" in text  # the baselines' presets

@@ -67,8 +67,9 @@ class LearnedPreset:
     lr_decay: float = 0.5
     lr_decay_steps: int = 5000
     compile: bool = False
-    """Compile the network's parts for the training steps (``torch.compile``, :func:`scapo.engine.loop.
-    compile_network`); the compilation is charged to the run's ledger (``stage<k>/compile``)."""
+    """Compile the network's parts for the training steps (``torch.compile``,
+    :func:`scapo.engine.loop.compile_network`); the compilation is charged to the run's ledger
+    (``stage<k>/compile``)."""
 
     def __post_init__(self):
         from scapo.config import check_settings
