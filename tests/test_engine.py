@@ -351,8 +351,12 @@ def _train_toy(run: Path, compile_: bool) -> tuple[list[float], dict]:
     ckpt = train_run(folder, lambda dev, ctx: _compile_job(compile_), torch.device("cpu"), progress=False)
     with open(run / "log.csv", newline="") as f:
         totals = [float(r["total"]) for r in csv.DictReader(f)]
-    return totals, {"ledger": json.loads((run / "timing.json").read_text())["ledger"],
-                    "state": torch.load(ckpt, weights_only=False)["model"]}
+    timing = json.loads((run / "timing.json").read_text())
+    for k in ("1", "2"):  # each epoch's CPU seconds of steps: whether a step's cost drifts over a run
+        per_epoch = timing["stages"][k]["epoch_step_cpu_s"]
+        assert len(per_epoch) == 2 and all(v >= 0 for v in per_epoch)
+        assert sum(per_epoch) <= timing["ledger"]["phases"][f"stage{k}/steps"]["cpu_s"] + 0.05
+    return totals, {"ledger": timing["ledger"], "state": torch.load(ckpt, weights_only=False)["model"]}
 
 
 def test_a_compiled_run_trains_the_same_losses_and_charges_its_compilation(tmp_path):

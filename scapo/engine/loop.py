@@ -325,12 +325,14 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                     with ledger.phase(f"{name}/start"):
                         stage.on_epoch(epoch)
                     part["start_s"] += time.perf_counter() - ts
-                ts = time.perf_counter()
+                ts, cs = time.perf_counter(), cpu_seconds()
                 with ledger.phase(f"{name}/steps"):
                     run_epoch(job, stage, epoch, opt, sched, steps, folder, bar, device, ctx, columns, board)
                     _check_weights(job.model, stage.index, epoch)  # before the checkpoint: the last good one is kept
                 te = time.perf_counter()
                 ce = cpu_seconds()
+                # each epoch's CPU seconds of steps (timing.json): whether a step's cost drifts over the training
+                part.setdefault("epoch_step_cpu_s", []).append(round(ce - cs, 2))
                 part["steps"], part["epochs"], part["step_s"] = part["steps"] + steps, part["epochs"] + 1, \
                     part["step_s"] + te - ts
                 last_stage = stage is live[-1]
