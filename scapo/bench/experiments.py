@@ -522,7 +522,7 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
     """
     import json
 
-    from scapo.bench.ladder import budget_plan
+    from scapo.bench.ladder import SPEED_STEPS, budget_plan
     from scapo.bench.perf import bench_train_data, budget_schedule, training_budget
     from scapo.config import override
     from scapo.files import write_json
@@ -544,7 +544,7 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
                                   f"not measured yet ({path}); run the bench without --finished-only / --dry-run")
             base = METHODS.get(c.method).preset(c.preset)
             clouds = len(load(data, "train"))
-            steps = max(2, min(10, clouds // base.batch_size))
+            steps = max(2, min(SPEED_STEPS, clouds // base.batch_size))
             print(f"scapo bench: measuring the training speed of {c.method} ({c.preset}) on {data.name}", flush=True)
             write_json(path, bench_train_data(data, [c.method], preset=c.preset, steps=steps,
                                               work=Path(work_dir) / "speeds" / "runs" / data.name))

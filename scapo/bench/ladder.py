@@ -121,6 +121,11 @@ def cells_dir(work: Path, category: str, rung: str, preset: str = "cpu", device:
     return base / f"{preset.replace('/', '+')}_{(device or 'cpu').replace(':', '')}"
 
 
+#: Steps per epoch of a speed run (two epochs per stage). A step's CPU time varies by +-10 % from one epoch of 100
+#: steps to the next (OP-Align-style: 53-64 CPU s per 100 steps over eight epochs), and 10 steps per epoch measured
+#: 0.51 s per step where its cells then cost 0.57-0.59: the speed run measures whole epochs of the ``cpu`` presets.
+SPEED_STEPS = 100
+
 #: A speed run whose steps took more than this many wall seconds per CPU second shared its cores with other work
 #: (a test run beside the chains of cells): its CPU time per step is inflated too (measured: OP-Align-style's steps
 #: 25.7 clouds/s with a test run beside two chains, 31.5 without), so every cell planned from it would stop short
@@ -176,7 +181,7 @@ def _training_presets(methods: Sequence, data: Path, budget_minutes: float, pres
             if clouds < 2 * batch:  # the speed run trains two steps at least
                 raise ConfigError(f"{data.name}: {clouds} training clouds, fewer than the two batches of {batch} that "
                                   f"measuring {m}'s training speed needs: give more --instances or --train-views")
-            steps = max(2, min(10, clouds // batch))
+            steps = max(2, min(SPEED_STEPS, clouds // batch))
             rows = bench_train_data(data, [m], preset=p, steps=steps, work=runs, device=device, sets=sets)
             busy = max((float(r.get("wall_per_cpu", 1.0)) for r in rows), default=1.0)
             if busy > MAX_WALL_PER_CPU:
