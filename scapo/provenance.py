@@ -96,8 +96,8 @@ def cpu_name() -> str:
 @lru_cache(maxsize=1)
 def cpu_kind() -> str:
     """The kind of CPU, finer than its marketing name: ``"AMD EPYC, family 25 model 17, avx512"`` (vendor's model
-    name, ``/proc/cpuinfo``'s family and model, and whether it has AVX-512 or AVX2). Two machines of one name can
-    differ in speed by tens of percent (e.g. AMD EPYC of families 25 model 1 and model 17), so a core-second is only
+    name, ``/proc/cpuinfo``'s family and model, and whether it has AVX-512 or AVX2). Machines sold under one name
+    differ in these (AMD EPYC of family 25 model 1 without AVX-512, model 17 with it), so a core-second is only
     compared between cells whose kind is the same (the compute ledger, :mod:`scapo.engine.ledger`, records it)."""
     fields = {}
     try:

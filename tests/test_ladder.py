@@ -641,8 +641,8 @@ def test_a_ladder_table_of_cells_from_several_commits_is_refused():
 
 
 def test_a_ladder_table_of_trained_cells_charged_on_several_kinds_of_cpu_is_refused(monkeypatch):
-    """A core-second of one kind of CPU buys other steps than one of another (the same OP-Align-style cell charged
-    883 and 761 core-seconds on two AMD EPYC kinds): the provenance names the kind (family, model, vector unit), a
+    """A core-second of one kind of CPU need not buy the steps one of another buys: the provenance names the kind
+    (family, model, vector unit), a
     table of trained cells charged on several kinds is refused naming them (a record without the kind counts as one),
     untrained cells (no ledger) do not count, and --allow-mixed-commits writes it anyway."""
     from scapo.bench.ladder import check_one_commit

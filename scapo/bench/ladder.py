@@ -387,9 +387,8 @@ def check_one_commit(records: Sequence[dict], allow: bool = False) -> None:
     whose trained cells were charged on several kinds of CPU (``provenance.cpu_kind``,
     :func:`scapo.provenance.cpu_kind`; a record without it counts as a kind of its own): a table's cells come from one
     clean commit, a cell made by other code would otherwise be reused silently, and a core-second of one kind of CPU
-    buys other steps than one of another (measured: the same 1,500 OP-Align-style steps on one ladder cell charged 883
-    core-seconds on one AMD EPYC and 761 on another of the same name, with nothing else running), so the equal budget
-    holds only among cells of one kind.
+    need not buy the steps one of another buys (machines sold under one name differ in family, model and vector
+    units), so the equal budget is held only among cells of one kind.
 
     Raises:
         ConfigError: (without ``allow``, ``--allow-mixed-commits``) the commits or the kinds, and some cells of each."""

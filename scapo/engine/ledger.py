@@ -26,8 +26,9 @@ rates measured on the same data (:func:`scapo.bench.perf.training_budget`: the b
 and is refused by :func:`check_budget` when its ledger exceeds :data:`OVER_BUDGET` times the budget.
 
 A core-second is a second of one core of the machine's kind of CPU (:func:`scapo.provenance.cpu_kind`, in every
-record's provenance and speed file): the same steps cost 16 % fewer core-seconds on one AMD EPYC than on another of
-the same name, so speeds are measured on the kind that computes the cells, and a table's trained cells share one kind
+record's provenance and speed file), and a step's CPU time also moves with what else runs on the machine (10-20 %
+measured with more busy processes than cores): speeds are measured on the kind that computes the cells with nothing
+else busy (:data:`scapo.bench.ladder.MAX_WALL_PER_CPU`), and a table's trained cells share one kind
 (:func:`scapo.bench.ladder.check_one_commit`, :func:`scapo.bench.ladder.check_reuse`).
 """
 
