@@ -2,8 +2,8 @@
 # Issue 88's fair race (results/fair_race/): the ladder's paper rung (single views in the paper's viewpoints, 150
 # instances, 8 views per val/test instance, 64 per training instance, data seed 1), scored on val, three training
 # seeds, every trained method at BUDGET (15) charged core-minutes under the compute ledger, one preset per method
-# (`cpu`), SCAPO's per-category presets as labelled rows. Resumable per cell; one torch thread; one chain on the
-# machine at a time (below), paused with SIGSTOP while anything else heavy runs, on one kind of CPU per side.
+# (`cpu`), SCAPO's per-category presets as labelled rows. Resumable per cell; one torch thread; at most one chain per
+# core (below), paused with SIGSTOP while anything else heavy runs, on one kind of CPU per side.
 #
 #   WT=/path/to/clean/worktree WORK=/path/to/work CHAIN="op-align scapo" bash bench/fair_race.sh   # a chain of cells
 #   WT=... WORK=... VARIANTS=1 bash bench/fair_race.sh    # SCAPO's per-category presets (labelled rows; after the
@@ -15,10 +15,9 @@
 #   WORK=... RESTORE=results/fair_race/cells/NAME bash bench/fair_race.sh   # put them back into a new work folder
 #
 # WT: a clean worktree of the commit the cells record (git worktree add); its code computes the cells (each ladder
-# runs from inside WT: run from elsewhere, python -m would import the scapo of the current folder). Chains run one
-# after another (PARALLEL=1 lets a second one share the machine and WORK, each its own methods, once the data
-# exist). A restored cell is not computed again (its record is found); check that the regenerated datasets have the
-# records' hashes.
+# runs from inside WT: run from elsewhere, python -m would import the scapo of the current folder). Several chains
+# may share WORK (each its own methods) once the data exist; the data step runs in the first chain. A restored cell
+# is not computed again (its record is found); check that the regenerated datasets have the records' hashes.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 work="${WORK:?give WORK, the work folder}"
@@ -36,13 +35,13 @@ if [ -n "${RESTORE:-}" ]; then  # never over a cell of the work folder
   exit 0
 fi
 wt="${WT:?give WT, a clean worktree of the commit the cells record}"
-# One chain on the machine at a time: a cell's CPU seconds per step depend on what runs on the other core (measured:
-# OP-Align-style 0.51 s per step in its speed run, 0.59 over a whole cell beside EAP-style's chain, refused at 111 %),
-# so the speed run and every cell are measured alone. PARALLEL=1 allows a second chain (its cells then say so only in
-# their wall/CPU).
-if [ -z "${PARALLEL:-}" ] && [ -z "${FINISH:-}" ] && pgrep -f "scapo.cli bench ladder" > /dev/null; then
-  echo "fair_race.sh: another ladder is running on this machine ($(pgrep -f 'scapo.cli bench ladder' | tr '\n' ' '));" \
-    "a cell's CPU time depends on what runs beside it: wait for it, or give PARALLEL=1" >&2
+# At most one chain per core: a step's CPU time moves by 10-20 % when more processes are busy than there are cores
+# (the ledger then charges more for the same steps); one other chain beside a speed run changed it by under 3 %
+# (OP-Align-style: 32.05 and 31.16 clouds/s alone, 31.78 and 31.06 beside). PARALLEL=1 overrides.
+running=$(pgrep -f "scapo.cli bench ladder" | wc -l)
+if [ -z "${PARALLEL:-}" ] && [ -z "${FINISH:-}" ] && [ "$running" -ge "$(nproc)" ]; then
+  echo "fair_race.sh: $running ladders already run on this machine's $(nproc) cores; a cell's CPU time depends on" \
+    "what runs beside it: wait for one to finish, or give PARALLEL=1" >&2
   exit 2
 fi
 py="${PYTHON:-$here/.venv/bin/python}"
