@@ -38,7 +38,7 @@ wt="${WT:?give WT, a clean worktree of the commit the cells record}"
 # At most one chain per core: a step's CPU time moves by 10-20 % when more processes are busy than there are cores
 # (the ledger then charges more for the same steps); one other chain beside a speed run changed it by under 3 %
 # (OP-Align-style: 32.05 and 31.16 clouds/s alone, 31.78 and 31.06 beside). PARALLEL=1 overrides.
-running=$(pgrep -f "scapo.cli bench ladder" | wc -l)
+running=$( (pgrep -f "scapo.cli bench ladder" || true) | wc -l)
 if [ -z "${PARALLEL:-}" ] && [ -z "${FINISH:-}" ] && [ "$running" -ge "$(nproc)" ]; then
   echo "fair_race.sh: $running ladders already run on this machine's $(nproc) cores; a cell's CPU time depends on" \
     "what runs beside it: wait for one to finish, or give PARALLEL=1" >&2
