@@ -68,6 +68,26 @@ def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
+def rewrite_block(path: str | Path, start: str, end: str, body: str, what: str, check: bool = False) -> bool:
+    """Rewrite (or with ``check`` only compare) the text between the markers ``start`` and ``end`` of the file
+    ``path`` with ``body`` (a generated block: the README's headline, the usage page's option reference), atomically;
+    returns whether it was current.
+
+    Raises:
+        ValueError: the file has no block (its two markers, ``start`` then ``end``; ``what`` names the block)."""
+    path = Path(path)
+    text = path.read_text()
+    if start not in text or end not in text.split(start, 1)[1]:
+        raise ValueError(f"{path} has no {what} block: put the lines {start!r} and {end!r} where it goes")
+    head, rest = text.split(start, 1)
+    old, tail = rest.split(end, 1)
+    if old == body:
+        return True
+    if not check:
+        atomic_write_text(path, head + start + body + end + tail)
+    return False
+
+
 def write_json(path: str | Path, obj) -> None:
     """Write ``obj`` as indented, key-sorted JSON, atomically."""
     atomic_write_text(path, json.dumps(obj, indent=1, sort_keys=True, default=str) + "\n")

@@ -114,18 +114,9 @@ def update_readme(readme: str | Path = "README.md", results: str | Path = "resul
 
     Raises:
         ValueError: the README has no block (its two markers, :data:`START` then :data:`END`)."""
-    readme = Path(readme)
-    text = readme.read_text()
-    if START not in text or END not in text.split(START, 1)[1]:
-        raise ValueError(f"{readme} has no headline block: put the lines {START!r} and {END!r} where it goes")
-    head, rest = text.split(START, 1)
-    body, tail = rest.split(END, 1)
-    want = "\n" + headline(results) + "\n"
-    if body == want:
-        return True
-    if not check:
-        readme.write_text(head + START + want + END + tail)
-    return False
+    from scapo.files import rewrite_block
+
+    return rewrite_block(readme, START, END, "\n" + headline(results) + "\n", "headline", check)
 
 
 def main(argv=None) -> int:

@@ -130,20 +130,9 @@ def update_usage(path: str | Path = "docs/usage.md", check: bool = False) -> boo
 
     Raises:
         ValueError: the page has no block (its two markers, :data:`START` then :data:`END`)."""
-    path = Path(path)
-    text = path.read_text()
-    if START not in text or END not in text.split(START, 1)[1]:
-        raise ValueError(f"{path} has no option reference block: put the lines {START!r} and {END!r} where it goes")
-    head, rest = text.split(START, 1)
-    body, tail = rest.split(END, 1)
-    new = "\n" + options_reference()
-    if body == new:
-        return True
-    if not check:
-        from scapo.files import atomic_write_text
+    from scapo.files import rewrite_block
 
-        atomic_write_text(path, head + START + new + END + tail)
-    return False
+    return rewrite_block(path, START, END, "\n" + options_reference(), "option reference", check)
 
 
 if __name__ == "__main__":
