@@ -182,7 +182,7 @@ def cmd_bench(args) -> int:
         if args.data is None:
             raise ConfigError("bench perf --what icp needs --data DATASET (ICP's template comes from its training "
                               "split)")
-        rows = bench_icp(args.data, limit=args.limit)
+        rows = bench_icp(args.data, limit=args.limit, split=args.split)
         name = f"icp_{Path(args.data).name}"
     elif args.target == "generate":
         from scapo.bench.perf import bench_generate
@@ -271,7 +271,7 @@ USES = {
     "rungs": ("ladder", "compute"), "viewpoints": _TABLES, "upright": _TABLES,
     "train_views": (*_TABLES, "ladder", "compute"), "variant": ("ladder",), "part": _TABLES, "option_row": _TABLES,
     "no_sj": _TABLES, "data": ("choose", "perf"), "candidate": ("choose",), "criterion": ("choose",),
-    "protocol": ("choose", *_TABLES), "limit": ("perf",), "sizes": ("perf",), "target": ("perf",),
+    "protocol": ("choose", *_TABLES), "limit": ("perf",), "split": ("perf",), "sizes": ("perf",), "target": ("perf",),
     "budget_minutes": ("perf", *_TABLES, "ladder"), "no_refine_rows": _TABLES, "budgets": ("compute",),
     "train_clouds": ("perf",), "iters": ("perf",), "steps": ("perf",), "baseline": ("perf",),
     "preset": ("perf", *_TABLES, "ladder", "compute"), "method": ("perf",), "device": ("perf", *_TABLES, "ladder"),
@@ -338,7 +338,10 @@ def add_parsers(sub) -> None:
                     "(D+R, R, D, R_median, -S)")
     opt("--protocol", default=None, help="choose, table1, table3: evaluation protocol (default scapo); "
                     "table2: default op-align, as the paper's Table 2")
-    opt("--limit", type=int, default=0, help="perf --what icp: time the first N test clouds (0: all)")
+    opt("--limit", type=int, default=0, help="perf --what icp: time the first N clouds of --split (0: all)")
+    opt("--split", default="val", choices=["val", "test"],
+        help="perf --what icp: the split whose clouds are timed and scored (default val, where a choice between the "
+             "searches is made; test for a dataset without a val split)")
     opt("--sizes", type=ints, default=[100, 1000, 10000], help="perf --what growth: dataset sizes")
     opt("--what", dest="target", choices=["generate", "model", "train", "agreement", "icp",
                                                                 "maniskill", "growth"],
