@@ -187,14 +187,18 @@ def test_the_card_says_paper_or_mixed_viewpoints_when_objects_turn_their_own_vie
     from types import SimpleNamespace
 
     from scapo.data.generate import _card_viewpoints
-
-    def cfg(viewpoints, *views):
-        return SimpleNamespace(view_config=SimpleNamespace(viewpoints=viewpoints),
-                               objects=[SimpleNamespace(view=tuple(v.items())) for v in views])
+    from scapo.sim.render import ViewConfig
 
     euler = {"object_euler_deg": ((-20, 20), (-180, 180), (-10, 10))}
+
+    def cfg(viewpoints, *views):  # GenerateConfig's view_config and view_for, on ViewConfig's own translation
+        own = ViewConfig(viewpoints=viewpoints, object_euler_deg=euler["object_euler_deg"]
+                         if viewpoints == "paper" else None)
+        return SimpleNamespace(view_config=own, objects=views, view_for=lambda i: own.with_fields(views[i]))
+
     assert _card_viewpoints(cfg("upright", euler, euler)) == "paper"
     assert _card_viewpoints(cfg("upright", euler, {})) == "mixed"
     assert _card_viewpoints(cfg("upright", {}, {"azimuth_deg": (-30, 30)})) == "upright"
     assert _card_viewpoints(cfg("paper", euler, {})) == "paper"
     assert _card_viewpoints(cfg("sphere")) == "sphere"
+    assert _card_viewpoints(cfg("upright", {"random_rotation": True})) == "sphere"  # the older spelling

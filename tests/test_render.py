@@ -32,7 +32,7 @@ def test_ground_truth_is_self_consistent(category, renderer):
 
 def test_random_rotation_views_cover_so3(renderer):
     spec = parse_urdf(build_instance("laptop", 0, seed=0).urdf)
-    view = dataclasses.replace(ViewConfig.from_template(load_template("laptop").view), random_rotation=True)
+    view = dataclasses.replace(ViewConfig.from_template(load_template("laptop").view), viewpoints="sphere")
     cfg = dataclasses.replace(RenderConfig(), min_part_fraction=0.02)
     ups = []
     for v in range(8):

@@ -39,9 +39,9 @@ def _rot(axis: str, deg: float) -> np.ndarray:
 def test_paper_euler_ranges_give_eaps_angles_from_the_front_view():
     """+-22.5 deg per axis (HOI4D: laptop, safe): 21.6 deg from the front view on average, at most 41 deg;
     [-90, 90] per axis (Shape2Motion: eyeglasses, oven, washer): about 83 deg on average."""
-    hoi = _angles(ViewConfig(object_euler_deg=((-22.5, 22.5),) * 3), 4000)
+    hoi = _angles(ViewConfig(viewpoints="paper", object_euler_deg=((-22.5, 22.5),) * 3), 4000)
     assert abs(hoi.mean() - 21.6) < 0.6 and hoi.max() < 41.5
-    s2m = _angles(ViewConfig(object_euler_deg=((-90.0, 90.0),) * 3), 4000)
+    s2m = _angles(ViewConfig(viewpoints="paper", object_euler_deg=((-90.0, 90.0),) * 3), 4000)
     assert abs(s2m.mean() - 83.0) < 2.0
     for cat, ranges in (("laptop", ((-22.5, 22.5),) * 3), ("safe", ((-22.5, 22.5),) * 3),
                         ("eyeglasses", ((-90.0, 90.0),) * 3), ("oven", ((-90.0, 90.0),) * 3),
@@ -57,12 +57,12 @@ def test_paper_view_is_the_level_front_view_turned_by_rz_ry_rx():
     rng = np.random.default_rng(0)
     R = object_rotation(((10.0, 10.0), (-20.0, -20.0), (30.0, 30.0)), rng)
     np.testing.assert_allclose(R, _rot("z", 30) @ _rot("y", -20) @ _rot("x", 10), atol=1e-12)
-    front = ViewConfig(object_euler_deg=((0.0, 0.0),) * 3, target_jitter=0.05)
+    front = ViewConfig(viewpoints="paper", object_euler_deg=((0.0, 0.0),) * 3, target_jitter=0.05)
     T = invert_transform(sample_camera_pose(front, 0.5, rng))  # T_cam_obj
     np.testing.assert_allclose(T[:3, :3] @ [1.0, 0, 0], [0, 0, 1.0], atol=1e-12)  # object +x away from the camera
     np.testing.assert_allclose(T[:3, :3] @ [0, 0, 1.0], [0, -1.0, 0], atol=1e-12)  # object +z up in the picture
     assert front_view_angle_deg(T) < 1e-6
-    turned = ViewConfig(object_euler_deg=((0.0, 0.0), (0.0, 0.0), (35.0, 35.0)))
+    turned = ViewConfig(viewpoints="paper", object_euler_deg=((0.0, 0.0), (0.0, 0.0), (35.0, 35.0)))
     Tt = invert_transform(sample_camera_pose(turned, 0.5, np.random.default_rng(1)))
     assert abs(front_view_angle_deg(Tt) - 35.0) < 1e-6
     np.testing.assert_allclose(Tt[:3, :3], T[:3, :3] @ _rot("z", 35), atol=1e-12)
@@ -79,7 +79,8 @@ def test_a_view_that_hides_a_part_is_rejected_and_redrawn(renderer):
     state = np.zeros(len(spec.gt_joints))
     cfg = RenderConfig()
     for yaw, hidden in ((0.0, False), (180.0, True)):
-        view = ViewConfig(distance=(1.8, 1.8), object_euler_deg=((0.0, 0.0), (0.0, 0.0), (yaw, yaw)))
+        view = ViewConfig(distance=(1.8, 1.8), viewpoints="paper",
+                          object_euler_deg=((0.0, 0.0), (0.0, 0.0), (yaw, yaw)))
         rng = np.random.default_rng(0)
         T_world_cam = sample_camera_pose(view, spec.bbox_diag, rng)
         if hidden:
@@ -116,7 +117,7 @@ def test_viewpoint_configs_keep_older_hashes_and_refuse_contradictions():
     with pytest.raises(ConfigError, match="unknown viewpoints"):
         make_config("laptop", 10, 4, 0, viewpoints="hemisphere")
     with pytest.raises(ConfigError, match="object_euler_deg"):
-        ViewConfig(object_euler_deg=((0.0, 200.0),) * 3)
+        ViewConfig(viewpoints="paper", object_euler_deg=((0.0, 200.0),) * 3)
     with pytest.raises(ConfigError, match="train_views"):
         make_config("laptop", 10, 4, 0, train_views=-1)
 
@@ -171,3 +172,33 @@ def test_per_object_euler_ranges_are_checked():
     for bad in ([1, 2], [[0, 1]] * 2, [[0, 400]] * 3, "x"):
         with pytest.raises(ConfigError, match="object_euler_deg"):
             view_overrides({"object_euler_deg": bad})
+
+
+def test_the_viewpoint_setting_reaches_the_renderer_as_itself():
+    """``--viewpoints`` is the view's own field from make_config to sample_camera_pose (no translation into
+    booleans and back); the stored config keeps the older keys (their hashes hold) and reads back as the setting;
+    a setting and ranges that do not go together are clear errors."""
+    from scapo.sim.assets.objects import view_overrides
+
+    for vp in ("upright", "sphere", "paper"):
+        cfg = make_config("laptop", 10, 4, 0, viewpoints=vp)
+        assert cfg.view_config.viewpoints == vp
+        stored = cfg.to_dict()["view"]
+        assert "viewpoints" not in stored and stored["random_rotation"] is (vp == "sphere")
+        assert GenerateConfig.from_dict(json.loads(cfg.to_json())).view_config == cfg.view_config
+    paper = make_config("laptop", 10, 4, 0, viewpoints="paper").view_config
+    T = invert_transform(sample_camera_pose(dataclasses.replace(paper, target_jitter=0.0), 0.5,
+                                            np.random.default_rng(0)))
+    assert front_view_angle_deg(T) < 42  # the turn of the laptop's +-22.5 deg ranges, never the upright elevation
+    with pytest.raises(ConfigError, match="need the object's Euler ranges"):
+        ViewConfig(viewpoints="paper")
+    with pytest.raises(ConfigError, match="need the object's Euler ranges"):
+        ViewConfig(object_euler_deg=((0.0, 0.0),) * 3)  # ranges without the setting
+    with pytest.raises(ConfigError, match="unknown viewpoints"):
+        ViewConfig(viewpoints="hemisphere")
+    assert view_overrides({"viewpoints": "sphere"}) == (("viewpoints", "sphere"),)
+    assert ViewConfig().with_fields(dict(view_overrides({"random_rotation": True}))).viewpoints == "sphere"
+    with pytest.raises(ConfigError, match="needs the object's Euler ranges too"):
+        view_overrides({"viewpoints": "paper"})
+    with pytest.raises(ConfigError, match="is not one of"):
+        view_overrides({"viewpoints": "above"})

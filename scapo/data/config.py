@@ -134,7 +134,7 @@ class GenerateConfig:
     def view_for(self, instance_id: int) -> ViewConfig:
         """Viewpoint ranges of one instance: the dataset's, with an object's own overrides."""
         if self.objects and self.objects[instance_id].view:
-            return dataclasses.replace(self.view_config, **dict(self.objects[instance_id].view))
+            return self.view_config.with_fields(dict(self.objects[instance_id].view))
         return self.view_config
 
     @property
@@ -147,11 +147,7 @@ class GenerateConfig:
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
-        d["view"] = dataclasses.asdict(self.view_config)
-        if d["view"]["object_euler_deg"] is None:  # not the paper's viewpoints: as before the setting existed
-            del d["view"]["object_euler_deg"]
-        else:
-            d["view"]["object_euler_deg"] = [list(r) for r in d["view"]["object_euler_deg"]]
+        d["view"] = self.view_config.stored()  # as datasets written before the viewpoint settings stored it
         if not self.train_views or self.train_views == self.views:
             del d["train_views"]  # one number of views for every split: as before the field existed
         d["format_version"] = FORMAT_VERSION
@@ -205,8 +201,8 @@ class GenerateConfig:
             render = RenderConfig(camera=CameraConfig(**r.pop("camera")), sensor=SensorConfig(**r.pop("sensor")),
                                   **r)
             v = d.pop("view")
-            view = ViewConfig(**{k: (tuple(tuple(r) if isinstance(r, list) else r for r in x) if isinstance(x, list)
-                                     else x) for k, x in v.items()}) if v else None
+            view = ViewConfig().with_fields({k: (tuple(tuple(r) if isinstance(r, list) else r for r in x)
+                                                 if isinstance(x, list) else x) for k, x in v.items()}) if v else None
             objects = tuple(ObjectSource.from_dict(o) for o in d.pop("objects", []))
             parts = tuple(tuple(p) for p in d.pop("parts", []))
             return cls(render=render, view=view, objects=objects, parts=parts, **d)
@@ -286,11 +282,11 @@ def make_config(
         ViewConfig.from_template(load_template(category).view) if (view or viewpoints != "upright") else None)
     view_cfg = None
     if view:
-        view_cfg = dataclasses.replace(base, **dict(view_overrides(view)))
-    if viewpoints == "sphere":
-        view_cfg = dataclasses.replace(view_cfg or base, random_rotation=True)
-    elif viewpoints == "paper":
-        view_cfg = dataclasses.replace(view_cfg or base, object_euler_deg=tuple(tuple(r) for r in euler_deg))
+        view_cfg = base.with_fields(dict(view_overrides(view)))
+    if viewpoints != "upright":
+        view_cfg = (view_cfg or base).with_fields(
+            {"viewpoints": viewpoints,
+             "object_euler_deg": tuple(tuple(r) for r in euler_deg) if viewpoints == "paper" else None})
     return GenerateConfig(category, instances, views, seed, test_fraction, render, view_cfg, shard_size, val_fraction,
                           tuple(objects), tuple(parts), str(scale), int(train_views or 0), bool(one_shape), backend)
 

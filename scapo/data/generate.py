@@ -701,14 +701,12 @@ def _run_pool(args: tuple, todo: list[ShardTask], workers: int, bar, done) -> No
 
 
 def _card_viewpoints(cfg) -> str:
-    """The card's ``viewpoints``: the dataset's setting, unless objects turn it by their own ``object_euler_deg``
-    (``--object-options``): then "paper" when every object does (or the dataset's setting is the paper's already),
-    "mixed" when some do."""
-    own = cfg.view_config.viewpoints
-    turned = [dict(o.view).get("object_euler_deg") is not None for o in cfg.objects]
-    if not any(turned) or own == "paper":
-        return own
-    return "paper" if all(turned) else "mixed"
+    """The card's ``viewpoints``: the setting every instance is rendered in (:meth:`GenerateConfig.view_for`: the
+    dataset's, or an object's own, e.g. its ``object_euler_deg`` of ``--object-options``), "mixed" where objects
+    differ."""
+    own = {cfg.view_for(i).viewpoints for i in range(len(cfg.objects))} or {cfg.view_config.viewpoints}
+    return own.pop() if len(own) == 1 else "mixed"
+
 
 def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records, recorded: dict[str, str]) -> dict:
     """Check every shard against its record, write ``manifest.parquet`` and ``card.json``; returns the card."""

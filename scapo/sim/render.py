@@ -78,25 +78,31 @@ VIEWPOINTS = ("upright", "paper", "sphere")
 class ViewConfig:
     """Viewpoint distribution around the object (degrees; distance in units of the rest bbox diagonal).
 
-    Three settings (:attr:`viewpoints`):
+    Three settings (:attr:`viewpoints`, ``scapo generate --viewpoints``), which :func:`sample_camera_pose` draws
+    from:
 
     - ``upright`` (default): azimuth 0 puts the camera in front of the object (on its -x side); positive
       azimuth moves it towards -y; elevation is the angle above the object's xy plane; a small roll.
-    - ``sphere`` (``random_rotation``): the relative rotation is drawn uniformly from SO(3) (camera direction
-      uniform on the sphere, uniform roll); the angle ranges are ignored.
-    - ``paper`` (``object_euler_deg``): EAP's synthetic views (Liu et al., NeurIPS 2022; code
-      ``Meowuu7/equi-articulated-pose``, ``SPConvNets/datasets/MotionHOIDatasetPartial.py`` around lines 288-299
-      and ``MotionDatasetPartial.py`` around lines 371-384), which OP-Align and SCAPO follow: the camera sits in
-      the object's level front view (on its -x side, at elevation 0, no roll, at ``distance``) and the object is
-      turned about its rest bounding-box centre (the object frame's origin) by ``R = Rz @ Ry @ Rx`` with each
-      Euler angle (x, y, z; degrees) drawn uniformly in its range. The angle ranges and roll are ignored.
+    - ``sphere``: the relative rotation is drawn uniformly from SO(3) (camera direction uniform on the sphere,
+      uniform roll); the angle ranges are ignored.
+    - ``paper``: EAP's synthetic views (Liu et al., NeurIPS 2022; code ``Meowuu7/equi-articulated-pose``,
+      ``SPConvNets/datasets/MotionHOIDatasetPartial.py`` around lines 288-299 and ``MotionDatasetPartial.py``
+      around lines 371-384), which OP-Align and SCAPO follow: the camera sits in the object's level front view (on
+      its -x side, at elevation 0, no roll, at ``distance``) and the object is turned about its rest bounding-box
+      centre (the object frame's origin) by ``R = Rz @ Ry @ Rx`` with each Euler angle (x, y, z; degrees) drawn
+      uniformly in its range of :attr:`object_euler_deg`. The angle ranges and roll are ignored.
+
+    Raises:
+        ConfigError: an unknown setting, ``paper`` without its Euler ranges or ranges without ``paper``, or
+            malformed ranges.
     """
 
     azimuth_deg: tuple[float, float] = (-70.0, 70.0)
     elevation_deg: tuple[float, float] = (10.0, 60.0)
     distance: tuple[float, float] = (1.4, 2.4)
     roll_deg: tuple[float, float] = (-5.0, 5.0)
-    random_rotation: bool = False
+    viewpoints: str = "upright"
+    """"upright", "sphere" or "paper" (:data:`VIEWPOINTS`; see the class docstring)."""
     target_jitter: float = 0.03
     """Std of the look-at point around the bbox centre, in bbox diagonals (``paper``: of the camera's position,
     its orientation kept, so that the object's rotation away from the front view is exactly the Euler one)."""
@@ -105,6 +111,12 @@ class ViewConfig:
     None for the other settings."""
 
     def __post_init__(self):
+        if self.viewpoints not in VIEWPOINTS:
+            raise ConfigError(f"unknown viewpoints {self.viewpoints!r}; known: {', '.join(VIEWPOINTS)}")
+        if (self.viewpoints == "paper") != (self.object_euler_deg is not None):
+            raise ConfigError("the paper's viewpoints need the object's Euler ranges (object_euler_deg), and the "
+                              f"ranges are theirs alone; got viewpoints {self.viewpoints!r} with object_euler_deg "
+                              f"{self.object_euler_deg!r}: give --viewpoints paper (with --euler), or no ranges")
         if self.object_euler_deg is not None:
             eul = self.object_euler_deg
             ok = isinstance(eul, (tuple, list)) and len(eul) == 3 and all(
@@ -115,20 +127,48 @@ class ViewConfig:
                 raise ConfigError(f"object_euler_deg must be three [low, high] ranges of degrees (x, y, z) within "
                                   f"[-180, 180] with low <= high, got {eul!r}")
             object.__setattr__(self, "object_euler_deg", tuple((float(r[0]), float(r[1])) for r in eul))
-            if self.random_rotation:
-                raise ConfigError("the paper's viewpoints (object Euler ranges) and the whole sphere "
-                                  "(random_rotation) exclude each other; choose one --viewpoints setting")
-
-    @property
-    def viewpoints(self) -> str:
-        """"sphere", "paper" or "upright" (see the class docstring)."""
-        return "sphere" if self.random_rotation else "paper" if self.object_euler_deg is not None else "upright"
 
     @classmethod
-    def from_template(cls, view: ViewTemplate, random_rotation: bool = False,
-                      object_euler_deg=None) -> ViewConfig:
-        return cls(view.azimuth_deg, view.elevation_deg, view.distance, view.roll_deg, random_rotation,
-                   object_euler_deg=object_euler_deg)
+    def from_template(cls, view: ViewTemplate) -> ViewConfig:
+        """The ``upright`` setting with a category template's angle and distance ranges."""
+        return cls(view.azimuth_deg, view.elevation_deg, view.distance, view.roll_deg)
+
+    def with_fields(self, fields: dict) -> ViewConfig:
+        """This view with ``fields`` (ViewConfig field names, e.g. a per-object view of ``--object-options``, or a
+        stored config's view) replaced. Two older spellings are read as the setting they meant: ``random_rotation``
+        (true: ``viewpoints="sphere"``; false: nothing) and ``object_euler_deg`` alone (``viewpoints="paper"``).
+
+        Raises:
+            ConfigError: an unknown field, or a contradiction (see the class)."""
+        import dataclasses
+
+        fields = dict(fields)
+        if "random_rotation" in fields:
+            if fields.pop("random_rotation"):
+                fields.setdefault("viewpoints", "sphere")
+        if fields.get("object_euler_deg") is not None:
+            fields.setdefault("viewpoints", "paper")
+        if fields.get("viewpoints", self.viewpoints) != "paper":
+            fields.setdefault("object_euler_deg", None)
+        try:
+            return dataclasses.replace(self, **fields)
+        except TypeError as e:
+            raise ConfigError(f"not a view ({e}); known fields: "
+                              f"{', '.join(f.name for f in dataclasses.fields(self))}") from None
+
+    def stored(self) -> dict:
+        """The JSON form of a dataset's config (``GenerateConfig.to_dict``): the setting is written as datasets made
+        before :attr:`viewpoints` was a field wrote it (``random_rotation``; the Euler ranges only for ``paper``),
+        so that their config hashes hold and they resume; :meth:`with_fields` reads it back."""
+        import dataclasses
+
+        d = dataclasses.asdict(self)
+        d["random_rotation"] = d.pop("viewpoints") == "sphere"
+        if d["object_euler_deg"] is None:
+            del d["object_euler_deg"]
+        else:
+            d["object_euler_deg"] = [list(r) for r in d["object_euler_deg"]]
+        return d
 
 
 CROPPED = ("keep", "reject", "flag")
@@ -423,7 +463,7 @@ def sample_camera_pose(view: ViewConfig, bbox_diag: float, rng: np.random.Genera
     ``T_world_cam = [R^T | 0] @ T_front``, so that ``T_cam_obj = inv(T_front) @ [R | 0]``: the object's rotation
     away from its level front view is ``R`` exactly.
     """
-    if view.object_euler_deg is not None:
+    if view.viewpoints == "paper":
         R = object_rotation(view.object_euler_deg, rng)
         dist = rng.uniform(*view.distance) * bbox_diag
         eye = np.array([-dist, 0.0, 0.0]) + rng.normal(scale=view.target_jitter * bbox_diag, size=3)
@@ -431,7 +471,7 @@ def sample_camera_pose(view: ViewConfig, bbox_diag: float, rng: np.random.Genera
         turn = np.eye(4)
         turn[:3, :3] = R.T
         return turn @ T_front
-    if view.random_rotation:
+    if view.viewpoints == "sphere":
         d = normalize(rng.normal(size=3))
         roll = rng.uniform(0.0, 2 * np.pi)
     else:

@@ -364,22 +364,25 @@ def list_objects(folder: str | Path) -> list[str]:
 
 def view_overrides(view: dict | None) -> tuple[tuple[str, object], ...]:
     """A per-object view dict checked against :class:`~scapo.sim.render.ViewConfig`'s fields."""
-    from scapo.sim.render import ViewConfig
+    from scapo.sim.render import VIEWPOINTS, ViewConfig
 
     if not view:
         return ()
     if not isinstance(view, dict):
         raise ConfigError(f"a per-object view must be a JSON object of ViewConfig fields, got {view!r}")
     fields = {f.name: f for f in dataclasses.fields(ViewConfig)}
-    bad = sorted(set(view) - set(fields))
+    bad = sorted(set(view) - set(fields) - {"random_rotation"})  # random_rotation: the older "viewpoints": "sphere"
     if bad:
         raise ConfigError(f"unknown view field(s) {bad}; known: {sorted(fields)}")
     out = {}
     for k, v in view.items():
-        default = fields[k].default
-        if k == "object_euler_deg":  # the paper's viewpoints: three [low, high] ranges, checked by ViewConfig
+        default = fields[k].default if k in fields else False
+        if k == "viewpoints":
+            if v not in VIEWPOINTS:
+                raise ConfigError(f"view field 'viewpoints': {v!r} is not one of {', '.join(VIEWPOINTS)}")
+        elif k == "object_euler_deg":  # the paper's viewpoints: three [low, high] ranges, checked by ViewConfig
             try:
-                v = ViewConfig(object_euler_deg=v).object_euler_deg
+                v = ViewConfig(viewpoints="paper", object_euler_deg=v).object_euler_deg
             except (ConfigError, TypeError):
                 raise ConfigError(f"view field 'object_euler_deg': {v!r} is not three ranges [low, high] of degrees "
                                   "(x, y, z) within [-180, 180], e.g. [[-22.5, 22.5], [-22.5, 22.5], [-22.5, 22.5]]"
@@ -400,4 +403,7 @@ def view_overrides(view: dict | None) -> tuple[tuple[str, object], ...]:
         elif not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0):
             raise ConfigError(f"view field {k!r}: {v!r} is not a non-negative number")
         out[k] = v
+    if out.get("viewpoints") == "paper" and "object_euler_deg" not in out:
+        raise ConfigError("a per-object view with 'viewpoints': 'paper' needs the object's Euler ranges too: add "
+                          "'object_euler_deg': [[low, high], [low, high], [low, high]] (degrees, x, y, z)")
     return tuple(sorted(out.items()))
