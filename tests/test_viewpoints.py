@@ -18,6 +18,7 @@ from scapo.sim.assets.templates import asset_digest_text, parse_template, sim_as
 from scapo.sim.render import (
     RenderConfig,
     ViewConfig,
+    _rest_mesh,
     front_view_angle_deg,
     object_rotation,
     render_sample,
@@ -202,3 +203,54 @@ def test_the_viewpoint_setting_reaches_the_renderer_as_itself():
         view_overrides({"viewpoints": "paper"})
     with pytest.raises(ConfigError, match="is not one of"):
         view_overrides({"viewpoints": "above"})
+
+
+def test_parts_alone_renders_every_part_in_a_scene_of_its_own(renderer):
+    """Hand-built (EAP's data regime, --parts-alone): the safe seen from its back hides its door (a scene view is
+    rejected), while the door rendered alone is seen from behind; from the front the door hides the body's cavity,
+    which the body rendered alone shows (more body points). Every pooled point lies on its own part (its rest
+    coordinates inside that part's mesh bounds), and the loaded object keeps every part visible afterwards."""
+    spec = parse_urdf(build_instance("safe", 0, seed=0).urdf)
+    state = np.zeros(len(spec.gt_joints))
+    alone = RenderConfig(parts_alone=True)
+
+    def view(yaw):
+        return ViewConfig(distance=(1.8, 1.8), viewpoints="paper", object_euler_deg=((0.0, 0.0), (0.0, 0.0),
+                                                                                      (yaw, yaw)))
+
+    with pytest.raises(RejectedViewError, match="part 1 'door'"):
+        render_sample(renderer, spec, RenderConfig(), view(180.0), np.random.default_rng(0), state=state)
+    back = render_sample(renderer, spec, alone, view(180.0), np.random.default_rng(0), state=state)
+    assert np.bincount(back["part_label"], minlength=2).min() >= alone.min_part_points
+    front = render_sample(renderer, spec, RenderConfig(), view(0.0), np.random.default_rng(0), state=state)
+    front_alone = render_sample(renderer, spec, alone, view(0.0), np.random.default_rng(0), state=state,
+                                keep_images=True)
+    assert (front_alone["part_label"] == 0).sum() > (front["part_label"] == 0).sum() + 100
+    assert front_alone["image_part_map"].shape == (RenderConfig().camera.height, RenderConfig().camera.width)
+    for s in (back, front_alone):
+        for p in range(spec.num_parts):
+            mesh = _rest_mesh(spec, p)
+            lo, hi = mesh.bounds / spec.bbox_diag
+            q = s["npcs"][s["part_label"] == p]
+            assert ((q > lo - 0.01) & (q < hi + 0.01)).all()
+    again = render_sample(renderer, spec, RenderConfig(), view(0.0), np.random.default_rng(0), state=state)
+    np.testing.assert_array_equal(again["points"], front["points"])
+
+
+def test_parts_alone_is_recorded_and_refused_where_it_cannot_apply(tmp_path):
+    """The config and card record --parts-alone (a config without it keeps its hash); it needs rendered views with
+    the clean sensor and the SAPIEN backend."""
+    from scapo.data import generate
+
+    plain = make_config("laptop", 4, 2, 0)
+    assert "parts_alone" not in plain.to_dict()["render"]
+    cfg = make_config("laptop", 3, 2, 0, parts_alone=True, num_points=256, val_fraction=0.0, test_fraction=0.34)
+    assert cfg.to_dict()["render"]["parts_alone"] is True and cfg.to_json() != plain.to_json()
+    assert GenerateConfig.from_dict(json.loads(cfg.to_json())).render.parts_alone
+    generate(cfg, tmp_path / "d", progress=False)
+    card = json.loads((tmp_path / "d" / "card.json").read_text())
+    assert card["parts_alone"] is True and card["config"]["render"]["parts_alone"] is True
+    for kw, msg in (({"complete": True}, "--parts-alone"), ({"sensor": "realistic"}, "--parts-alone"),
+                    ({"backend": "maniskill"}, "leave out --backend maniskill")):
+        with pytest.raises(ConfigError, match=msg):
+            make_config("laptop", 4, 2, 0, parts_alone=True, **kw)

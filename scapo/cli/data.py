@@ -121,7 +121,7 @@ def cmd_generate(args) -> int:
                       shard_size=args.shard_size, cropped=args.cropped,
                       symmetric_labels=args.symmetric_labels, objects=objects, parts=args.parts or (),
                       scale=args.scale, view=view or None, backend=args.backend, complete=args.complete,
-                      state=args.state, one_shape=args.one_shape)
+                      state=args.state, one_shape=args.one_shape, parts_alone=args.parts_alone)
     rep = generate(cfg, args.out, workers=args.workers, progress=not args.no_progress, cache_dir=args.cache,
                    executor=args.executor, ray_address=args.ray_address, num_envs=args.num_envs)
     print(f"{rep.out}: {rep.samples} samples ({rep.rendered} rendered now, {rep.skipped_shards} shards already "
@@ -318,6 +318,9 @@ def add_parsers(sub) -> None:
     sp.add_argument("--complete", action="store_true", help="points sampled on the whole posed mesh (area-weighted, "
                     "then farthest-point sampled) instead of a rendered depth view: complete clouds, EAP's complete-"
                     "shape setting; the viewpoint still sets the frame the points are given in")
+    sp.add_argument("--parts-alone", action="store_true", help="every part rendered in a scene of its own (the "
+                    "others hidden, same camera and state) and the points pooled: no part hides another, EAP's "
+                    "data regime (one part per scene in its MotionDatasetPartial.py); the card records it")
     sp.add_argument("--state", choices=("sampled", "rest"), default="sampled", help="joint states drawn within the "
                     "limits (default) or every sample at the rest state")
     sp.add_argument("--one-shape", action="store_true", help="every instance is instance 0's object (one shape "

@@ -116,6 +116,9 @@ class GenerateConfig:
             raise ConfigError(f"unknown backend {self.backend!r}; known: {', '.join(BACKENDS)}")
         if self.backend != "sapien" and self.render.complete:
             raise ConfigError("--complete samples mesh surfaces without rendering: use the default backend (sapien)")
+        if self.backend != "sapien" and self.render.parts_alone:
+            raise ConfigError("--parts-alone renders each part in a scene of its own with the SAPIEN backend: leave "
+                              "out --backend maniskill")
         if self.one_shape and self.objects:
             raise ConfigError("--one-shape applies to procedural categories; for one object give --object once")
 
@@ -159,6 +162,8 @@ class GenerateConfig:
             del d["render"]["complete"]
         if d["render"]["state"] == "sampled":
             del d["render"]["state"]
+        if not d["render"]["parts_alone"]:  # every part in the one scene, as before the regime existed
+            del d["render"]["parts_alone"]
         if not self.one_shape:
             del d["one_shape"]
         if self.render.symmetric_labels == "asset" or self.symmetry is None or self.symmetry.front is None:
@@ -218,7 +223,7 @@ def make_config(
     val_fraction: float = 0.1, cropped: str = "reject", objects=(), parts=(), scale: str = "1",
     view: dict | None = None, symmetric_labels: str = "view", backend: str = "sapien",
     viewpoints: str | None = None, euler_deg=None, train_views: int = 0, complete: bool = False,
-    state: str = "sampled", one_shape: bool = False,
+    state: str = "sampled", one_shape: bool = False, parts_alone: bool = False,
 ) -> GenerateConfig:
     """Convenience constructor used by the CLI (named sensor, optional SO(3) rotation, image size).
 
@@ -236,7 +241,9 @@ def make_config(
     the category template's ``[paper_view]``; required for object datasets and categories without one).
     ``train_views``: samples per training instance (0: ``views``). ``complete``: points sampled on the whole posed
     mesh instead of a rendered view (:attr:`~scapo.sim.render.RenderConfig.complete`); ``state``: "sampled" or
-    "rest" joint states; ``one_shape``: every instance is instance 0's object (:attr:`GenerateConfig.one_shape`).
+    "rest" joint states; ``one_shape``: every instance is instance 0's object (:attr:`GenerateConfig.one_shape`);
+    ``parts_alone``: every part rendered in a scene of its own, EAP's data regime
+    (:attr:`~scapo.sim.render.RenderConfig.parts_alone`).
 
     Raises:
         ConfigError: an unknown sensor or viewpoint setting, bad sizes, fractions, part map or scale, Euler ranges
@@ -262,7 +269,7 @@ def make_config(
                               height=cam.height if height is None else height)
     render = RenderConfig(camera=cam, num_points=num_points, min_part_fraction=min_part_fraction,
                           shader=shader, sensor=SENSORS[sensor], cropped=cropped, symmetric_labels=symmetric_labels,
-                          complete=bool(complete), state=state)
+                          complete=bool(complete), state=state, parts_alone=bool(parts_alone))
     if not objects:
         from scapo.sim.assets.categories import CATEGORIES
 

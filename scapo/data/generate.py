@@ -760,6 +760,7 @@ def _finalize(cfg: GenerateConfig, out: Path, tasks: list[ShardTask], records, r
         "joint_parts": spec.joint_parts.tolist(),
         "num_points": cfg.render.num_points,
         "viewpoints": _card_viewpoints(cfg),
+        **({"parts_alone": True} if cfg.render.parts_alone else {}),  # each part rendered alone (EAP's regime)
         "views_per_instance": {"train": cfg.views_train, "val": cfg.views, "test": cfg.views},
         "config": cfg.to_dict(),
         "splits": splits,

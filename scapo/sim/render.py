@@ -206,6 +206,11 @@ class RenderConfig:
     state: str = "sampled"
     """Joint states: "sampled" uniformly within the limits, or "rest" (every sample at the rest state: the
     one-state rung of ``scapo bench ladder``)."""
+    parts_alone: bool = False
+    """Render every part in a scene of its own (the other parts hidden, the same camera and joint state) and pool
+    their points before the resampling, so that no part hides another, only itself: the data regime of EAP's
+    synthetic partial clouds (``Meowuu7/equi-articulated-pose``, ``SPConvNets/datasets/MotionDatasetPartial.py``:
+    one part per scene) that OP-Align and SCAPO inherit; ``scapo generate --parts-alone``. Clean sensor only."""
     symmetric_labels: str = "asset"
     """Categories with a symmetry that exchanges parts (:mod:`scapo.sim.assets.symmetry`, e.g. basket): keep the
     "asset"'s part labels (the default of datasets made before this rule existed), or label "view" by view (of the
@@ -231,6 +236,9 @@ class RenderConfig:
             raise ConfigError(f"unknown joint-state rule {self.state!r} (--state); known: {', '.join(STATES)}")
         if self.complete and self.sensor.kind != "clean":
             raise ConfigError("--complete samples the mesh surface: it has no sensor model; leave --sensor clean")
+        if self.parts_alone and (self.complete or self.sensor.kind != "clean"):
+            raise ConfigError("--parts-alone renders every part's depth view alone (EAP's data regime): it takes the "
+                              "clean sensor and rendered views; leave out --complete and --sensor")
 
     @property
     def min_part_points(self) -> int:
@@ -244,8 +252,10 @@ class Frame:
     Attributes:
         spec: the object. state: (J,) joint state. T_world_cam: (4,4) camera pose (OpenCV).
         part_motion: (P,4,4) rest -> current motion of each part (object frame), from SAPIEN.
-        position: (H,W,4) float32 SAPIEN ``Position`` picture (OpenGL camera frame).
-        seg: (H,W) uint32 entity ids (0 = nothing hit). lut: entity id -> part (-1 = not a part).
+        position: (H,W,4) float32 SAPIEN ``Position`` picture (OpenGL camera frame); with ``parts_alone``
+            ``(P,H,W,4)``, one picture per part rendered alone.
+        seg: (H,W) uint32 entity ids (0 = nothing hit), ``(P,H,W)`` with ``parts_alone``. lut: entity id -> part
+            (-1 = not a part).
         rng: the generator of this attempt (continues into FPS and sensor noise).
         ground: whether a support plane was in the picture.
     """
@@ -296,6 +306,7 @@ class Renderer:
         self._art = None
         self._ground = None
         self._pending: Frame | None = None
+        self._bodies: list[tuple[int, list]] = []  # (part or -1, render bodies) of each link of the loaded object
         self.lut = np.full(1, -1, dtype=np.int64)
 
     # ------------------------------------------------------------------ objects
@@ -323,6 +334,9 @@ class Renderer:
         self._part_links = [links[name] for name in part_link_names(spec)]
         self._inv_rest = invert_transform(np.stack([spec.rest_link_poses[ln.name] for ln in self._part_links]))
         self.lut = segmentation_lut(spec, {ln.name: ln.entity.per_scene_id for ln in art.get_links()})
+        self._bodies = [(int(self.lut[ln.entity.per_scene_id]) if ln.entity.per_scene_id < len(self.lut) else -1,
+                         [c for c in ln.entity.components
+                          if isinstance(c, self._sapien.render.RenderBodyComponent)]) for ln in art.get_links()]
         self._art, self.spec = art, spec
 
     def unload(self) -> None:
@@ -360,9 +374,10 @@ class Renderer:
 
     # ------------------------------------------------------------------ pictures
     def submit(self, spec: ArticulationSpec, state: np.ndarray, T_world_cam: np.ndarray, rng: np.random.Generator,
-               ground: bool = False) -> Frame:
+               ground: bool = False, parts_alone: bool = False) -> Frame:
         """Pose ``spec`` at ``state``, place the camera at ``T_world_cam`` (4x4, OpenCV convention)
-        and start rendering. Only one frame can be pending; :meth:`fetch` completes it."""
+        and start rendering. Only one frame can be pending; :meth:`fetch` completes it. ``parts_alone``
+        (:attr:`RenderConfig.parts_alone`): one picture per part with the other parts hidden, taken here."""
         if self._pending is not None:
             raise RenderError("submit() called while a frame is pending; fetch() it first")
         self.load(spec)
@@ -371,17 +386,41 @@ class Renderer:
         motion = self.part_motion()
         self.set_ground(_support_altitude(spec, motion) if ground else None)
         self.camera.set_entity_pose(self._sapien.Pose(sapien_camera_pose(T_world_cam)))
-        self.scene.update_render()
-        self.camera.take_picture()
         T_world_cam = np.asarray(T_world_cam, dtype=np.float64)
         self._pending = Frame(spec, state, T_world_cam, motion, rng, self.lut, ground=ground)
+        if parts_alone:
+            self._pending.position, self._pending.seg = self._parts_alone_pictures(spec.num_parts)
+            return self._pending
+        self.scene.update_render()
+        self.camera.take_picture()
         return self._pending
+
+    def _parts_alone_pictures(self, num_parts: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(P,H,W,4)`` positions and ``(P,H,W)`` entity ids, part ``p``'s picture with every other link hidden
+        (its render bodies disabled, enabled again after)."""
+        pos, seg = [], []
+        try:
+            for p in range(num_parts):
+                for part, bodies in self._bodies:
+                    for b in bodies:
+                        b.enable() if part == p else b.disable()
+                self.scene.update_render()
+                self.camera.take_picture()
+                pos.append(np.array(self.camera.get_picture("Position")))
+                seg.append(np.array(self.camera.get_picture("Segmentation")[..., 1]))
+        finally:
+            for _, bodies in self._bodies:
+                for b in bodies:
+                    b.enable()
+        return np.stack(pos), np.stack(seg)
 
     def fetch(self) -> Frame:
         """Wait for the pending frame and copy its ``Position`` and ``Segmentation`` pictures."""
         frame, self._pending = self._pending, None
         if frame is None:
             raise RenderError("fetch() without a submitted frame")
+        if frame.position is not None:  # parts alone: taken by submit
+            return frame
         frame.position = self.camera.get_picture("Position")
         frame.seg = self.camera.get_picture("Segmentation")[..., 1]  # uint32 entity ids (view, no copy)
         return frame
@@ -558,9 +597,9 @@ def process_frame(frame: Frame, cfg: RenderConfig, K: np.ndarray, keep_images: b
         if n_obj < N:
             raise RejectedViewError(f"too few object pixels ({n_obj} < {N})")
         stride = max(1, int(math.sqrt(n_obj / cfg.fps_candidates))) if cfg.fps_candidates else 1
-        sub_mask = obj_mask[::stride, ::stride]
-        points_all = gl_to_cv(frame.position[::stride, ::stride][sub_mask])
-        labels_all = _part_map(seg[::stride, ::stride][sub_mask], lut)
+        sub_mask = obj_mask[..., ::stride, ::stride]  # (H, W), or (P, H, W): the parts alone, pooled
+        points_all = gl_to_cv(frame.position[..., ::stride, ::stride, :][sub_mask])
+        labels_all = _part_map(seg[..., ::stride, ::stride][sub_mask], lut)
     else:
         part_map = _part_map(seg, lut)
         obj_mask = part_map >= 0
@@ -569,7 +608,8 @@ def process_frame(frame: Frame, cfg: RenderConfig, K: np.ndarray, keep_images: b
         if n_obj < N:
             raise RejectedViewError(f"too few object pixels ({n_obj} < {N})")
         points_all, labels_all = img_points[keep], label[keep]
-    cropped = bool(obj_mask[0].any() or obj_mask[-1].any() or obj_mask[:, 0].any() or obj_mask[:, -1].any())
+    cropped = bool(obj_mask[..., 0, :].any() or obj_mask[..., -1, :].any() or obj_mask[..., :, 0].any()
+                   or obj_mask[..., :, -1].any())
     if cropped and cfg.cropped == "reject":
         raise RejectedViewError("object cropped by the image border")
     if not np.isfinite(points_all).all():
@@ -586,6 +626,10 @@ def process_frame(frame: Frame, cfg: RenderConfig, K: np.ndarray, keep_images: b
     if cfg.cropped == "flag":
         sample["cropped"] = cropped
     if keep_images:
+        if seg.ndim == 3:  # parts alone: each pixel shows the nearest of the parts' pictures
+            depth = np.where(seg > 0, -frame.position[..., 2], np.inf)
+            near = depth.argmin(0)
+            seg = np.take_along_axis(seg, near[None], 0)[0]
         img = np.full(seg.shape, -2, dtype=np.int64)
         img[seg > 0] = -1
         pm = _part_map(seg, lut)
@@ -723,7 +767,7 @@ def _submit_attempt(renderer: Renderer, spec: ArticulationSpec, cfg: RenderConfi
     if T_world_cam is None:
         T_world_cam = sample_camera_pose(view, spec.bbox_diag, rng)
     ground = cfg.sensor.kind == "realistic" and cfg.sensor.ground and view.viewpoints == "upright"
-    return renderer.submit(spec, state, T_world_cam, rng, ground=ground)
+    return renderer.submit(spec, state, T_world_cam, rng, ground=ground, parts_alone=cfg.parts_alone)
 
 
 def render_sample(
