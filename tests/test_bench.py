@@ -704,6 +704,27 @@ def test_table1_defaults_to_the_papers_viewpoints_labelled_and_named_apart(tmp_p
         run_table1(["icp"], ["laptop"], work_dir=work, out_dir=out, dry_run=True, **{**kw, "train_views": 0})
 
 
+def test_table1_in_the_parts_alone_regime_is_named_and_labelled_apart(tmp_path):
+    """``--parts-alone`` (EAP's data regime) renders datasets of their own (``..._paper_parts``, the card records it),
+    writes ``table1_synthetic_parts_alone`` and says so in the title and provenance; Table 2 refuses it."""
+    from scapo.bench.experiments import dataset_dir, run_table
+    from scapo.eval.tables import viewpoints_title
+
+    work, out = tmp_path / "work", tmp_path / "out"
+    kw = {**SMALL_T2, "instances": 6, "train_views": 3}
+    run_table1(["icp"], ["laptop"], work_dir=work, out_dir=out, seeds=[0], parts_alone=True, **kw)
+    data = work / "laptop_i6_v2_t3_s0_paper_parts"
+    assert dataset_dir(work, "laptop", 6, 2, 0, {"viewpoints": "paper", "train_views": 3, "parts_alone": True}) == data
+    card = json.loads((data / "card.json").read_text())
+    assert card["parts_alone"] is True and card["viewpoints"] == "paper"
+    table = json.loads((out / "table1_synthetic_parts_alone.json").read_text())
+    assert table["provenance"]["data"]["parts_alone"] is True
+    assert "every part rendered alone" in (out / "table1_synthetic_parts_alone.md").read_text().splitlines()[0]
+    assert "rendered alone" not in viewpoints_title({"data": {"viewpoints": "paper"}})
+    with pytest.raises(ConfigError, match="--parts-alone are for Tables 1 and 3"):
+        run_table("table2", ["icp"], ["laptop"], work_dir=work, out_dir=out, dry_run=True, parts_alone=True)
+
+
 def test_upright_diagnostic_renders_upright_data_in_its_own_folder_and_says_so(bench, tmp_path):
     """``--upright`` changes only the rotation: the same cells, datasets in WORK/upright/ whose config has no
     object rotation (the rest of the config equal to Table 1's), a table named ``*_upright`` whose provenance and

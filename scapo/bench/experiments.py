@@ -64,14 +64,15 @@ def table_methods() -> list[str]:
 
 def dataset_dir(work: Path, category: str, instances: int, views: int, seed: int,
                 data_kwargs: Mapping | None = None) -> Path:
-    """``<work>/<category>_i<instances>_v<views>[_t<train views>]_s<seed>[_paper]``: the training views appear when
-    they differ from ``views``, ``_paper`` for the paper's viewpoints (``data_kwargs["viewpoints"]``); the whole
-    sphere's and the upright datasets keep the names they had before the settings existed (the generator refuses a
-    folder of another config)."""
+    """``<work>/<category>_i<instances>_v<views>[_t<train views>]_s<seed>[_paper][_parts]``: the training views appear
+    when they differ from ``views``, ``_paper`` for the paper's viewpoints (``data_kwargs["viewpoints"]``), ``_parts``
+    for every part rendered alone (``data_kwargs["parts_alone"]``); the whole sphere's and the upright datasets keep
+    the names they had before the settings existed (the generator refuses a folder of another config)."""
     kw = data_kwargs or {}
     tv = int(kw.get("train_views") or 0)
     name = f"{category}_i{instances}_v{views}" + (f"_t{tv}" if tv and tv != views else "") + f"_s{seed}"
-    return Path(work) / (name + ("_paper" if kw.get("viewpoints") == "paper" else ""))
+    return Path(work) / (name + ("_paper" if kw.get("viewpoints") == "paper" else "")
+                         + ("_parts" if kw.get("parts_alone") else ""))
 
 
 def parse_category_seeds(specs: Sequence[str]) -> dict[str, list[int]]:
@@ -433,10 +434,12 @@ def compute_seconds(cells, datasets: dict | None = None, seen: set | None = None
 
 
 def _provenance(name: str, cells, records, hashes, instances, views, data_seed, protocol, preset,
-                missing=(), random_rotation: bool = True, viewpoints: str | None = None, train_views: int = 0) -> dict:
+                missing=(), random_rotation: bool = True, viewpoints: str | None = None, train_views: int = 0,
+                parts_alone: bool = False) -> dict:
     """Provenance from the cells' records only (deterministic for a finished bench); ``missing``: cells
     of the bench left out because they are not done (``--finished-only``); ``random_rotation``: whether the
-    datasets' objects were turned by a uniform SO(3) rotation (False: upright). A cell whose record was adopted by
+    datasets' objects were turned by a uniform SO(3) rotation (False: upright); ``parts_alone``: every part rendered
+    alone (recorded only when set). A cell whose record was adopted by
     its dataset's regeneration on another CPU kind (:func:`scapo.bench.archive.adopt_dataset`) names the dataset it
     was computed on (``adopted_from``)."""
     per_cell = []
@@ -460,7 +463,8 @@ def _provenance(name: str, cells, records, hashes, instances, views, data_seed, 
             "data": {"instances": instances, "views": views, "seed": data_seed, "random_rotation": random_rotation,
                      **({"viewpoints": viewpoints, "viewpoints_label": VIEWPOINT_LABELS[viewpoints]}
                         if viewpoints else {}),
-                     **({"train_views": train_views} if train_views and train_views != views else {})},
+                     **({"train_views": train_views} if train_views and train_views != views else {}),
+                     **({"parts_alone": True} if parts_alone else {})},
             "datasets": {k: v[:16] for k, v in hashes.items()}, "training_seeds": seeds,
             "commits": sorted({p["commit"] for p in per_cell} | {p["evaluated_at"] for p in per_cell
                                                                   if "evaluated_at" in p}),
@@ -615,7 +619,7 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
         prov = _provenance(title, done, records, hashes, instances, views, data_seed, protocol, preset, missing,
                            random_rotation=bool(kw.get("random_rotation", False)),
                            viewpoints=viewpoints_of(kw),
-                           train_views=int(kw.get("train_views") or 0))
+                           train_views=int(kw.get("train_views") or 0), parts_alone=bool(kw.get("parts_alone")))
         if schedules is not None:
             prov["training_budget"] = {"core_minutes_per_run": budget_minutes, "schedules": schedules,
                                        "speeds": f"{work_dir}/speeds/"}
@@ -793,6 +797,10 @@ class BenchOptions:
     refuses the others."""
     train_views: int | None = None
     """Views per training instance (None: ``PAPER_TRAIN_VIEWS`` for the paper's viewpoints, ``views`` otherwise)."""
+    parts_alone: bool = False
+    """Tables 1 and 3: every part rendered in a scene of its own (:attr:`~scapo.sim.render.RenderConfig.parts_alone`,
+    EAP's data regime: no part hides another), a labelled variant of the chosen viewpoints; the table is
+    ``<name>_parts_alone`` (after the viewpoints' suffix), its datasets ``..._parts``. Table 2 refuses it."""
     parts: Sequence[str] = ()
     """Table 1: extra rows ``METHOD/PART`` (:func:`table1_cells`), e.g. ``scapo/principal``: the method trained with
     its preset's part ``PART``, labelled ``<method>-<PART>``."""
@@ -876,9 +884,10 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
     if opts.train_views is not None and (isinstance(opts.train_views, bool) or int(opts.train_views) < 1):
         raise ConfigError(f"--train-views must be >= 1, got {opts.train_views}")
     if spec.data:  # Table 2: its own (upright) data
-        if viewpoints not in (None, spec.viewpoints) or opts.train_views is not None:
-            raise ConfigError(f"bench {spec.key}'s views are upright (real scans are natural views); --viewpoints, "
-                              "--upright and --train-views are for Tables 1 and 3")
+        if viewpoints not in (None, spec.viewpoints) or opts.train_views is not None or opts.parts_alone:
+            raise ConfigError(f"bench {spec.key}'s views are upright (real scans are natural views) under the "
+                              "realistic sensor; --viewpoints, --upright, --train-views and --parts-alone are for "
+                              "Tables 1 and 3")
     else:
         viewpoints = viewpoints or spec.viewpoints
         data = dict(VIEWPOINT_DATA[viewpoints])
@@ -889,6 +898,10 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
                            archive=None if opts.archive is None else Path(opts.archive) / "upright")
         elif viewpoints == "sphere":
             opts = replace(opts, name=opts.name or f"{spec.name}_sphere")
+        if opts.parts_alone:
+            data["parts_alone"] = True
+            opts = replace(opts, name=opts.name or (f"{spec.name}_parts_alone" if viewpoints == "paper"
+                                                    else f"{spec.name}_{viewpoints}_parts_alone"))
     if spec.ablation_of is not None:
         if methods and list(methods) != [spec.ablation_of]:
             raise ConfigError(f"bench {spec.key} is {spec.ablation_of}'s ablation; it takes no --methods")
@@ -909,7 +922,9 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
         kw = data or {}
         vp = viewpoints_of(kw)
         tv = int(kw.get("train_views") or 0)
-        print(f"scapo bench {spec.key}: viewpoints {vp}: {VIEWPOINT_LABELS[vp]}; {opts.instances} instances, "
+        print(f"scapo bench {spec.key}: viewpoints {vp}: {VIEWPOINT_LABELS[vp]}"
+              + ("; every part rendered alone (EAP's data regime)" if kw.get("parts_alone") else "")
+              + f"; {opts.instances} instances, "
               f"{tv or opts.views} views per training instance, {opts.views} per val/test instance; data seed "
               f"{opts.data_seed}", flush=True)
     write_table = getattr(writers, spec.writer)

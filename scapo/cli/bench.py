@@ -249,6 +249,7 @@ def cmd_bench_table(args) -> int:
               allow_dirty=args.allow_dirty, allow_mixed_commits=args.allow_mixed_commits,
               sj=not args.no_sj, upright=args.upright, archive=args.archive, data_only=args.data_only,
               archive_predictions=args.archive_predictions, viewpoints=args.viewpoints, train_views=args.train_views,
+              parts_alone=args.parts_alone,
               budget_minutes=args.budget_minutes, refine_rows=not args.no_refine_rows, parts=args.part,
               option_rows=args.option_row)
     return 0
@@ -268,7 +269,7 @@ COMMANDS = {
 _TABLES = ("table1", "table2", "table3")
 #: The subcommands each option belongs to (by its destination); the others do not take it.
 USES = {
-    "rungs": ("ladder", "compute"), "viewpoints": _TABLES, "upright": _TABLES,
+    "rungs": ("ladder", "compute"), "viewpoints": _TABLES, "upright": _TABLES, "parts_alone": _TABLES,
     "train_views": (*_TABLES, "ladder", "compute"), "variant": ("ladder",), "part": _TABLES, "option_row": _TABLES,
     "no_sj": _TABLES, "data": ("choose", "perf"), "candidate": ("choose",), "criterion": ("choose",),
     "protocol": ("choose", *_TABLES), "limit": ("perf",), "split": ("perf",), "sizes": ("perf",), "target": ("perf",),
@@ -313,6 +314,8 @@ def add_parsers(sub) -> None:
                          "WORK/upright/, table named <table>_upright). Table 2 is upright (real scans are natural "
                          "views)")
     opt("--upright", action="store_true", help="table1, table3: --viewpoints upright")
+    opt("--parts-alone", action="store_true", help="table1, table3: every part rendered in a scene of its own "
+        "(scapo generate --parts-alone: EAP's data regime, no part hides another); tables <name>_parts_alone")
     opt("--train-views", type=int, default=None,
                     help="table1, table3: views per training instance (default: 64 with --viewpoints paper, chosen on "
                          "val (results/paper_regime/); --views otherwise)")

@@ -529,15 +529,16 @@ def _chance_note(protocol: str, provenance: dict) -> str:
 def viewpoints_title(provenance: dict) -> str:
     """The viewpoint setting of a table's data as its title says it (``", whole sphere: ..."``), from the provenance's
     ``data.viewpoints`` (:data:`scapo.bench.experiments.VIEWPOINT_LABELS`), or for a table written before the setting
-    existed from ``data.random_rotation`` (True: whole sphere; False: upright); "" when the provenance says
-    neither."""
+    existed from ``data.random_rotation`` (True: whole sphere; False: upright), and ``data.parts_alone`` (every part
+    rendered alone); "" when the provenance says neither."""
     data = provenance.get("data", {}) if isinstance(provenance, dict) else {}
     vp = data.get("viewpoints")
     if vp is None and isinstance(data.get("random_rotation"), bool):
         vp = "sphere" if data["random_rotation"] else "upright"
     return {"paper": ", the paper's viewpoints",
             "sphere": ", whole sphere: objects under uniform SO(3) rotations, harder than the paper",
-            "upright": ", objects upright: the rotation diagnostic, not the paper's setting"}.get(vp, "")
+            "upright": ", objects upright: the rotation diagnostic, not the paper's setting"}.get(vp, "") + (
+        ", every part rendered alone (EAP's data regime: no part hides another)" if data.get("parts_alone") else "")
 
 
 def budget_note(provenance: dict) -> list[str]:
