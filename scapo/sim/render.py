@@ -209,8 +209,10 @@ class RenderConfig:
     parts_alone: bool = False
     """Render every part in a scene of its own (the other parts hidden, the same camera and joint state) and pool
     their points before the resampling, so that no part hides another, only itself: the data regime of EAP's
-    synthetic partial clouds (``Meowuu7/equi-articulated-pose``, ``SPConvNets/datasets/MotionDatasetPartial.py``:
-    one part per scene) that OP-Align and SCAPO inherit; ``scapo generate --parts-alone``. Clean sensor only."""
+    synthetic partial clouds that OP-Align and SCAPO inherit (``SPConvNets/datasets/MotionDatasetPartial.py``,
+    ``create_partial_pts``, in ``Meowuu7/equi-articulated-pose`` and its copy in ``YC-Che/OP-Align``: a pyrender
+    scene of each part's triangles alone, its depth back-projected, the parts' points concatenated);
+    ``scapo generate --parts-alone``. Clean sensor only."""
     symmetric_labels: str = "asset"
     """Categories with a symmetry that exchanges parts (:mod:`scapo.sim.assets.symmetry`, e.g. basket): keep the
     "asset"'s part labels (the default of datasets made before this rule existed), or label "view" by view (of the
