@@ -14,8 +14,10 @@ import time
 from pathlib import Path
 
 
-def _step(msg: str) -> None:
-    print(f"\n== {msg}", flush=True)
+def _step(msg: str, t0: float | None = None) -> None:
+    """Print a step's heading, with the seconds since ``t0`` (the demo's start) where given."""
+    at = f"  [{time.perf_counter() - t0:.0f} s]" if t0 is not None else ""
+    print(f"\n== {msg}{at}", flush=True)
 
 
 #: What a demo run writes into its output folder (glob patterns), all of it derived from ``data``.
@@ -75,10 +77,10 @@ def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12,
                           "x 12)")
     out = check_output_dir(out, "demo output folder")
     _step(f"render device: {render_device()}")
-    _step(f"building {instances} procedural {category} instances (URDF + meshes)")
+    _step(f"building {instances} procedural {category} instances (URDF + meshes)", t0)
     recs = build_category(category, instances, seed, cache_dir, progress=True)
     print(f"   e.g. {recs[0].urdf}")
-    _step(f"rendering {instances} x {views} partial point clouds with ground truth (SAPIEN)")
+    _step(f"rendering {instances} x {views} partial point clouds with ground truth (SAPIEN)", t0)
     cfg = make_config(category, instances, views, seed, test_fraction=0.25)
     data = out / "data"
     try:
@@ -88,18 +90,18 @@ def run_demo(out: str | Path = "demo_out", instances: int = 24, views: int = 12,
         print(f"   {out} held a demo of older assets (scapo changed since): its files are now in {older}")
         rep = generate(cfg, data, workers=1, progress=True, cache_dir=cache_dir)
     print(f"   {rep.samples} samples in {data} ({sum(rep.rejections.values())} rejected views)")
-    _step("ICP baseline: fit templates on the training split, register the test split")
+    _step("ICP baseline: fit templates on the training split, register the test split", t0)
     pred_path = out / "predictions_icp.npz"
     preds = run_method("icp", data, pred_path, progress=True)
     print(f"   {preds.info['ms_per_cloud_test']:.0f} ms per test cloud -> {pred_path}")
-    _step(f"SCAPO: self-supervised training on the training clouds only (preset '{preset}')")
+    _step(f"SCAPO: self-supervised training on the training clouds only (preset '{preset}')", t0)
     run = out / f"run_scapo_{preset}"
     scapo_path = out / "predictions_scapo.npz"
     train_method("scapo", data, run, preset, progress=True)
     scapo = run_method("scapo", data, scapo_path, run=run, progress=True)
     ms = scapo.info["ms_per_cloud_test"]
     print(f"   {ms:.0f} ms per test cloud -> {scapo_path}; loss curves in {run}/losses.png")
-    _step("evaluating (one evaluator for every method)")
+    _step("evaluating (one evaluator for every method)", t0)
     results = [evaluate(data, preds), evaluate(data, scapo)]
     prov = provenance(preset=f"demo (SCAPO preset {preset})", protocol="scapo",
                       dataset_hash=results[0].info["dataset_hash"], dataset=str(data),
