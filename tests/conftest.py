@@ -48,7 +48,7 @@ def laptop_data(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def small_laptop_data(tmp_path_factory) -> Path:
     """5 laptop instances x 3 views (4 training instances: a third of :func:`laptop_data`'s training clouds), for
-    trainings whose every epoch or stage passes over all training clouds at full resolution (relabelling,
+    trainings whose every epoch or stage passes over all training clouds at full resolution (the
     pseudo-labels, the rigid-split search in processes the small-search fixtures below do not reach)."""
     from scapo.data import generate, make_config
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 import scapo.losses
-from scapo.errors import TrainingError
+from scapo.errors import TrainingError, UnknownNameError
 from scapo.eval import evaluate
 from scapo.methods import run_method
 from scapo.models import load as load_model
@@ -342,7 +342,7 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     from scapo.models.train import _identity_hash
 
     p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True,
-                            split_frame="parts", frame_target=1.0)
+                            split_frame="parts", stage2_frame="parts")
     assert p.axis_init == "turn" and get_preset("test").axis_init == "motion"
     assert p.split_init == "fit" and get_preset("test").split_init == "rigid"
     trainer = Trainer(laptop_data, tmp_path / "t", p, progress=False)
@@ -370,7 +370,8 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
         assert len(np.unique(z["points"])) == M and "labels_refit" not in z.files  # split_frame="parts": no refit
     made = json.loads((tmp_path / "t" / "split_frame.json").read_text())  # split_frame: each cloud's own frame
     assert len(made["signed_ranks"]) == 2 and 0 <= made["found"] <= made["clouds"] == len(saved)
-    # frame_target: each cloud's target frame (a rotation, or zeros where none) saved, logged, read back or refused
+    # stage2_frame="parts": each cloud's target frame (a rotation, or zeros where none) saved, logged, read back or
+    # refused
     T = np.load(tmp_path / "t" / "frame_targets.npy", allow_pickle=False)
     has = np.abs(T).sum((1, 2)) > 0
     assert T.shape == (len(saved), 3, 3) and has.any()
@@ -378,7 +379,6 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     assert np.allclose(np.linalg.det(T[has]), 1.0, atol=1e-5)
     info = json.loads((tmp_path / "t" / "frame_target.json").read_text())
     assert info["with_target"] == int(has.sum()) and info["clouds"] == len(saved)
-    assert "frame_target" in (tmp_path / "t" / "log.csv").read_text().splitlines()[0].split(",")
     data = TrainingClouds(laptop_data, 32)
     trainer.job._load_frame_targets(data)
     assert np.allclose(data.tensors["frame_target"].numpy(), T, atol=1e-6) and data[0]["frame_target"].shape == (3, 3)
@@ -387,11 +387,6 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
         trainer.job._load_frame_targets(TrainingClouds(laptop_data, 32))
     with pytest.raises(ConfigError, match="set split_labels"):
         dataclasses.replace(p, split_frame="stage1", split_labels=False)
-    with pytest.raises(ConfigError, match="frame_target"):
-        dataclasses.replace(p, frame_target=-1.0)
-    with pytest.raises(ConfigError, match="label_starts"):
-        dataclasses.replace(p, label_starts="Q")
-    assert get_preset("cpu/split-fit/split-labels/frame-target").frame_target == 1.0
     assert get_preset("cpu/split-fit/split-labels/stage2-parts").stage2_frame == "parts"
     with pytest.raises(ConfigError, match="stage2_frame"):
         dataclasses.replace(p, stage2_frame="nope")
@@ -413,33 +408,26 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     assert sum(found["template_part_points"]) == p.template_points
     ident = {"preset": dataclasses.asdict(get_preset("test")), "dataset_hash": "h", "category": "laptop",
              "part_names": [], "joint_type": [], "joint_parts": []}
-    for field in ("axis_init", "split_init", "split_labels", "split_frame", "frame_target", "stage2_frame",
-                  "label_starts", "label_stride"):
+    for field in ("axis_init", "split_init", "split_labels", "split_frame", "stage2_frame"):
         older = json.loads(json.dumps(ident))
         del older["preset"][field]  # as written before the field existed
         assert _identity_hash(older) == _identity_hash(ident)
+    # switches removed since (REMOVED_FIELDS): a run trained at their off value keeps its identity and loads; one
+    # trained with one on is refused, naming the commit that still reads it
+    from scapo.models.train import REMOVED_AFTER, REMOVED_FIELDS, preset_from_dict
+
+    older = json.loads(json.dumps(ident))
+    older["preset"].update(REMOVED_FIELDS)  # as written while the switches existed
+    assert _identity_hash(older) == _identity_hash(ident)
+    assert preset_from_dict(older["preset"]) == get_preset("test")
+    with pytest.raises(ConfigError, match=f"relabel=1, a switch removed after {REMOVED_AFTER}"):
+        preset_from_dict({**older["preset"], "relabel": 1})
+    with pytest.raises(UnknownNameError, match="frame-target"):
+        get_preset("cpu/split-fit/split-labels/frame-target")
     assert _identity_hash({**ident, "preset": dataclasses.asdict(p)}) != _identity_hash(ident)
     for field in ("axis_init", "split_init", "split_frame"):
         with pytest.raises(ConfigError, match=field):
             dataclasses.replace(TEST, **{field: "nope"})
-
-
-def test_frame_target_angle_is_the_geodesic_angle_of_the_clouds_with_a_target():
-    """``TrainConfig.frame_target``'s term: the mean geodesic angle to the targets, a half turn scoring pi with a
-    gradient that moves the frame, clouds with an all-zero target (none found) left out."""
-    from scapo.models.train import frame_target_angle
-    from scapo.ops.so3 import exp_so3
-
-    axis = torch.tensor([[0.0, 0.0, 1.0]] * 3)
-    R = exp_so3(axis, torch.tensor([0.0, 0.5, 3.0]))
-    target = torch.eye(3).expand(3, 3, 3).clone()
-    assert abs(float(frame_target_angle(R, target)) - 3.5 / 3) < 2e-3  # the clamp keeps acos finite
-    target[2] = 0.0  # no target for the third cloud
-    assert abs(float(frame_target_angle(R, target)) - 0.25) < 2e-3
-    assert float(frame_target_angle(R, torch.zeros(3, 3, 3))) == 0.0
-    theta = torch.tensor([3.0], requires_grad=True)  # near a half turn the angle still pulls the frame back
-    frame_target_angle(exp_so3(axis[:1], theta), torch.eye(3)[None]).backward()
-    assert float(theta.grad) > 0.9
 
 
 def test_frame_targets_give_one_frame_where_the_stage1_frames_take_half_turned_branches(tmp_path):
@@ -536,7 +524,7 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     from scapo.models.train import TrainingClouds
 
     p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True,
-                            stage2_frame="parts", split_frame="refit", axis_init="sweep", label_stride=2)
+                            stage2_frame="parts", split_frame="refit", axis_init="sweep")
     trainer = Trainer(laptop_data, tmp_path / "t", p, progress=False)
     trainer.train()
     model = trainer.model
@@ -552,7 +540,7 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     assert (tmp_path / "t" / "frame_targets.npy").is_file()
     labels = np.load(tmp_path / "t" / "split_labels.npy", allow_pickle=False)  # split_frame="refit": labelled again
     assert labels.shape[0] == len(np.load(tmp_path / "t" / "frame_targets.npy")) and labels.max() < 2
-    assert labels.shape == tuple(TrainingClouds(laptop_data, 64).clouds.shape[:2])  # label_stride=2: every point
+    assert labels.shape == tuple(TrainingClouds(laptop_data, 64).clouds.shape[:2])  # every point labelled
     refit = json.loads((tmp_path / "t" / "split_refit.json").read_text())
     assert sum(refit["template_part_points"]) == p.template_points and 0 <= refit["labels_changed"] <= 1
     assert get_preset("cpu/split-fit/split-labels/stage2-parts/split-refit").split_frame == "refit"
@@ -616,80 +604,6 @@ def test_stage2_parts_frame_trains_in_the_targets_and_predicts_in_the_frame_its_
     older = SCAPOModel(model.cfg)
     older.load_checkpoint_state(state)  # a checkpoint from before the parts frame: off
     assert not older.uses_parts_frame and older.parts_axes == "pca" and not older.joints.axis_frozen.any()
-
-
-def test_relabel_replaces_the_pseudo_labels_with_the_networks_own_and_resumes_the_same(small_laptop_data, tmp_path,
-                                                                                      small_part_search):
-    """``relabel``: before a stage-2 epoch of :func:`relabel_epochs` the training clouds' pseudo-labels (and
-    with ``stage2_frame="parts"`` their target frames) become what the network predicts for them; the relabelling
-    follows from the model's state alone, so a run interrupted in the relabelled epoch and resumed there ends with the
-    weights of a run that was not interrupted."""
-    import json
-
-    from scapo.errors import ConfigError
-    from scapo.models.presets import get_preset
-    from scapo.models.scapo_model import SCAPOModel
-    from scapo.models.train import TrainingClouds, relabel_epochs
-
-    laptop_data = small_laptop_data  # every relabelling passes over all training clouds, three trainings' worth here
-
-    p = dataclasses.replace(TEST, part_init=True, split_labels=True, stage2_frame="parts", relabel=1,
-                            stage2_epochs=3)
-    assert relabel_epochs(p) == [2] and relabel_epochs(dataclasses.replace(p, relabel=2, stage2_epochs=6)) == [2, 4]
-    a = Trainer(laptop_data, tmp_path / "a", p, progress=False)
-    a.train()
-    rows = json.loads((tmp_path / "a" / "relabel.json").read_text())["relabel"]
-    assert [r["epoch"] for r in rows] == [2] and 0 <= rows[0]["labels_changed"] <= 1
-    assert 0 <= rows[0]["not_found"] <= 1
-    labels = np.load(tmp_path / "a" / "split_labels.npy", allow_pickle=False)
-    data = TrainingClouds(laptop_data, 32)
-    assert labels.shape == tuple(data.clouds.shape[:2]) and labels.max() < 2
-    # what the relabelling does, checked on the finished model: the network's own labels and frames
-    a.job._load_split_labels(data)
-    a.job._relabel(data, 2)
-    X, _ = SCAPOModel.normalize(data.clouds)
-    model = a.model.eval()
-    with torch.no_grad():
-        own = model.passes(X).w.argmax(-1)
-        frames = model.parts_frames(X, own)
-    assert torch.equal(data.tensors["part_label"], own)
-    found = frames.flatten(1).abs().sum(-1) > 0
-    assert torch.allclose(data.tensors["frame_target"][found], frames[found])
-    a.job._relabel(data, 1)  # not a relabelling epoch: nothing changes
-    assert torch.equal(data.tensors["part_label"], own)
-    targets = torch.eye(3).expand(len(own), 3, 3).clone()  # relabel_frames=False: the labels change, targets stay
-    a.job.preset = dataclasses.replace(p, relabel_frames=False)
-    data.tensors["part_label"], data.tensors["frame_target"] = torch.zeros_like(own), targets.clone()
-    a.job._relabel(data, 2)
-    assert torch.equal(data.tensors["part_label"], own) and torch.equal(data.tensors["frame_target"], targets)
-    # with the preset's stage-2 starts the relabelling labels as ``scapo predict`` does: passes with those starts
-    # (its first batch's call is recorded and stops it; the labels passes gives are checked above)
-    class Seen(Exception):
-        pass
-
-    def record(X, starts=""):
-        raise Seen(starts)
-
-    a.job.preset = dataclasses.replace(p, refine=dataclasses.replace(p.refine, stage2_starts="D2"))
-    a.model.passes = record
-    try:
-        with pytest.raises(Seen, match="^D2$"):
-            a.job._relabel(data, 2)
-    finally:
-        del a.model.passes
-    a.job.preset = p
-    # interrupted in the relabelled epoch (after the relabelling ran), resumed: the same weights
-    interrupt_at(Trainer(laptop_data, tmp_path / "b", p, progress=False), 2, 2)
-    Trainer(laptop_data, tmp_path / "b", p, progress=False).train()
-    wa = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=False)["model"]
-    wb = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=False)["model"]
-    for k in wa:
-        torch.testing.assert_close(wa[k], wb[k], msg=k)
-    assert get_preset("cpu/split-fit/split-labels/relabel").relabel == 1
-    with pytest.raises(ConfigError, match="set split_labels"):
-        dataclasses.replace(p, split_labels=False, stage2_frame="stage1")
-    with pytest.raises(ConfigError, match="relabel"):
-        dataclasses.replace(p, relabel=-1)
 
 
 def test_a_frozen_joint_axis_stays_at_its_bias_while_the_rest_of_the_head_trains():

@@ -12,8 +12,7 @@ of that device). The phases:
 phase                        what
 ============================ ===================================================================================
 ``setup``                    loading the training clouds and building the network (every session of the run)
-``stage<k>/start``           a stage's one-time start and per-epoch hooks (SCAPO's template split fit and
-                             pseudo-labelling, its relabelling)
+``stage<k>/start``           a stage's one-time start (SCAPO's template split fit and pseudo-labelling)
 ``stage<k>/steps``           the optimiser steps (loss, backward, Adam)
 ``stage<k>/epochs``          each epoch's checkpoint, loss plot and checkpoint extras
 ``final``                    the work after the last epoch (e.g. EAP-style's joint estimation over the training

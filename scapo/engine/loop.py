@@ -114,11 +114,6 @@ class Stage:
             the log's header, written at the first step, holds the later stages' columns too).
         on_start: called once when the stage starts from its first epoch (not on a resume inside it),
             e.g. SCAPO's template initialisation before stage 2.
-        on_epoch: ``on_epoch(epoch)`` called before each of the stage's epochs (0-based), the first epoch after a
-            resume included, after the model, optimiser and schedule are loaded: e.g. SCAPO's relabelling of the
-            training clouds (``TrainConfig.relabel``). Whatever it changes must follow from the model's state at
-            that epoch alone, so that a run resumed at that epoch does the same; its time counts as the stage's
-            start-up (``timing.json``).
         schedule: ``"cosine"`` (annealed to ``FitConfig.min_lr`` over the stage) or ``"step"`` (multiplied by
             ``decay`` every ``decay_steps`` optimiser steps, as OP-Align's ``exp_decay`` schedule:
             ``options.py`` 121-127 of YC-Che/OP-Align).
@@ -131,7 +126,6 @@ class Stage:
     losses: LossFn
     terms: tuple[str, ...] = ()
     on_start: Callable[[], None] | None = None
-    on_epoch: Callable[[int], None] | None = None
     schedule: str = "cosine"
     decay: float = 0.5
     decay_steps: int = 5000
@@ -320,11 +314,6 @@ def fit(job: TrainJob, folder: RunFolder, state: dict | None, device: torch.devi
                 with ledger.phase(f"{name}/compile"):
                     compiled = warm_up(job, stage, device, compiled, ctx)
             for epoch in range(first, stage.epochs):
-                if stage.on_epoch is not None:
-                    ts = time.perf_counter()
-                    with ledger.phase(f"{name}/start"):
-                        stage.on_epoch(epoch)
-                    part["start_s"] += time.perf_counter() - ts
                 ts, cs = time.perf_counter(), cpu_seconds()
                 with ledger.phase(f"{name}/steps"):
                     run_epoch(job, stage, epoch, opt, sched, steps, folder, bar, device, ctx, columns, board)

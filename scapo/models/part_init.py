@@ -28,7 +28,6 @@ import torch
 
 from scapo.ops.align import kabsch
 from scapo.ops.chamfer import pairwise_sq_dist, trimmed_one_sided_chamfer
-from scapo.ops.so3 import exp_so3
 
 EPS = 1e-9
 
@@ -377,66 +376,6 @@ def register_template_parts(template: torch.Tensor, labels: torch.Tensor, clouds
     return R, t, dmin.reshape(B, P, M)
 
 
-def whole_template_start(template: torch.Tensor, clouds: torch.Tensor, starts: torch.Tensor, iters: int = 4,
-                         clip: float = 0.01) -> tuple[torch.Tensor, torch.Tensor]:
-    """The rigid motion ``(R (B, 3, 3), t (B, 3))`` of the whole ``template (M, 3)`` onto each of ``clouds (B, n, 3)``
-    that fits best among ``iters`` ICP steps (:func:`register_template_parts` with one part) from each rotation of
-    ``starts (K, 3, 3)``: the score is the two-sided mean squared nearest distance, each side clipped at ``clip``
-    (``TrainConfig.label_starts``; an addition to the paper)."""
-    B = clouds.shape[0]
-    one = torch.zeros(template.shape[0], dtype=torch.long, device=template.device)
-    best = torch.full((B,), float("inf"), dtype=template.dtype, device=template.device)
-    R = torch.eye(3, dtype=template.dtype, device=template.device).expand(B, 3, 3).clone()
-    t = torch.zeros(B, 3, dtype=template.dtype, device=template.device)
-    for g in starts.to(template):
-        Rg, tg, d2 = register_template_parts(template, one, clouds, 1, iters, clip, g.expand(B, 3, 3).clone(),
-                                             torch.zeros(B, 3, dtype=template.dtype, device=template.device))
-        posed = template[None] @ Rg.transpose(1, 2) + tg[:, None]
-        score = d2.clamp(max=clip).mean((1, 2)) + pairwise_sq_dist(clouds, posed).min(-1)[0].clamp(max=clip).mean(-1)
-        better = score < best
-        best = torch.where(better, score, best)
-        R[better], t[better] = Rg[better], tg[better]
-    return R, t
-
-
-#: ``label_starts = "A"``: the turns (deg) of each child part about each of the base's principal axes that
-#: :func:`joint_turn_starts` adds to its fit's identity start (fixed before any measurement, not tuned).
-JOINT_TURNS_DEG = (-90.0, -45.0, 45.0, 90.0)
-
-
-def joint_turn_starts(template: torch.Tensor, labels: torch.Tensor, num_parts: int, base: int = 0,
-                      turns_deg: tuple[float, ...] = JOINT_TURNS_DEG) -> tuple[torch.Tensor, torch.Tensor]:
-    """Starting motions for each part's fit that turn a child part about its joint, for clouds whose articulation is
-    far from the template's (an eyeglasses temple folded where the template's is open): per part ``p`` the identity
-    and, for every part but ``base``, the turns ``turns_deg`` about each of the base's three principal axes (of the
-    ``template (M, 3)`` points labelled ``base`` by ``labels (M,)``) through the child's attach point (its template
-    point nearest the base). The joint's axis is not known before stage 2, so every principal axis is tried.
-
-    Returns:
-        ``(R (P, K, 3, 3), t (P, K, 3))`` with ``K = 1 + 3 len(turns_deg)``; start 0 is the identity, and the base's
-        (and a part without points) starts are all the identity. Template units.
-    """
-    P, dt, dev = num_parts, template.dtype, template.device
-    K = 1 + 3 * len(turns_deg)
-    R = torch.eye(3, dtype=dt, device=dev).expand(P, K, 3, 3).clone()
-    t = torch.zeros(P, K, 3, dtype=dt, device=dev)
-    on_base = template[labels == base]
-    if on_base.shape[0] < 3:
-        return R, t
-    _, V = torch.linalg.eigh(torch.cov((on_base - on_base.mean(0)).T))
-    angles = torch.deg2rad(torch.tensor(turns_deg, dtype=dt, device=dev))
-    axes = V.T.repeat_interleave(len(turns_deg), 0)  # (3 T, 3): each principal axis with every turn
-    turn = exp_so3(axes, angles.repeat(3))
-    for p in range(P):
-        pts = template[labels == p]
-        if p == base or pts.shape[0] == 0:
-            continue
-        pivot = pts[pairwise_sq_dist(pts[None], on_base[None])[0].min(-1)[0].argmin()]
-        R[p, 1:] = turn
-        t[p, 1:] = pivot - turn @ pivot
-    return R, t
-
-
 def _posed(template: torch.Tensor, labels: torch.Tensor, R: torch.Tensor, t: torch.Tensor, B: int,
            P: int) -> torch.Tensor:
     """``template (M, 3)``, each point moved by its part's motion ``R (B P, 3, 3), t (B P, 3)`` -> ``(B, M, 3)``."""
@@ -445,142 +384,24 @@ def _posed(template: torch.Tensor, labels: torch.Tensor, R: torch.Tensor, t: tor
     return moved.gather(1, labels.view(1, 1, M, 1).expand(B, 1, M, 3)).squeeze(1)
 
 
-def _two_sided(C: torch.Tensor, posed: torch.Tensor, clip: float) -> torch.Tensor:
-    """Two-sided mean squared nearest distance ``(B,)`` between ``C (B, n, 3)`` and ``posed (B, M, 3)``, each side's
-    distances clipped at ``clip``."""
-    d = pairwise_sq_dist(C, posed)
-    return d.min(-1)[0].clamp(max=clip).mean(-1) + d.min(-2)[0].clamp(max=clip).mean(-1)
-
-
-def refit_from_joint_starts(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Tensor, num_parts: int,
-                            R: torch.Tensor, t: torch.Tensor, starts: tuple[torch.Tensor, torch.Tensor],
-                            base: int = 0, iters: int = 6, clip: float = 0.01) -> tuple[torch.Tensor, torch.Tensor]:
-    """``label_starts = "A"``: each child part's motion on each cloud chosen among its fit from the motions ``R (B P,
-    3, 3), t (B P, 3)`` (:func:`register_template_parts` rows) and its fits from the ``starts`` of
-    :func:`joint_turn_starts` (each composed with the base's fitted motion), part by part in order: the candidate whose
-    posed template (the other parts at their chosen motions) is nearest the cloud both ways (:func:`_two_sided`; a
-    child fitted onto the base's points leaves the cloud's own child points unexplained). ``template (M, 3)``,
-    ``labels (M,)``, ``clouds (B, n, 3)`` -> the chosen ``(R, t)`` in the same layout."""
-    B, P = clouds.shape[0], num_parts
-    Rj, tj = starts
-    R, t = R.clone(), t.clone()
-    score = _two_sided(clouds, _posed(template, labels, R, t, B, P), clip)
-    rows = torch.arange(B, device=clouds.device) * P
-    Rb, tb = R[rows + base], t[rows + base]
-    for p in range(P):
-        part = template[labels == p]
-        if p == base or part.shape[0] == 0:
-            continue
-        one = torch.zeros(part.shape[0], dtype=labels.dtype, device=labels.device)
-        for k in range(1, Rj.shape[1]):
-            R0 = Rb @ Rj[p, k]  # the start in the cloud: the base's motion after the turn
-            t0 = (Rb @ tj[p, k][:, None])[..., 0] + tb
-            Rk, tk, _ = register_template_parts(part, one, clouds, 1, iters, clip, R0, t0)  # this part alone
-            Rc, tc = R.clone(), t.clone()
-            Rc[rows + p], tc[rows + p] = Rk, tk
-            new = _two_sided(clouds, _posed(template, labels, Rc, tc, B, P), clip)
-            better = new < score
-            score = torch.where(better, new, score)
-            R[rows[better] + p], t[rows[better] + p] = Rc[rows[better] + p], tc[rows[better] + p]
-    return R, t
-
-
 def label_clouds(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Tensor, num_parts: int,
-                 R: torch.Tensor | None = None, t: torch.Tensor | None = None, iters: int = 6, chunk: int = 64,
-                 starts: torch.Tensor | None = None, joint_starts: tuple[torch.Tensor, torch.Tensor] | None = None,
-                 retry: float = 0.0, record: dict | None = None, fit_stride: int = 1) -> torch.Tensor:
+                 R: torch.Tensor | None = None, t: torch.Tensor | None = None, iters: int = 6, chunk: int = 64
+                 ) -> torch.Tensor:
     """Label every point of ``clouds (B, n, 3)`` with the part of its nearest point of the template posed for that
     cloud, each part of ``template (M, 3)`` (split by ``labels (M,)``) at its motion (:func:`register_template_parts`
-    from ``R, t`` when given, else ``iters`` ICP steps from the identity, or with ``starts (K, 3, 3)`` from the whole
-    template's best fit among those rotations, :func:`whole_template_start`; with ``joint_starts``, the output of
-    :func:`joint_turn_starts`, each child part's motion then chosen among its fits from those turns too,
-    :func:`refit_from_joint_starts`), ``chunk`` clouds at a time -> ``(B, n)`` int64.
-
-    ``retry`` in (0, 1] with ``starts`` (``TrainConfig.label_retry``): every cloud is first fitted from the identity;
-    the ``retry`` share of the clouds whose fit is worst (:func:`_two_sided` score, clipped at 0.01) is fitted
-    again from the whole template's best start among ``starts`` (:func:`whole_template_start` on every
-    :data:`RETRY_STRIDE`-th point of the cloud, then the part-by-part fit on all of them), and each of those clouds
-    keeps whichever of its two fits scores lower (a minimum over hypotheses; an addition to the paper:
-    on the table's eyeglasses data the clouds labelled at random are those whose frame is far from the template's,
-    and their identity fit is the worse, ``results/canonical_ladder/stage2_parts/scale/README.md`` (at 9a79e15),
-    section 10).
-    ``record``, when given, gets ``{"retried", "kept_retry"}``: the shares of the clouds fitted again and of those
-    whose second fit was kept.
-
-    ``fit_stride`` (``TrainConfig.label_stride``): the motions are fitted (and scored, and retried) on every
-    ``fit_stride``-th point of each cloud, ``clouds[:, ::fit_stride]``, and every point is then labelled from the
-    template posed by them; 1 (default) fits on all points. The fits' cost falls by about that factor.
-
-    Raises:
-        ValueError: ``retry`` without ``starts``, with ``R``/``t`` or ``joint_starts``, or outside (0, 1];
-            ``fit_stride`` not an int >= 1."""
-    if isinstance(fit_stride, bool) or not isinstance(fit_stride, int) or fit_stride < 1:
-        raise ValueError(f"label_clouds: fit_stride is a point stride, an int >= 1; got {fit_stride!r}")
-    if retry:
-        if starts is None or R is not None or joint_starts is not None or not 0.0 < float(retry) <= 1.0:
-            raise ValueError("label_clouds: retry needs starts, no R/t, no joint_starts and a share in (0, 1]")
-        return _label_with_retry(template, labels, clouds, num_parts, iters, chunk, starts, float(retry), record,
-                                 fit_stride=fit_stride)
+    from ``R (B P, 3, 3), t (B P, 3)`` when given, else ``iters`` ICP steps from the identity), ``chunk`` clouds at a
+    time -> ``(B, n)`` int64."""
     out = []
     P = num_parts
     for k in range(0, clouds.shape[0], chunk):
         C = clouds[k:k + chunk]
-        Cf = C[:, ::fit_stride]  # the points the motions are fitted on
-        if R is None and starts is not None:
-            R0, t0 = whole_template_start(template, Cf, starts)
-            Rc, tc, _ = register_template_parts(template, labels, Cf, P, iters, R=R0.repeat_interleave(P, 0),
-                                                t=t0.repeat_interleave(P, 0))
-        elif R is None:
-            Rc, tc, _ = register_template_parts(template, labels, Cf, P, iters)
+        if R is None:
+            Rc, tc, _ = register_template_parts(template, labels, C, P, iters)
         else:
             Rc, tc = R[k * P:(k + len(C)) * P], t[k * P:(k + len(C)) * P]
-        if joint_starts is not None:
-            Rc, tc = refit_from_joint_starts(template, labels, Cf, P, Rc, tc, joint_starts, iters=iters)
         posed = _posed(template, labels, Rc, tc, len(C), P)  # each point at its part's motion
         out.append(labels[pairwise_sq_dist(C, posed).argmin(-1)])
     return torch.cat(out)
-
-
-#: ``label_clouds(retry=...)``: the start search of a retried cloud reads every this-th point of it (the part-by-part
-#: fit then reads all): on the table's eyeglasses data, seed 0's clouds labelled at random, the base's IoU was 0.575
-#: with every 4th point and 0.574 with all, in half the time (fixed before the runs that measure it).
-RETRY_STRIDE = 4
-
-
-def _label_with_retry(template: torch.Tensor, labels: torch.Tensor, clouds: torch.Tensor, P: int, iters: int,
-                      chunk: int, starts: torch.Tensor, retry: float, record: dict | None,
-                      clip: float = 0.01, fit_stride: int = 1) -> torch.Tensor:
-    """:func:`label_clouds` with ``retry`` (see there): ``(B, n)`` int64 labels of ``clouds (B, n, 3)``, the motions
-    fitted and scored on ``clouds[:, ::fit_stride]``."""
-    full, clouds = clouds, clouds[:, ::fit_stride]
-    B = clouds.shape[0]
-    fits, scores = [], []
-    for k in range(0, B, chunk):
-        C = clouds[k:k + chunk]
-        Rc, tc, _ = register_template_parts(template, labels, C, P, iters)
-        fits.append((Rc, tc))
-        scores.append(_two_sided(C, _posed(template, labels, Rc, tc, len(C), P), clip))
-    score = torch.cat(scores)
-    Rall = torch.cat([f[0] for f in fits]).reshape(B, P, 3, 3)
-    tall = torch.cat([f[1] for f in fits]).reshape(B, P, 3)
-    n = max(1, int(round(retry * B)))
-    worst = torch.argsort(score, descending=True, stable=True)[:n].sort().values
-    kept = 0
-    for k in range(0, n, chunk):
-        sel = worst[k:k + chunk]
-        C = clouds[sel]
-        # the start search reads about as many points as without fit_stride
-        R0, t0 = whole_template_start(template, C[:, ::max(1, RETRY_STRIDE // fit_stride)], starts)
-        Rc, tc, _ = register_template_parts(template, labels, C, P, iters, R=R0.repeat_interleave(P, 0),
-                                            t=t0.repeat_interleave(P, 0))
-        s2 = _two_sided(C, _posed(template, labels, Rc, tc, len(C), P), clip)
-        better = s2 < score[sel]
-        kept += int(better.sum())
-        Rall[sel[better]] = Rc.reshape(-1, P, 3, 3)[better]
-        tall[sel[better]] = tc.reshape(-1, P, 3)[better]
-    if record is not None:
-        record.update({"retried": round(n / B, 4), "kept_retry": round(kept / n, 4)})
-    return label_clouds(template, labels, full, P, R=Rall.reshape(-1, 3, 3), t=tall.reshape(-1, 3), chunk=chunk)
 
 
 def fit_template_parts(template: torch.Tensor, clouds: torch.Tensor, labels: torch.Tensor, num_parts: int,

@@ -112,77 +112,21 @@ class TrainConfig:
     clouds in their ``stage2_frame`` target frames, the clouds labelled by it in those frames and the targets read
     again from those labels (:meth:`scapo.models.train.ScapoJob._label_training_clouds`; preset part
     ``split-refit``)."""
-    label_starts: str = ""
-    """Where ``split_labels``' part-by-part template fit to each training cloud starts: "" (default), the identity
-    (the cloud in its frame); "O", the whole template's best rigid fit from the 24 octahedral rotations
-    (:func:`scapo.models.part_init.whole_template_start`), for clouds whose frame is far from the template's; "A", the
-    identity, and each child part also from turns of +-45 and +-90 deg about each of the base's principal axes
-    through its attach point, the fit whose posed template is nearest the cloud both ways
-    (:func:`scapo.models.part_init.refit_from_joint_starts`), for clouds whose articulation is far from the template's
-    (a folded eyeglasses temple where the template's is open; labelling takes about 25 times longer). An addition to
-    the paper; "O" gave no gain and "A" a mixed result on the eyeglasses' paper rung
-    (docs/canonical_ladder.md, sessions 31-32)."""
-    label_retry: float = 0.0
-    """With ``split_labels`` and a rotation group in ``label_starts`` ("T", "O" or "I"): the share of the training
-    clouds, those whose part-by-part template fit from the identity scores worst, that are fitted again from the
-    group's best whole-template start, each keeping the better-scoring of its two fits
-    (:func:`scapo.models.part_init.label_clouds` ``retry``; preset part ``label-retry``: "O" and 0.4). An addition to
-    the paper: on the table's eyeglasses data a fifth of the clouds get labels no better than
-    chance, those whose frame at stage 2's start is far from the template's; the starts rescue half of their base,
-    and the training targets in one frame rise from 0.76-0.82 to 0.84-0.90 over three seeds, but the val result
-    does not change (S 54.4 -> 54.3, median R 14.2 -> 15.1, nothing supported: a negative result;
-    results/canonical_ladder/stage2_parts/scale/README.md at 9a79e15, section 10). 0 (default): every cloud fitted
-    once, as
-    ``label_starts`` says."""
-    label_stride: int = 1
-    """With ``split_labels``: the pseudo-labelling at the start of stage 2 reads each training cloud's stage-1 frame
-    from every ``label_stride``-th of its points and fits the template's part motions on those points
-    (:func:`scapo.models.part_init.label_clouds` ``fit_stride``); every point is still labelled, from the template
-    posed by those motions. 1 (default): all points. A cost setting (an addition to the paper; the
-    network itself trains on ``train_points`` subsets): on Table 1's 1024-point laptop clouds this work took 461 s of
-    a ``cpu-laptop`` run's 1,075 s, more than its 900 optimiser steps; at 4 the frames cost 9.7x and the labels 4.5x
-    less, and the pseudo-labels' accuracy against the true parts fell from 0.730 to 0.707 on a finished run's model
-    (results/perf/label_stride/). Not set by any preset."""
     compile: bool = False
     """Compile the network's parts for the training steps (``torch.compile``, :func:`scapo.engine.loop.
     compile_network`); the compilation is charged to the run's ledger (``stage<k>/compile``)."""
-    frame_target: float = 0.0
-    """Weight of a stage-2 term that pulls each training cloud's frame (stage 1's, which stage 2 trains on) towards
-    the frame its base's axes give when signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`,
-    from the ``split_labels`` pseudo-labels, base = slot 0), carried into the template's: per cloud ``i`` the target
-    ``R_i E_i E_Y^T`` (``R_i`` its frame at the start of stage 2, ``E_i`` its and ``E_Y`` the template's signed base
-    axes in the stage-1 frames), the term the mean geodesic angle (rad) between the frame and the target. Where the
-    stage-1 frames scatter between half-turned branches of a near-symmetric shape (eyeglasses' front), the targets
-    are one frame up to the error of the pseudo-labels; 0 (default): off. Needs ``split_labels``; the targets are
-    stored in the run folder (``frame_targets.npy``) for a resume. An addition to the paper."""
     stage2_frame: str = "stage1"
     """The frame stage 2 works in: "stage1", each cloud's stage-1 frame (the paper); "parts", the frame in which the
     cloud's base axes signed by its other parts are the template's (:func:`scapo.ops.signed_axes.parts_signed_axes`,
-    base = slot 0): in training, each training cloud's target frame of ``frame_target`` (from the ``split_labels``
-    pseudo-labels), which replaces its stage-1 frame in stage 2; in prediction, read from the base stage 2 labels in a
+    base = slot 0): in training, each training cloud's target frame ``R_i E_i E_Y^T`` (``R_i`` its frame at the start of
+    stage 2, ``E_i`` its and ``E_Y`` the template's base axes signed by their other parts, from the ``split_labels``
+    pseudo-labels; stored as ``frame_targets.npy`` in the run folder for a resume), which replaces its stage-1 frame in
+    stage 2; in prediction, read from the base stage 2 labels in a
     first pass and stage 2 run again in it (:meth:`scapo.models.scapo_model.SCAPOModel.parts_frames`). Stage 1's frame
     then needs to be right only up to the half-turned branches of a near-symmetric base. Needs ``split_labels``. An
     addition to the paper, preset part ``stage2-parts``."""
-    relabel: int = 0
-    """How many times stage 2 labels the training clouds again from the network's own predictions (self-training; 0,
-    the default: never): before the stage-2 epochs ``round(k E / (relabel + 1))``, ``k = 1..relabel`` (``E`` =
-    ``stage2_epochs``; epoch 0 excluded), every training cloud's ``split_labels`` pseudo-labels become the argmax of
-    the skinning weights the network predicts for it (in eval mode, with :data:`~scapo.models.scapo_model.PARTS_PASSES`
-    passes in the parts-signed frame under ``stage2_frame = "parts"``: what ``scapo predict`` gives), and with
-    ``stage2_frame = "parts"`` its target frame is read again from those labels
-    (:meth:`~scapo.models.scapo_model.SCAPOModel.parts_frames`; a cloud whose base axes are not found keeps its
-    target). The starting pseudo-labels come from one template fitted part by part; the network trained on them
-    labels the clouds it has learnt from more consistently (base accuracy 0.87 on val against 0.77 for the
-    pseudo-labels on train). Needs ``split_labels``; the new labels and targets replace ``split_labels.npy`` and
-    ``frame_targets.npy`` (a resume reads them), and what changed goes to ``relabel.json``. An addition to the paper,
-    preset part ``relabel``; a negative result on the eyeglasses' paper rung (the targets read from the
-    network's labels halfway through stage 2 are one frame for fewer clouds; docs/canonical_ladder.md)."""
-    relabel_frames: bool = True
-    """With ``relabel`` and ``stage2_frame = "parts"``: whether a relabelling also reads each training cloud's target
-    frame again from its new labels (True, the default) or keeps the targets read from the starting pseudo-labels
-    (False: only the labels that ``sup_seg`` trains towards change)."""
     parts_axes: str = "pca"
-    """With ``split_frame = "parts"``, ``frame_target`` or ``stage2_frame = "parts"``: how each cloud's (and the
+    """With ``split_frame = "parts"`` or ``stage2_frame = "parts"``: how each cloud's (and the
     template's) base directions are found before the other parts sign them
     (:func:`scapo.ops.signed_axes.parts_signed_axes`): "pca" (default) the principal axes of all the points labelled
     base; "plane" those of its points on their dominant plane (:func:`scapo.ops.signed_axes.plane_axes`), so that
@@ -205,7 +149,7 @@ class TrainConfig:
             check_settings(self, positive=("lr_stage1", "lr_stage2", "gamma", "grad_clip"),
                            non_negative=("min_lr", "weight_decay", "sup_weight"),
                            minimum={"stage1_epochs": 0, "stage2_epochs": 0, "batch_size": 1, "train_points": 32,
-                                    "template_points": 16, "max_steps_per_epoch": 0, "seed": 0, "relabel": 0})
+                                    "template_points": 16, "max_steps_per_epoch": 0, "seed": 0})
         except ValueError as e:
             raise ConfigError(f"preset {self.name!r}: {e}") from None
         if not self.name:
@@ -247,28 +191,6 @@ class TrainConfig:
         if self.split_frame != "stage1" and not self.split_labels:
             raise ConfigError(f"preset {self.name!r}: split_frame={self.split_frame!r} is the frame split_labels "
                               "labels the clouds in; set split_labels too")
-        if self.label_starts not in ("", "T", "O", "I", "A"):
-            raise ConfigError(f"preset {self.name!r}: label_starts must be '', 'T', 'O', 'I' or 'A', got "
-                              f"{self.label_starts!r}")
-        if isinstance(self.label_retry, bool) or not (isinstance(self.label_retry, (int, float))
-                                                      and 0.0 <= self.label_retry <= 1.0):
-            raise ConfigError(f"preset {self.name!r}: label_retry is a share of the training clouds in [0, 1], got "
-                              f"{self.label_retry!r}")
-        if self.label_retry and (self.label_starts not in ("T", "O", "I") or not self.split_labels):
-            raise ConfigError(f"preset {self.name!r}: label_retry fits the worst-fitted clouds again from a rotation "
-                              "group's starts; set label_starts to 'T', 'O' or 'I' and split_labels too (preset part "
-                              "label-retry with split-labels)")
-        if isinstance(self.label_stride, bool) or not isinstance(self.label_stride, int) or self.label_stride < 1:
-            raise ConfigError(f"preset {self.name!r}: label_stride is a point stride, an int >= 1; got "
-                              f"{self.label_stride!r}")
-        if self.label_stride > 1 and not self.split_labels:
-            raise ConfigError(f"preset {self.name!r}: label_stride={self.label_stride} thins the split_labels "
-                              "pseudo-labelling; set split_labels too (preset part split-labels)")
-        if self.frame_target < 0 or self.frame_target != self.frame_target:
-            raise ConfigError(f"preset {self.name!r}: frame_target is a loss weight, >= 0; got {self.frame_target!r}")
-        if self.frame_target > 0 and not self.split_labels:
-            raise ConfigError(f"preset {self.name!r}: frame_target={self.frame_target} reads the split_labels "
-                              "pseudo-labels (the base and its other parts); set split_labels too")
         if self.parts_axes not in ("pca", "plane"):
             raise ConfigError(f"preset {self.name!r}: parts_axes must be 'pca' or 'plane', got {self.parts_axes!r}")
         if self.stage2_frame not in ("stage1", "parts"):
@@ -283,9 +205,6 @@ class TrainConfig:
         if self.stage2_frame != "stage1" and not self.split_labels:
             raise ConfigError(f"preset {self.name!r}: stage2_frame={self.stage2_frame!r} reads the split_labels "
                               "pseudo-labels (the base and its other parts); set split_labels too")
-        if self.relabel and not self.split_labels:
-            raise ConfigError(f"preset {self.name!r}: relabel={self.relabel} replaces the split_labels pseudo-labels; "
-                              "set split_labels too")
         if self.split_labels and not self.part_init:
             raise ConfigError(f"preset {self.name!r}: split_labels needs part_init (the split it labels the clouds "
                               "with)")
@@ -365,17 +284,12 @@ def get_preset(name: str) -> TrainConfig:
     the parts' turns (``TrainConfig.axis_init``; ``axis-sweep``: from the children's sweep in the parts-signed
     frames; ``axis-fixed``: held there); a part ``split-fit`` finds stage 2's starting split by fitting the
     template to the clouds (``TrainConfig.split_init``; ``split-fitted``: only among the fits; ``split-overseg``: also
-    from groupings of 6 template clusters, ``TrainConfig.split_overseg``) and ``split-labels``
-    trains stage 2 towards that split's labels
-    of every training cloud (``TrainConfig.split_labels``; ``label-retry``: the worst-fitted 40 % of them labelled
-    again from the best of the 24 octahedral starts, ``TrainConfig.label_retry``), ``split-parts`` makes those
-    labels in each cloud's parts-signed frame (``TrainConfig.split_frame``) and ``frame-target`` pulls each cloud's
-    frame towards that frame
-    (``TrainConfig.frame_target``, weight 1) and ``stage2-parts`` makes stage 2 work in that frame
-    (``TrainConfig.stage2_frame``) and ``relabel`` relabels the training clouds once, halfway through stage 2, from
-    the network's own predictions (``TrainConfig.relabel``) and ``parts-plane`` finds the base's directions on its
-    dominant plane (``TrainConfig.parts_axes``); a part ``epochs-A-B`` trains stage 1 for A epochs and
-    stage 2 for B (:func:`scapo.registry.apply_schedule`; ``scapo bench table1 --budget-minutes``).
+    from groupings of 6 template clusters, ``TrainConfig.split_overseg``) and ``split-labels`` trains stage 2 towards
+    that split's labels of every training cloud (``TrainConfig.split_labels``), ``split-parts`` makes those labels in
+    each cloud's parts-signed frame (``TrainConfig.split_frame``), ``stage2-parts`` makes stage 2 work in that frame
+    (``TrainConfig.stage2_frame``) and ``parts-plane`` finds the base's directions on its dominant plane
+    (``TrainConfig.parts_axes``); a part ``epochs-A-B`` trains stage 1 for A epochs and stage 2 for B
+    (:func:`scapo.registry.apply_schedule`; ``scapo bench table1 --budget-minutes``).
 
     Raises:
         UnknownNameError: an unknown base preset or regulariser (the message lists the known ones).
@@ -417,9 +331,6 @@ def get_preset(name: str) -> TrainConfig:
         if part == "split-parts":
             off["split_frame"] = "parts"  # the pseudo-labels made in each cloud's parts-signed frame (split_frame)
             continue
-        if part == "frame-target":
-            off["frame_target"] = 1.0  # stage 2 pulls each cloud's frame to its parts-signed one (frame_target)
-            continue
         if part == "split-refit":
             off["split_frame"] = "refit"  # the split fitted again in the stage2_frame target frames (split_frame)
             continue
@@ -434,13 +345,6 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "parts-plane":
             off["parts_axes"] = "plane"  # the base's directions from the points on its plane (parts_axes)
-            continue
-        if part == "label-retry":
-            off["label_starts"] = "O"  # the worst-fitted clouds labelled again from the best of 24 starts (label_retry)
-            off["label_retry"] = 0.4
-            continue
-        if part == "relabel":
-            off["relabel"] = 1  # stage 2 relabels the training clouds once, from its own predictions (relabel)
             continue
         if part != "seg-gaussian":
             raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "

@@ -21,7 +21,7 @@ import torch
 from scapo.data.dataset import load
 from scapo.engine import CloudSet, FitConfig, Stage, TrainJob, lifecycle
 from scapo.engine.lifecycle import RunSpec
-from scapo.errors import DatasetError
+from scapo.errors import ConfigError, DatasetError
 from scapo.files import write_json
 from scapo.losses import LossConfig, stage1_terms, stage2_terms, weighted_total
 from scapo.models.branch import apply_branch
@@ -38,8 +38,7 @@ STAGE2_TERMS = ("recon", "kp_seg", "seg", "shape_var", "dir_align", "joint_prox"
 
 def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict | None = None,
                scale: torch.Tensor | None = None, sup_weight: float = 1.0, pairs: int = 0,
-               frame_target: torch.Tensor | None = None, frame_weight: float = 0.0, frame: torch.Tensor | None = None
-               ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+               frame: torch.Tensor | None = None) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
     """One forward pass of a training step on normalised clouds ``X (B, N, 3)``: the unweighted loss
     terms of ``stage`` (1: stage-1 terms; 2: stage-1 and stage-2 terms) and their weighted total
     under ``losses`` (a :class:`~scapo.losses.LossConfig`).
@@ -49,10 +48,8 @@ def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict
     ``scale (B,)`` is the normalisation of ``X``); stage 2 then adds ``sup_seg`` (NLL of the skinning
     weights) and ``sup_joint`` (the camera-frame joints), weighted by ``sup_weight``. ``pairs``: the first
     ``2 pairs`` clouds are pairs of views of one instance (cloud ``i`` and ``i + pairs``) for ``L_view``
-    (``LossConfig.view_consist``; ``scale`` needed). ``frame_target (B, 3, 3)`` (``TrainConfig.frame_target``, stage
-    2): each cloud's target frame (canonical -> camera; all zeros: none), the term ``frame_target`` the mean geodesic
-    angle (rad, :func:`frame_target_angle`) of the clouds that have one, weighted by ``frame_weight``. ``frame (B, 3,
-    3)``: stage 2's frames where not all zeros (``TrainConfig.stage2_frame = "parts"``,
+    (``LossConfig.view_consist``; ``scale`` needed). ``frame (B, 3, 3)``: stage 2's frames (canonical -> camera)
+    where not all zeros (``TrainConfig.stage2_frame = "parts"``,
     :meth:`~scapo.models.scapo_model.SCAPOModel.stage2`)."""
     out = model(X, stage=stage) if stage == 1 or frame is None else model(X, stage=stage, frame=frame)
     terms = stage1_terms(model, X, out, losses, align=stage == 1 or losses.align_in_stage2, scale=scale, pairs=pairs)
@@ -73,22 +70,7 @@ def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict
                                             / scale[:, None, None], model.cfg.joint_types)
         terms.update(extra)
         total = total + sup_weight * sum(extra.values())
-    if stage == 2 and frame_target is not None and frame_weight > 0:
-        terms["frame_target"] = frame_target_angle(out.R, frame_target.to(X))
-        total = total + frame_weight * terms["frame_target"]
     return terms, total
-
-
-def frame_target_angle(R: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """The mean geodesic angle (rad, scalar) between frames ``R (B, 3, 3)`` and targets ``(B, 3, 3)`` over the clouds
-    whose target is a rotation (an all-zero target: none; 0 when no cloud has one). The angle, not the chordal
-    distance, so that a frame half a turn from its target (the branch it is meant to leave) still gets a full
-    gradient. ``TrainConfig.frame_target``; an addition to the paper."""
-    has = target.flatten(1).abs().sum(-1) > 0
-    if not bool(has.any()):
-        return R.new_zeros(())
-    cos = ((R[has] * target[has]).sum((-2, -1)) - 1.0) / 2.0
-    return torch.arccos(cos.clamp(-1.0 + 1e-6, 1.0 - 1e-6)).mean()
 
 
 class TrainingClouds(CloudSet):
@@ -181,9 +163,16 @@ INFERENCE_FIELDS = ("refine",)
 #: left out of the identity, so older runs keep their identity (and their checkpoints stay valid)
 ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "label_init": False, "anchors": "",
                 "axis_init": "motion", "split_init": "rigid", "split_labels": False, "split_frame": "stage1",
-                "frame_target": 0.0, "stage2_frame": "stage1", "label_starts": "",
-                "relabel": 0, "relabel_frames": True, "parts_axes": "pca", "axis_fixed": False,
-                "split_overseg": 0, "label_retry": 0.0, "label_stride": 1, "compile": False}
+                "stage2_frame": "stage1", "parts_axes": "pca", "axis_fixed": False, "split_overseg": 0,
+                "compile": False}
+#: preset fields removed after runs were trained with them (switches whose val results did not earn them a place;
+#: docs/canonical_ladder.md), with the value at which a run trained then is what training does now: at that value the
+#: field is dropped (from the run's identity too, so its checkpoints stay valid); at another value the run cannot be
+#: continued or read by this code (:func:`preset_from_dict` says which commit still can)
+REMOVED_FIELDS = {"relabel": 0, "relabel_frames": True, "frame_target": 0.0, "label_starts": "", "label_retry": 0.0,
+                  "label_stride": 1}
+#: the last commit with :data:`REMOVED_FIELDS`
+REMOVED_AFTER = "bd34536"
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
                      "template": 0.0}
@@ -199,7 +188,8 @@ def _run_identity(preset: TrainConfig, card: dict) -> dict:
 def _training_identity(identity: dict) -> dict:
     """``identity`` without the preset's inference-only fields (what decides whether a checkpoint fits)."""
     preset = {k: v for k, v in identity.get("preset", {}).items()
-              if k not in INFERENCE_FIELDS and not (k in ADDED_FIELDS and v == ADDED_FIELDS[k])}
+              if k not in INFERENCE_FIELDS and not (k in ADDED_FIELDS and v == ADDED_FIELDS[k])
+              and not (k in REMOVED_FIELDS and v == REMOVED_FIELDS[k])}
     if isinstance(preset.get("losses"), dict):
         preset["losses"] = {k: v for k, v in preset["losses"].items()
                             if not (k in LOSS_ADDED_FIELDS and v == LOSS_ADDED_FIELDS[k])}
@@ -214,7 +204,17 @@ def _identity_hash(obj: dict) -> str:
 
 
 def preset_from_dict(d: dict) -> TrainConfig:
+    """The :class:`TrainConfig` of a run's stored preset (``run.json``, a checkpoint's identity).
+
+    Raises:
+        ConfigError: the run was trained with a switch this code no longer has (:data:`REMOVED_FIELDS`) set."""
     d = dict(d)
+    for k, off in REMOVED_FIELDS.items():
+        v = d.pop(k, off)
+        if v != off:
+            raise ConfigError(f"this run (preset {d.get('name')!r}) was trained with {k}={v!r}, a switch removed after "
+                              f"{REMOVED_AFTER} (its val result did not earn it a place; docs/canonical_ladder.md): "
+                              f"read or resume it with scapo at {REMOVED_AFTER}")
     d["encoder"] = EncoderConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d["encoder"].items()})
     loss = dict(d["losses"])
     loss["disabled"] = tuple(loss.get("disabled", ()))
@@ -258,13 +258,11 @@ class ScapoJob:
             self._load_split_labels(data)
         view = ("view_consist",) if pc.losses.view_consist > 0 else ()  # logged only where on (older logs' columns)
         view += ("template",) if pc.losses.template > 0 else ()
-        target = ("frame_target",) if pc.frame_target > 0 else ()
         stages = [Stage(index=1, epochs=pc.stage1_epochs, lr=pc.lr_stage1, params=lambda: self._params(1),
                         losses=lambda batch, progress: self._losses(1, batch), terms=STAGE1_TERMS + view),
                   Stage(index=2, epochs=pc.stage2_epochs, lr=pc.lr_stage2, params=lambda: self._params(2),
-                        losses=lambda batch, progress: self._losses(2, batch), terms=STAGE2_TERMS + view + target,
-                        on_start=lambda: self._init_template(data),
-                        on_epoch=(lambda epoch: self._relabel(data, epoch)) if pc.relabel else None)]
+                        losses=lambda batch, progress: self._losses(2, batch), terms=STAGE2_TERMS + view,
+                        on_start=lambda: self._init_template(data))]
         cfg = FitConfig(batch_size=pc.batch_size, weight_decay=pc.weight_decay, min_lr=pc.min_lr,
                         grad_clip=pc.grad_clip, max_steps_per_epoch=pc.max_steps_per_epoch, seed=pc.seed,
                         order="shuffle", compile=pc.compile)
@@ -282,7 +280,6 @@ class ScapoJob:
             points = torch.cat([points, batch["pair_points"]])
         X, scale = SCAPOModel.normalize(points)
         return loss_terms(self.model, X, stage, pc.losses, sup, scale, pc.sup_weight, pairs=pairs,
-                          frame_target=batch.get("frame_target"), frame_weight=pc.frame_target,
                           frame=batch.get("frame_target") if pc.stage2_frame == "parts" else None)
 
     def _params(self, stage: int):
@@ -383,53 +380,27 @@ class ScapoJob:
         ``split_frame = "refit"`` (with ``stage2_frame = "parts"``): once the target frames are found, the starting
         split is fitted again (:meth:`_init_parts`, keypoint and joint heads included) on the clouds ``idx (64,)``
         (every ``step``-th point) that :meth:`_init_template` fitted it on, now canonicalised by their target frames,
-        every cloud is labelled by it in its target frame, and the targets are read again from those labels.
-
-        ``TrainConfig.label_stride`` ``s`` > 1: each cloud's stage-1 frame is read from every ``s``-th of its
-        (normalised) points and the template's part motions are fitted on those points
-        (:func:`scapo.models.part_init.label_clouds` ``fit_stride``); every point is still labelled."""
+        every cloud is labelled by it in its target frame, and the targets are read again from those labels."""
         from scapo.models import part_init
 
         template = self.model.y_base.detach().cpu()
-        stride = int(self.preset.label_stride)
         canon, frames = [], []
         self.model.eval()
         for k in range(0, len(data), 64):
             X, _ = SCAPOModel.normalize(data.clouds[k:k + 64].to(self.device))
-            enc = self.model.frame(X[:, ::stride])
+            enc = self.model.frame(X)
             R = apply_branch(enc.R, self.model.branch, self.model.branch_flip)
             canon.append(((X - enc.t[:, None]) @ R).cpu())
             frames.append(R.cpu())
         self.model.train()
         canon = torch.cat(canon)
-        starts = None
-        if self.preset.label_starts and self.preset.label_starts != "A":
-            from scapo.ops.groups import rotation_group
-
-            starts = torch.tensor(rotation_group(self.preset.label_starts), dtype=template.dtype)
-
-        def joints(split: torch.Tensor):  # label_starts="A": each child part also from turns about its joint
-            if self.preset.label_starts != "A":
-                return None
-            return part_init.joint_turn_starts(template, split, self.mcfg.num_parts)
-
-        retried: list[dict] = []
-
         def label(split: torch.Tensor, clouds: torch.Tensor) -> torch.Tensor:
-            rec: dict = {}
-            out = part_init.label_clouds(template, split, clouds, self.mcfg.num_parts, starts=starts,
-                                         joint_starts=joints(split), retry=self.preset.label_retry, record=rec,
-                                         fit_stride=stride)
-            if rec:
-                retried.append(rec)
-                if self.dist.is_main:
-                    write_json(self.run / "label_retry.json", {"calls": retried})
-            return out
+            return part_init.label_clouds(template, split, clouds, self.mcfg.num_parts)
 
         labels = label(template_labels, canon)
         if self.preset.split_frame == "parts":
             labels = self._parts_frame_labels(template, template_labels, canon, labels)
-        if self.preset.frame_target > 0 or self.preset.stage2_frame == "parts":
+        if self.preset.stage2_frame == "parts":
             frames = torch.cat(frames)
             targets, pair, tE = self._frame_targets(template, template_labels, canon, frames, labels)
             if self.preset.split_frame == "refit" and tE is not None and idx is not None:
@@ -499,75 +470,10 @@ class ScapoJob:
         if self.dist.is_main:
             write_json(self.run / "axis_sweep.json", {"joints": found})
 
-    RELABEL = "relabel.json"
-
-    @property
-    def relabels_frames(self) -> bool:
-        """Whether :meth:`_relabel` reads the target frames again (``stage2_frame = "parts"`` and
-        ``relabel_frames``)."""
-        return self.preset.stage2_frame == "parts" and self.preset.relabel_frames
-
-    @torch.no_grad()
-    def _relabel(self, data: TrainingClouds, epoch: int) -> None:
-        """``TrainConfig.relabel``: before a stage-2 epoch of :func:`relabel_epochs`, every training cloud's
-        ``part_label`` ``(M, N)`` int64 becomes the argmax of the skinning weights the network predicts for it
-        (:meth:`SCAPOModel.passes` in eval mode with the preset's ``refine.stage2_starts``, as ``scapo predict``), and
-        with ``stage2_frame = "parts"`` (and ``relabel_frames``) its ``frame_target`` ``(M, 3, 3)`` the frame
-        :meth:`SCAPOModel.parts_frames` reads from those labels (a cloud whose base axes are not found keeps its
-        target). The result follows from the model's state at that epoch alone, so a run resumed there relabels the same
-        way; it replaces ``split_labels.npy`` (and ``frame_targets.npy``), and ``relabel.json`` in the run folder gets,
-        per relabelling, the share of points whose label changed, of clouds whose target moved by more than 15 / 90 deg,
-        and of clouds whose axes were not found (a run resumed at that epoch after the files were written compares
-        against the relabelled ones)."""
-        if epoch not in relabel_epochs(self.preset):
-            return
-        labels, frames = [], []
-        was = self.model.training
-        self.model.eval()
-        try:
-            for k in range(0, len(data), 64):
-                X, _ = SCAPOModel.normalize(data.clouds[k:k + 64].to(self.device))
-                out = self.model.passes(X, self.preset.refine.stage2_starts)
-                lab = out.w.argmax(-1)
-                labels.append(lab.cpu())
-                if self.relabels_frames:
-                    frames.append(self.model.parts_frames(X, lab).cpu())
-        finally:
-            self.model.train(was)
-        labels = torch.cat(labels).long()
-        before = data.tensors["part_label"]
-        row = {"stage": 2, "epoch": int(epoch), "clouds": int(len(labels)),
-               "labels_changed": round(float((labels != before).double().mean()), 4)}
-        data.tensors["part_label"] = labels
-        if self.relabels_frames:
-            old = data.tensors["frame_target"]
-            new = torch.cat(frames).to(old)
-            found = new.flatten(1).abs().sum(-1) > 0
-            had = old.flatten(1).abs().sum(-1) > 0
-            cos = (((new * old).sum((-2, -1)) - 1.0) / 2.0).clamp(-1.0, 1.0)
-            ang = torch.rad2deg(torch.arccos(cos))[found & had]
-            row.update({"not_found": round(float((~found).double().mean()), 4),
-                        "targets_moved_15_deg": round(float((ang > 15).double().mean()), 4) if len(ang) else None,
-                        "targets_moved_90_deg": round(float((ang > 90).double().mean()), 4) if len(ang) else None})
-            data.tensors["frame_target"] = torch.where(found[:, None, None], new, old)
-        if self.dist.is_main:
-            path = self.run / self.RELABEL
-            rows = []
-            if path.is_file():
-                try:
-                    rows = [r for r in json.loads(path.read_text()).get("relabel", []) if r.get("epoch") != epoch]
-                except (OSError, ValueError, AttributeError):
-                    rows = []  # a log only: a damaged one is written again
-            write_json(path, {"relabel": sorted(rows + [row], key=lambda r: r["epoch"])})
-            np.save(self.run / self.SPLIT_LABELS, labels.numpy().astype(np.int64), allow_pickle=False)
-            if self.relabels_frames:
-                np.save(self.run / self.FRAME_TARGETS, data.tensors["frame_target"].numpy().astype(np.float64),
-                        allow_pickle=False)
-
     def _frame_targets(self, template: torch.Tensor, template_labels: torch.Tensor, canon: torch.Tensor,
                        frames: torch.Tensor, labels: torch.Tensor
                        ) -> tuple[torch.Tensor, tuple[int, int] | None, torch.Tensor | None]:
-        """``TrainConfig.frame_target`` and ``stage2_frame = "parts"``: per training cloud the frame ``R_i E_i E_Y^T``
+        """``TrainConfig.stage2_frame = "parts"``: per training cloud the frame ``R_i E_i E_Y^T``
         ``(B, 3, 3)`` float32
         (canonical -> camera; all zeros where the cloud's or the template's signed axes are not found), from its
         stage-1 frame ``frames (B, 3, 3)``, its base's axes signed by its other parts in that frame ``E_i``
@@ -616,8 +522,7 @@ class ScapoJob:
         idx = np.flatnonzero(ok)
         q = torch.from_numpy(np.stack([local(pts[i], lab[i], E[i]) for i in idx])).to(canon.dtype)
         out = labels.clone()
-        out[torch.from_numpy(idx)] = part_init.label_clouds(tpl, template_labels, q, self.mcfg.num_parts,
-                                                            fit_stride=int(self.preset.label_stride))
+        out[torch.from_numpy(idx)] = part_init.label_clouds(tpl, template_labels, q, self.mcfg.num_parts)
         if self.dist.is_main:
             write_json(self.run / "split_frame.json", {"signed_ranks": list(pair), "clouds": int(len(pts)),
                                                        "found": int(ok.sum()),
@@ -626,7 +531,7 @@ class ScapoJob:
 
     def _load_split_labels(self, data: TrainingClouds) -> None:
         """On a resume inside stage 2, the pseudo-labels :meth:`_label_training_clouds` saved (nothing before it ran),
-        and with ``frame_target`` the target frames.
+        and with ``stage2_frame = "parts"`` the target frames.
 
         Raises:
             DatasetError: a file is unreadable or does not match the training clouds."""
@@ -647,7 +552,7 @@ class ScapoJob:
 
     def _load_frame_targets(self, data: TrainingClouds) -> None:
         path = self.run / self.FRAME_TARGETS
-        if (self.preset.frame_target <= 0 and self.preset.stage2_frame != "parts") or not path.is_file():
+        if self.preset.stage2_frame != "parts" or not path.is_file():
             return
         try:
             T = np.load(path, allow_pickle=False)  # plain numbers: no code runs from the file
@@ -771,21 +676,13 @@ class ScapoJob:
         return out
 
 
-def relabel_epochs(preset: TrainConfig) -> list[int]:
-    """The stage-2 epochs (0-based) before which :meth:`ScapoJob._relabel` relabels the training clouds:
-    ``preset.relabel`` of them, ``round(k E / (relabel + 1))`` for ``k = 1..relabel`` with ``E = preset.stage2_epochs``
-    (epoch 0, where the starting pseudo-labels are made, and repeats dropped)."""
-    n, E = preset.relabel, preset.stage2_epochs
-    return sorted({round(k * E / (n + 1)) for k in range(1, n + 1)} - {0})
-
-
 def _signed_frames(template: torch.Tensor, template_labels: torch.Tensor, pts: np.ndarray, lab: np.ndarray,
                    min_points: int = 8, axes: str = "pca") -> tuple:
     """The base axes signed by the other parts (:mod:`scapo.ops.signed_axes`, base = slot 0) of the stage-1-frame
     clouds ``pts (B, N, 3)`` float64 under ``lab (B, N)`` and of ``template (M, 3)`` under ``template_labels (M,)``,
     with the two signed ranks chosen over the clouds: ``(pair, E (B, 3, 3), ok (B,) bool, E_Y (3, 3))``; ``pair``
     and ``E_Y`` None (``ok`` all False) when no cloud has enough points of the base and of the other parts, or the
-    template's axes are not found (``split_frame = "parts"``, ``frame_target``, ``stage2_frame = "parts"``).
+    template's axes are not found (``split_frame = "parts"``, ``stage2_frame = "parts"``).
     ``axes``: how the base's directions are found (``TrainConfig.parts_axes``)."""
     from scapo.ops import signed_axes
 
