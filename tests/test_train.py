@@ -397,10 +397,6 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
         get_preset("test/split-labels")
     with pytest.raises(ConfigError, match="cannot be combined"):
         dataclasses.replace(get_preset("cpu/split-labels"), supervision="S")
-    from scapo.models.train import _check
-
-    with pytest.raises(ConfigError, match="split_labels"):
-        _check(dataclasses.replace(p, losses=dataclasses.replace(p.losses, view_consist=0.1)), {}, 100)
     stored = json.loads((tmp_path / "t" / "run.json").read_text())["preset"]
     assert stored["axis_init"] == "turn" and stored["split_init"] == "fit"
     found = json.loads((tmp_path / "t" / "split_init.json").read_text())
@@ -414,7 +410,7 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
         assert _identity_hash(older) == _identity_hash(ident)
     # switches removed since (REMOVED_FIELDS): a run trained at their off value keeps its identity and loads; one
     # trained with one on is refused, naming the commit that still reads it
-    from scapo.models.train import REMOVED_AFTER, REMOVED_FIELDS, preset_from_dict
+    from scapo.models.train import LOSS_REMOVED_FIELDS, REMOVED_AFTER, REMOVED_FIELDS, preset_from_dict
 
     older = json.loads(json.dumps(ident))
     older["preset"].update(REMOVED_FIELDS)  # as written while the switches existed
@@ -422,6 +418,10 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     assert preset_from_dict(older["preset"]) == get_preset("test")
     with pytest.raises(ConfigError, match=f"relabel=1, a switch removed after {REMOVED_AFTER}"):
         preset_from_dict({**older["preset"], "relabel": 1})
+    older["preset"]["losses"].update(LOSS_REMOVED_FIELDS)
+    assert _identity_hash(older) == _identity_hash(ident) and preset_from_dict(older["preset"]) == get_preset("test")
+    with pytest.raises(ConfigError, match="losses.view_consist=1.0"):
+        preset_from_dict({**older["preset"], "losses": {**older["preset"]["losses"], "view_consist": 1.0}})
     with pytest.raises(UnknownNameError, match="frame-target"):
         get_preset("cpu/split-fit/split-labels/frame-target")
     assert _identity_hash({**ident, "preset": dataclasses.asdict(p)}) != _identity_hash(ident)

@@ -14,7 +14,6 @@ from scapo.losses.scapo_losses import (
     consensus_rotation_loss,
     cross_instance_alignment_loss,
     cross_space_loss,
-    cross_view_loss,
     cycle_loss,
     dir_align_loss,
     gaussian_part_labels,
@@ -47,15 +46,6 @@ class LossConfig:
     align_in_stage2: bool = False
     """Keep the cross-instance alignment during stage 2. Off: it holds the whole-object frame and, on
     a laptop, tilts the learned hinge axis (see results/cpu_preset_history.md)."""
-    aug_crop: bool = False
-    """``L_aug_consist``'s re-sampled copy is a half-space crop of the cloud (the points beyond a random plane, the same
-    ``keep`` fraction) instead of a uniform random subset, so that the frame must not depend on which part of the object
-    a view shows (:func:`~scapo.losses.scapo_losses.augmentation_consistency_loss`; an addition to the paper for
-    partial views, from the ladder's finding that the frame spreads across one object's views; off by default)."""
-    view_consist: float = 0.0
-    """Weight of ``L_view`` (:func:`~scapo.losses.scapo_losses.cross_view_loss`): two views of one training instance
-    must agree on its canonical frame; batches are then made of pairs of views of one instance (which views share an
-    object is the cue; an addition to the paper for partial views, 0 switches it off)."""
     template: float = 0.0
     """Weight of ``L_template`` in stage 1 (:func:`~scapo.losses.scapo_losses.template_loss`): every decoded canonical
     shape is pulled to one learnable category template in metres (``SCAPOModel.template_s1``), from the first step, so
@@ -118,16 +108,14 @@ class LossConfig:
 
 
 def stage1_terms(model, X: torch.Tensor, s1: Stage1Output, cfg: LossConfig | None = None, align: bool = True,
-                 scale: torch.Tensor | None = None, pairs: int = 0) -> dict[str, torch.Tensor]:
+                 scale: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """Unweighted stage-1 loss terms (the two consistency terms use half of the batch, for speed).
-    ``align`` False leaves out the cross-instance alignment term; ``consensus`` is computed when
-    ``cfg`` gives it a positive weight; ``view_consist`` when it has a positive weight and the batch holds ``pairs``
-    pairs of views of one instance (``scale (B,)``: the clouds' normalisation; :func:`cross_view_loss`)."""
+    ``align`` False leaves out the cross-instance alignment term; ``consensus`` and ``template`` are computed when
+    ``cfg`` gives them a positive weight (``scale (B,)``: the clouds' normalisation, which ``template`` needs)."""
     terms = {
         "rec": reconstruction_loss(X, s1.X_rec, one_sided=cfg is not None and cfg.rec_one_sided),
         "ortho": orthonormality_loss(s1.enc.R_raw),
-        "aug_consist": augmentation_consistency_loss(model, X, s1, max_batch=max(2, X.shape[0] // 2),
-                                                     crop=cfg is not None and cfg.aug_crop),
+        "aug_consist": augmentation_consistency_loss(model, X, s1, max_batch=max(2, X.shape[0] // 2)),
         "can_consist": canonical_consistency_loss(model, s1.S_dec[: max(2, X.shape[0] // 2)]),
     }
     if align:
@@ -136,8 +124,6 @@ def stage1_terms(model, X: torch.Tensor, s1: Stage1Output, cfg: LossConfig | Non
         if scale is None:
             raise ValueError("stage1_terms: L_template needs the clouds' scale (B,)")
         terms["template"] = template_loss(s1.S_dec, scale, model.template_s1)
-    if cfg is not None and cfg.weight("view_consist") > 0 and pairs > 0:
-        terms["view_consist"] = cross_view_loss(X, scale, s1, pairs)
     if cfg is not None and cfg.weight("consensus") > 0:
         enc = s1.enc
         terms["consensus"], _ = consensus_rotation_loss(X, enc.t, enc.R_raw, enc.R,
@@ -193,8 +179,7 @@ def weighted_total(terms: dict[str, torch.Tensor], cfg: LossConfig, stage: int) 
     total = 0.0
     for name, value in terms.items():
         w = cfg.weight(name)
-        if stage == 2 and name in ("rec", "ortho", "aug_consist", "can_consist", "align", "consensus", "view_consist",
-                                   "template"):
+        if stage == 2 and name in ("rec", "ortho", "aug_consist", "can_consist", "align", "consensus", "template"):
             w *= cfg.stage1_in_stage2
         total = total + w * value
     return total

@@ -34,38 +34,6 @@ def reconstruction_loss(X: torch.Tensor, X_rec: torch.Tensor, one_sided: bool = 
     return chamfer_distance(X, X_rec).mean()
 
 
-def cross_view_loss(X: torch.Tensor, scale: torch.Tensor, s1: Stage1Output, pairs: int) -> torch.Tensor:
-    """``L_view``: two views of one object must agree on its canonical frame (an addition to the paper, switch
-    ``LossConfig.view_consist``; the ladder's finding that SCAPO's frame spreads more across the views of one object
-    than across objects, ``results/canonical_ladder/frame_spread.md``). The batch holds ``pairs`` pairs: cloud ``i``
-    and cloud ``i + pairs`` (``i < pairs``) are views of one training instance (which views share an object is the
-    only cue; their relative pose is not given). Each view's points, brought into the canonical frame by its own
-    predicted pose, must lie on the other view's decoded canonical shape: the one-sided Chamfer distance from
-    ``R_b^T (X_b - t_b)`` (in metres ``s_b R_b^T (X_b - t_b)``, rescaled to ``a``'s normalised units) to ``S_dec_a``,
-    both ways, mean over pairs. One-sided: the other view's reconstruction is the whole shape, of which this view
-    shows a part.
-
-    Args:
-        X: ``(2 P + E, N, 3)`` normalised clouds (``SCAPOModel.normalize``: metres / ``scale``); the first ``2 P``
-            are the pairs. scale: ``(2 P + E,)`` their normalisation (metres). s1: the stage-1 output of ``X``.
-        pairs: ``P >= 1``.
-
-    Returns:
-        A scalar (normalised units squared).
-
-    Raises:
-        ValueError: ``pairs`` < 1 or more than the batch holds."""
-    if pairs < 1 or 2 * pairs > X.shape[0]:
-        raise ValueError(f"cross_view_loss needs 1 <= pairs <= batch / 2, got {pairs} for a batch of {X.shape[0]}")
-    R, t, S = s1.enc.R, s1.enc.t, s1.S_dec
-    canon = (X - t[:, None]) @ R  # R^T (x - t) as rows: (B, N, 3), each in its own normalised units
-    a, b = slice(0, pairs), slice(pairs, 2 * pairs)
-    ratio = scale[b] / scale[a]  # b's units -> a's units
-    b_in_a = canon[b] * ratio[:, None, None]
-    a_in_b = canon[a] / ratio[:, None, None]
-    return 0.5 * (nearest_sq_dist(b_in_a, S[a]).mean() + nearest_sq_dist(a_in_b, S[b]).mean())
-
-
 def template_loss(S_dec: torch.Tensor, scale: torch.Tensor, template: torch.Tensor) -> torch.Tensor:
     """``L_template``: the Chamfer distance between each decoded canonical shape and one shared category template (an
     addition to the paper, switch ``LossConfig.template``). The template is in metres (the clouds' normalised units
@@ -95,13 +63,11 @@ def orthonormality_loss(R_raw: torch.Tensor) -> torch.Tensor:
 
 
 def augmentation_consistency_loss(model, X: torch.Tensor, s1: Stage1Output, keep: float = 0.75,
-                                  max_batch: int | None = None, crop: bool = False) -> torch.Tensor:
+                                  max_batch: int | None = None) -> torch.Tensor:
     """``L_aug_consist``: a re-sampled (a random ``keep`` fraction of the points), randomly rotated
     and translated copy ``X' = Q X_sub + u`` must give the same canonical shape and the
     correspondingly moved pose: ``CD(S, S') + ||R' - Q R||^2 + ||t' - (Q t + u)||^2``.
-    ``max_batch`` limits the term to the first clouds of the batch (cost). ``crop``: the subset is the ``keep``
-    fraction of points farthest along a random direction (a half-space crop: another part of the object in view,
-    :func:`crop_indices`) instead of a uniform random subset."""
+    ``max_batch`` limits the term to the first clouds of the batch (cost)."""
     if max_batch is not None and max_batch < X.shape[0]:
         enc = s1.enc
         s1 = Stage1Output(EncoderOutput(enc.t[:max_batch], enc.R_raw[:max_batch], enc.R[:max_batch],
@@ -110,7 +76,7 @@ def augmentation_consistency_loss(model, X: torch.Tensor, s1: Stage1Output, keep
         X = X[:max_batch]
     B, N, _ = X.shape
     n = max(16, int(keep * N))
-    idx = crop_indices(X, n) if crop else torch.rand(B, N, device=X.device).argsort(dim=1)[:, :n]
+    idx = torch.rand(B, N, device=X.device).argsort(dim=1)[:, :n]
     sub = X.gather(1, idx.unsqueeze(-1).expand(B, n, 3))
     Q = random_rotation(B, X.dtype).to(X.device)
     u = 0.2 * torch.randn(B, 3, dtype=X.dtype, device=X.device)
@@ -121,16 +87,6 @@ def augmentation_consistency_loss(model, X: torch.Tensor, s1: Stage1Output, keep
     loss = loss + ((ea.R_raw - Q @ e.R_raw) ** 2).sum((1, 2))
     loss = loss + ((ea.t - ((Q @ e.t.unsqueeze(-1)).squeeze(-1) + u)) ** 2).sum(-1)
     return loss.mean()
-
-
-def crop_indices(X: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
-    """Indices ``(B, n)`` int64 of a half-space crop of each cloud ``X (B, N, 3)``: its ``n`` points farthest along a
-    random unit direction (uniform on the sphere, drawn per cloud), i.e. the points beyond a plane."""
-    B, N, _ = X.shape
-    d = torch.randn(B, 3, generator=generator, dtype=X.dtype).to(X.device)
-    d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    along = ((X - X.mean(1, keepdim=True)) * d[:, None]).sum(-1)  # (B, N)
-    return along.argsort(dim=1, descending=True)[:, :n]
 
 
 def cross_instance_alignment_loss(X: torch.Tensor, t: torch.Tensor, R: torch.Tensor, points: int = 96,

@@ -37,7 +37,7 @@ STAGE2_TERMS = ("recon", "kp_seg", "seg", "shape_var", "dir_align", "joint_prox"
 
 
 def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict | None = None,
-               scale: torch.Tensor | None = None, sup_weight: float = 1.0, pairs: int = 0,
+               scale: torch.Tensor | None = None, sup_weight: float = 1.0,
                frame: torch.Tensor | None = None) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
     """One forward pass of a training step on normalised clouds ``X (B, N, 3)``: the unweighted loss
     terms of ``stage`` (1: stage-1 terms; 2: stage-1 and stage-2 terms) and their weighted total
@@ -46,13 +46,11 @@ def loss_terms(model: SCAPOModel, X: torch.Tensor, stage: int, losses, sup: dict
     ``sup``: in the semi-supervised setting (:mod:`scapo.losses.supervised`), the batch's labels:
     ``part_label (B, N)`` and / or ``joint_axis``, ``joint_pivot (B, J, 3)`` (camera frame, metres;
     ``scale (B,)`` is the normalisation of ``X``); stage 2 then adds ``sup_seg`` (NLL of the skinning
-    weights) and ``sup_joint`` (the camera-frame joints), weighted by ``sup_weight``. ``pairs``: the first
-    ``2 pairs`` clouds are pairs of views of one instance (cloud ``i`` and ``i + pairs``) for ``L_view``
-    (``LossConfig.view_consist``; ``scale`` needed). ``frame (B, 3, 3)``: stage 2's frames (canonical -> camera)
-    where not all zeros (``TrainConfig.stage2_frame = "parts"``,
+    weights) and ``sup_joint`` (the camera-frame joints), weighted by ``sup_weight``. ``frame (B, 3, 3)``: stage 2's
+    frames (canonical -> camera) where not all zeros (``TrainConfig.stage2_frame = "parts"``,
     :meth:`~scapo.models.scapo_model.SCAPOModel.stage2`)."""
     out = model(X, stage=stage) if stage == 1 or frame is None else model(X, stage=stage, frame=frame)
-    terms = stage1_terms(model, X, out, losses, align=stage == 1 or losses.align_in_stage2, scale=scale, pairs=pairs)
+    terms = stage1_terms(model, X, out, losses, align=stage == 1 or losses.align_in_stage2, scale=scale)
     if stage == 2:
         terms.update(stage2_terms(model, X, out, losses))
     total = weighted_total(terms, losses, stage)
@@ -92,43 +90,6 @@ class TrainingClouds(CloudSet):
         arrays = ds.arrays(["points", *fields])
         super().__init__({"points": torch.from_numpy(arrays["points"]).float(),
                           **{k: torch.from_numpy(arrays[k]) for k in fields}}, points)
-        self.instance = torch.tensor([k[0] for k in ds.keys()], dtype=torch.long)
-
-
-class PairedClouds(TrainingClouds):
-    """:class:`TrainingClouds` whose sample ``i`` also holds ``pair_points (n, 3)``: a random subset of another
-    view of the same training instance (itself where the instance has one view), drawn from :attr:`generator`
-    (else torch's global RNG): the pairs of ``L_view`` (``LossConfig.view_consist``)."""
-
-    def __init__(self, data: str | Path, points: int, supervision: str = ""):
-        super().__init__(data, points, supervision)
-        self.index_instances()
-
-    def index_instances(self) -> None:
-        """Group the samples by :attr:`instance` ``(M,)`` (for :meth:`partner`)."""
-        order = torch.argsort(self.instance, stable=True)
-        uniq, counts = torch.unique_consecutive(self.instance[order], return_counts=True)
-        starts = torch.cumsum(counts, 0) - counts
-        slot = torch.searchsorted(uniq, self.instance)
-        self._order, self._start, self._count = order, starts[slot], counts[slot]
-
-    def partner(self, i: int) -> int:
-        """A random other sample of ``i``'s instance (``i`` where it has no other)."""
-        n, start = int(self._count[i]), int(self._start[i])
-        if n < 2:
-            return i
-        views = self._order[start:start + n]
-        r = int(torch.randint(n - 1, (1,), generator=self.generator))
-        own = int((views == i).nonzero()[0])
-        return int(views[r + (r >= own)])
-
-    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        item = super().__getitem__(i)
-        j = self.partner(i)
-        N = self.tensors["points"].shape[1]
-        idx = torch.randperm(N, generator=self.generator)[: self.points]
-        item["pair_points"] = self.tensors["points"][j, idx]
-        return item
 
 
 def labelled_centroids(K: torch.Tensor, template: torch.Tensor, template_labels: torch.Tensor | None,
@@ -171,10 +132,12 @@ ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "lab
 #: continued or read by this code (:func:`preset_from_dict` says which commit still can)
 REMOVED_FIELDS = {"relabel": 0, "relabel_frames": True, "frame_target": 0.0, "label_starts": "", "label_retry": 0.0,
                   "label_stride": 1}
+#: the same for the preset's LossConfig
+LOSS_REMOVED_FIELDS = {"aug_crop": False, "view_consist": 0.0}
 #: the last commit with :data:`REMOVED_FIELDS`
 REMOVED_AFTER = "bd34536"
 #: the same for fields added to the preset's LossConfig
-LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False, "aug_crop": False, "view_consist": 0.0,
+LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False,
                      "template": 0.0}
 #: the same for fields added to the preset's EncoderConfig
 ENCODER_ADDED_FIELDS = {"frame": "regressed", "residual_deg": 0.0}
@@ -192,7 +155,8 @@ def _training_identity(identity: dict) -> dict:
               and not (k in REMOVED_FIELDS and v == REMOVED_FIELDS[k])}
     if isinstance(preset.get("losses"), dict):
         preset["losses"] = {k: v for k, v in preset["losses"].items()
-                            if not (k in LOSS_ADDED_FIELDS and v == LOSS_ADDED_FIELDS[k])}
+                            if not (k in LOSS_ADDED_FIELDS and v == LOSS_ADDED_FIELDS[k])
+                            and not (k in LOSS_REMOVED_FIELDS and v == LOSS_REMOVED_FIELDS[k])}
     if isinstance(preset.get("encoder"), dict):
         preset["encoder"] = {k: v for k, v in preset["encoder"].items()
                              if not (k in ENCODER_ADDED_FIELDS and v == ENCODER_ADDED_FIELDS[k])}
@@ -217,6 +181,12 @@ def preset_from_dict(d: dict) -> TrainConfig:
                               f"read or resume it with scapo at {REMOVED_AFTER}")
     d["encoder"] = EncoderConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d["encoder"].items()})
     loss = dict(d["losses"])
+    for k, off in LOSS_REMOVED_FIELDS.items():
+        v = loss.pop(k, off)
+        if v != off:
+            raise ConfigError(f"this run (preset {d.get('name')!r}) was trained with losses.{k}={v!r}, a switch "
+                              f"removed after {REMOVED_AFTER} (its val result did not earn it a place; "
+                              f"docs/canonical_ladder.md): read or resume it with scapo at {REMOVED_AFTER}")
     loss["disabled"] = tuple(loss.get("disabled", ()))
     d["losses"] = LossConfig(**loss)
     d["refine"] = refine_from_dict(d.get("refine"))  # runs from before the refinement existed: off
@@ -252,12 +222,10 @@ class ScapoJob:
         """The engine's :class:`~scapo.engine.TrainJob`: both stages, their epochs and learning rates from the
         preset."""
         pc = self.preset
-        data = (PairedClouds if pc.losses.view_consist > 0 else TrainingClouds)(self.data, pc.train_points,
-                                                                                 pc.supervision)
+        data = TrainingClouds(self.data, pc.train_points, pc.supervision)
         if pc.split_labels:
             self._load_split_labels(data)
-        view = ("view_consist",) if pc.losses.view_consist > 0 else ()  # logged only where on (older logs' columns)
-        view += ("template",) if pc.losses.template > 0 else ()
+        view = ("template",) if pc.losses.template > 0 else ()  # logged only where on (older logs' columns)
         stages = [Stage(index=1, epochs=pc.stage1_epochs, lr=pc.lr_stage1, params=lambda: self._params(1),
                         losses=lambda batch, progress: self._losses(1, batch), terms=STAGE1_TERMS + view),
                   Stage(index=2, epochs=pc.stage2_epochs, lr=pc.lr_stage2, params=lambda: self._params(2),
@@ -273,13 +241,9 @@ class ScapoJob:
 
     def _losses(self, stage: int, batch: dict) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         pc = self.preset
-        sup = {k: v for k, v in batch.items() if k not in ("points", "pair_points", "frame_target")}  # labels
-        points, pairs = batch["points"], 0
-        if "pair_points" in batch:  # L_view: the batch's clouds, then their partner views (cloud i, i + B)
-            pairs = points.shape[0]
-            points = torch.cat([points, batch["pair_points"]])
-        X, scale = SCAPOModel.normalize(points)
-        return loss_terms(self.model, X, stage, pc.losses, sup, scale, pc.sup_weight, pairs=pairs,
+        sup = {k: v for k, v in batch.items() if k not in ("points", "frame_target")}  # labels
+        X, scale = SCAPOModel.normalize(batch["points"])
+        return loss_terms(self.model, X, stage, pc.losses, sup, scale, pc.sup_weight,
                           frame=batch.get("frame_target") if pc.stage2_frame == "parts" else None)
 
     def _params(self, stage: int):
@@ -712,9 +676,8 @@ def _check(preset: TrainConfig, card: dict, clouds: int) -> None:
     one canonical training cloud (``part_init``) or from the union of up to 64 (:meth:`ScapoJob._init_template`).
 
     Raises:
-        ConfigError: more template points than that cloud or union has; pairs of views (``losses.view_consist``) with
-            labels (a supervised setting or ``split_labels``), which cover the first view of each pair only;
-            ``split_overseg`` clusters fewer than the category's parts."""
+        ConfigError: more template points than that cloud or union has; ``split_overseg`` clusters fewer than the
+            category's parts."""
     from scapo.errors import ConfigError
 
     parts = len(card.get("part_names", ()))
@@ -722,12 +685,6 @@ def _check(preset: TrainConfig, card: dict, clouds: int) -> None:
         raise ConfigError(f"split_overseg {preset.split_overseg} clusters cannot be grouped into the {parts} parts of "
                           f"{card.get('category', 'this category')}; set split_overseg to at least {parts} (or 0: off)")
 
-    if preset.losses.view_consist > 0 and preset.supervision:
-        raise ConfigError("losses.view_consist (pairs of views) and a supervised setting cannot be combined yet: the "
-                          "labels cover the first view of each pair only; train one of them")
-    if preset.losses.view_consist > 0 and preset.split_labels:
-        raise ConfigError("losses.view_consist (pairs of views) and split_labels cannot be combined yet: the "
-                          "pseudo-labels cover the first view of each pair only; train one of them")
     have = preset.train_points * (1 if preset.part_init else min(64, clouds))
     if preset.stage2_epochs > 0 and preset.template_points > have:
         raise ConfigError(f"template_points {preset.template_points} exceeds the {have} points stage 2 samples its "
