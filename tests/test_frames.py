@@ -1,6 +1,5 @@
-"""SCAPO's stage-1 frame switches: the hypothesis set of frames (``anchors``), the principal-axes frame
-(``encoder.frame=principal``) and the one-sided reconstruction term (``losses.rec_one_sided``), each on a
-hand-built case."""
+"""SCAPO's stage-1 frame switches: the hypothesis set of frames (``anchors``) and the principal-axes frame
+(``encoder.frame=principal``), each on a hand-built case."""
 
 from __future__ import annotations
 
@@ -10,7 +9,6 @@ import math
 import pytest
 import torch
 
-from scapo.losses.scapo_losses import reconstruction_loss
 from scapo.models.scapo_model import ModelConfig, SCAPOModel
 from scapo.nn.encoder import EncoderConfig, EncoderOutput, principal_frame
 from scapo.ops.groups import random_rotation, rotation_group
@@ -53,18 +51,6 @@ def test_without_anchors_the_frame_is_the_encoders():
         ModelConfig(num_parts=2, joint_types=(0,), joint_parts=((0, 1),), anchors="X")
 
 
-def test_one_sided_reconstruction_ignores_an_unseen_half():
-    """The reconstruction holds a whole box; the input is its visible half. The one-sided term is zero (every input
-    point lies on the reconstruction); the two-sided Chamfer distance charges the unseen half."""
-    g = torch.Generator().manual_seed(0)
-    whole = torch.rand(1, 400, 3, generator=g) - 0.5
-    seen = whole[:, whole[0, :, 0] < 0]  # the half facing the camera
-    assert reconstruction_loss(seen, whole, one_sided=True).item() == pytest.approx(0.0, abs=1e-10)
-    assert reconstruction_loss(seen, whole).item() > 1e-3
-    # a reconstruction that misses the seen points is still charged
-    assert reconstruction_loss(seen, whole + 1.0, one_sided=True).item() > 0.5
-
-
 def test_principal_frame_is_equivariant_and_right_handed():
     X = _skewed_cloud(300).repeat(4, 1, 1)
     Q = random_rotation(4, torch.float32, torch.Generator().manual_seed(2))
@@ -104,7 +90,7 @@ def test_older_runs_keep_their_identity():
 
     d = dataclasses.asdict(get_preset("cpu"))
     ident = _training_identity({"preset": d})["preset"]
-    assert "anchors" not in ident and "rec_one_sided" not in ident["losses"] and "frame" not in ident["encoder"]
+    assert "anchors" not in ident and "seg_labels" not in ident["losses"] and "frame" not in ident["encoder"]
     on = dataclasses.asdict(dataclasses.replace(get_preset("cpu"), anchors="O"))
     assert _training_identity({"preset": on})["preset"]["anchors"] == "O"
 

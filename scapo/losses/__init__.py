@@ -51,9 +51,6 @@ class LossConfig:
     shape is pulled to one learnable category template in metres (``SCAPOModel.template_s1``), from the first step, so
     that a persistent shape, not each view's own decoding, decides the frame (an addition to the paper, testing
     the hypothesis that stage 2's template arrives after the frame is fixed; 0 switches it off)."""
-    rec_one_sided: bool = False
-    """Stage 1's ``L_rec`` from the input to the reconstruction only (:func:`reconstruction_loss`; an addition to the
-    paper for partial views, Li et al.'s partial setting; preset part ``one-sided``)."""
     consensus: float = 0.0
     """Batch-consensus frame pseudo-label in stage 1 (an addition to the paper; 0 switches it off)."""
     consensus_small_deg: float = 25.0
@@ -113,7 +110,7 @@ def stage1_terms(model, X: torch.Tensor, s1: Stage1Output, cfg: LossConfig | Non
     ``align`` False leaves out the cross-instance alignment term; ``consensus`` and ``template`` are computed when
     ``cfg`` gives them a positive weight (``scale (B,)``: the clouds' normalisation, which ``template`` needs)."""
     terms = {
-        "rec": reconstruction_loss(X, s1.X_rec, one_sided=cfg is not None and cfg.rec_one_sided),
+        "rec": reconstruction_loss(X, s1.X_rec),
         "ortho": orthonormality_loss(s1.enc.R_raw),
         "aug_consist": augmentation_consistency_loss(model, X, s1, max_batch=max(2, X.shape[0] // 2)),
         "can_consist": canonical_consistency_loss(model, s1.S_dec[: max(2, X.shape[0] // 2)]),

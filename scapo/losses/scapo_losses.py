@@ -23,14 +23,8 @@ EPS = 1e-8
 
 
 # ------------------------------------------------------------------------------ stage 1
-def reconstruction_loss(X: torch.Tensor, X_rec: torch.Tensor, one_sided: bool = False) -> torch.Tensor:
-    """``L_rec``: Chamfer distance between the input ``X (B, N, 3)`` and ``R S_dec + t (B, M, 3)`` (paper Eq. 1).
-
-    ``one_sided``: only the input's side, ``mean_x min_y |x - y|^2`` (an addition to the paper, switch
-    ``LossConfig.rec_one_sided``): a partial view does not show the reconstruction's unseen side, so that side is not
-    penalised (Li et al., NeurIPS 2021, dragonlong/equi-pose, its partial-input setting)."""
-    if one_sided:
-        return trimmed_one_sided_chamfer(X, X_rec, 1.0).mean()
+def reconstruction_loss(X: torch.Tensor, X_rec: torch.Tensor) -> torch.Tensor:
+    """``L_rec``: Chamfer distance between the input ``X (B, N, 3)`` and ``R S_dec + t (B, M, 3)`` (paper Eq. 1)."""
     return chamfer_distance(X, X_rec).mean()
 
 

@@ -133,12 +133,11 @@ ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "lab
 REMOVED_FIELDS = {"relabel": 0, "relabel_frames": True, "frame_target": 0.0, "label_starts": "", "label_retry": 0.0,
                   "label_stride": 1}
 #: the same for the preset's LossConfig
-LOSS_REMOVED_FIELDS = {"aug_crop": False, "view_consist": 0.0}
+LOSS_REMOVED_FIELDS = {"aug_crop": False, "view_consist": 0.0, "rec_one_sided": False}
 #: the last commit with :data:`REMOVED_FIELDS`
 REMOVED_AFTER = "bd34536"
 #: the same for fields added to the preset's LossConfig
-LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "rec_one_sided": False,
-                     "template": 0.0}
+LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "template": 0.0}
 #: the same for fields added to the preset's EncoderConfig
 ENCODER_ADDED_FIELDS = {"frame": "regressed", "residual_deg": 0.0}
 
