@@ -342,7 +342,7 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     from scapo.models.train import _identity_hash
 
     p = dataclasses.replace(get_preset("test/axis-turn/split-fit"), part_init=True, split_labels=True,
-                            split_frame="parts", stage2_frame="parts")
+                            stage2_frame="parts")
     assert p.axis_init == "turn" and get_preset("test").axis_init == "motion"
     assert p.split_init == "fit" and get_preset("test").split_init == "rigid"
     trainer = Trainer(laptop_data, tmp_path / "t", p, progress=False)
@@ -367,9 +367,7 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
         M = trainer.job.mcfg.template_points
         assert 0 <= int(z["sample"]) < len(saved) and z["points"].shape == z["labels"].shape == (M,)
         assert 0 <= z["points"].min() and z["points"].max() < data.clouds.shape[1] and 0 <= z["labels"].min()
-        assert len(np.unique(z["points"])) == M and "labels_refit" not in z.files  # split_frame="parts": no refit
-    made = json.loads((tmp_path / "t" / "split_frame.json").read_text())  # split_frame: each cloud's own frame
-    assert len(made["signed_ranks"]) == 2 and 0 <= made["found"] <= made["clouds"] == len(saved)
+        assert len(np.unique(z["points"])) == M and "labels_refit" not in z.files  # split_frame="stage1": no refit
     # stage2_frame="parts": each cloud's target frame (a rotation, or zeros where none) saved, logged, read back or
     # refused
     T = np.load(tmp_path / "t" / "frame_targets.npy", allow_pickle=False)
@@ -392,7 +390,8 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
         dataclasses.replace(p, stage2_frame="nope")
     with pytest.raises(ConfigError, match="set split_labels"):
         dataclasses.replace(p, split_labels=False)
-    assert get_preset("cpu/split-fit/split-labels/split-parts").split_frame == "parts"
+    with pytest.raises(UnknownNameError, match="split-parts"):
+        get_preset("cpu/split-fit/split-labels/split-parts")
     with pytest.raises(ConfigError, match="needs part_init"):
         get_preset("test/split-labels")
     with pytest.raises(ConfigError, match="cannot be combined"):
@@ -418,6 +417,8 @@ def test_axis_turn_and_split_fit_are_preset_parts_that_train_and_leave_older_run
     assert preset_from_dict(older["preset"]) == get_preset("test")
     with pytest.raises(ConfigError, match=f"relabel=1, a switch removed after {REMOVED_AFTER}"):
         preset_from_dict({**older["preset"], "relabel": 1})
+    with pytest.raises(ConfigError, match="split_frame='parts', a setting removed"):
+        preset_from_dict({**older["preset"], "split_frame": "parts"})
     older["preset"]["losses"].update(LOSS_REMOVED_FIELDS)
     assert _identity_hash(older) == _identity_hash(ident) and preset_from_dict(older["preset"]) == get_preset("test")
     with pytest.raises(ConfigError, match="losses.view_consist=1.0"):

@@ -103,12 +103,8 @@ class TrainConfig:
     paper; preset part ``split-labels``, with ``split-fit`` the split it reads); stored in the run folder
     (``split_labels.npy``) so that a resumed run trains on the same ones."""
     split_frame: str = "stage1"
-    """The frame ``split_labels`` labels each training cloud in: "stage1", the cloud's stage-1 frame; "parts", the
-    cloud's base frame signed by its other parts (the base's principal axes, two of them signed towards the other
-    parts' centroid, :func:`scapo.ops.signed_axes.parts_signed_axes`, from the cloud's stage-1-frame labels), the
-    template likewise, so that a part's side (an eyeglasses temple's left or right) is the same in every cloud where
-    the stage-1 frames scatter between half-turned branches (an addition to the paper, preset part ``split-parts``);
-    "refit" (with ``stage2_frame = "parts"``), the split fitted again, keypoint and joint heads included, on the
+    """The frame ``split_labels`` labels each training cloud in: "stage1", the cloud's stage-1 frame; "refit" (with
+    ``stage2_frame = "parts"``), the split fitted again, keypoint and joint heads included, on the
     clouds in their ``stage2_frame`` target frames, the clouds labelled by it in those frames and the targets read
     again from those labels (:meth:`scapo.models.train.ScapoJob._label_training_clouds`; preset part
     ``split-refit``)."""
@@ -126,12 +122,12 @@ class TrainConfig:
     then needs to be right only up to the half-turned branches of a near-symmetric base. Needs ``split_labels``. An
     addition to the paper, preset part ``stage2-parts``."""
     parts_axes: str = "pca"
-    """With ``split_frame = "parts"`` or ``stage2_frame = "parts"``: how each cloud's (and the
-    template's) base directions are found before the other parts sign them
-    (:func:`scapo.ops.signed_axes.parts_signed_axes`): "pca" (default) the principal axes of all the points labelled
-    base; "plane" those of its points on their dominant plane (:func:`scapo.ops.signed_axes.plane_axes`), so that
-    points of a child part the labels give the base do not turn them (an addition to the paper, preset
-    part ``parts-plane``). Prediction uses the same (the model's ``parts_plane`` buffer)."""
+    """With ``stage2_frame = "parts"``: how each cloud's (and the template's) base directions are found before the
+    other parts sign them (:func:`scapo.ops.signed_axes.parts_signed_axes`): "pca" (default) the principal axes of all
+    the points labelled base; "plane" those of its points on their dominant plane
+    (:func:`scapo.ops.signed_axes.plane_axes`), so that points of a child part the labels give the base do not turn
+    them (an addition to the paper, preset part ``parts-plane``). Prediction uses the same (the model's
+    ``parts_plane`` buffer)."""
     grad_clip: float = 10.0
     """Global gradient-norm clip."""
     refine: RefineConfig = field(default_factory=RefineConfig)
@@ -182,8 +178,8 @@ class TrainConfig:
         if self.split_labels and "S" in str(self.supervision):
             raise ConfigError(f"preset {self.name!r}: split_labels (pseudo-labels) and segmentation supervision cannot "
                               "be combined: both train the skinning weights towards labels; choose one")
-        if self.split_frame not in ("stage1", "parts", "refit"):
-            raise ConfigError(f"preset {self.name!r}: split_frame must be 'stage1', 'parts' or 'refit', got "
+        if self.split_frame not in ("stage1", "refit"):
+            raise ConfigError(f"preset {self.name!r}: split_frame must be 'stage1' or 'refit', got "
                               f"{self.split_frame!r}")
         if self.split_frame == "refit" and self.stage2_frame != "parts":
             raise ConfigError(f"preset {self.name!r}: split_frame='refit' fits the split again in stage2_frame="
@@ -285,8 +281,8 @@ def get_preset(name: str) -> TrainConfig:
     frames; ``axis-fixed``: held there); a part ``split-fit`` finds stage 2's starting split by fitting the
     template to the clouds (``TrainConfig.split_init``; ``split-fitted``: only among the fits; ``split-overseg``: also
     from groupings of 6 template clusters, ``TrainConfig.split_overseg``) and ``split-labels`` trains stage 2 towards
-    that split's labels of every training cloud (``TrainConfig.split_labels``), ``split-parts`` makes those labels in
-    each cloud's parts-signed frame (``TrainConfig.split_frame``), ``stage2-parts`` makes stage 2 work in that frame
+    that split's labels of every training cloud (``TrainConfig.split_labels``), ``stage2-parts`` makes stage 2 work
+    in each cloud's parts-signed frame
     (``TrainConfig.stage2_frame``) and ``parts-plane`` finds the base's directions on its dominant plane
     (``TrainConfig.parts_axes``); a part ``epochs-A-B`` trains stage 1 for A epochs and stage 2 for B
     (:func:`scapo.registry.apply_schedule`; ``scapo bench table1 --budget-minutes``).
@@ -327,9 +323,6 @@ def get_preset(name: str) -> TrainConfig:
             continue
         if part == "split-labels":
             off["split_labels"] = True  # stage 2 trained towards its starting split's labels (TrainConfig.split_labels)
-            continue
-        if part == "split-parts":
-            off["split_frame"] = "parts"  # the pseudo-labels made in each cloud's parts-signed frame (split_frame)
             continue
         if part == "split-refit":
             off["split_frame"] = "refit"  # the split fitted again in the stage2_frame target frames (split_frame)

@@ -134,7 +134,10 @@ REMOVED_FIELDS = {"relabel": 0, "relabel_frames": True, "frame_target": 0.0, "la
                   "label_stride": 1}
 #: the same for the preset's LossConfig
 LOSS_REMOVED_FIELDS = {"aug_crop": False, "view_consist": 0.0, "rec_one_sided": False}
-#: the last commit with :data:`REMOVED_FIELDS`
+#: preset values removed likewise (``split_frame = "parts"``: the pseudo-labels made in each cloud's parts-signed
+#: frame, lower S on all three eyeglasses seeds)
+REMOVED_VALUES = {"split_frame": ("parts",)}
+#: the last commit with :data:`REMOVED_FIELDS` and :data:`REMOVED_VALUES`
 REMOVED_AFTER = "bd34536"
 #: the same for fields added to the preset's LossConfig
 LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "template": 0.0}
@@ -172,6 +175,11 @@ def preset_from_dict(d: dict) -> TrainConfig:
     Raises:
         ConfigError: the run was trained with a switch this code no longer has (:data:`REMOVED_FIELDS`) set."""
     d = dict(d)
+    for k, gone in REMOVED_VALUES.items():
+        if d.get(k) in gone:
+            raise ConfigError(f"this run (preset {d.get('name')!r}) was trained with {k}={d[k]!r}, a setting removed "
+                              f"after {REMOVED_AFTER} (its val result did not earn it a place; docs/canonical_ladder.md"
+                              f"): read or resume it with scapo at {REMOVED_AFTER}")
     for k, off in REMOVED_FIELDS.items():
         v = d.pop(k, off)
         if v != off:
@@ -361,8 +369,6 @@ class ScapoJob:
             return part_init.label_clouds(template, split, clouds, self.mcfg.num_parts)
 
         labels = label(template_labels, canon)
-        if self.preset.split_frame == "parts":
-            labels = self._parts_frame_labels(template, template_labels, canon, labels)
         if self.preset.stage2_frame == "parts":
             frames = torch.cat(frames)
             targets, pair, tE = self._frame_targets(template, template_labels, canon, frames, labels)
@@ -463,34 +469,6 @@ class ScapoJob:
                         "within_15_deg": round(float((ang <= 15).double().mean()), 4) if len(ang) else None,
                         "beyond_90_deg": round(float((ang > 90).double().mean()), 4) if len(ang) else None})
         return out, pair, tpl
-
-    def _parts_frame_labels(self, template: torch.Tensor, template_labels: torch.Tensor, canon: torch.Tensor,
-                            labels: torch.Tensor) -> torch.Tensor:
-        """``TrainConfig.split_frame = "parts"``: the pseudo-labels made again with every cloud and the template in
-        its own base frame signed by its other parts (:func:`scapo.ops.signed_axes.parts_signed_axes`, base = slot
-        0, from the stage-1-frame ``labels (B, N)``; the two signed ranks chosen over the clouds), centred on its
-        base's centroid. ``template (M, 3)``, ``template_labels (M,)``, ``canon (B, N, 3)`` stage-1-frame clouds ->
-        labels ``(B, N)`` int64. A cloud whose frame is not found keeps its stage-1-frame labels."""
-        from scapo.models import part_init
-
-        pts, lab = canon.double().numpy(), labels.numpy()
-        pair, E, ok, tE = _signed_frames(template, template_labels, pts, lab, axes=self.preset.parts_axes)
-        if tE is None or not ok.any():
-            return labels
-
-        def local(x: np.ndarray, lb: np.ndarray, e: np.ndarray) -> np.ndarray:
-            return (x - x[lb == 0].mean(0)) @ e
-
-        tpl = torch.from_numpy(local(template.double().numpy(), template_labels.numpy(), tE)).to(canon.dtype)
-        idx = np.flatnonzero(ok)
-        q = torch.from_numpy(np.stack([local(pts[i], lab[i], E[i]) for i in idx])).to(canon.dtype)
-        out = labels.clone()
-        out[torch.from_numpy(idx)] = part_init.label_clouds(tpl, template_labels, q, self.mcfg.num_parts)
-        if self.dist.is_main:
-            write_json(self.run / "split_frame.json", {"signed_ranks": list(pair), "clouds": int(len(pts)),
-                                                       "found": int(ok.sum()),
-                                                       "changed": round(float((out != labels).double().mean()), 4)})
-        return out
 
     def _load_split_labels(self, data: TrainingClouds) -> None:
         """On a resume inside stage 2, the pseudo-labels :meth:`_label_training_clouds` saved (nothing before it ran),
@@ -645,7 +623,7 @@ def _signed_frames(template: torch.Tensor, template_labels: torch.Tensor, pts: n
     clouds ``pts (B, N, 3)`` float64 under ``lab (B, N)`` and of ``template (M, 3)`` under ``template_labels (M,)``,
     with the two signed ranks chosen over the clouds: ``(pair, E (B, 3, 3), ok (B,) bool, E_Y (3, 3))``; ``pair``
     and ``E_Y`` None (``ok`` all False) when no cloud has enough points of the base and of the other parts, or the
-    template's axes are not found (``split_frame = "parts"``, ``stage2_frame = "parts"``).
+    template's axes are not found (``stage2_frame = "parts"``).
     ``axes``: how the base's directions are found (``TrainConfig.parts_axes``)."""
     from scapo.ops import signed_axes
 

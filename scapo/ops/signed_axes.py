@@ -1,7 +1,7 @@
 """The principal axes of a part signed by where the other parts lie (numpy; an addition to the paper).
 
 Used by SCAPO's prediction option ``base_frame=parts`` (:mod:`scapo.steps.base_frame`, which turns these
-``ValueError`` into ``scapo:`` input errors) and by its training switch ``TrainConfig.split_frame = "parts"``
+``ValueError`` into ``scapo:`` input errors) and by its training switch ``TrainConfig.stage2_frame = "parts"``
 (:mod:`scapo.models.train`). Measured in ``docs/canonical_ladder.md``, "The base's axes signed by the
 other parts".
 """
@@ -118,7 +118,7 @@ def children_agreement(points: np.ndarray, part_label: np.ndarray, slot: int = 0
 def choose_signed_pair(points: np.ndarray, part_label: np.ndarray, slot: int = 0,
                        min_points: int = 16, axes: str = "pca") -> tuple[int, int]:
     """The two ranks of the base's principal directions that ``base_frame=parts`` (:mod:`scapo.steps.base_frame`)
-    and ``TrainConfig.split_frame = "parts"`` sign (:func:`parts_signed_axes`), chosen on training views with no
+    and ``TrainConfig.stage2_frame = "parts"`` sign (:func:`parts_signed_axes`), chosen on training views with no
     labels. Where views show two or more other parts, the two ranks along which all the other parts lie on one side
     of the base in the most views (:func:`children_agreement`; the rule below chose an eyeglasses front's
     width, which the temples straddle, in 2 of 12 runs, and those runs' frames failed), unless the third rank ties the
@@ -159,7 +159,7 @@ def choose_signed_pair(points: np.ndarray, part_label: np.ndarray, slot: int = 0
 def parts_signed_axes(points: np.ndarray, part_label: np.ndarray, pair: tuple[int, int], slot: int = 0,
                       min_points: int = 16, axes: str = "pca") -> tuple[np.ndarray, np.ndarray]:
     """The base's principal axes with their signs from the other parts (``base_frame=parts``,
-    :mod:`scapo.steps.base_frame`; ``TrainConfig.split_frame = "parts"``).
+    :mod:`scapo.steps.base_frame`; ``TrainConfig.stage2_frame = "parts"``).
 
     Per view: the principal directions of the points labelled ``slot`` (largest variance first; with ``axes="plane"``
     those of its points on its dominant plane, :func:`plane_axes`); those of the ranks
