@@ -694,3 +694,14 @@ def test_a_speed_run_measured_on_a_busy_machine_is_set_aside_and_the_ladder_stop
     monkeypatch.setattr(perf, "bench_train_data", lambda *a, **k: [{**row, "wall_per_cpu": 1.05,
                                                                      "cpu_kind": cpu_kind()}])
     assert "npcs" in _training_presets(["npcs"], data, 0.05, "test", tmp_path) and path.is_file()
+    # a speed run of a fraction of a second of steps (a test preset's) is not held to the guard
+    from scapo.bench.ladder import MIN_GUARDED_CPU_S
+
+    path.unlink()
+    short = {**row, "wall_per_cpu": 2.03, "steps_cpu_s": MIN_GUARDED_CPU_S / 20, "cpu_kind": cpu_kind()}
+    monkeypatch.setattr(perf, "bench_train_data", lambda *a, **k: [short])
+    assert "npcs" in _training_presets(["npcs"], data, 0.05, "test", tmp_path) and path.is_file()
+    path.unlink()
+    monkeypatch.setattr(perf, "bench_train_data", lambda *a, **k: [{**short, "steps_cpu_s": MIN_GUARDED_CPU_S}])
+    with pytest.raises(ConfigError, match="measured on a busy machine"):
+        _training_presets(["npcs"], data, 0.05, "test", tmp_path)

@@ -179,12 +179,13 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
     each epoch adds around them (``stage<k>_epoch_s``: checkpoint, loss plot), and the run's one-time charged seconds
     (``fixed_s``, by phase in ``one_time_s``: set-up, stage starts such as SCAPO's stage-2 initialisation, the work
     after the last epoch such as EAP-style's joint estimation, the rest of the session), with the preset's schedule,
-    for :func:`training_budget`; on a CPU, ``wall_per_cpu``: the steps' wall over CPU seconds (about 1 when the run
-    had its core; more when other processes took it, which also slows each step's CPU time: see
-    :data:`scapo.bench.ladder.MAX_WALL_PER_CPU`). Needs ``steps * batch_size`` training clouds. Measure as the cells run
-    (one torch thread per core, the other core busy with the other chain). ``device`` (default: the preset's, the
-    CPU for the ``cpu`` presets) trains on that torch device (e.g. ``cuda``): its clouds/s there, for a budget in
-    minutes of that device. ``sets``: preset fields replaced first (``scapo train --set`` keys; a ladder variant).
+    for :func:`training_budget`; on a CPU, ``wall_per_cpu``: the steps' wall over CPU seconds (about 1 when the run had
+    its core; more when other processes took it, which also slows each step's CPU time: see
+    :data:`scapo.bench.ladder.MAX_WALL_PER_CPU`), and ``steps_cpu_s``, those CPU seconds. Needs ``steps * batch_size``
+    training clouds. Measure as the cells run (one torch thread per core, the other core busy with the other chain).
+    ``device`` (default: the preset's, the CPU for the ``cpu`` presets) trains on that torch device (e.g. ``cuda``): its
+    clouds/s there, for a budget in minutes of that device. ``sets``: preset fields replaced first (``scapo train
+    --set`` keys; a ladder variant).
 
     Raises:
         UnknownNameError: an unknown method or preset. ConfigError: a method that is not trained, ``steps < 2``,
@@ -238,6 +239,7 @@ def bench_train_data(data: str | Path, methods=None, preset: str = "cpu", steps:
         if ledger.get("unit") == "core-seconds" and sum(p["cpu_s"] for p in steps) > 0:
             # wall over CPU seconds of the steps: about 1 when the process had its core, more when it waited for one
             row["wall_per_cpu"] = round(sum(p["wall_s"] for p in steps) / sum(p["cpu_s"] for p in steps), 2)
+            row["steps_cpu_s"] = round(sum(p["cpu_s"] for p in steps), 2)
         one_time = {n: float(p["charged_s"]) for n, p in ledger["phases"].items()
                     if not (n.endswith("/steps") or n.endswith("/epochs"))}
         fixed = one_time_s(ledger)
