@@ -26,7 +26,7 @@ the fitted pose, joint states and segmentation. It is the same fit for every met
   metres); each observed point takes the part of its nearest fitted model point.
 
 Settings (:data:`TEST_TIME_REFINE`) are those of SCAPO's ``cpu`` preset refinement (20 steps, lr 0.06,
-octahedral starts, margin 0.15; chosen on the val split in earlier sessions, see
+octahedral starts, margin 0.15; chosen on the val split, see
 ``results/cpu_preset_history.md``) without its upright prior: Table 1's objects turn uniformly in SO(3), and a
 gravity cue would be a cue the one-pass rows are denied. Methods without a whole-object model (NPCS-style
 predicts coordinates of the observed points only; ICP is itself a template fit) do not take this step.
