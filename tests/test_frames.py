@@ -90,7 +90,7 @@ def test_older_runs_keep_their_identity():
 
     d = dataclasses.asdict(get_preset("cpu"))
     ident = _training_identity({"preset": d})["preset"]
-    assert "anchors" not in ident and "seg_labels" not in ident["losses"] and "frame" not in ident["encoder"]
+    assert "anchors" not in ident and "template" not in ident["losses"] and "frame" not in ident["encoder"]
     on = dataclasses.asdict(dataclasses.replace(get_preset("cpu"), anchors="O"))
     assert _training_identity({"preset": on})["preset"]["anchors"] == "O"
 

@@ -252,31 +252,6 @@ def test_cross_space_transform_with_root_motion_maps_input_parts_onto_template_p
     torch.testing.assert_close(T[:, 0], torch.eye(4, dtype=D).expand(2, 4, 4))
 
 
-def test_gaussian_part_labels_hold_a_small_door_on_a_large_body_where_nearest_keypoints_cannot():
-    """L_seg's two targets on a box body (1 x 1 x 0.6) with a thin round door flush on its front face: the
-    nearest keypoint (the paper) cuts the body by a plane; Gaussians fitted to the true split keep it."""
-    from scapo.losses.scapo_losses import gaussian_part_labels
-    from scapo.ops.chamfer import pairwise_sq_dist
-
-    g = torch.Generator().manual_seed(0)
-    body = torch.rand(600, 3, generator=g, dtype=torch.float64) * torch.tensor([1.0, 1.0, 0.6], dtype=torch.float64)
-    r = 0.25 * torch.rand(150, generator=g, dtype=torch.float64).sqrt()
-    phi = 2 * math.pi * torch.rand(150, generator=g, dtype=torch.float64)
-    door = torch.stack([0.5 + r * torch.cos(phi), 0.5 + r * torch.sin(phi),
-                        0.61 + 0.01 * torch.rand(150, generator=g, dtype=torch.float64)], -1)
-    pts = torch.cat([body, door])[None]
-    truth = torch.cat([torch.zeros(600, dtype=torch.long), torch.ones(150, dtype=torch.long)])[None]
-    w = torch.nn.functional.one_hot(truth, 2).to(pts.dtype) * 0.9 + 0.05  # a soft version of the true split
-    K = torch.stack([body.mean(0), door.mean(0)])[None]
-    nearest = pairwise_sq_dist(pts, K).argmin(-1)
-    gauss = gaussian_part_labels(pts, w)
-    assert gauss.shape == (1, 750) and gauss.dtype == torch.long
-    assert (nearest == truth).double().mean() < 0.85  # the plane halfway to the door takes the body's front
-    assert (gauss == truth).double().mean() > 0.97
-    y = seg_loss(pts, w, K, gauss)
-    assert torch.isfinite(y) and y < seg_loss(pts, w, K)  # the soft true split is nearer its Gaussian labels
-
-
 def test_nearest_sq_dist_gives_the_dense_mins_values_and_gradients():
     """``nearest_sq_dist`` (issue 30's speed rewrite: matches found without gradient, matched pairs recomputed)
     equals ``pairwise_sq_dist(a, b).min`` in value and in gradient, both directions, on clouds without ties."""

@@ -249,29 +249,6 @@ def test_a_resumed_run_keeps_its_logs_columns(laptop_data, tmp_path):
     assert list(log.columns) == old[0] and (log["stage"] == 2).any()
 
 
-def test_gaussian_seg_labels_are_a_preset_part_and_leave_older_runs_current(laptop_data, tmp_path):
-    """``/seg-gaussian`` trains with Gaussian L_seg targets; the new LossConfig field at its default is left
-    out of a run's identity, so runs trained before it existed stay current (their checkpoints fit)."""
-    import json
-
-    from scapo.models.presets import get_preset
-    from scapo.models.train import _identity_hash
-
-    p = get_preset("test/seg-gaussian")
-    assert p.losses.seg_labels == "gaussian" and get_preset("test").losses.seg_labels == "nearest"
-    Trainer(laptop_data, tmp_path / "g", p, progress=False).train()
-    assert json.loads((tmp_path / "g" / "run.json").read_text())["preset"]["name"] == "test/seg-gaussian"
-    ident = {"preset": dataclasses.asdict(get_preset("test")), "dataset_hash": "h", "category": "laptop",
-             "part_names": [], "joint_type": [], "joint_parts": []}
-    older = json.loads(json.dumps(ident))
-    del older["preset"]["losses"]["seg_labels"]  # as written before the field existed
-    assert _identity_hash(older) == _identity_hash(ident)
-    gauss = {**ident, "preset": dataclasses.asdict(p)}
-    assert _identity_hash(gauss) != _identity_hash(ident)
-    with pytest.raises(ValueError, match="seg_labels"):
-        dataclasses.replace(TEST.losses, seg_labels="nope")
-
-
 def test_set_on_an_existing_run_starts_from_the_runs_own_preset(laptop_data, finished_run, tmp_path):
     """``scapo train --set FIELD=VALUE`` on an existing run without ``--preset`` replaces a field of the run's own
     preset (``--preset``'s help: "default: an existing run's own preset, else cpu"), not of ``cpu``: an interrupted

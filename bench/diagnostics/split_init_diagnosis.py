@@ -12,7 +12,7 @@ the whole split, as the evaluator's S). Rows:
 - ``true centroids``: the true parts' centroids of the template as the keypoints (nearest keypoint), with the same
   rigidity score: whether the score prefers the true split;
 - ``per-cloud centroids, nearest keypoint``: each cloud's own true part centroids as its keypoints, each point to the
-  nearest: the target of the paper's ``L_seg`` at its best (``LossConfig.seg_labels = "nearest"``);
+  nearest: the target of the paper's ``L_seg`` at its best;
 - ``static Gaussian bones``: the skinning field's own form (:func:`scapo.nn.skinning.skinning_weights`) with one
   Gaussian bone per true part fitted to all clouds' points: the best any single split shared by every cloud reaches;
 - ``per-cloud Gaussian bones``: a bone per true part fitted to each cloud's own points: what the field reaches when its

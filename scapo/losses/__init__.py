@@ -16,7 +16,6 @@ from scapo.losses.scapo_losses import (
     cross_space_loss,
     cycle_loss,
     dir_align_loss,
-    gaussian_part_labels,
     joint_boundary_loss,
     joint_prox_loss,
     kp_seg_loss,
@@ -80,13 +79,6 @@ class LossConfig:
     the paper; False: the gradient reaches the centres too)."""
     stage1_in_stage2: float = 1.0
     """Multiplier of the stage-1 terms while training stage 2 end to end (0 freezes nothing but drops them)."""
-    seg_labels: str = "nearest"
-    """The targets ``y_i`` of ``L_seg``: "nearest", the one-hot of the nearest keypoint (the paper, Sec. 3.3), or
-    "gaussian", the one-hot of the most likely part under Gaussians fitted to the current soft segmentation
-    (:func:`~scapo.losses.scapo_losses.gaussian_part_labels`; an addition to the paper: a nearest-keypoint cell
-    of two parts is a half-space, which cannot hold a small door flush with a large body, see
-    ``bench/diagnostics/seg_ceiling.py``; preset suffix ``/seg-gaussian``)."""
-
     def __post_init__(self):
         from scapo.config import check_settings
 
@@ -97,8 +89,6 @@ class LossConfig:
         unknown = set(self.disabled) - set(REGULARISERS)
         if unknown:
             raise ValueError(f"unknown regularisers {sorted(unknown)}; known: {', '.join(REGULARISERS)}")
-        if self.seg_labels not in ("nearest", "gaussian"):
-            raise ValueError(f"seg_labels must be 'nearest' or 'gaussian', got {self.seg_labels!r}")
 
     def weight(self, name: str) -> float:
         return 0.0 if name in self.disabled else float(getattr(self, name))
@@ -150,11 +140,7 @@ def stage2_terms(model, X: torch.Tensor, out: SCAPOOutput, cfg: LossConfig) -> d
             w_star = skinning_weights(out.S_star.detach(), out.K_star.detach(), V, ls, g)[0]
         else:
             w, w_star = out.w, out.w_star
-        if cfg.seg_labels == "gaussian":  # targets from Gaussians fitted to the current soft split (no gradient)
-            y = gaussian_part_labels(out.S_obj, out.w)
-            terms["seg"] = seg_loss(out.S_obj, w, out.K, y) + seg_loss(out.S_star, w_star, out.K_star, y)
-        else:
-            terms["seg"] = seg_loss(out.S_obj, w, out.K) + seg_loss(out.S_star, w_star, out.K_star)
+        terms["seg"] = seg_loss(out.S_obj, w, out.K) + seg_loss(out.S_star, w_star, out.K_star)
     if "shape_var" in on:
         terms["shape_var"] = shape_var_loss(out.delta, cfg.lambda_var)
     if "dir_align" in on:

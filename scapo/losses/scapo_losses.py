@@ -193,44 +193,12 @@ def kp_seg_loss(points: torch.Tensor, w: torch.Tensor, K: torch.Tensor, min_supp
     return (mask * ((K - m) ** 2).sum(-1)).mean()
 
 
-def seg_loss(points: torch.Tensor, w: torch.Tensor, K: torch.Tensor, labels: torch.Tensor | None = None
-             ) -> torch.Tensor:
-    """``L_seg = 1/N sum_i ||w_i - y_i||^2`` with ``y_i`` the one-hot of the nearest keypoint (paper Sec. 3.3),
-    or of ``labels (B, N)`` int64 when given (e.g. :func:`gaussian_part_labels`). ``points (B, N, 3)``,
-    ``w (B, N, P)``, ``K (B, P, 3)``."""
-    if labels is None:
-        labels = pairwise_sq_dist(points, K).argmin(-1)
+def seg_loss(points: torch.Tensor, w: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """``L_seg = 1/N sum_i ||w_i - y_i||^2`` with ``y_i`` the one-hot of the nearest keypoint (paper Sec. 3.3).
+    ``points (B, N, 3)``, ``w (B, N, P)``, ``K (B, P, 3)``."""
+    labels = pairwise_sq_dist(points, K).argmin(-1)
     y = torch.nn.functional.one_hot(labels, K.shape[1]).to(w.dtype)
     return ((w - y) ** 2).sum(-1).mean()
-
-
-def gaussian_part_labels(points: torch.Tensor, w: torch.Tensor, floor: float = 1e-3, min_points: int = 8
-                         ) -> torch.Tensor:
-    """Most likely part of every point under one Gaussian per part fitted to the current split ``w``.
-
-    ``points (B, N, 3)``, ``w (B, N, P)`` soft weights -> int64 ``(B, N)``. Each point counts for the part of
-    its largest weight (hard membership: soft weights would smear a small part's Gaussian over the whole
-    object); per part the members' mean and covariance (plus ``floor`` times its mean variance on the
-    diagonal, so flat parts stay invertible), then every point goes to the part with the smallest Mahalanobis
-    distance plus log-determinant (equal part priors): the form of the paper's skinning field (Gaussian bones,
-    Sec. 3.2) used as ``L_seg``'s target. A cloud where some part has fewer than ``min_points`` members keeps
-    its ``argmax w`` labels. No gradient flows through it (it is a target).
-    """
-    with torch.no_grad():
-        P = w.shape[-1]
-        hard = w.argmax(-1)
-        m = torch.nn.functional.one_hot(hard, P).to(points.dtype)  # (B, N, P)
-        Np = m.sum(1)  # (B, P)
-        mu = torch.einsum("bnp,bni->bpi", m, points) / Np.clamp_min(1).unsqueeze(-1)
-        d = points.unsqueeze(2) - mu.unsqueeze(1)  # (B, N, P, 3)
-        cov = torch.einsum("bnp,bnpi,bnpj->bpij", m, d, d) / Np.clamp_min(1)[..., None, None]
-        eye = torch.eye(3, dtype=points.dtype, device=points.device)
-        scale = cov.diagonal(dim1=-2, dim2=-1).mean(-1).clamp_min(EPS)
-        cov = cov + (floor * scale)[..., None, None] * eye
-        maha = torch.einsum("bnpi,bpij,bnpj->bnp", d, torch.linalg.inv(cov), d)
-        labels = (maha + torch.linalg.slogdet(cov)[1].unsqueeze(1)).argmin(-1)
-        ok = (Np >= min_points).all(-1, keepdim=True)  # (B, 1)
-        return torch.where(ok, labels, hard)
 
 
 def shape_var_loss(delta: torch.Tensor, lam: float = 60.0) -> torch.Tensor:

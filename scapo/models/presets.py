@@ -273,8 +273,7 @@ def get_preset(name: str) -> TrainConfig:
     (:data:`ADDITIONS`, e.g. ``branch_flip``) set to False; its ``name`` is the full string, so runs
     and tables name the ablation. The paper's Table 3 rows are ``cpu/no-shape_var``, ``cpu/no-dir_align``,
     ``cpu/no-joint_prox`` and ``cpu/no-joint_boundary`` (or with ``paper``). A part ``sj`` (or ``s``, ``j``)
-    trains with those labels (``TrainConfig.supervision``, the paper's Table 2 setting), e.g. ``cpu/sj``; a
-    part ``seg-gaussian`` takes ``L_seg``'s targets from Gaussian parts (``LossConfig.seg_labels``); a part
+    trains with those labels (``TrainConfig.supervision``, the paper's Table 2 setting), e.g. ``cpu/sj``; a part
     ``principal`` (``no-principal``) reads stage 1's frame from principal axes with a hypothesis set
     (:data:`PRINCIPAL_ON`), or the paper's regressed frame; a part ``axis-turn`` starts stage 2's revolute axes from
     the parts' turns (``TrainConfig.axis_init``; ``axis-sweep``: from the children's sweep in the parts-signed
@@ -300,7 +299,6 @@ def get_preset(name: str) -> TrainConfig:
     cfg = apply_schedule(cfg, parsed, name)  # epochs-A-B: the two stages' epochs (a budget's schedule)
     disabled = list(cfg.losses.disabled)
     off = {}
-    seg_labels = cfg.losses.seg_labels
     if parsed.supervision:  # the semi-supervised setting of Table 2
         off["supervision"] = parsed.supervision
         off["label_init"] = "S" in parsed.supervision  # the template's parts in the labels' order
@@ -339,10 +337,8 @@ def get_preset(name: str) -> TrainConfig:
         if part == "parts-plane":
             off["parts_axes"] = "plane"  # the base's directions from the points on its plane (parts_axes)
             continue
-        if part != "seg-gaussian":
-            raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "
-                                   f"{', '.join(REGULARISERS + ADDITIONS)} (e.g. {parsed.base}/no-shape_var)")
-        seg_labels = "gaussian"  # L_seg's targets from Gaussian parts (LossConfig.seg_labels; our addition)
+        raise UnknownNameError(f"unknown preset {name!r}: {part!r} is not 'no-TERM' with TERM one of "
+                               f"{', '.join(REGULARISERS + ADDITIONS)} (e.g. {parsed.base}/no-shape_var)")
     for term in parsed.disabled:
         if term == "principal":
             principal = PRINCIPAL_OFF
@@ -358,8 +354,7 @@ def get_preset(name: str) -> TrainConfig:
     if principal is not None:
         off["encoder"] = replace(cfg.encoder, frame=principal["frame"])
         off["anchors"] = principal["anchors"]
-    return replace(cfg, name=str(name), losses=replace(cfg.losses, disabled=tuple(disabled), seg_labels=seg_labels),
-                   **off)
+    return replace(cfg, name=str(name), losses=replace(cfg.losses, disabled=tuple(disabled)), **off)
 
 
 #: The parts of ``cpu`` that make SCAPO's per-category preset for eyeglasses (``cpu-eyeglasses``): stage 2's split

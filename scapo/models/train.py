@@ -133,14 +133,14 @@ ADDED_FIELDS = {"branch_flip": False, "supervision": "", "sup_weight": 1.0, "lab
 REMOVED_FIELDS = {"relabel": 0, "relabel_frames": True, "frame_target": 0.0, "label_starts": "", "label_retry": 0.0,
                   "label_stride": 1}
 #: the same for the preset's LossConfig
-LOSS_REMOVED_FIELDS = {"aug_crop": False, "view_consist": 0.0, "rec_one_sided": False}
+LOSS_REMOVED_FIELDS = {"aug_crop": False, "view_consist": 0.0, "rec_one_sided": False, "seg_labels": "nearest"}
 #: preset values removed likewise (``split_frame = "parts"``: the pseudo-labels made in each cloud's parts-signed
 #: frame, lower S on all three eyeglasses seeds)
 REMOVED_VALUES = {"split_frame": ("parts",)}
 #: the last commit with :data:`REMOVED_FIELDS` and :data:`REMOVED_VALUES`
 REMOVED_AFTER = "bd34536"
 #: the same for fields added to the preset's LossConfig
-LOSS_ADDED_FIELDS = {"seg_labels": "nearest", "template": 0.0}
+LOSS_ADDED_FIELDS = {"template": 0.0}
 #: the same for fields added to the preset's EncoderConfig
 ENCODER_ADDED_FIELDS = {"frame": "regressed", "residual_deg": 0.0}
 
