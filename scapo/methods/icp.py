@@ -326,7 +326,7 @@ class ICPBaseline:
         cell -= cell.min(0)
         key_id = (hyp * (cell[:, 0].max() + 1) + cell[:, 0]) * (cell[:, 1].max() + 1) + cell[:, 1]
         z = p[:, 2]
-        order = np.argsort(key_id + 0.5 * (z - z.min()) / (np.ptp(z) + 1e-12))  # by cell, then nearest first
+        order = np.lexsort((z, key_id))  # by cell, then nearest first
         key_id = key_id[order]
         first = np.ones(len(order), dtype=bool)
         first[1:] = key_id[1:] != key_id[:-1]
