@@ -169,31 +169,35 @@ def _identity_hash(obj: dict) -> str:
     return hashlib.sha256(json.dumps(_training_identity(obj), sort_keys=True, default=str).encode()).hexdigest()
 
 
+def _drop_removed(fields: dict, removed: dict, name, prefix: str = "") -> dict:
+    """``fields`` without the :data:`REMOVED_FIELDS`-style entries ``removed`` (name -> off value) at their off value.
+
+    Raises:
+        ConfigError: one of them is set to another value (the run needs the commit that still reads it)."""
+    fields = dict(fields)
+    for k, off in removed.items():
+        v = fields.pop(k, off)
+        if v != off:
+            raise ConfigError(f"this run (preset {name!r}) was trained with {prefix}{k}={v!r}, a switch removed after "
+                              f"{REMOVED_AFTER} (its val result did not earn it a place; docs/canonical_ladder.md): "
+                              f"read or resume it with scapo at {REMOVED_AFTER}")
+    return fields
+
+
 def preset_from_dict(d: dict) -> TrainConfig:
     """The :class:`TrainConfig` of a run's stored preset (``run.json``, a checkpoint's identity).
 
     Raises:
-        ConfigError: the run was trained with a switch this code no longer has (:data:`REMOVED_FIELDS`) set."""
-    d = dict(d)
+        ConfigError: the run was trained with a switch or setting this code no longer has (:data:`REMOVED_FIELDS`,
+            :data:`LOSS_REMOVED_FIELDS`, :data:`REMOVED_VALUES`)."""
     for k, gone in REMOVED_VALUES.items():
         if d.get(k) in gone:
             raise ConfigError(f"this run (preset {d.get('name')!r}) was trained with {k}={d[k]!r}, a setting removed "
                               f"after {REMOVED_AFTER} (its val result did not earn it a place; docs/canonical_ladder.md"
                               f"): read or resume it with scapo at {REMOVED_AFTER}")
-    for k, off in REMOVED_FIELDS.items():
-        v = d.pop(k, off)
-        if v != off:
-            raise ConfigError(f"this run (preset {d.get('name')!r}) was trained with {k}={v!r}, a switch removed after "
-                              f"{REMOVED_AFTER} (its val result did not earn it a place; docs/canonical_ladder.md): "
-                              f"read or resume it with scapo at {REMOVED_AFTER}")
+    d = _drop_removed(d, REMOVED_FIELDS, d.get("name"))
     d["encoder"] = EncoderConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d["encoder"].items()})
-    loss = dict(d["losses"])
-    for k, off in LOSS_REMOVED_FIELDS.items():
-        v = loss.pop(k, off)
-        if v != off:
-            raise ConfigError(f"this run (preset {d.get('name')!r}) was trained with losses.{k}={v!r}, a switch "
-                              f"removed after {REMOVED_AFTER} (its val result did not earn it a place; "
-                              f"docs/canonical_ladder.md): read or resume it with scapo at {REMOVED_AFTER}")
+    loss = _drop_removed(d["losses"], LOSS_REMOVED_FIELDS, d.get("name"), "losses.")
     loss["disabled"] = tuple(loss.get("disabled", ()))
     d["losses"] = LossConfig(**loss)
     d["refine"] = refine_from_dict(d.get("refine"))  # runs from before the refinement existed: off

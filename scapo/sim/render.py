@@ -13,6 +13,7 @@ sampling and assembles the ground truth with the field names of SPEC section 5.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import Counter
 from dataclasses import dataclass, field
@@ -140,8 +141,6 @@ class ViewConfig:
 
         Raises:
             ConfigError: an unknown field, or a contradiction (see the class)."""
-        import dataclasses
-
         fields = dict(fields)
         if "random_rotation" in fields:
             if fields.pop("random_rotation"):
@@ -160,8 +159,6 @@ class ViewConfig:
         """The JSON form of a dataset's config (``GenerateConfig.to_dict``): the setting is written as datasets made
         before :attr:`viewpoints` was a field wrote it (``random_rotation``; the Euler ranges only for ``paper``),
         so that their config hashes hold and they resume; :meth:`with_fields` reads it back."""
-        import dataclasses
-
         d = dataclasses.asdict(self)
         d["random_rotation"] = d.pop("viewpoints") == "sphere"
         if d["object_euler_deg"] is None:
