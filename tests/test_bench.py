@@ -63,6 +63,7 @@ def test_tables_figures_and_per_cell_provenance(bench):
         assert (out / f"table1_synthetic_sphere.{suffix}").stat().st_size > 0
     assert (out / "table1_synthetic_sphere_laptop.png").stat().st_size > 4_000  # drawn (a blank 256-colour PNG is about 1 KB)
     assert (out / "table1_synthetic_sphere_errors.png").stat().st_size > 4_000  # drawn (a blank 256-colour PNG is about 1 KB)
+    assert (out / "table1_synthetic_sphere_summary.png").stat().st_size > 4_000  # the table at a glance
     prov = json.loads((out / "table1_synthetic_sphere.json").read_text())["provenance"]
     assert prov["preset"] == "test" and prov["protocol"] == "scapo" and prov["training_seeds"] == {"laptop": [0]}
     assert len(prov["datasets"]["laptop"]) == 16

@@ -286,3 +286,42 @@ def test_the_bootstrap_resamples_test_instances_not_views():
     many = [1.0] * 40
     pair = pairwise_bootstrap([result("a", many), result("b", [0.0] * 40)], draws=400)["metrics"]["S"][0]
     assert pair["supported"] and pair["better"] == "a"
+
+
+def test_summary_figure_bars_are_seed_means_with_the_papers_values(tmp_path):
+    """The at-a-glance figure's bars: per row and category the mean over training seeds with their std (ddof 1),
+    a category mean over the rows present in every category; the paper's Table 1 values come from its CSV for the
+    rows a method re-implements (NPCS-style: NPCS-EPN), the "mean" over our categories only."""
+    from scapo.bench.experiments import summary_paper_rows
+    from scapo.bench.viz import summary_bars, summary_figure
+    from scapo.eval.tables import paper_values
+
+    rng = np.random.default_rng(3)
+    res = [_synthetic_result(m, cat, seed, S, 20.0, rng)
+           for m, base in (("scapo", 80.0), ("npcs", 60.0)) for cat in ("laptop", "eyeglasses")
+           for seed, S in zip((0, 1, 2), (base, base + 4, base + 8))]
+    bars = summary_bars(res)
+    row = bars[(bars.method == "scapo") & (bars.category == "laptop") & (bars.metric == "S")].iloc[0]
+    seeds = [r.summary["S"] for r in res if r.method == "scapo" and r.category == "laptop"]
+    assert row["mean"] == pytest.approx(np.mean(seeds)) and row["std"] == pytest.approx(np.std(seeds, ddof=1))
+    assert row["values"] == pytest.approx(tuple(seeds))
+    mean = bars[(bars.method == "npcs") & (bars.category == "mean") & (bars.metric == "R_median")].iloc[0]["mean"]
+    per_cat = bars[(bars.method == "npcs") & (bars.category != "mean") & (bars.metric == "R_median")]["mean"]
+    assert mean == pytest.approx(per_cat.mean())
+
+    rows = summary_paper_rows("table1", ["scapo", "npcs", "scapo+refine", "unknown"])
+    assert rows == {"scapo": "SCAPO", "npcs": "NPCS-EPN"}  # a +refine row is not the paper's method
+    paper = paper_values("table1", rows, ["laptop", "eyeglasses"])
+    assert paper["scapo"]["S"] == {"laptop": 93.41, "eyeglasses": 68.19, "mean": pytest.approx((93.41 + 68.19) / 2)}
+    assert "S" not in paper["npcs"] and paper["npcs"]["R"]["laptop"] == 8.07  # the paper gives NPCS-EPN no S
+    assert paper_values("table3", {"scapo": "full"}, ["laptop", "eyeglasses"]) == {}  # its mean is of five
+    five = ["laptop", "safe", "eyeglasses", "oven", "washer"]
+    assert paper_values("table3", summary_paper_rows("table3", ["scapo-no-shape_var"]), five) == {
+        "scapo-no-shape_var": {"S": {"mean": 80.15}, "D": {"mean": 10.63}, "C": {"mean": 0.175}}}
+    with pytest.raises(ValueError, match="table1 and table3"):
+        paper_values("table2", rows, five)
+
+    out = summary_figure(res, tmp_path / "t_summary.png", names={"scapo": "SCAPO (ours)"}, paper=paper)
+    assert out.is_file() and out.stat().st_size > 10_000
+    with pytest.raises(ValueError, match="no results"):
+        summary_bars([])

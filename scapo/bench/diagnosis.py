@@ -140,8 +140,8 @@ def run_diagnosis(argv, doc: str, script: str, score, render, options: Sequence[
     """The ``main`` of a diagnosis over predictions files: parse its command line (:func:`diagnosis_args` with its own
     ``options``), ``check(args)`` (a message for a bad option, or None), score every file (``score(args, predictions)
     -> row``, :func:`score_files`), ``render(args, rows, card) -> Markdown lines`` and write them with the command line
-    ``python bench/<script> ...`` (:func:`finish_diagnosis`). Returns the exit status: 0, or 2 after a ``scapo:``
-    message (missing inputs, a bad option, a file that cannot be scored or written)."""
+    ``python bench/diagnostics/<script> ...`` (:func:`finish_diagnosis`). Returns the exit status: 0, or 2 after a
+    ``scapo:`` message (missing inputs, a bad option, a file that cannot be scored or written)."""
     parsed = diagnosis_args(argv, doc.split("\n\n")[0], options)
     if parsed is None:
         return 2
@@ -154,5 +154,5 @@ def run_diagnosis(argv, doc: str, script: str, score, render, options: Sequence[
     if scored is None:
         return 2
     rows, card = scored
-    command = f"python bench/{script} " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = f"python bench/diagnostics/{script} " + " ".join(sys.argv[1:] if argv is None else argv)
     return finish_diagnosis(a, preds, render(a, rows, card), rows, card, command)

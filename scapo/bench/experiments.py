@@ -690,6 +690,42 @@ def _figures(cells, results, work, instances, views, data_seed, protocol, out_di
     return paths
 
 
+#: The tables that get the at-a-glance figure (``<name>_summary.png``, :func:`scapo.bench.viz.summary_figure`) with
+#: the paper's values marked (:func:`scapo.eval.tables.paper_values`): Table 2's paper columns are other metrics.
+SUMMARY_TABLES = ("table1", "table3")
+
+
+def summary_paper_rows(table: str, labels: Sequence[str]) -> dict[str, str]:
+    """Our row labels -> the paper's row of ``table`` (:func:`scapo.eval.tables.paper_values`): Table 1, a method's
+    ``paper_row`` (:class:`scapo.methods.registry.MethodEntry`; one-pass rows only: a ``+refine`` row is not the
+    paper's method); Table 3, the ablation's variant (:data:`scapo.eval.tables.TABLE3_VARIANTS`)."""
+    from scapo.eval.tables import TABLE3_VARIANTS
+
+    if table == "table3":
+        return {k: TABLE3_VARIANTS[k][0] for k in labels if k in TABLE3_VARIANTS}
+    return {k: METHODS.get(k).paper_row for k in labels if k in METHODS and METHODS.get(k).paper_row}
+
+
+def _with_summary(write, table: str, out_dir, name: str):
+    """``write`` followed by the table's at-a-glance figure of the test-split results (``<name>_summary.png``)."""
+    def write_all(results, done, prov):
+        from scapo.bench.viz import summary_figure
+        from scapo.eval.tables import TABLE3_VARIANTS, paper_values
+
+        paths = write(results, done, prov)
+        test = [r for r in results if r.split == "test"]
+        if test:
+            labels = list(dict.fromkeys(r.method for r in test))
+            cats = list(dict.fromkeys(r.category for r in test))
+            names = ({k: TABLE3_VARIANTS[k][1] for k in labels if k in TABLE3_VARIANTS} if table == "table3" else
+                     {k: (describe(k) or (k,))[0] for k in labels})
+            paths.append(summary_figure(test, Path(out_dir) / f"{name}_summary.png", names=names,
+                                        paper=paper_values(table, summary_paper_rows(table, labels), cats)))
+        return paths
+
+    return write_all
+
+
 #: The paper's Table 2 categories (OP-Align's real data), rendered from our procedural objects.
 TABLE2_CATEGORIES = ("basket", "drawer", "laptop", "scissors", "suitcase")
 #: Trained methods that also get a semi-supervised row ("SJ", as the paper's Table 2 trains OP-Align and SCAPO).
@@ -934,6 +970,8 @@ def run_table(table: str | TableSpec, methods: Sequence[str] | None = None, cate
     else:
         def write(results, done, prov):
             return write_table(results, opts.out_dir, prov, name=name)
+    if spec.key in SUMMARY_TABLES and opts.figures:
+        write = _with_summary(write, spec.key, opts.out_dir, name)
     return _bench(spec.title, cells, methods, categories, write, opts.instances, opts.views, opts.data_seed,
                   opts.work_dir, opts.out_dir, opts.preset, opts.protocol or spec.protocol, opts.workers,
                   opts.cache_dir, opts.dry_run, opts.progress, opts.device, opts.finished_only, data,

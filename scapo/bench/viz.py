@@ -269,3 +269,112 @@ def error_distribution_figure(results, path: str | Path, names: dict | None = No
     atomic_savefig(fig, Path(path), dpi=90)
     plt.close(fig)
     return Path(path)
+
+
+#: The at-a-glance figure's panels (:func:`summary_figure`): an :class:`~scapo.eval.EvalResult` summary key, the
+#: paper's metric marked on it (:func:`scapo.eval.tables.paper_values`) and the panel's axis label. The paper reports
+#: R as a mean only; its value is marked on the median R panel and the legend says so.
+SUMMARY_METRICS = (("S", "S", "S: segmentation mIoU (%)"), ("R_median", "R", "median part rotation error R (deg)"))
+
+
+def summary_bars(results, metrics=tuple(k for k, _, _ in SUMMARY_METRICS)):
+    """The bars of :func:`summary_figure`: per row (a results' ``method`` label), category and metric, the mean over
+    the row's training seeds (one :class:`~scapo.eval.EvalResult` per seed and category), their standard deviation
+    (``ddof=1``; NaN for one seed) and the seeds' values; then per row and metric the category ``"mean"``: the mean
+    over the categories of the per-category means (std NaN), for a row present in every category of ``results``.
+
+    Returns:
+        ``pandas.DataFrame`` with columns ``method, category, metric, mean, std, values`` (``values``: a tuple of
+        floats, one per seed, in the results' order), rows in the results' order of methods and categories.
+
+    Raises:
+        ValueError: no results."""
+    import pandas as pd
+
+    if not results:
+        raise ValueError("no results to plot")
+    cats = list(dict.fromkeys(r.category for r in results))
+    methods = list(dict.fromkeys(r.method for r in results))
+    rows = []
+    for m in methods:
+        for metric in metrics:
+            means = []
+            for c in cats:
+                vals = np.array([float(r.summary.get(metric, np.nan)) for r in results
+                                 if r.method == m and r.category == c], dtype=np.float64)
+                vals = vals[np.isfinite(vals)]
+                if vals.size == 0:
+                    continue
+                means.append(float(vals.mean()))
+                rows.append(dict(method=m, category=c, metric=metric, mean=means[-1],
+                                 std=float(vals.std(ddof=1)) if vals.size > 1 else float("nan"),
+                                 values=tuple(float(v) for v in vals)))
+            if len(means) == len(cats) and len(cats) > 1:
+                rows.append(dict(method=m, category="mean", metric=metric, mean=float(np.mean(means)),
+                                 std=float("nan"), values=()))
+    return pd.DataFrame(rows, columns=["method", "category", "metric", "mean", "std", "values"])
+
+
+def summary_figure(results, path: str | Path, names: dict | None = None, paper: dict | None = None,
+                   title: str | None = None) -> Path:
+    """A table at a glance: one panel per metric of :data:`SUMMARY_METRICS` (S, median R), per category (and their
+    mean) a group of bars, one per row: the mean over its training seeds, the seeds' standard deviation as an error
+    bar and each seed as a dot (:func:`summary_bars`). The paper's value of a row, where ``paper`` gives one, is a
+    black diamond on its bar (its R is the paper's mean R: the paper reports no median).
+
+    Args:
+        results: :class:`~scapo.eval.EvalResult` list (one per row, category and training seed; the test split).
+        path: PNG to write. names: row label -> display name.
+        paper: row label -> the paper's metric (``"S"``, ``"R"``) -> category (or ``"mean"``) -> the paper's value
+            (:func:`scapo.eval.tables.paper_values`).
+        title: the figure's title (default: what the bars are).
+
+    Raises:
+        OutputError: unwritable ``path``. ValueError: no results.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    bars = summary_bars(results)
+    check_output_file(path, "figure", "summary.png")
+    names, paper = dict(names or {}), dict(paper or {})
+    cats = list(dict.fromkeys(bars["category"]))
+    methods = list(dict.fromkeys(bars["method"]))
+    width = 0.8 / max(len(methods), 1)
+    fig, axes = plt.subplots(len(SUMMARY_METRICS), 1, squeeze=False, figsize=(
+        min(14.0, max(6.0, 2.0 + 0.4 * len(cats) * len(methods))), 2.8 * len(SUMMARY_METRICS)))
+    marked = False
+    for row, (metric, paper_metric, label) in enumerate(SUMMARY_METRICS):
+        ax = axes[row, 0]
+        for i, m in enumerate(methods):
+            color = PART_COLORS[i % len(PART_COLORS)]
+            for c, cat in enumerate(cats):
+                hit = bars[(bars.method == m) & (bars.category == cat) & (bars.metric == metric)]
+                x = c + (i - (len(methods) - 1) / 2) * width
+                if len(hit):
+                    b = hit.iloc[0]
+                    ax.bar(x, b["mean"], width * 0.9, color=color, alpha=0.85,
+                           yerr=None if np.isnan(b["std"]) else b["std"], capsize=2, error_kw=dict(lw=0.8),
+                           label=names.get(m, m) if c == 0 and row == 0 else None)
+                    if b["values"]:
+                        ax.plot([x] * len(b["values"]), b["values"], ".", color="0.2", ms=3)
+                p = paper.get(m, {}).get(paper_metric, {}).get(cat)
+                if p is not None and np.isfinite(p):
+                    ax.plot(x, p, "D", color="black", ms=4, label=None if marked else
+                            "the paper's value (R: its mean; it reports no median)")
+                    marked = True
+        ax.set_xticks(range(len(cats)))
+        ax.set_xticklabels(cats, fontsize=8)
+        ax.set_ylabel(label, fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(axis="y", color="0.9", lw=0.6)
+        ax.set_axisbelow(True)
+    fig.legend(loc="lower center", ncol=min(len(methods) + int(marked), 6), fontsize=7)
+    fig.suptitle(title or "Test split: bars the mean over training seeds, error bars their std, dots the seeds",
+                 fontsize=9)
+    fig.tight_layout(rect=(0, 0.08, 1, 0.95))
+    atomic_savefig(fig, Path(path), dpi=90)
+    plt.close(fig)
+    return Path(path)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from importlib import resources
 from pathlib import Path
 
@@ -99,6 +99,46 @@ def paper_table(name: str) -> pd.DataFrame:
     """The paper's numbers for ``name`` in ("table1", "table2", "table3")."""
     with resources.files("scapo.eval").joinpath(f"reference/paper_{name}.csv").open() as f:
         return pd.read_csv(f)
+
+
+def paper_values(table: str, rows: Mapping[str, str], categories: Sequence[str]) -> dict:
+    """The paper's values of our rows, for the tables' at-a-glance figure (:func:`scapo.bench.viz.summary_figure`).
+
+    Args:
+        table: "table1" (per category S, D, C, R, t: ``paper_table1.csv``) or "table3" (the five categories' mean of
+            S, D, C only: ``paper_table3.csv``).
+        rows: our row label -> the paper's row (Table 1: its ``method`` column, e.g. ``"SCAPO"``; Table 3: its
+            ``variant``, e.g. ``"no_shape_var"``); a label mapped to a row the paper lacks gets nothing.
+        categories: our categories. Table 1: the values of those the paper reports, and under ``"mean"`` their mean
+            (the mean over the same categories as ours, not the paper's five); Table 3: the paper's mean under
+            ``"mean"`` only where ``categories`` are its five (those of its Table 1).
+
+    Returns:
+        row label -> the paper's metric -> category (or ``"mean"``) -> value (float).
+
+    Raises:
+        ValueError: another ``table``."""
+    out: dict = {}
+    if table == "table1":
+        paper = paper_table("table1")
+        for label, name in rows.items():
+            for _, r in paper[paper["method"] == name].iterrows():
+                vals = {c: float(r[c]) for c in categories if c in paper.columns and not pd.isna(r[c])}
+                if len(vals) == len(categories) and vals:
+                    vals["mean"] = float(np.mean(list(vals.values())))
+                if vals:
+                    out.setdefault(label, {})[str(r["metric"])] = vals
+    elif table == "table3":
+        five = [c for c in paper_table("table1").columns if c not in ("metric", "method", "pose", "segmentation",
+                                                                       "joint", "mean")]
+        if sorted(categories) == sorted(five):
+            paper = paper_table("table3")
+            for label, variant in rows.items():
+                for _, r in paper[paper["variant"] == variant].iterrows():
+                    out[label] = {m: {"mean": float(r[m])} for m in ("S", "D", "C")}
+    else:
+        raise ValueError(f"the paper's values exist for table1 and table3, not {table!r}")
+    return out
 
 
 def table1_long(results: Sequence[EvalResult], include_paper: bool = True, describe: Describe | None = None

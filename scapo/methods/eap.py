@@ -440,4 +440,4 @@ make_eap = register_learned(SPEC, display="EAP-style", supervision={"pose": Fals
                                                                     "joint": False},
                             needs_alignment=True, summary="self-supervised: a frozen whole-object canonicaliser, "
                             "then part poses about one shared axis and pivot with category-common part templates "
-                            "(Liu et al., ICLR 2023)", refinable=True)
+                            "(Liu et al., ICLR 2023)", refinable=True, paper_row="EAP")

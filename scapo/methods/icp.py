@@ -473,7 +473,8 @@ def icp_speed(preset: str = "-", device: str | None = None, iters: int = 5, num_
 
 @register_method("icp", options=ICPConfig, display="ICP", supervision=ICPBaseline.supervision, needs_alignment=False,
                  summary="per-part rigid ICP to a category template (GT segmentation at test time)", speed=icp_speed,
-                 quick_options={"max_iterations": 3, "hypotheses": "T", "refine_top": 1, "template_points": 64})
+                 quick_options={"max_iterations": 3, "hypotheses": "T", "refine_top": 1, "template_points": 64},
+                 paper_row="ICP")
 def make_icp(**options) -> ICPBaseline:
     """ICP baseline; options are :class:`ICPConfig` fields."""
     return ICPBaseline(**options)

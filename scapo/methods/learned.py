@@ -458,10 +458,11 @@ def refinable_methods() -> list[str]:
 
 
 def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, needs_alignment: bool, summary: str,
-                     refinable: bool = False):
+                     refinable: bool = False, paper_row: str = ""):
     """Register a learned baseline (its factory takes :class:`LearnedOptions` fields; trained by
     :func:`train_learned`). ``refinable``: the network's ``infer`` also returns ``template (B, M, 3)`` and
-    ``template_label (B, M)`` (its whole-object model, :mod:`scapo.steps.refine`)."""
+    ``template_label (B, M)`` (its whole-object model, :mod:`scapo.steps.refine`). ``paper_row``: the paper's
+    Table 1 row it re-implements (:class:`scapo.methods.registry.MethodEntry`)."""
     from scapo.methods.registry import register_method
 
     options_cls = spec.options or LearnedOptions
@@ -473,7 +474,8 @@ def register_learned(spec: LearnedSpec, *, display: str, supervision: dict, need
                     needs_alignment=needs_alignment, summary=summary, run_spec=lambda: run_spec(spec),
                     presets=tuple(spec.presets.names()), preset=lambda name: resolve_preset(spec, name),
                     speed=lambda **kw: learned_speed(spec, **kw), refinable=refinable,
-                    train_speed=lambda preset, device, iters: learned_train_speed(spec, preset, device, iters))(factory)
+                    train_speed=lambda preset, device, iters: learned_train_speed(spec, preset, device, iters),
+                    paper_row=paper_row)(factory)
     factory.spec = spec
     return factory
 

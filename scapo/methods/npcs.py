@@ -380,4 +380,5 @@ SPEC = LearnedSpec(method="npcs", presets=PRESETS, fields=("points", "part_label
                                                   "joint_type", "bbox_diag"), options=NPCSOptions)
 make_npcs = register_learned(SPEC, display="NPCS-style (supervised)",
                              supervision={"pose": True, "segmentation": True, "joint": True}, needs_alignment=False,
-                             summary="supervised part labels + NPCS, part poses by RANSAC-Umeyama (ANCSH's NPCS)")
+                             summary="supervised part labels + NPCS, part poses by RANSAC-Umeyama (ANCSH's NPCS)",
+                             paper_row="NPCS-EPN")

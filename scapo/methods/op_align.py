@@ -492,4 +492,5 @@ SPEC = LearnedSpec(method="op-align", presets=PRESETS, fields=("points",), build
 make_op_align = register_learned(SPEC, display="OP-Align-style", supervision={"pose": False, "segmentation": False,
                                                                               "joint": False},
                                  needs_alignment=True, summary="self-supervised object- then part-level alignment "
-                                 "to a reconstructed canonical shape (Che et al., ECCV 2024)", refinable=True)
+                                 "to a reconstructed canonical shape (Che et al., ECCV 2024)", refinable=True,
+                                 paper_row="OP-Align")

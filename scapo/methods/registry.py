@@ -93,6 +93,9 @@ class MethodEntry:
         train_speed: for trained methods, ``train_speed(preset, device, iters) -> dict`` of one training step's
             clouds/s per stage (``stage1_clouds_per_s``, ...) with ``batch_size`` and ``points``
             (``scapo bench perf --what train``).
+        paper_row: the row of the paper's Table 1 (``scapo/eval/reference/paper_table1.csv``, its ``method``
+            column) that the method is, or re-implements (NPCS-style: ``NPCS-EPN``); "" for none. The tables'
+            at-a-glance figure marks that row's values on the method's bars.
     """
 
     name: str
@@ -114,6 +117,7 @@ class MethodEntry:
     one_pass: Mapping[str, Any] = field(default_factory=dict)
     refinable: bool = False
     train_speed: Callable[[str, str, int], dict] | None = None
+    paper_row: str = ""
 
     @property
     def trained(self) -> bool:
@@ -136,7 +140,8 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
                     run_is_current: Callable[..., bool] | None = None, preset: Callable[[str], Any] | None = None,
                     ablations: tuple[str, ...] = (), speed: Callable[..., list] | None = None,
                     quick_options: Mapping[str, Any] | None = None, one_pass: Mapping[str, Any] | None = None,
-                    refinable: bool = False, train_speed: Callable[[str, str, int], dict] | None = None):
+                    refinable: bool = False, train_speed: Callable[[str, str, int], dict] | None = None,
+                    paper_row: str = ""):
     """Decorator registering a method factory under ``name`` (see :class:`MethodEntry`).
 
     Raises:
@@ -158,7 +163,7 @@ def register_method(name: str, *, options: type, display: str, supervision: Mapp
         METHODS.add(name, MethodEntry(name, factory, options, display, dict(supervision), needs_alignment, summary,
                                       run_spec, tuple(presets), dict(variants or {}), inference, run_is_current,
                                       preset, tuple(ablations), speed, dict(quick_options or {}),
-                                      dict(one_pass or {}), bool(refinable), train_speed))
+                                      dict(one_pass or {}), bool(refinable), train_speed, str(paper_row)))
         factory.options = options
         return factory
 

@@ -244,7 +244,7 @@ def _speed(preset: str = "cpu", device: str | None = None, iters: int = 5, num_p
                  variants={"scapo-no-refine": "SCAPO (ours, no refinement)"},
                  inference=inference_settings, preset=get_preset,
                  ablations=ABLATIONS, speed=_speed, one_pass={"refine_steps": 0}, refinable=True,
-                 train_speed=_train_speed)
+                 train_speed=_train_speed, paper_row="SCAPO")
 def make_scapo(**options) -> SCAPOMethod:
     """SCAPO (ours) from a trained run; options are :class:`SCAPOOptions` fields."""
     return SCAPOMethod(**options)

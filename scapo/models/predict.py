@@ -142,11 +142,10 @@ class Predictor:
              refine_margin: float | None = None) -> Predictor:
         """Load ``run/checkpoint.pt``.
 
-        The test-time refinement (:mod:`scapo.models.refine`) follows the current definition of the
-        run's preset (``TrainConfig.refine``; it is an inference setting, not part of the run), or the
-        settings stored with the run when its preset is not a registered one; ``refine_steps``
-        overrides its number of steps (0 turns it off), ``refine_margin`` the residual margin of its
-        multi-start (:class:`~scapo.models.refine.RefineConfig`; choose it on the val split).
+        The test-time refinement (:mod:`scapo.models.refine`) follows the settings stored with the run at
+        training time (:func:`stored_refine`: the checkpoint's preset, never the preset's current definition);
+        ``refine_steps`` overrides its number of steps (0 turns it off), ``refine_margin`` the residual margin of
+        its multi-start (:class:`~scapo.models.refine.RefineConfig`; choose it on the val split).
 
         Raises:
             TrainingError: the run folder does not exist, has no checkpoint, or its checkpoint is
