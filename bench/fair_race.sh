@@ -9,6 +9,8 @@
 #   WT=... WORK=... VARIANTS=1 bash bench/fair_race.sh    # SCAPO's per-category presets (labelled rows; after the
 #                                                         # chain with scapo, whose cells it would otherwise train)
 #   WT=... WORK=... FINISH=1 OUT=results/fair_race bash bench/fair_race.sh   # the tables of the finished cells
+#   CATEGORIES="eyeglasses" ...                           # any of the above on some categories (default: laptop
+#                                                         # eyeglasses): two chains of one method, one per category
 #
 #   WORK=... ARCHIVE=results/fair_race/cells/NAME bash bench/fair_race.sh   # keep the finished cells' records and
 #                                                         # speed files (no predictions, no runs)
