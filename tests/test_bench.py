@@ -792,6 +792,15 @@ def test_the_bench_refuses_a_dirty_checkout_and_a_table_of_mixed_commits_unless_
     with pytest.raises(ConfigError, match="uncommitted code"):
         check_commits([Cell("npcs", "laptop", seed=0, preset="test")], recs)
     assert check_commits([Cell("npcs", "laptop", seed=0, preset="test")], recs, allow_dirty=True)
+    # trained cells charged in core-seconds of two kinds of CPU: the budget bought other steps on each
+    two = [Cell("npcs", "laptop", seed=s, preset="test") for s in (0, 1)]
+    charged = [{"provenance": {"commit": "c" * 16, "cpu_kind": k}, "ledger": {"unit": "core-seconds"}}
+               for k in ("CPU A, family 1 model 2", "CPU B, family 3 model 4")]
+    with pytest.raises(ConfigError, match=r"charged on 2 kinds of CPU \(CPU A, family 1 model 2: npcs_test_s0/laptop; "
+                                          r"CPU B, family 3 model 4: npcs_test_s1/laptop\)"):
+        check_commits(two, charged)
+    assert check_commits(two, charged, allow_mixed_commits=True)
+    assert check_commits(two, [{**r, "ledger": None} for r in charged])  # before the ledger: nothing charged
 
 
 def test_table1_rows_are_one_pass_and_the_refined_prediction_is_a_row_of_its_own(bench, tmp_path):

@@ -152,3 +152,42 @@ def test_the_ledger_charges_the_cpu_seconds_of_child_processes():
         subprocess.run([sys.executable, "-c", "import time\nt = time.process_time()\n"
                         "while time.process_time() - t < 0.4: pass"], check=True)
     assert ledger.charged("stage1/compile") >= 0.35
+
+
+def test_budget_cells_keep_their_speeds_with_the_archive_and_measure_again_on_another_cpu_kind(tmp_path,
+                                                                                             monkeypatch, capsys):
+    """The tables' budget plans from speeds this machine can plan from (:func:`scapo.bench.ladder.measured_speed`, as
+    the ladder): a speed file of another kind of CPU is kept aside and measured again; with ``--archive`` the speed
+    files are kept beside the cells and restored into a new work folder, so a table resumed on a new machine (or
+    written with ``--finished-only``) names its cells' schedules as they were planned."""
+    import scapo.bench.perf as perf
+    from scapo.bench.cells import Cell
+    from scapo.bench.experiments import budget_cells, dataset_dir
+    from scapo.provenance import cpu_kind
+
+    kw = {"viewpoints": "paper", "train_views": 4}
+    data = dataset_dir(tmp_path / "w", "laptop", 10, 2, 0, kw)
+    data.mkdir(parents=True)
+    monkeypatch.setattr("scapo.data.load", lambda d, split: [None] * 160)  # 160 training clouds, nothing rendered
+    row = {"batch_size": 16, "fixed_s": 0.0, "train_clouds": 160, "max_steps_per_epoch": 0, "stage1_epoch_s": 0.0,
+           "stage1_clouds_per_s": 16.0, "method": "npcs", "stage1_epochs": 10, "iterations": 0, "unit": "core-seconds",
+           "data": str(data), "wall_per_cpu": 1.0, "steps_cpu_s": 60.0}
+    calls = []
+    monkeypatch.setattr(perf, "bench_train_data", lambda *a, **k: calls.append(k) or [{**row, "cpu_kind": cpu_kind()}])
+    _speed(tmp_path / "w", data.name, "npcs", {**row, "cpu_kind": "Other CPU, family 1 model 2, avx2"})
+    cells = [Cell("npcs", "laptop", 0, "cpu")]
+    out, _, _ = budget_cells(cells, 1.0, tmp_path / "w", 10, 2, 0, kw, archive=tmp_path / "a")
+    assert "was measured on another kind of CPU (Other CPU, family 1 model 2, avx2" in capsys.readouterr().out
+    assert len(calls) == 1 and out[0].preset == "cpu/epochs-6"
+    speeds = sorted(p.name for p in (tmp_path / "a" / "speeds").iterdir())
+    assert len(speeds) == 2 and any(n.endswith(".other-cpu.json") for n in speeds)  # both kept beside the cells
+    # a new work folder: the archived speed is restored and reused, nothing measured
+    data2 = dataset_dir(tmp_path / "w2", "laptop", 10, 2, 0, kw)
+    data2.mkdir(parents=True)
+    archived = json.loads((tmp_path / "a" / "speeds" / f"{data.name}_npcs_cpu.json").read_text())
+    (tmp_path / "a" / "speeds" / f"{data.name}_npcs_cpu.json").write_text(
+        json.dumps([{**r, "data": str(data2)} for r in archived]))
+    out2, _, _ = budget_cells(cells, 1.0, tmp_path / "w2", 10, 2, 0, kw, archive=tmp_path / "a")
+    assert len(calls) == 1 and out2[0].preset == "cpu/epochs-6"
+    out3, _, _ = budget_cells(cells, 1.0, tmp_path / "w3", 10, 2, 0, kw, measure=False, archive=tmp_path / "a")
+    assert out3[0].preset == "cpu/epochs-6"  # --finished-only on a machine that never measured

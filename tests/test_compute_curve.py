@@ -64,7 +64,7 @@ def test_compute_curve_refuses_bad_arguments(tmp_path, capsys, args, match):
     assert not (tmp_path / "w").exists()  # refused before any work
 
 
-def test_from_table_uses_the_tables_presets_speeds_and_finished_runs(tmp_path, capsys):
+def test_from_table_uses_the_tables_presets_speeds_and_finished_runs(tmp_path, capsys, monkeypatch):
     """``--from-table``: the table's preset (one for every category) and charged one-time work (hand-built speeds:
     16 clouds/s at batch 16, 10 steps an epoch; SCAPO's 10 + 10 epochs take 200 s, so one core-minute less its 20 s
     of pseudo-labelling buys 2 + 2; NPCS's 10 take 100 s: 6); the table's finished
@@ -75,11 +75,13 @@ def test_from_table_uses_the_tables_presets_speeds_and_finished_runs(tmp_path, c
     from scapo.bench.experiments import dataset_dir
     from scapo.bench.ladder import cells_dir, rung_config
     from scapo.errors import ConfigError
+    from scapo.provenance import cpu_kind
 
     kw = {"viewpoints": "paper", "train_views": 4}
     data = dataset_dir(tmp_path, "laptop", 10, 2, 0, kw)
+    monkeypatch.setattr("scapo.data.load", lambda d, split: [None] * 160)  # its 160 training clouds, not rendered
     base = {"batch_size": 16, "train_clouds": 160, "max_steps_per_epoch": 0, "stage1_epoch_s": 0.0,
-            "stage1_clouds_per_s": 16.0}
+            "stage1_clouds_per_s": 16.0, "unit": "core-seconds", "cpu_kind": cpu_kind(), "data": str(data)}
     speeds = {"scapo_cpu": {**base, "method": "scapo", "stage1_epochs": 10, "stage2_epochs": 10,
                                    "stage2_clouds_per_s": 16.0, "stage2_epoch_s": 0.0, "fixed_s": 20.0},
               "npcs_cpu": {**base, "method": "npcs", "stage1_epochs": 10, "iterations": 0, "fixed_s": 0.0}}

@@ -685,7 +685,7 @@ def test_a_speed_run_measured_on_a_busy_machine_is_set_aside_and_the_ladder_stop
            "wall_per_cpu": MAX_WALL_PER_CPU + 0.3}
     monkeypatch.setattr(perf, "bench_train_data", lambda *a, **k: [row])
     with pytest.raises(ConfigError, match=r"measured on a busy machine \(its steps took 1\.55 wall seconds per CPU "
-                                          r"second.*Run the ladder again with nothing else busy"):
+                                          r"second.*Run scapo bench ladder again with nothing else busy"):
         _training_presets(["npcs"], data, 0.05, "test", tmp_path)
     path = speed_file(tmp_path, "npcs", "test", None, {}, data)
     assert not path.exists() and len(list(tmp_path.glob(path.stem + ".*.busy.json"))) == 1

@@ -501,8 +501,8 @@ def _writer(write_table, name, out_dir, figures, work_dir, instances, views, dat
 
 
 def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, instances: int, views: int,
-                 data_seed: int, data_kwargs: Mapping | None = None, measure: bool = True
-                 ) -> tuple[list[Cell], dict, dict]:
+                 data_seed: int, data_kwargs: Mapping | None = None, measure: bool = True,
+                 archive: Path | None = None) -> tuple[list[Cell], dict, dict]:
     """The cells with the equal training budget (``scapo bench table1 --budget-minutes``): every trained cell's
     preset gets the schedule part (:func:`scapo.registry.schedule_part`, e.g. ``cpu/epochs-15-13``) whose epochs fill
     ``budget_minutes`` of one CPU core on its category's dataset less its one-time work (every charged core-second
@@ -512,7 +512,13 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
     (:func:`scapo.bench.perf.bench_train_data` and
     :func:`scapo.bench.perf.training_budget`, as ``scapo bench ladder`` and ``scapo bench compute`` make theirs;
     ``<work>/speeds/<dataset>_<method>_<preset>.json``, measured with the torch threads this process has: run it
-    as the cells will run, one thread per core). The datasets must exist (the bench generates them first).
+    as the cells will run, one thread per core). The datasets must exist (the bench generates them first). Measuring,
+    a speed file is reused only where this machine can plan from it (:func:`scapo.bench.ladder.measured_speed`: a file
+    of another kind of CPU, or from before the ledger, is kept aside and measured again; a measurement on a busy
+    machine is refused). With ``archive`` (``--archive``), the speed files travel with the cells: a file the work
+    folder lacks is restored from ``<archive>/speeds/`` first, and every speed file of the work folder is kept there
+    after (a table resumed on a new machine plans from the speeds its cells were planned from, so their keys, which
+    name the schedule, are found again; ``--finished-only`` names them from it).
 
     Returns:
         The cells (fitted ones unchanged), ``{category: {preset of the cell: schedule part}}`` for the table's
@@ -522,14 +528,14 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
 
     Raises:
         ConfigError: ``budget_minutes`` not in (0, 45 * 16]; with ``measure=False`` (``--finished-only``, ``--dry-run``)
-        a speed not measured yet.
+        a speed not measured yet; measuring, as :func:`scapo.bench.ladder.measured_speed`.
     """
     import json
+    import shutil
 
-    from scapo.bench.ladder import SPEED_STEPS, budget_plan
-    from scapo.bench.perf import bench_train_data, budget_schedule, training_budget
+    from scapo.bench.ladder import budget_plan, measured_speed
+    from scapo.bench.perf import budget_schedule, training_budget
     from scapo.config import override
-    from scapo.files import write_json
     from scapo.registry import schedule_part
 
     if not (math.isfinite(budget_minutes) and 0 < budget_minutes <= 720):
@@ -542,16 +548,16 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
             continue
         data = dataset_dir(work_dir, c.category, instances, views, data_seed, data_kwargs)
         path = Path(work_dir) / "speeds" / f"{data.name}_{c.method}_{c.preset.replace('/', '+')}.json"
-        if not path.is_file():
-            if not measure:
-                raise ConfigError(f"--budget-minutes: the training speed of {c.method} ({c.preset}) on {data.name} is "
-                                  f"not measured yet ({path}); run the bench without --finished-only / --dry-run")
-            base = METHODS.get(c.method).preset(c.preset)
-            clouds = len(load(data, "train"))
-            steps = max(2, min(SPEED_STEPS, clouds // base.batch_size))
-            print(f"scapo bench: measuring the training speed of {c.method} ({c.preset}) on {data.name}", flush=True)
-            write_json(path, bench_train_data(data, [c.method], preset=c.preset, steps=steps,
-                                              work=Path(work_dir) / "speeds" / "runs" / data.name))
+        kept = None if archive is None else Path(archive) / "speeds" / path.name
+        if not path.is_file() and kept is not None and kept.is_file():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(kept, path)  # the speed its archived cells were planned from
+        if measure and path not in speeds:
+            measured_speed(path, Path(work_dir) / "speeds" / "runs" / data.name, c.method, c.preset, data,
+                           command="scapo bench")
+        elif not path.is_file():
+            raise ConfigError(f"--budget-minutes: the training speed of {c.method} ({c.preset}) on {data.name} is "
+                              f"not measured yet ({path}); run the bench without --finished-only / --dry-run")
         if path not in speeds:  # one read per dataset and method (the seeds share it)
             rows = json.loads(path.read_text())
             speeds[path] = training_budget(rows, budget_minutes, int(rows[0]["train_clouds"]))[0]
@@ -563,6 +569,12 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
         out.append(replace(c, preset=f"{c.preset}/{part}"))
         plans[(c.category, out[-1].key)] = budget_plan(speeds[path], values, budget_minutes,
                                                        int(speeds[path]["train_clouds"]))
+    if archive is not None and measure and (Path(work_dir) / "speeds").is_dir():
+        for f in sorted((Path(work_dir) / "speeds").glob("*.json")):  # with the files set aside (other kinds)
+            dst = Path(archive) / "speeds" / f.name
+            if not dst.is_file() or dst.read_bytes() != f.read_bytes():
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(f, dst)
     return out, schedules, plans
 
 
@@ -606,7 +618,7 @@ def _bench(title, cells, methods, categories, write, instances, views, data_seed
             _compute(cells, work_dir, instances, views, data_seed, protocol, workers, cache_dir, progress, device,
                      False, data_kwargs, False, category_data, archive, True, archive_predictions)
         cells, schedules, plans = budget_cells(cells, budget_minutes, work_dir, instances, views, data_seed,
-                                               data_kwargs, measure=not finished_only)
+                                               data_kwargs, measure=not finished_only, archive=archive)
         if data_only:
             return []
     results, records, hashes, done, missing = _compute(cells, work_dir, instances, views, data_seed, protocol,
@@ -636,14 +648,19 @@ def check_commits(done: Sequence[Cell], records: Sequence[dict], allow_dirty: bo
 
     Raises:
         ConfigError: a cell from a checkout with uncommitted changes (``-dirty`` or unknown) without
-            ``allow_dirty``, or cells computed (or scored) at several commits without ``allow_mixed_commits``; the
-            message names the cells of each commit.
+            ``allow_dirty``, or cells computed (or scored) at several commits, or trained cells charged in
+            core-seconds of several kinds of CPU (``provenance.cpu_kind``: a core-second of one kind buys other steps
+            than one of another, :func:`scapo.bench.ladder.check_one_commit`), without ``allow_mixed_commits``; the
+            message names the cells of each commit or kind.
     """
     out: dict[str, dict[str, list[str]]] = {"computed": {}, "scored": {}}
+    kinds: dict[str, list[str]] = {}
     for c, rec in zip(done, records):
         name = f"{c.key}/{c.category}"
         out["computed"].setdefault(computed_commit(rec), []).append(name)
         out["scored"].setdefault(str(rec.get("provenance", {}).get("commit", "unknown")), []).append(name)
+        if (rec.get("ledger") or {}).get("unit") == "core-seconds":
+            kinds.setdefault(str(rec.get("provenance", {}).get("cpu_kind", "kind not recorded")), []).append(name)
 
     def listing(group: dict[str, list[str]], shas) -> str:
         return "; ".join(f"{sha[:16]}: {', '.join(group[sha][:6])}"
@@ -659,6 +676,13 @@ def check_commits(done: Sequence[Cell], records: Sequence[dict], allow_dirty: bo
                               " make every cell at one commit (run the bench from a worktree of it, after setting the "
                               "others' records aside) or pass --allow-mixed-commits (the provenance lists each cell's "
                               "commit)")
+    if len(kinds) > 1 and not allow_mixed_commits:
+        raise ConfigError(f"the trained cells of this table were charged on {len(kinds)} kinds of CPU ("
+                          + "; ".join(f"{k[:80]}: {', '.join(v[:3])}{', ...' if len(v) > 3 else ''}"
+                                      for k, v in sorted(kinds.items()))
+                          + "); a core-second of one kind buys other steps than one of another, so the budget is "
+                          "equal only on one kind: compute the others again on one kind (move their records, "
+                          "predictions and runs away), or give --allow-mixed-commits to write it anyway")
     return out
 
 

@@ -143,15 +143,14 @@ def _training_presets(methods: Sequence, data: Path, budget_minutes: float, pres
     """Per trained method, ``(preset, values, plan)``: its ``preset`` with the epochs (iterations) that fill
     ``budget_minutes`` of one core (of ``device``, e.g. ``cuda``, when given) on ``data``'s training split less its
     one-time work, the replaced fields, and the plan :func:`scapo.engine.ledger.check_budget` holds the cell's
-    ledger to (:func:`budget_plan`), from charged speeds measured once (:func:`speed_file`, reused; a file measured
-    before the compute ledger is set aside as ``*.pre-ledger.json`` and measured again). An entry of ``methods`` may
+    ledger to (:func:`budget_plan`), from charged speeds measured once (:func:`speed_file`, reused where this machine
+    can plan from it: :func:`measured_speed`). An entry of ``methods`` may
     be ``(method, preset name, sets)`` (a ladder variant, :func:`variant_preset`: that preset with the fields
     ``sets`` replaced, its own speed measured); its result is keyed by that tuple, with ``sets`` as sorted items."""
-    from scapo.bench.perf import bench_train_data, budget_schedule, training_budget
+    from scapo.bench.perf import budget_schedule, training_budget
     from scapo.config import override
     from scapo.data import load
     from scapo.methods import METHODS
-    from scapo.provenance import cpu_kind
 
     keys = [(k[0], k[1], dict(k[2])) if isinstance(k, tuple) else (k, preset, {}) for k in methods]
     trained = [(m, p, sets) for m, p, sets in keys if METHODS.get(m).trained]
@@ -162,49 +161,74 @@ def _training_presets(methods: Sequence, data: Path, budget_minutes: float, pres
         old_path = speed_file(work, m, p, device, sets)  # named without the dataset (before it was in the name)
         if not path.is_file() and old_path.is_file() and _speed_rows(old_path, m, data, check=False) is not None:
             old_path.rename(path)  # measured on this very dataset: kept under its new name
-        runs = work / f"speed_runs_{path.stem[6:]}"
-        if path.is_file() and not all("unit" in r for r in _speed_rows(path, m, data)):
-            path.rename(path.with_suffix(".pre-ledger.json"))  # kept: wall-clock rates, one-time work uncharged
-            old = runs / f"{m}_{p.replace('/', '-')}"
-            if old.exists():
-                old.rename(old.with_name(old.name + ".pre-ledger"))
-        if path.is_file() and (device or "cpu") == "cpu" and {
-                r.get("cpu_kind") for r in _speed_rows(path, m, data)} != {cpu_kind()}:
-            # measured on another kind of CPU (or before the kind was recorded): its core-seconds buy other steps
-            kept = path.with_suffix(f".{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.other-cpu.json")
-            print(f"scapo bench ladder: {path.name} was measured on another kind of CPU "
-                  f"({', '.join(sorted(str(r.get('cpu_kind', 'not recorded')) for r in _speed_rows(path, m, data)))}; "
-                  f"this is {cpu_kind()}): kept as {kept.name}, measured again", flush=True)
-            path.rename(kept)
-            old = runs / f"{m}_{p.replace('/', '-')}"
-            if old.exists():
-                old.rename(old.with_name(old.name + kept.suffixes[0]))
-        if not path.is_file():
-            what = p + "".join(f", {k}={v}" for k, v in sets.items())
-            print(f"scapo bench ladder: measuring the training speed of {m} ({what}) on {data.name}", flush=True)
-            batch = METHODS.get(m).preset(p).batch_size
-            if clouds < 2 * batch:  # the speed run trains two steps at least
-                raise ConfigError(f"{data.name}: {clouds} training clouds, fewer than the two batches of {batch} that "
-                                  f"measuring {m}'s training speed needs: give more --instances or --train-views")
-            steps = max(2, min(SPEED_STEPS, clouds // batch))
-            rows = bench_train_data(data, [m], preset=p, steps=steps, work=runs, device=device, sets=sets)
-            busy = max((float(r.get("wall_per_cpu", 1.0)) for r in rows
-                        if float(r.get("steps_cpu_s", MIN_GUARDED_CPU_S)) >= MIN_GUARDED_CPU_S), default=1.0)
-            if busy > MAX_WALL_PER_CPU:
-                kept = path.with_suffix(f".{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.busy.json")
-                write_json(kept, rows)
-                raise ConfigError(f"the training speed of {m} was measured on a busy machine (its steps took "
-                                  f"{busy:.2f} wall seconds per CPU second, more than {MAX_WALL_PER_CPU}: other work "
-                                  f"shared the cores, which slows each step's CPU time too), so its cells would be "
-                                  f"planned short of their budget; kept as {kept.name}. Run the ladder again with "
-                                  "nothing else busy (one chain per core)")
-            write_json(path, rows)
-        r = training_budget(_speed_rows(path, m, data), budget_minutes, clouds)[0]
+        rows = measured_speed(path, work / f"speed_runs_{path.stem[6:]}", m, p, data, device, sets)
+        r = training_budget(rows, budget_minutes, clouds)[0]
         base = override(METHODS.get(m).preset(p), sets, f"{m} preset") if sets else METHODS.get(m).preset(p)
         values = budget_schedule(r, base, budget_minutes)
         key = m if (p, sets) == (preset, {}) else (m, p, tuple(sorted(sets.items())))
         out[key] = (override(base, values, f"{m} preset"), values, budget_plan(r, values, budget_minutes, clouds))
     return out
+
+
+def measured_speed(path: Path, runs: Path, method: str, preset: str, data: Path, device: str | None = None,
+                   sets: dict | None = None, command: str = "scapo bench ladder") -> list[dict]:
+    """``method``'s charged training speed on ``data`` (:func:`scapo.bench.perf.bench_train_data` rows), from the
+    speed file ``path`` when it holds one this machine can plan from, else measured (two epochs of
+    :data:`SPEED_STEPS` steps per stage, the run in ``runs``) and written there. A file is measured again when it was
+    measured before the compute ledger (kept as ``*.pre-ledger.json``: wall-clock rates, one-time work uncharged) or,
+    on CPU, on another kind of CPU or one not recorded (kept as ``*.<UTC time>.other-cpu.json``: a core-second of
+    another kind buys other steps). Used by the ladder (:func:`_training_presets`) and the tables' budget
+    (:func:`scapo.bench.experiments.budget_cells`); ``command`` names the caller in what it prints.
+
+    Raises:
+        ConfigError: too few training clouds for two steps; a measurement whose steps took more than
+            :data:`MAX_WALL_PER_CPU` wall seconds per CPU second (a busy machine: its CPU time per step is inflated
+            too, so every cell planned from it would stop short of its budget; kept as ``*.<UTC time>.busy.json``);
+            a file that is not a speed file of ``method`` on ``data`` (:func:`_speed_rows`)."""
+    from scapo.bench.perf import bench_train_data
+    from scapo.data import load as load_split
+    from scapo.methods import METHODS
+    from scapo.provenance import cpu_kind
+
+    sets = dict(sets or {})
+    if path.is_file() and not all("unit" in r for r in _speed_rows(path, method, data)):
+        path.rename(path.with_suffix(".pre-ledger.json"))  # kept: wall-clock rates, one-time work uncharged
+        old = runs / f"{method}_{preset.replace('/', '-')}"
+        if old.exists():
+            old.rename(old.with_name(old.name + ".pre-ledger"))
+    if path.is_file() and (device or "cpu") == "cpu" and {
+            r.get("cpu_kind") for r in _speed_rows(path, method, data)} != {cpu_kind()}:
+        # measured on another kind of CPU (or before the kind was recorded): its core-seconds buy other steps
+        kept = path.with_suffix(f".{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.other-cpu.json")
+        print(f"{command}: {path.name} was measured on another kind of CPU "
+              f"({', '.join(sorted(str(r.get('cpu_kind', 'not recorded')) for r in _speed_rows(path, method, data)))}; "
+              f"this is {cpu_kind()}): kept as {kept.name}, measured again", flush=True)
+        path.rename(kept)
+        old = runs / f"{method}_{preset.replace('/', '-')}"
+        if old.exists():
+            old.rename(old.with_name(old.name + kept.suffixes[0]))
+    if not path.is_file():
+        what = preset + "".join(f", {k}={v}" for k, v in sets.items())
+        print(f"{command}: measuring the training speed of {method} ({what}) on {data.name}", flush=True)
+        batch = METHODS.get(method).preset(preset).batch_size
+        clouds = len(load_split(data, "train"))
+        if clouds < 2 * batch:  # the speed run trains two steps at least
+            raise ConfigError(f"{data.name}: {clouds} training clouds, fewer than the two batches of {batch} that "
+                              f"measuring {method}'s training speed needs: give more --instances or --train-views")
+        steps = max(2, min(SPEED_STEPS, clouds // batch))
+        rows = bench_train_data(data, [method], preset=preset, steps=steps, work=runs, device=device, sets=sets)
+        busy = max((float(r.get("wall_per_cpu", 1.0)) for r in rows
+                    if float(r.get("steps_cpu_s", MIN_GUARDED_CPU_S)) >= MIN_GUARDED_CPU_S), default=1.0)
+        if busy > MAX_WALL_PER_CPU:
+            kept = path.with_suffix(f".{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.busy.json")
+            write_json(kept, rows)
+            raise ConfigError(f"the training speed of {method} was measured on a busy machine (its steps took "
+                              f"{busy:.2f} wall seconds per CPU second, more than {MAX_WALL_PER_CPU}: other work "
+                              f"shared the cores, which slows each step's CPU time too), so its cells would be "
+                              f"planned short of their budget; kept as {kept.name}. Run {command} again with "
+                              "nothing else busy (one chain per core)")
+        write_json(path, rows)
+    return _speed_rows(path, method, data)
 
 
 def _speed_rows(path: Path, method: str, data: Path, check: bool = True) -> list[dict] | None:
