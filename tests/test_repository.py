@@ -98,3 +98,15 @@ def test_figures_are_written_as_palette_pngs_that_keep_their_colours_and_marks(t
         assert np.percentile(np.abs(a - b).max(axis=2), 99) <= 16
         assert (np.abs(a - b).max(axis=2) <= 2).mean() > 0.95  # the white and grey areas exactly or nearly
     assert palette_png(png.read_bytes()) == png.read_bytes() or len(palette_png(png.read_bytes())) <= png.stat().st_size
+
+
+def test_every_bench_script_parses_and_the_bench_readme_names_it():
+    """``bench/``'s experiments are run again months later, from a new machine: each shell script parses
+    (``bash -n``) and ``bench/README.md`` says what it makes."""
+    import subprocess
+
+    readme = (ROOT / "bench" / "README.md").read_text()
+    for script in sorted((ROOT / "bench").glob("*.sh")):
+        done = subprocess.run(["bash", "-n", str(script)], capture_output=True, text=True)
+        assert done.returncode == 0, f"{script.name} does not parse: {done.stderr}"
+        assert f"bench/{script.name}" in readme, f"bench/README.md does not name bench/{script.name}"
