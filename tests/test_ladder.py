@@ -352,6 +352,44 @@ def test_the_frame_branches_refuse_missing_inputs(tmp_path, capsys):
     assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
 
 
+def test_the_seed_bootstrap_gives_each_row_its_seeds_spread_and_the_supported_differences(tmp_path, capsys):
+    """``bench/diagnostics/seed_bootstrap.py``: a row's mean over its seeds with their standard deviation (ddof 1); a
+    clear difference held by every seed is supported, one that a single seed shows is not; bad input ends in a
+    scapo: message and writes nothing."""
+    import dataclasses
+
+    import pandas as pd
+
+    from scapo.eval.evaluator import EvalResult
+    from scapo.eval.tables import pairwise_bootstrap
+
+    mod = _bench_script("seed_bootstrap")
+    rng = np.random.default_rng(0)
+
+    def result(label, seed, S):
+        n = 15 * 8
+        ps = pd.DataFrame({"instance_id": np.repeat(np.arange(15), 8), "view_id": np.tile(np.arange(8), 15),
+                           "S": S + rng.normal(0, 2, n), "D": np.full(n, 10.0), "R_p0": np.full(n, 5.0)})
+        return EvalResult(label, "laptop", "val", ps, {"S": float(ps.S.mean()), "D_median": 10.0, "R_median": 5.0,
+                                                       "frame_consistency": 0.5 + seed / 10}, info={"seed": seed})
+
+    res = [result("good", s, 80.0 + s) for s in range(3)] + [result("weak", s, 50.0 + s) for s in range(3)]
+    res += [result("lucky", s, 50.0 + (40.0 if s == 0 else 0.0)) for s in range(3)]  # one seed far ahead
+    table = mod.rows(res)
+    assert table["good"]["seeds"] == [0, 1, 2]
+    assert table["good"]["S"]["mean"] == pytest.approx(np.mean([r.summary["S"] for r in res[:3]]))
+    assert table["good"]["frame_consistency"]["std"] == pytest.approx(0.1)
+    boot = pairwise_bootstrap([dataclasses.replace(r) for r in res], draws=400)
+    pairs = {(p["a"], p["b"]): p for p in boot["metrics"]["S"]}
+    assert pairs[("good", "weak")]["supported"] and pairs[("good", "weak")]["better"] == "good"
+    assert not pairs[("weak", "lucky")]["supported"]  # the draws without the lucky seed have no difference
+    lines = mod.render(table, boot, "val", "laptop_paper")
+    assert any("| good | 0, 1, 2 |" in ln for ln in lines) and any("val instances" in ln for ln in lines)
+    assert mod.main(["--data", str(tmp_path / "none"), "--pred", f"x={tmp_path / 'p.npz'}", "--out",
+                     str(tmp_path / "o")]) == 2
+    assert "scapo:" in capsys.readouterr().err and not (tmp_path / "o.md").exists()
+
+
 def test_template_registration_finds_the_start_that_fits_and_refuses_bad_input(tmp_path, capsys):
     """A lopsided cloud turned by a half turn is registered back to its template from the cube-rotation start that
     fits (the identity start alone cannot undo a half turn); bad arguments end in a scapo: message, nothing written."""
