@@ -552,14 +552,15 @@ def budget_cells(cells: Sequence[Cell], budget_minutes: float, work_dir: Path, i
         if not path.is_file() and kept is not None and kept.is_file():
             path.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(kept, path)  # the speed its archived cells were planned from
-        if measure and path not in speeds:
-            measured_speed(path, Path(work_dir) / "speeds" / "runs" / data.name, c.method, c.preset, data,
-                           command="scapo bench")
-        elif not path.is_file():
-            raise ConfigError(f"--budget-minutes: the training speed of {c.method} ({c.preset}) on {data.name} is "
-                              f"not measured yet ({path}); run the bench without --finished-only / --dry-run")
         if path not in speeds:  # one read per dataset and method (the seeds share it)
-            rows = json.loads(path.read_text())
+            if measure:
+                rows = measured_speed(path, Path(work_dir) / "speeds" / "runs" / data.name, c.method, c.preset, data,
+                                      command="scapo bench")
+            elif path.is_file():
+                rows = json.loads(path.read_text())
+            else:
+                raise ConfigError(f"--budget-minutes: the training speed of {c.method} ({c.preset}) on {data.name} "
+                                  f"is not measured yet ({path}); run the bench without --finished-only / --dry-run")
             speeds[path] = training_budget(rows, budget_minutes, int(rows[0]["train_clouds"]))[0]
         base = METHODS.get(c.method).preset(c.preset)
         values = budget_schedule(speeds[path], base, budget_minutes)
@@ -676,13 +677,10 @@ def check_commits(done: Sequence[Cell], records: Sequence[dict], allow_dirty: bo
                               " make every cell at one commit (run the bench from a worktree of it, after setting the "
                               "others' records aside) or pass --allow-mixed-commits (the provenance lists each cell's "
                               "commit)")
-    if len(kinds) > 1 and not allow_mixed_commits:
-        raise ConfigError(f"the trained cells of this table were charged on {len(kinds)} kinds of CPU ("
-                          + "; ".join(f"{k[:80]}: {', '.join(v[:3])}{', ...' if len(v) > 3 else ''}"
-                                      for k, v in sorted(kinds.items()))
-                          + "); a core-second of one kind buys other steps than one of another, so the budget is "
-                          "equal only on one kind: compute the others again on one kind (move their records, "
-                          "predictions and runs away), or give --allow-mixed-commits to write it anyway")
+    if not allow_mixed_commits:
+        from scapo.bench.ladder import check_one_kind
+
+        check_one_kind(kinds)
     return out
 
 

@@ -440,11 +440,25 @@ def check_one_commit(records: Sequence[dict], allow: bool = False) -> None:
         raise ConfigError(f"the cells come from {len(by)} commits ({listing(by, 12)}); a table's cells come from one "
                           "commit: compute the others again at one commit (move their records, predictions and runs "
                           "away), or give --allow-mixed-commits to write it anyway")
-    if len(kinds) > 1 and not allow:
-        raise ConfigError(f"the trained cells were charged on {len(kinds)} kinds of CPU ({listing(kinds)}); a "
-                          "core-second of one kind buys other steps than one of another, so a table's budget is "
-                          "equal only on one kind: compute the others again on one kind (move their records, "
-                          "predictions and runs away), or give --allow-mixed-commits to write it anyway")
+    if not allow:
+        check_one_kind(kinds)
+
+
+def check_one_kind(kinds: dict[str, list[str]]) -> None:
+    """Refuse trained cells charged in core-seconds of several kinds of CPU (``kinds``: ``provenance.cpu_kind`` ->
+    the cells charged there, by name): a core-second of one kind buys other steps than one of another, so a table's
+    budget is equal only on one kind. Used by the ladder (:func:`check_one_commit`) and the paper's tables
+    (:func:`scapo.bench.experiments.check_commits`).
+
+    Raises:
+        ConfigError: more than one kind, naming each and some of its cells."""
+    if len(kinds) > 1:
+        listing = "; ".join(f"{k[:80]}: {', '.join(v[:3])}{', ...' if len(v) > 3 else ''}"
+                            for k, v in sorted(kinds.items()))
+        raise ConfigError(f"the trained cells were charged on {len(kinds)} kinds of CPU ({listing}); a core-second "
+                          "of one kind buys other steps than one of another, so a table's budget is equal only on one "
+                          "kind: compute the others again on one kind (move their records, predictions and runs "
+                          "away), or give --allow-mixed-commits to write it anyway")
 
 
 def dataset_hash(data: Path) -> str:
